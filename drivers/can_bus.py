@@ -1,0 +1,76 @@
+"""Opening CAN buses through python-can, with errors from :mod:`drivers.errors`.
+
+A CAN endpoint is an interface name plus a channel: ``("virtual", "adcs")`` in tests,
+``("socketcan", "can0")`` on a bench. python-can is imported lazily, so importing this module
+costs nothing on a stand that has no CAN device.
+
+Never use python-can's ``udp_multicast`` interface on shared machines: it sends multicast out of
+the default route (see ``notes/ecosystem.md``).
+"""
+
+from __future__ import annotations
+
+import socket
+from typing import TYPE_CHECKING, Any
+
+from drivers.errors import ConnectError
+
+if TYPE_CHECKING:  # pragma: no cover
+    import can
+
+__all__ = ["open_bus", "socketcan_available"]
+
+
+def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
+    """Open a python-can bus, e.g. ``open_bus("virtual", "adcs")`` or ``open_bus("socketcan", "can0")``.
+
+    Extra keyword arguments go to :class:`can.Bus` (``bitrate``, ``receive_own_messages``...).
+    Any failure (python-can missing, unknown interface, missing vendor library, no such device,
+    permission denied) becomes :class:`ConnectError` naming the interface and channel, the reason,
+    and the interfaces python-can knows. The caller owns the bus and must ``shutdown()`` it.
+    """
+    where = f"interface {interface!r}, channel {channel!r}"
+    try:
+        import can
+        import can.interfaces
+    except ImportError as exc:  # pragma: no cover - python-can is a core dependency
+        raise ConnectError(
+            f"Cannot open CAN bus ({where}): python-can is not installed ({exc}). "
+            "Install the 'can' extra: pip install 'adcs-stand[can]'.",
+            where=where,
+            reason=str(exc),
+        ) from exc
+    valid = sorted(can.interfaces.VALID_INTERFACES)
+    if interface not in can.interfaces.VALID_INTERFACES:
+        raise ConnectError(
+            f"Cannot open CAN bus ({where}): unknown interface {interface!r}. "
+            f"python-can knows: {', '.join(valid)}.",
+            where=where,
+            reason="unknown interface",
+        )
+    try:
+        return can.Bus(interface=interface, channel=channel, **kwargs)
+    except Exception as exc:  # every backend failure is a connect failure
+        reason = f"{type(exc).__name__}: {exc}"
+        raise ConnectError(
+            f"Cannot open CAN bus ({where}): {reason}. python-can knows: {', '.join(valid)}.",
+            where=where,
+            reason=reason,
+        ) from exc
+
+
+def socketcan_available() -> bool:
+    """True when this kernel offers SocketCAN (an ``AF_CAN`` raw socket can be created).
+
+    This says nothing about whether a given interface (``vcan0``, ``can0``) exists.
+    """
+    family = getattr(socket, "AF_CAN", None)
+    proto = getattr(socket, "CAN_RAW", None)
+    if family is None or proto is None:
+        return False
+    try:
+        sock = socket.socket(family, socket.SOCK_RAW, proto)
+    except OSError:
+        return False
+    sock.close()
+    return True

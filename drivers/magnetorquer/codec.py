@@ -1,0 +1,336 @@
+"""Pure codec of the magnetorquer board: CAN payloads <-> messages in SI units.
+
+No bus, no clock. The frame layout, scaling, ranges, enum names and directions all come from the
+ICD ``fixtures/devices/magnetorquer.dbc`` through :class:`drivers.dbc.DbcCodec`; this module only
+converts the DBC's units to SI (A m^2, s, T, A, degC for temperature) and back.
+
+================  ======  =========  ================================================================
+message           id      direction  content
+================  ======  =========  ================================================================
+MTQ_DIPOLE_CMD    0x090   host->MTQ  :class:`DipoleCommand`: dipole per axis, duration (0 = off)
+MTQ_MODE_CMD      0x091   host->MTQ  :class:`ModeCommand`: OFF / DIPOLE / SELFTEST, reset, seq
+MAG_SAMPLE        0x0A0   MTQ->host  :class:`MagSample`: B in sensor axes, coil-active, valid, seq
+MTQ_STATUS        0x2A0   MTQ->host  :class:`Status`: mode, coil-active per axis, currents, temp
+MTQ_COUNTERS      0x2A1   MTQ->host  :class:`Counters`: rejected, watchdog, saturations, ...
+MTQ_HEARTBEAT     0x710   MTQ->host  :class:`Heartbeat`: uptime, state, counter
+================  ======  =========  ================================================================
+
+Round trip: ``codec.decode(*codec.encode(x)) == x`` up to one LSB of each field (exactly for
+the integer and enum fields).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers.dbc import DbcCodec
+from drivers.errors import EncodeError, ProtocolError, frame_hex
+
+__all__ = [
+    "HEARTBEAT_STATES",
+    "MODES",
+    "Counters",
+    "DipoleCommand",
+    "Heartbeat",
+    "MagSample",
+    "MagnetorquerCodec",
+    "Message",
+    "ModeCommand",
+    "Status",
+    "default_dbc_path",
+]
+
+#: Board modes, in the order of the DBC's VAL_ table (checked when the codec loads the DBC).
+MODES: tuple[str, ...] = ("OFF", "DIPOLE", "SELFTEST")
+#: Heartbeat states, in the order of the DBC's VAL_ table.
+HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
+
+_NT = 1e-9  # T per nT
+_MA = 1e-3  # A per mA
+_MS = 1e-3  # s per ms
+
+
+def _enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
+    if isinstance(value, str):
+        if value in names:
+            return value
+        upper = value.upper()
+        if upper in names:
+            return upper
+    elif isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(names):
+        return names[value]
+    allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
+    raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
+
+
+@dataclass(frozen=True, slots=True)
+class DipoleCommand:
+    """Drive the coils with ``dipole_A_m2`` (per board axis) for ``duration_s``; 0 s = coils off."""
+
+    dipole_A_m2: tuple[float, float, float]
+    duration_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class ModeCommand:
+    """Set the board mode: a name from :data:`MODES` or its number (stored as the name)."""
+
+    mode: str | int
+    reset_counters: bool = False
+    seq: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "ModeCommand.mode"))
+
+
+@dataclass(frozen=True, slots=True)
+class MagSample:
+    """One magnetometer sample: flux density in sensor axes (T), flags and an 8-bit counter."""
+
+    b_T: tuple[float, float, float]
+    coil_active: bool
+    valid: bool
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """Board status: mode, which coils are driven, coil currents (A), board temperature (degC)."""
+
+    mode: str | int
+    coil_active: tuple[bool, bool, bool]
+    coil_current_A: tuple[float, float, float]
+    temperature_C: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "Status.mode"))
+
+
+@dataclass(frozen=True, slots=True)
+class Counters:
+    """Board counters (each wraps at its DBC width: 16 bits, 8 bits for the last two)."""
+
+    rejected_frames: int = 0
+    watchdog_expiries: int = 0
+    saturations: int = 0
+    commands_accepted: int = 0
+    mode_seq_ack: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Board heartbeat: whole seconds since boot, state (name from :data:`HEARTBEAT_STATES`), counter."""
+
+    uptime_s: int
+    state: str | int
+    counter: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "state", _enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
+
+
+Message = DipoleCommand | ModeCommand | MagSample | Status | Counters | Heartbeat
+
+
+def default_dbc_path() -> Path:
+    """``fixtures/devices/magnetorquer.dbc``."""
+    from drivers import fixture_path
+
+    return fixture_path("devices/magnetorquer.dbc")
+
+
+class MagnetorquerCodec:
+    """Encode and decode magnetorquer-board messages, from the DBC at ``dbc_path`` (default: the ICD).
+
+    ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message``. ``encode``
+    raises :class:`~drivers.errors.EncodeError` (a ValueError) naming the field, the value and the
+    DBC's range; ``decode`` raises :class:`~drivers.errors.ProtocolError` (frame in hex) for an
+    unknown id, a wrong length or an enum value outside its table.
+    """
+
+    def __init__(self, dbc_path: str | Path | None = None) -> None:
+        self.dbc = DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
+        dbc = self.dbc
+        for msg, sig, names in (
+            ("MTQ_MODE_CMD", "mode", MODES),
+            ("MTQ_STATUS", "mode", MODES),
+            ("MTQ_HEARTBEAT", "state", HEARTBEAT_STATES),
+        ):
+            table = dbc.choices(msg, sig)
+            if table != dict(enumerate(names)):
+                raise ValueError(
+                    f"{dbc.path.name}: the value table of {msg}.{sig} is {table}; this codec expects "
+                    f"{dict(enumerate(names))}."
+                )
+        self.ids: dict[str, int] = {name: dbc.frame_id(name) for name in dbc.names}
+        self.id_dipole_cmd = dbc.frame_id("MTQ_DIPOLE_CMD")
+        self.id_mode_cmd = dbc.frame_id("MTQ_MODE_CMD")
+        self.id_mag_sample = dbc.frame_id("MAG_SAMPLE")
+        self.id_status = dbc.frame_id("MTQ_STATUS")
+        self.id_counters = dbc.frame_id("MTQ_COUNTERS")
+        self.id_heartbeat = dbc.frame_id("MTQ_HEARTBEAT")
+        #: Frame ids the board sends (MTQ) and the ones it receives (from HOST), from the DBC.
+        self.board_tx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "MTQ" in dbc.senders(n))
+        self.board_rx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "HOST" in dbc.senders(n))
+        self.lengths: dict[int, int] = {dbc.frame_id(n): dbc.length(n) for n in dbc.names}
+        lo, hi = dbc.signal_range("MTQ_DIPOLE_CMD", "dipole_x")
+        #: What MTQ_DIPOLE_CMD can carry per axis, A m^2 (the board's rating is lower).
+        self.dipole_range_A_m2: tuple[float, float] = (lo, hi)
+        lo, hi = dbc.signal_range("MAG_SAMPLE", "b_x")
+        #: What MAG_SAMPLE can carry per axis, T (a magnetometer saturates there).
+        self.mag_range_T: tuple[float, float] = (lo * _NT, hi * _NT)
+        #: One LSB of MAG_SAMPLE, T.
+        self.mag_lsb_T: float = dbc.signal_scale("MAG_SAMPLE", "b_x") * _NT
+        #: One LSB of MTQ_DIPOLE_CMD, A m^2.
+        self.dipole_lsb_A_m2: float = dbc.signal_scale("MTQ_DIPOLE_CMD", "dipole_x")
+        #: One LSB of the MTQ_STATUS coil currents, A.
+        self.current_lsb_A: float = dbc.signal_scale("MTQ_STATUS", "current_x") * _MA
+        #: One LSB of MTQ_STATUS temperature, degC.
+        self.temperature_lsb_C: float = dbc.signal_scale("MTQ_STATUS", "temperature")
+        #: GenMsgCycleTime of each periodic message, s.
+        self.cycle_time_s: dict[str, float | None] = {n: dbc.cycle_time_s(n) for n in dbc.names}
+        self._encoders = {
+            DipoleCommand: self._encode_dipole,
+            ModeCommand: self._encode_mode,
+            MagSample: self._encode_sample,
+            Status: self._encode_status,
+            Counters: self._encode_counters,
+            Heartbeat: self._encode_heartbeat,
+        }
+        self._decoders = {
+            "MTQ_DIPOLE_CMD": self._decode_dipole,
+            "MTQ_MODE_CMD": self._decode_mode,
+            "MAG_SAMPLE": self._decode_sample,
+            "MTQ_STATUS": self._decode_status,
+            "MTQ_COUNTERS": self._decode_counters,
+            "MTQ_HEARTBEAT": self._decode_heartbeat,
+        }
+
+    # -- encode ---------------------------------------------------------------------------------
+
+    def encode(self, msg: Message) -> tuple[int, bytes]:
+        """Encode one message: returns (frame id, 8-byte payload)."""
+        try:
+            encoder = self._encoders[type(msg)]
+        except KeyError:
+            raise TypeError(
+                f"Cannot encode {type(msg).__name__}: expected one of "
+                f"{', '.join(t.__name__ for t in self._encoders)}."
+            ) from None
+        try:
+            return encoder(msg)
+        except EncodeError as exc:
+            raise EncodeError(f"Cannot encode {msg!r}: {exc}") from exc
+        except (TypeError, ValueError) as exc:  # wrong shapes: a 2-vector, a string for a number
+            raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
+
+    def _encode_dipole(self, msg: DipoleCommand) -> tuple[int, bytes]:
+        mx, my, mz = msg.dipole_A_m2
+        return self.dbc.encode(
+            "MTQ_DIPOLE_CMD",
+            {"dipole_x": mx, "dipole_y": my, "dipole_z": mz, "duration_ms": msg.duration_s / _MS},
+        )
+
+    def _encode_mode(self, msg: ModeCommand) -> tuple[int, bytes]:
+        return self.dbc.encode(
+            "MTQ_MODE_CMD",
+            {"mode": MODES.index(msg.mode), "reset_counters": bool(msg.reset_counters), "seq": msg.seq},
+        )
+
+    def _encode_sample(self, msg: MagSample) -> tuple[int, bytes]:
+        bx, by, bz = msg.b_T
+        return self.dbc.encode(
+            "MAG_SAMPLE",
+            {
+                "b_x": bx / _NT,
+                "b_y": by / _NT,
+                "b_z": bz / _NT,
+                "seq": msg.seq,
+                "coil_active": bool(msg.coil_active),
+                "valid": bool(msg.valid),
+            },
+        )
+
+    def _encode_status(self, msg: Status) -> tuple[int, bytes]:
+        ax, ay, az = msg.coil_active
+        ix, iy, iz = msg.coil_current_A
+        return self.dbc.encode(
+            "MTQ_STATUS",
+            {
+                "mode": MODES.index(msg.mode),
+                "coil_active_x": bool(ax),
+                "coil_active_y": bool(ay),
+                "coil_active_z": bool(az),
+                "current_x": ix / _MA,
+                "current_y": iy / _MA,
+                "current_z": iz / _MA,
+                "temperature": msg.temperature_C,
+            },
+        )
+
+    def _encode_counters(self, msg: Counters) -> tuple[int, bytes]:
+        return self.dbc.encode(
+            "MTQ_COUNTERS",
+            {
+                "rejected_frames": msg.rejected_frames,
+                "watchdog_expiries": msg.watchdog_expiries,
+                "saturations": msg.saturations,
+                "commands_accepted": msg.commands_accepted,
+                "mode_seq_ack": msg.mode_seq_ack,
+            },
+        )
+
+    def _encode_heartbeat(self, msg: Heartbeat) -> tuple[int, bytes]:
+        return self.dbc.encode(
+            "MTQ_HEARTBEAT",
+            {"uptime_s": msg.uptime_s, "state": HEARTBEAT_STATES.index(msg.state), "counter": msg.counter},
+        )
+
+    # -- decode ---------------------------------------------------------------------------------
+
+    def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
+        """Decode one payload into its message (ProtocolError for unknown id / length / enum)."""
+        name, v = self.dbc.decode(frame_id, data)
+        try:
+            return self._decoders[name](v)
+        except ValueError as exc:  # an enum value outside its table
+            raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
+
+    @staticmethod
+    def _decode_dipole(v: dict[str, Any]) -> DipoleCommand:
+        return DipoleCommand((v["dipole_x"], v["dipole_y"], v["dipole_z"]), v["duration_ms"] * _MS)
+
+    @staticmethod
+    def _decode_mode(v: dict[str, Any]) -> ModeCommand:
+        return ModeCommand(v["mode"], bool(v["reset_counters"]), v["seq"])
+
+    @staticmethod
+    def _decode_sample(v: dict[str, Any]) -> MagSample:
+        return MagSample(
+            (v["b_x"] * _NT, v["b_y"] * _NT, v["b_z"] * _NT), v["coil_active"] == 1, v["valid"] == 1, v["seq"]
+        )
+
+    @staticmethod
+    def _decode_status(v: dict[str, Any]) -> Status:
+        return Status(
+            v["mode"],
+            (v["coil_active_x"] == 1, v["coil_active_y"] == 1, v["coil_active_z"] == 1),
+            (v["current_x"] * _MA, v["current_y"] * _MA, v["current_z"] * _MA),
+            v["temperature"],
+        )
+
+    @staticmethod
+    def _decode_counters(v: dict[str, Any]) -> Counters:
+        return Counters(
+            v["rejected_frames"],
+            v["watchdog_expiries"],
+            v["saturations"],
+            v["commands_accepted"],
+            v["mode_seq_ack"],
+        )
+
+    @staticmethod
+    def _decode_heartbeat(v: dict[str, Any]) -> Heartbeat:
+        return Heartbeat(v["uptime_s"], v["state"], v["counter"])

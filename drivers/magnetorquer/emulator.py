@@ -1,0 +1,483 @@
+"""Emulator: the stand *being* the magnetorquer board, on any python-can bus.
+
+The emulator speaks the ICD (``fixtures/devices/magnetorquer.dbc``) through the same codec as the
+host driver. It knows no physics: the stand hands it ``field_source(t_s)``, the TRUE flux density
+at the magnetometer in sensor axes (T), and reads back :meth:`MagnetorquerEmulator.dipole_at`, the
+dipole the coils actually produce, to compute the torque.
+
+Behaviour (times are sim seconds passed in by the caller; the emulator never reads a clock):
+
+- Modes: OFF (coils off, dipole commands refused), DIPOLE (dipole commands accepted), SELFTEST
+  (modelled as coils off and dipole commands refused; no self-test pattern). Any mode change
+  switches the coils off. The board boots in ``EmulatorConfig.initial_mode``.
+- MTQ_DIPOLE_CMD received at ``t``: each axis is clipped to ``max_dipole_A_m2`` keeping its sign
+  (one ``saturations`` count per clipped command), quantised to ``dipole_lsb_A_m2`` (the PWM
+  step), driven from ``t`` until ``t + duration``; then the watchdog switches the coils off and
+  counts a ``watchdog_expiries``. A new command replaces the previous one; duration 0 = off now.
+- MAG_SAMPLE every ``sample_period_s``: ``truth + bias + noise`` (+ ``coupling @ dipole`` and the
+  ``coil_active`` flag while the coils are driven), quantised to ``mag_lsb_T``, saturated at the
+  DBC's range (then ``valid`` = 0). Noise is drawn from the emulator's own Generator in blocks.
+- MTQ_STATUS and MTQ_COUNTERS every ``status_period_s``, MTQ_HEARTBEAT every ``heartbeat_period_s``.
+  Periodic messages are due at ``t0 + k * period`` (``t0`` = the first time seen); when a call
+  comes late, one message is sent and the missed slots are counted in ``samples_skipped``.
+- Frames with an unknown id, a wrong length or an undecodable value are counted, never raised.
+
+``counters`` (cumulative, for the stand's recorder): ``sent``, ``received``,
+``rejected_unknown_id``, ``rejected_length``, ``rejected_other``, ``rejected_mode``,
+``commands_accepted``, ``saturations``, ``watchdog_expiries``, ``mag_saturations``,
+``samples_skipped``. The board counters carried by MTQ_COUNTERS are separate (they reset on
+``reset_counters`` and wrap at their DBC width).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import can
+import numpy as np
+
+from drivers.errors import DriverError, ProtocolError
+from drivers.magnetorquer.codec import (
+    MODES,
+    Counters,
+    DipoleCommand,
+    Heartbeat,
+    MagnetorquerCodec,
+    MagSample,
+    ModeCommand,
+    Status,
+)
+
+__all__ = ["EmulatorConfig", "MagnetorquerEmulator"]
+
+FieldSource = Callable[[float], Sequence[float]]
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Realism knobs of the emulated board; defaults are a plausible 3U CubeSat torquer board.
+
+    Attributes:
+        max_dipole_A_m2: rated dipole per axis; commands beyond it are clipped keeping the sign.
+            0.2 A m^2 is the class of common CubeSat torquer rods.
+        dipole_lsb_A_m2: step of the driven dipole: a 10-bit PWM magnitude plus a sign bit gives
+            1023 steps up to the rating, 0.2 / 1023 = 196 uA m^2 (coarser than the DBC's 10 uA m^2).
+        coil_area_turns_m2: effective N*A per axis (with the core gain of a rod), to report the coil
+            current i = m / (N A): 2 m^2 gives 0.1 A at 0.2 A m^2.
+        mag_noise_T: 1-sigma white noise per axis (50 nT: a MEMS/AMR magnetometer on the board).
+        mag_bias_T: residual bias per axis after calibration (hard iron), sensor axes.
+        mag_lsb_T: quantisation of the magnetometer; a multiple of the DBC's 5 nT.
+        coil_coupling_T_per_A_m2: 3x3 matrix, rows = sensor axes, columns = coil axes: the field
+            the driven coils add at the magnetometer. The defaults (~1e-4 T per A m^2 on the
+            diagonal) are a dipole seen from ~12 cm: 24 uT at full dipole, which corrupts the
+            sample without saturating the sensor.
+        sample_period_s, status_period_s, heartbeat_period_s: publication periods (the DBC's
+            GenMsgCycleTime: 100 ms, 1000 ms, 1000 ms). Status and counters share a period.
+        temperature_C: board temperature reported in MTQ_STATUS.
+        initial_mode: mode at boot: "DIPOLE" (coils off, ready for dipole commands).
+        noise_block: how many 3-axis noise vectors to draw from the Generator at once.
+    """
+
+    max_dipole_A_m2: float = 0.2
+    dipole_lsb_A_m2: float = 0.2 / 1023
+    coil_area_turns_m2: tuple[float, float, float] = (2.0, 2.0, 2.0)
+    mag_noise_T: float = 50e-9
+    mag_bias_T: tuple[float, float, float] = (200e-9, -150e-9, 100e-9)
+    mag_lsb_T: float = 5e-9
+    coil_coupling_T_per_A_m2: tuple[tuple[float, float, float], ...] = (
+        (1.2e-4, 1.0e-5, -5.0e-6),
+        (8.0e-6, 0.9e-4, 1.2e-5),
+        (-4.0e-6, 6.0e-6, 1.5e-4),
+    )
+    sample_period_s: float = 0.1
+    status_period_s: float = 1.0
+    heartbeat_period_s: float = 1.0
+    temperature_C: float = 20.0
+    initial_mode: str = "DIPOLE"
+    noise_block: int = 4096
+
+    def __post_init__(self) -> None:
+        for name in ("max_dipole_A_m2", "dipole_lsb_A_m2", "mag_lsb_T", "sample_period_s", "status_period_s",
+                     "heartbeat_period_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"EmulatorConfig.{name} must be a finite number > 0; got {value!r}.")
+        if not (math.isfinite(self.mag_noise_T) and self.mag_noise_T >= 0):
+            raise ValueError(
+                f"EmulatorConfig.mag_noise_T must be a finite number >= 0; got {self.mag_noise_T!r}."
+            )
+        if self.dipole_lsb_A_m2 > self.max_dipole_A_m2:
+            raise ValueError(
+                f"EmulatorConfig.dipole_lsb_A_m2 = {self.dipole_lsb_A_m2!r} must not exceed "
+                f"max_dipole_A_m2 = {self.max_dipole_A_m2!r}."
+            )
+        shapes = {"coil_area_turns_m2": (3,), "mag_bias_T": (3,), "coil_coupling_T_per_A_m2": (3, 3)}
+        for name, shape in shapes.items():
+            value = getattr(self, name)
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != shape or not np.all(np.isfinite(arr)):
+                raise ValueError(
+                    f"EmulatorConfig.{name} must be finite numbers of shape {shape}; got {value!r}."
+                )
+        if np.any(np.asarray(self.coil_area_turns_m2) <= 0):
+            raise ValueError(
+                "EmulatorConfig.coil_area_turns_m2 must be > 0 on every axis; "
+                f"got {self.coil_area_turns_m2!r}."
+            )
+        if self.initial_mode not in MODES:
+            raise ValueError(
+                f"EmulatorConfig.initial_mode must be one of {', '.join(MODES)}; got {self.initial_mode!r}."
+            )
+        if not (isinstance(self.noise_block, int) and self.noise_block >= 1):
+            raise ValueError(f"EmulatorConfig.noise_block must be an int >= 1; got {self.noise_block!r}.")
+
+
+_ZERO3 = np.zeros(3)
+_ZERO3.flags.writeable = False
+_EPS_S = 1e-9  # time comparisons: a period boundary reached within 1 ns counts as reached
+
+
+class MagnetorquerEmulator:
+    """The magnetorquer board, emulated on ``bus`` (see the module docstring for the behaviour).
+
+    Args:
+        bus: an open :class:`can.BusABC` (closed by :meth:`close` only if ``owns_bus``).
+        field_source: ``field_source(t_s) -> (3,)`` true field at the magnetometer, sensor axes, T.
+        config: :class:`EmulatorConfig`.
+        rng: a ``numpy.random.Generator`` or a seed.
+        codec: a :class:`MagnetorquerCodec` (default: the ICD in ``fixtures/``).
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        field_source: FieldSource,
+        config: EmulatorConfig | None = None,
+        rng: np.random.Generator | int = 0,
+        codec: MagnetorquerCodec | None = None,
+        *,
+        owns_bus: bool = False,
+    ) -> None:
+        self.bus = bus
+        self.field_source = field_source
+        self.config = config = config if config is not None else EmulatorConfig()
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.codec = codec = codec if codec is not None else MagnetorquerCodec()
+        self._owns_bus = owns_bus
+        self._closed = False
+
+        ratio = config.mag_lsb_T / codec.mag_lsb_T
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            raise ValueError(
+                f"EmulatorConfig.mag_lsb_T = {config.mag_lsb_T!r} T must be a whole multiple of the DBC's "
+                f"MAG_SAMPLE LSB {codec.mag_lsb_T!r} T."
+            )
+        if config.max_dipole_A_m2 > codec.dipole_range_A_m2[1]:
+            raise ValueError(
+                f"EmulatorConfig.max_dipole_A_m2 = {config.max_dipole_A_m2!r} exceeds what MTQ_DIPOLE_CMD "
+                f"can carry ({codec.dipole_range_A_m2[1]!r} A m^2)."
+            )
+
+        self._bias = np.asarray(config.mag_bias_T, dtype=float)
+        self._coupling = np.asarray(config.coil_coupling_T_per_A_m2, dtype=float)
+        self._na = np.asarray(config.coil_area_turns_m2, dtype=float)
+        self._mag_lsb = config.mag_lsb_T
+        # Sensor range in LSB counts (the DBC range, on the emulator's quantisation grid).
+        lo, hi = codec.mag_range_T
+        self._n_lo = math.ceil(lo / self._mag_lsb - 1e-9)
+        self._n_hi = math.floor(hi / self._mag_lsb + 1e-9)
+        self._dipole_levels = math.floor(config.max_dipole_A_m2 / config.dipole_lsb_A_m2 + 1e-9)
+        i_lo, i_hi = codec.dbc.signal_range("MTQ_STATUS", "current_x")
+        self._i_max = min(-i_lo, i_hi) * 1e-3
+        t_lo, t_hi = codec.dbc.signal_range("MTQ_STATUS", "temperature")
+        self._temperature = min(max(config.temperature_C, t_lo), t_hi)
+
+        self._accept = codec.board_rx_ids
+        self._lengths = codec.lengths
+        self._decode = codec.decode
+        self._encode = codec.encode
+
+        self.counters: dict[str, int] = {
+            "sent": 0,
+            "received": 0,
+            "rejected_unknown_id": 0,
+            "rejected_length": 0,
+            "rejected_other": 0,
+            "rejected_mode": 0,
+            "commands_accepted": 0,
+            "saturations": 0,
+            "watchdog_expiries": 0,
+            "mag_saturations": 0,
+            "samples_skipped": 0,
+        }
+        # On-board counters (MTQ_COUNTERS): zeroed by reset_counters.
+        self._board = {"rejected_frames": 0, "watchdog_expiries": 0, "saturations": 0, "commands_accepted": 0}
+        self._mode_seq_ack = 0
+
+        self.mode: str = config.initial_mode
+        self._dipole = _ZERO3  # driven dipole (saturated, quantised), read-only array
+        self._driven = False  # a command with a duration is running
+        self._on_until_s = -math.inf
+        self._any_nonzero = False
+
+        self._t0: float | None = None
+        self._k_sample = self._k_status = self._k_heartbeat = 0
+        self._sample_seq = 0
+        self._heartbeat_counter = 0
+
+        self._noise = np.empty((0, 3))
+        self._noise_i = 0
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stop emulating (and shut the bus down if owned). Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._owns_bus:
+            self.bus.shutdown()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> MagnetorquerEmulator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"MagnetorquerEmulator(mode={self.mode!r}, counters={self.counters})"
+
+    # -- actuator state (pure queries) ------------------------------------------------------------
+
+    def dipole_at(self, t_s: float) -> np.ndarray:
+        """The dipole the coils actually produce at ``t_s`` (A m^2, board axes), read-only (3,) array.
+
+        Saturated per axis, quantised, zero in modes other than DIPOLE and once the command's
+        duration has expired. Answers from the current command (no history is kept).
+        """
+        if self._driven and t_s < self._on_until_s:
+            return self._dipole
+        return _ZERO3
+
+    def coil_active(self, t_s: float) -> bool:
+        """True when at least one coil is driven (non-zero dipole) at ``t_s``."""
+        return self._driven and self._any_nonzero and t_s < self._on_until_s
+
+    # -- service ----------------------------------------------------------------------------------
+
+    def service(self, t_s: float) -> None:
+        """``receive(t_s)`` then ``publish(t_s)``."""
+        self.receive(t_s)
+        self.publish(t_s)
+
+    def _watchdog(self, t_s: float) -> None:
+        if self._driven and t_s >= self._on_until_s:
+            self._driven = False
+            self._dipole = _ZERO3
+            self._any_nonzero = False
+            self.counters["watchdog_expiries"] += 1
+            self._board["watchdog_expiries"] += 1
+
+    def receive(self, t_s: float) -> int:
+        """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
+        if self._closed:
+            raise DriverError("mtq emulator: closed; create a new one.")
+        if self._driven:
+            self._watchdog(t_s)
+        recv = self.bus.recv
+        n = 0
+        while (msg := recv(0.0)) is not None:
+            self._handle(msg, t_s)
+            n += 1
+        return n
+
+    def _reject(self, key: str) -> None:
+        self.counters[key] += 1
+        self._board["rejected_frames"] += 1
+
+    def _handle(self, msg: can.Message, t_s: float) -> None:
+        self.counters["received"] += 1
+        frame_id = msg.arbitration_id
+        if msg.is_error_frame or msg.is_remote_frame:
+            self._reject("rejected_other")
+            return
+        if msg.is_extended_id or frame_id not in self._accept:
+            self._reject("rejected_unknown_id")
+            return
+        data = msg.data
+        if len(data) != self._lengths[frame_id]:
+            self._reject("rejected_length")
+            return
+        try:
+            cmd = self._decode(frame_id, data)
+        except ProtocolError:
+            self._reject("rejected_other")
+            return
+        if type(cmd) is DipoleCommand:
+            self._apply_dipole(cmd, t_s)
+        elif type(cmd) is ModeCommand:
+            self._apply_mode(cmd)
+        else:  # pragma: no cover - board_rx_ids only holds the two commands
+            self._reject("rejected_other")
+
+    def _accepted(self) -> None:
+        self.counters["commands_accepted"] += 1
+        self._board["commands_accepted"] += 1
+
+    def _apply_dipole(self, cmd: DipoleCommand, t_s: float) -> None:
+        if self.mode != "DIPOLE":
+            self._reject("rejected_mode")
+            return
+        self._accepted()
+        if cmd.duration_s <= 0.0:
+            self._driven = False
+            self._dipole = _ZERO3
+            self._any_nonzero = False
+            return
+        cfg = self.config
+        lsb = cfg.dipole_lsb_A_m2
+        levels = self._dipole_levels
+        saturated = False
+        driven = []
+        for m in cmd.dipole_A_m2:
+            if abs(m) > cfg.max_dipole_A_m2:
+                saturated = True
+            n = round(m / lsb)
+            n = levels if n > levels else -levels if n < -levels else n
+            driven.append(n * lsb)
+        if saturated:
+            self.counters["saturations"] += 1
+            self._board["saturations"] += 1
+        dipole = np.array(driven)
+        dipole.flags.writeable = False
+        self._dipole = dipole
+        self._any_nonzero = any(driven)
+        self._driven = True
+        self._on_until_s = t_s + cmd.duration_s
+
+    def _apply_mode(self, cmd: ModeCommand) -> None:
+        if cmd.mode != self.mode:
+            self.mode = cmd.mode
+            self._driven = False
+            self._dipole = _ZERO3
+            self._any_nonzero = False
+        self._mode_seq_ack = cmd.seq
+        if cmd.reset_counters:
+            for key in self._board:
+                self._board[key] = 0
+        else:
+            self._accepted()
+
+    # -- publish ----------------------------------------------------------------------------------
+
+    def publish(self, t_s: float) -> int:
+        """Send whatever is due at ``t_s`` (sample, status + counters, heartbeat); returns frames sent."""
+        if self._closed:
+            raise DriverError("mtq emulator: closed; create a new one.")
+        if self._t0 is None:
+            self._t0 = t_s
+        if self._driven:
+            self._watchdog(t_s)
+        cfg = self.config
+        since = t_s - self._t0 + _EPS_S
+        sent = 0
+        if since >= self._k_sample * cfg.sample_period_s:
+            self._k_sample = self._next_slot(since, cfg.sample_period_s, self._k_sample, count_skips=True)
+            self._send(self.measure(t_s))
+            sent += 1
+        if since >= self._k_status * cfg.status_period_s:
+            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
+            self._send(self.status(t_s))
+            self._send(self.board_counters())
+            sent += 2
+        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
+            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
+            self._send(self.heartbeat(t_s))
+            sent += 1
+        return sent
+
+    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
+        nxt = math.floor(since / period) + 1
+        if nxt <= k:  # rounding at a boundary
+            nxt = k + 1
+        if count_skips and nxt > k + 1:
+            self.counters["samples_skipped"] += nxt - k - 1
+        return nxt
+
+    def _send(self, msg: Any) -> None:
+        frame_id, payload = self._encode(msg)
+        try:
+            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+        except can.CanError as exc:
+            raise DriverError(f"mtq emulator: cannot send on {self.bus.channel_info}: {exc}") from exc
+        self.counters["sent"] += 1
+
+    def _next_noise(self) -> np.ndarray:
+        i = self._noise_i
+        if i >= len(self._noise):
+            self._noise = self.rng.standard_normal((self.config.noise_block, 3)) * self.config.mag_noise_T
+            i = 0
+        self._noise_i = i + 1
+        return self._noise[i]
+
+    def measure(self, t_s: float) -> MagSample:
+        """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
+        truth = self.field_source(t_s)
+        b = self._bias + self._next_noise()
+        b += truth
+        active = self.coil_active(t_s)
+        if active:
+            b += self._coupling @ self._dipole
+        lsb = self._mag_lsb
+        n_lo, n_hi = self._n_lo, self._n_hi
+        valid = True
+        out = []
+        for x in b.tolist():
+            n = round(x / lsb)
+            if n > n_hi or n < n_lo:
+                n = n_hi if n > n_hi else n_lo
+                valid = False
+            out.append(n * lsb)
+        if not valid:
+            self.counters["mag_saturations"] += 1
+        seq = self._sample_seq
+        self._sample_seq = (seq + 1) & 0xFF
+        return MagSample((out[0], out[1], out[2]), active, valid, seq)
+
+    def status(self, t_s: float) -> Status:
+        """The MTQ_STATUS the board reports at ``t_s``."""
+        m = self.dipole_at(t_s)
+        i_max = self._i_max
+        current = [min(max(float(x), -i_max), i_max) for x in (m / self._na)]
+        return Status(
+            self.mode,
+            (bool(m[0] != 0), bool(m[1] != 0), bool(m[2] != 0)),
+            (current[0], current[1], current[2]),
+            self._temperature,
+        )
+
+    def board_counters(self) -> Counters:
+        """The MTQ_COUNTERS the board reports (each wrapped at its DBC width)."""
+        b = self._board
+        return Counters(
+            b["rejected_frames"] & 0xFFFF,
+            b["watchdog_expiries"] & 0xFFFF,
+            b["saturations"] & 0xFFFF,
+            b["commands_accepted"] & 0xFF,
+            self._mode_seq_ack,
+        )
+
+    def heartbeat(self, t_s: float) -> Heartbeat:
+        """The MTQ_HEARTBEAT the board sends at ``t_s`` (advances the heartbeat counter)."""
+        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
+        counter = self._heartbeat_counter
+        self._heartbeat_counter = (counter + 1) & 0xFF
+        return Heartbeat(uptime, "NOMINAL", counter)
+

@@ -1,0 +1,272 @@
+"""Host driver: the stand (or a test) talking to a magnetorquer board over CAN.
+
+The board may be real (``socketcan`` on a bench) or :class:`~drivers.magnetorquer.emulator.
+MagnetorquerEmulator` on a python-can ``virtual`` bus: the driver cannot tell, and has no
+``if emulated`` branch.
+
+Hot path, once per control tick::
+
+    board.poll()                       # drain what arrived, never blocks
+    sample = board.take_sample()       # the newest MagSample once, or None
+    board.command_dipole(m, 0.2)       # one MTQ_DIPOLE_CMD frame
+
+Receiving never raises on bad traffic: frames with an id the board does not send (other nodes,
+commands from another host, 29-bit ids), a wrong length, or an undecodable value are counted in
+:attr:`MagnetorquerBoard.counters` and dropped.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+import can
+
+from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
+from drivers.magnetorquer.codec import (
+    Counters,
+    DipoleCommand,
+    Heartbeat,
+    MagnetorquerCodec,
+    MagSample,
+    ModeCommand,
+    Status,
+)
+
+if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Sequence
+
+__all__ = ["MagnetorquerBoard"]
+
+
+class MagnetorquerBoard:
+    """Host-side driver of the magnetorquer board on an open python-can ``bus``.
+
+    Args:
+        bus: an open :class:`can.BusABC`. The caller keeps ownership unless ``owns_bus`` is true
+            (as with :meth:`open`), in which case :meth:`close` shuts it down.
+        codec: a :class:`MagnetorquerCodec` (default: one built on the ICD in ``fixtures/``).
+        name: how errors and logs name this device.
+
+    Attributes:
+        latest_sample, latest_status, latest_counters, last_heartbeat: the newest decoded message
+            of each kind, or None.
+        counters: ``sent``, ``received`` (every frame read from the bus, accepted or not),
+            ``rejected_unknown_id`` (includes frames of other nodes and 29-bit ids),
+            ``rejected_length``, ``rejected_other`` (remote/error frames, undecodable values),
+            ``samples`` (MAG_SAMPLE frames accepted).
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        codec: MagnetorquerCodec | None = None,
+        name: str = "mtq",
+        *,
+        owns_bus: bool = False,
+    ) -> None:
+        self.bus = bus
+        self.codec = codec if codec is not None else MagnetorquerCodec()
+        self.name = name
+        self._owns_bus = owns_bus
+        self._closed = False
+        self.counters: dict[str, int] = {
+            "sent": 0,
+            "received": 0,
+            "rejected_unknown_id": 0,
+            "rejected_length": 0,
+            "rejected_other": 0,
+            "samples": 0,
+        }
+        self.latest_sample: MagSample | None = None
+        self.latest_status: Status | None = None
+        self.latest_counters: Counters | None = None
+        self.last_heartbeat: Heartbeat | None = None
+        self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
+        self._mode_seq = 0
+        self._accept = self.codec.board_tx_ids
+        self._lengths = self.codec.lengths
+        self._decode = self.codec.decode
+        self._encode = self.codec.encode
+        self._sample_id = self.codec.id_mag_sample
+
+    @classmethod
+    def open(
+        cls,
+        interface: str,
+        channel: str,
+        *,
+        codec: MagnetorquerCodec | None = None,
+        name: str = "mtq",
+        **bus_kwargs: Any,
+    ) -> MagnetorquerBoard:
+        """Open ``interface``/``channel`` (ConnectError on failure) and drive the board there.
+
+        The driver owns that bus: :meth:`close` shuts it down.
+        """
+        from drivers.can_bus import open_bus
+
+        return cls(open_bus(interface, channel, **bus_kwargs), codec=codec, name=name, owns_bus=True)
+
+    # -- lifecycle ------------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Stop using the bus (and shut it down if this driver owns it). Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._owns_bus:
+            self.bus.shutdown()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> MagnetorquerBoard:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "open"
+        return f"MagnetorquerBoard(name={self.name!r}, {state}, counters={self.counters})"
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: the magnetorquer driver is closed; open a new one.")
+
+    # -- commands -------------------------------------------------------------------------------
+
+    def command_dipole(self, dipole_A_m2: Sequence[float], duration_s: float) -> None:
+        """Send MTQ_DIPOLE_CMD: drive ``dipole_A_m2`` (board axes) for ``duration_s`` (0 = coils off).
+
+        Raises EncodeError (a ValueError) naming the field when a value is outside what the ICD can
+        carry (|m| <= 0.32767 A m^2 per axis, 0 <= duration <= 65.535 s): clip to the board's rating
+        before calling. The board itself saturates at its rating, keeping the sign.
+        """
+        mx, my, mz = dipole_A_m2
+        self.send(DipoleCommand((float(mx), float(my), float(mz)), float(duration_s)))
+
+    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
+        """Send MTQ_MODE_CMD (``"OFF"``, ``"DIPOLE"``, ``"SELFTEST"`` or 0-2); returns the sequence
+        number used, which the board echoes in ``latest_counters.mode_seq_ack`` once applied."""
+        seq = (self._mode_seq + 1) & 0xFF
+        self.send(ModeCommand(mode, bool(reset_counters), seq))  # ValueError lists the modes
+        self._mode_seq = seq
+        return seq
+
+    def send(self, msg: DipoleCommand | ModeCommand) -> None:
+        """Encode and send any command message."""
+        if self._closed:
+            self._check_open()
+        frame_id, payload = self._encode(msg)
+        try:
+            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+        except can.CanError as exc:
+            raise DriverError(
+                f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
+            ) from exc
+        self.counters["sent"] += 1
+
+    # -- receiving ------------------------------------------------------------------------------
+
+    def poll(self) -> int:
+        """Drain every pending frame without blocking; returns how many frames were read.
+
+        Updates ``latest_sample``, ``latest_status``, ``latest_counters``, ``last_heartbeat``.
+        Bad frames are counted, never raised.
+        """
+        if self._closed:
+            self._check_open()
+        recv = self.bus.recv
+        handle = self._handle
+        n = 0
+        try:
+            while (msg := recv(0.0)) is not None:
+                handle(msg)
+                n += 1
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        return n
+
+    def _handle(self, msg: can.Message) -> None:
+        counters = self.counters
+        counters["received"] += 1
+        frame_id = msg.arbitration_id
+        if msg.is_error_frame or msg.is_remote_frame:
+            counters["rejected_other"] += 1
+            return
+        if msg.is_extended_id or frame_id not in self._accept:
+            counters["rejected_unknown_id"] += 1
+            return
+        data = msg.data
+        if len(data) != self._lengths[frame_id]:
+            counters["rejected_length"] += 1
+            return
+        try:
+            decoded = self._decode(frame_id, data)
+        except ProtocolError:
+            counters["rejected_other"] += 1
+            return
+        kind = type(decoded)
+        if kind is MagSample:
+            self.latest_sample = decoded
+            counters["samples"] += 1
+        elif kind is Status:
+            self.latest_status = decoded
+        elif kind is Counters:
+            self.latest_counters = decoded
+        elif kind is Heartbeat:
+            self.last_heartbeat = decoded
+        else:  # pragma: no cover - board_tx_ids only holds the four kinds above
+            counters["rejected_other"] += 1
+
+    def take_sample(self) -> MagSample | None:
+        """Poll, then return the newest MagSample if it has not been returned yet, else None.
+
+        When several samples arrived since the last call only the newest is returned (its ``seq``
+        tells how many were skipped).
+        """
+        self.poll()
+        n = self.counters["samples"]
+        if n == self._returned_samples:
+            return None
+        self._returned_samples = n
+        return self.latest_sample
+
+    def read_sample(self, timeout_s: float) -> MagSample:
+        """Return a sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic).
+
+        Raises DeviceTimeoutError naming the device, what was awaited and the timeout.
+        """
+        deadline = time.monotonic() + timeout_s
+        self.poll()
+        counters = self.counters
+        try:
+            while counters["samples"] == self._returned_samples:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    raise self._timeout("a new MAG_SAMPLE", timeout_s)
+                msg = self.bus.recv(remaining)
+                if msg is not None:
+                    self._handle(msg)
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        self._returned_samples = counters["samples"]
+        return self.latest_sample  # type: ignore[return-value]
+
+    def _timeout(self, awaited: str, timeout_s: float) -> DeviceTimeoutError:
+        last = self.latest_sample
+        tail = (
+            "no sample has been received yet"
+            if last is None
+            else f"the last one had seq {last.seq} ({self.counters['samples']} received so far)"
+        )
+        return DeviceTimeoutError(
+            f"{self.name}: no {awaited} (id 0x{self._sample_id:03X}) within {timeout_s:g} s on "
+            f"{self.bus.channel_info}; {tail}. Is the board powered and publishing?",
+            device=self.name,
+            awaited=awaited,
+            timeout_s=timeout_s,
+        )

@@ -1,0 +1,104 @@
+"""``stand bench NAME``: measurements, printed as rows and written as JSON.
+
+Every bench measures on this machine, now; anchors from BENCHMARKS.md are quoted beside our
+figures with where they come from. Speed is only ever measured here, never in a timed test.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+BENCHES = {
+    "loop": "stand.bench:bench_loop",
+    "render": "stand.bench_render:bench_render",
+}
+
+#: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
+BASILISK_RATE_DEG_S = {600.0: 7.2, 1800.0: 3.6, 3600.0: 0.88, 5670.0: 0.20}
+BASILISK_REALTIME = 2170.0
+REFERENCE_JSON = Path(__file__).resolve().parents[1] / "fixtures" / "reference" / "basilisk" / "detumble_basilisk.json"
+
+
+def run_bench(name: str, quick: bool = False) -> list[dict]:
+    module, _, func = BENCHES[name].partition(":")
+    return getattr(importlib.import_module(module), func)(quick=quick)
+
+
+def print_rows(rows: list[dict]) -> None:
+    w = max(len(r["name"]) for r in rows)
+    for r in rows:
+        v = r["value"]
+        vs = f"{v:.4g}" if isinstance(v, float) else str(v)
+        extra = []
+        if "limit" in r:
+            extra.append(f"limit {r['limit']}")
+        if "anchor" in r:
+            extra.append(f"anchor {r['anchor']}")
+        if "pass" in r:
+            extra.append("PASS" if r["pass"] else "FAIL")
+        if r.get("note"):
+            extra.append(r["note"])
+        print(f"{r['name']:<{w}}  {vs:>12} {r.get('unit', ''):<8} {'; '.join(extra)}")
+
+
+def _timed_run(sc, out: Path, devices: bool):
+    import dataclasses
+
+    from .compose import build
+    from .loop import run
+
+    if not devices:
+        sc = dataclasses.replace(sc, devices=(), controller=dataclasses.replace(sc.controller, kind="none"))
+    with build(sc) as scene:
+        t0 = time.perf_counter()
+        result = run(scene, out, progress=False)
+        wall = time.perf_counter() - t0
+    from .telemetry import load
+
+    return result, wall, load(out)
+
+
+def bench_loop(quick: bool = False) -> list[dict]:
+    """The default scenario afap: wall time against real time, with every measurement and command
+    through the CAN codec on python-can's virtual bus, and the same dynamics without devices."""
+    from .scenario import DEFAULT_SCENARIO, load
+
+    sc = load(DEFAULT_SCENARIO)
+    if quick:
+        import dataclasses
+
+        sc = dataclasses.replace(sc, duration_s=300.0)
+    anchor = BASILISK_REALTIME
+    note = "BENCHMARKS.md"
+    if REFERENCE_JSON.exists():
+        ref = json.loads(REFERENCE_JSON.read_text())
+        if ref.get("realtime_factor"):
+            anchor, note = float(ref["realtime_factor"]), f"Basilisk {ref.get('bsk_version', '')} measured here"
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        result, wall, tel = _timed_run(sc, Path(tmp) / "full", devices=True)
+        n = result.ticks
+        frames = sum(v for c in result.counters.values() for k, v in c.items() if k in ("sent",))
+        rows.append({"name": "loop.full_chain.realtime_factor", "value": round(result.sim_duration_s / wall, 1),
+                     "unit": "x", "anchor": f"{anchor:g} ({note}, no device I/O)",
+                     "note": f"{result.sim_duration_s:g} s simulated in {wall:.2f} s, {frames} CAN frames sent"})
+        rows.append({"name": "loop.full_chain.per_tick", "value": round(wall / max(n, 1) * 1e6, 1), "unit": "us"})
+        rate = np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
+        for ts, ref in BASILISK_RATE_DEG_S.items():
+            if ts > result.sim_duration_s:
+                continue
+            i = int(np.searchsorted(tel["t_s"], ts - 1e-9))
+            v = float(rate[i])
+            rows.append({"name": f"loop.detumble.rate_at_{ts:g}s", "value": round(v, 3), "unit": "deg/s",
+                         "anchor": f"{ref} (Basilisk, dipole)", "limit": "within 30 %",
+                         "pass": abs(v - ref) <= 0.3 * ref})
+        result2, wall2, _ = _timed_run(sc, Path(tmp) / "truth", devices=False)
+        rows.append({"name": "loop.dynamics_only.realtime_factor", "value": round(result2.sim_duration_s / wall2, 1),
+                     "unit": "x", "note": "orbit + field + attitude, no devices or controller"})
+    return rows

@@ -1,0 +1,170 @@
+"""Composition: build only what the scene needs, and say what was left out and why.
+
+The scenario names its devices, controller and torques. ``plan`` walks back from them to the
+models they need; ``build`` creates exactly those (the field model exists only when a device or a
+torque needs it, and so on). ``stand check`` prints the plan without opening any bus.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.environment import magnetic_field_itrs
+from sim.frames import EarthRotation
+from sim.orbit import elements_to_state
+from sim.rotations import dcm
+from sim.time import NS_PER_S, seconds_to_ns
+from sim.truth import TruthModel, rotate_to_body
+
+from .controllers import BDot, load_plugin
+from .scenario import Scenario
+
+
+@dataclass(frozen=True)
+class Choice:
+    model: str
+    built: bool
+    reason: str
+
+
+def plan(sc: Scenario) -> list[Choice]:
+    """Every model the stand knows, built or left out, with the reason."""
+    mtq = [d for d in sc.devices if d.kind == "magnetorquer"]
+    needs_field = bool(mtq) or "magnetic" in sc.torques
+    field_why = []
+    if mtq:
+        field_why.append("magnetometer of " + ", ".join(d.name for d in mtq))
+    if "magnetic" in sc.torques:
+        field_why.append("magnetic torque")
+    gg = "gravity_gradient" in sc.torques
+    choices = [
+        Choice("orbit", True, f"{'J2' if sc.orbit.gravity == 'j2' else 'point-mass'} gravity, RK4 at "
+               f"{sc.orbit.step_s:g} s with the force re-evaluated at every stage, Hermite-interpolated "
+               "to the dynamics steps"),
+        Choice("attitude", True, f"rigid body, {sc.integrator.upper()} at {sc.step_s:g} s"),
+        Choice(f"magnetic_field.{sc.environment.magnetic_field}", needs_field,
+               "needed by " + " and ".join(field_why) if needs_field
+               else "no magnetometer, magnetorquer, cage or magnetic torque in the scene"),
+        Choice(f"earth_rotation.{sc.environment.earth_rotation}", needs_field,
+               "the field model is Earth-fixed" if needs_field else "nothing Earth-fixed is evaluated"),
+        Choice("torque.magnetic", "magnetic" in sc.torques,
+               "listed in dynamics.torques" if "magnetic" in sc.torques else "not in dynamics.torques"),
+        Choice("torque.gravity_gradient", gg, "listed in dynamics.torques" if gg else "not in dynamics.torques"),
+        Choice("sun", False, "no sun sensor, star tracker or eclipse-aware device in the scene"),
+        Choice("moon", False, "no star tracker or sensor that cares about the Moon in the scene"),
+        Choice("eclipse", False, "no sun sensor or power model in the scene"),
+        Choice("atmosphere", False, "no drag torque or force requested"),
+        Choice("star_screen", False, "no star tracker in the scene"),
+    ]
+    for d in sc.devices:
+        choices.append(Choice(f"device.{d.name}", True, f"{d.kind} board, {d.link} on CAN "
+                              f"{d.interface}:{d.channel}, magnetometer at {d.sample_rate_hz:g} Hz"))
+    ctl = sc.controller
+    choices.append(Choice(f"controller.{ctl.kind}", ctl.kind != "none",
+                          f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
+                          else "no controller in the scenario: open loop"))
+    return choices
+
+
+@dataclass
+class Scene:
+    """The live objects of one run. Close it to release the buses (idempotent)."""
+
+    scenario: Scenario
+    truth: TruthModel
+    choices: list[Choice]
+    emulators: dict = field(default_factory=dict)
+    hosts: dict = field(default_factory=dict)
+    buses: list = field(default_factory=list)
+    controller: object | None = None
+    closed: bool = False
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        if self.controller is not None and hasattr(self.controller, "close"):
+            self.controller.close()
+        for h in self.hosts.values():
+            h.close()
+        for b in self.buses:
+            b.shutdown()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def initial_state(sc: Scenario):
+    o = sc.orbit
+    r, v = elements_to_state(e=o.e, i=o.i_rad, raan=o.raan_rad, argp=o.argp_rad, a=o.a_m, p=o.p_m,
+                             nu=o.nu_rad, M=o.mean_anomaly_rad)
+    return np.asarray(r, dtype=float), np.asarray(v, dtype=float)
+
+
+def build(sc: Scenario) -> Scene:
+    """Create the truth model, the device emulators and host drivers, and the controller."""
+    from drivers.can_bus import open_bus
+    from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
+    from drivers.magnetorquer.host import MagnetorquerBoard
+
+    choices = plan(sc)
+    built = {c.model for c in choices if c.built}
+    r0, v0 = initial_state(sc)
+    field_model = sc.environment.magnetic_field
+    needs_field = f"magnetic_field.{field_model}" in built
+    rotation = EarthRotation(sc.epoch, sc.environment.earth_rotation, sc.environment.era0_rad) if needs_field else None
+    truth = TruthModel(
+        inertia=sc.spacecraft.inertia_kg_m2, q_BN=sc.spacecraft.q_BN, omega_BN_B=sc.spacecraft.omega_BN_B,
+        r_N=r0, v_N=v0, step_ns=seconds_to_ns(sc.step_s), gravity=sc.orbit.gravity,
+        orbit_step_s=sc.orbit.step_s,
+        field_itrs=(lambda r: magnetic_field_itrs(sc.epoch, r, field_model)) if needs_field else None,
+        earth_rotation=rotation, torques=sc.torques,
+    )
+    scene = Scene(sc, truth, choices)
+    try:
+        rng = np.random.SeedSequence(sc.seed)
+        for d, child in zip(sc.devices, rng.spawn(len(sc.devices)), strict=True):
+            dcm_SB = dcm(d.q_SB)
+            q_SB = tuple(float(x) for x in d.q_SB)
+
+            def field_S(_t_s, q_SB=q_SB):
+                # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
+                return rotate_to_body(q_SB, truth.b_B())
+
+            config = EmulatorConfig(
+                max_dipole_A_m2=d.max_dipole_A_m2, dipole_lsb_A_m2=d.dipole_lsb_A_m2,
+                mag_noise_T=d.mag_noise_T, mag_bias_T=tuple(d.mag_bias_T),
+                coil_coupling_T_per_A_m2=np.diag(d.coil_coupling_T_per_A_m2) @ dcm_SB.T,
+                sample_period_s=1.0 / d.sample_rate_hz,
+            )
+            emu_bus = open_bus(d.interface, d.channel)
+            scene.buses.append(emu_bus)
+            host_bus = open_bus(d.interface, d.channel)
+            scene.buses.append(host_bus)
+            scene.emulators[d.name] = MagnetorquerEmulator(emu_bus, field_S, config, np.random.default_rng(child))
+            scene.hosts[d.name] = MagnetorquerBoard(host_bus, name=d.name)
+        ctl = sc.controller
+        period = 1.0 / ctl.rate_hz
+        if ctl.kind == "bdot":
+            d = next(d for d in sc.devices if d.kind == "magnetorquer")
+            p = ctl.params
+            scene.controller = BDot(scene.hosts[d.name], period, p["gain_A_m2_s_per_T"], p["max_dipole_A_m2"],
+                                    q_SB=d.q_SB, skip_coil_active=p["skip_coil_active"],
+                                    duty_cycle=p.get("duty_cycle", 1.0))
+        elif ctl.kind == "plugin":
+            cls = load_plugin(ctl.params["module"])
+            scene.controller = cls(scene.hosts, period, **ctl.params["options"])
+    except BaseException:
+        scene.close()
+        raise
+    return scene
+
+
+def ticks_per(rate_hz: float, step_s: float) -> int:
+    """Dynamics steps per period of a rate (validated to be whole by the scenario loader)."""
+    return max(1, round(NS_PER_S / rate_hz) // seconds_to_ns(step_s))

@@ -1,0 +1,89 @@
+"""ADCS controllers in the loop, and the plug-in API for flight-software engineers.
+
+A controller sees the spacecraft only through host drivers, exactly as flight software sees its
+devices: every measurement it reads and every command it sends crosses the device protocol (the
+CAN codec on a bus). It never touches the truth model.
+
+Plug-in API: a class named in the scenario (``[controller] kind = "plugin"``,
+``module = "package.module:ClassName"``, ``options = {...}``) is built as
+``ClassName(devices, period_s, **options)`` where ``devices`` maps scenario device names to host
+drivers, and is called once per control period as ``update(t_s)``. ``close()`` is called at the
+end if it exists. The reference B-dot below is written against the same API.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+
+import numpy as np
+
+from sim.rotations import dcm
+
+
+class BDot:
+    """B-dot detumbling: m = -k dB/dt, by finite difference of successive magnetometer samples.
+
+    The derivative is taken in body axes (the sensor mount ``q_SB`` is known to the flight
+    software, as on a real spacecraft). Each command is clipped per axis to ``max_dipole_A_m2``
+    and keeps the coils on for ``duty_cycle`` of the control period; the board's watchdog turns
+    them off when that expires. Samples flagged ``coil_active`` are skipped when
+    ``skip_coil_active`` is set (the coils corrupt the magnetometer while they are driven).
+    """
+
+    def __init__(self, board, period_s: float, gain_A_m2_s_per_T: float, max_dipole_A_m2: float,
+                 q_SB=(1.0, 0.0, 0.0, 0.0), skip_coil_active: bool = True, duty_cycle: float = 1.0):
+        self.board = board
+        self.period_s = period_s
+        self.gain = gain_A_m2_s_per_T
+        self.max_dipole = max_dipole_A_m2
+        self.dcm_BS = dcm(np.asarray(q_SB, dtype=float)).T.tolist()
+        self.skip_coil_active = skip_coil_active
+        self.duration_s = period_s * duty_cycle
+        self._prev = None  # (t_s, b_B)
+        self.last_command = (0.0, 0.0, 0.0)
+        self.samples_used = 0
+        self.samples_skipped = 0
+
+    def update(self, t_s: float) -> None:
+        self.board.poll()
+        sample = self.board.take_sample()
+        if sample is None:
+            return
+        if self.skip_coil_active and sample.coil_active or not sample.valid:
+            self.samples_skipped += 1
+            self._prev = None
+            return
+        bx, by, bz = sample.b_T
+        C = self.dcm_BS
+        b = (C[0][0] * bx + C[0][1] * by + C[0][2] * bz,
+             C[1][0] * bx + C[1][1] * by + C[1][2] * bz,
+             C[2][0] * bx + C[2][1] * by + C[2][2] * bz)
+        self.samples_used += 1
+        prev, self._prev = self._prev, (t_s, b)
+        if prev is None or t_s <= prev[0]:
+            return
+        k = -self.gain / (t_s - prev[0])
+        lim = self.max_dipole
+        m = tuple(max(-lim, min(lim, k * (b[i] - prev[1][i]))) for i in range(3))
+        self.board.command_dipole(m, self.duration_s)
+        self.last_command = m
+
+
+def load_plugin(spec: str):
+    """Import ``package.module:ClassName``; raises ValueError naming what could not be found."""
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise ValueError(f"controller.module = {spec!r} must look like 'package.module:ClassName'.")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ValueError(f"controller.module = {spec!r}: module {module_name!r} cannot be imported ({exc}).") from None
+    try:
+        return getattr(module, attr)
+    except AttributeError:
+        raise ValueError(f"controller.module = {spec!r}: {module_name!r} has no {attr!r}.") from None
+
+
+def controller_period_s(rate_hz: float) -> float:
+    return 1.0 / rate_hz if rate_hz > 0 else math.inf

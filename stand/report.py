@@ -1,0 +1,159 @@
+"""What a run leaves behind: ``summary.json`` with the pass criteria, PNG plots, ``report.md``.
+
+Criteria are evaluated from the telemetry as written (``stand.telemetry.load``), so the report
+states what the log shows, not what the loop believed.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .compose import Scene
+from .loop import RunResult
+from .scenario import METRICS, Criterion
+from .telemetry import load
+
+
+def _rate_deg_s(tel) -> np.ndarray:
+    return np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
+
+
+def metric_value(c: Criterion, tel, result: RunResult) -> float:
+    t = tel["t_s"]
+    if c.metric == "final_rate_deg_s":
+        return float(_rate_deg_s(tel)[-1]) if len(t) else math.nan
+    if c.metric == "rate_deg_s_at":
+        i = int(np.searchsorted(t, c.at_s - 1e-9))
+        return float(_rate_deg_s(tel)[i]) if i < len(t) else math.nan
+    if c.metric == "max_rate_deg_s_after":
+        sel = t >= c.at_s - 1e-9
+        return float(_rate_deg_s(tel)[sel].max()) if np.any(sel) else math.nan
+    if c.metric == "frames_rejected":
+        return float(sum(v for cnt in result.counters.values() for k, v in cnt.items() if k.startswith("rejected")))
+    if c.metric == "overruns":
+        return float(result.timing.get("overruns", 0))
+    raise ValueError(f"unknown metric {c.metric!r}; known: {', '.join(METRICS)}")
+
+
+def evaluate(criteria, tel, result: RunResult) -> list[dict]:
+    out = []
+    for c in criteria:
+        v = metric_value(c, tel, result)
+        ok = math.isfinite(v) and (c.max is None or v <= c.max) and (c.min is None or v >= c.min)
+        limit = {"max": c.max} if c.min is None else {"min": c.min} if c.max is None else {"min": c.min, "max": c.max}
+        out.append({"name": c.name, "metric": c.metric, "value": v, "limit": limit, "pass": bool(ok),
+                    **({"at_s": c.at_s} if c.at_s is not None else {})})
+    return out
+
+
+def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
+    out_dir = Path(out_dir)
+    sc = scene.scenario
+    tel = load(out_dir)
+    criteria = evaluate(sc.criteria, tel, result)
+    passed = result.status == "completed" and all(c["pass"] for c in criteria)
+    rate = _rate_deg_s(tel)
+    checkpoints = {}
+    for ts in (0.0, 600.0, 1800.0, 3600.0, sc.duration_s):
+        i = int(np.searchsorted(tel["t_s"], ts - 1e-9))
+        if i < len(rate):
+            checkpoints[f"{ts:g}"] = round(float(rate[i]), 4)
+    summary = {
+        "scenario": sc.name,
+        "source": sc.source,
+        "status": result.status,
+        "error": result.error,
+        "sim_duration_s": result.sim_duration_s,
+        "wall_time_s": round(result.wall_time_s, 4),
+        "realtime_factor": round(result.sim_duration_s / result.wall_time_s, 2) if result.wall_time_s > 0 else None,
+        "criteria": criteria,
+        "pass": passed,
+        "models": {
+            "built": [{"model": c.model, "reason": c.reason} for c in scene.choices if c.built],
+            "left_out": [{"model": c.model, "reason": c.reason} for c in scene.choices if not c.built],
+        },
+        "timing": result.timing,
+        "rate_deg_s_at": checkpoints,
+        "device_counters": result.counters,
+        "telemetry_rows": int(len(tel["t_s"])),
+    }
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
+    plots = write_plots(tel, out_dir)
+    write_markdown(summary, plots, out_dir)
+    return summary
+
+
+def write_plots(tel, out_dir: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sim.rotations import euler_from_quat
+
+    t = tel["t_s"]
+    made = []
+    if len(t) < 2:
+        return made
+    fig, ax = plt.subplots(figsize=(8, 4))
+    w = np.degrees(tel["omega_BN_B"])
+    for i, lbl in enumerate("xyz"):
+        ax.plot(t, w[:, i], lw=0.8, label=f"omega_{lbl}")
+    ax.plot(t, np.linalg.norm(w, axis=1), "k", lw=1.2, label="|omega|")
+    ax.set(xlabel="t (s)", ylabel="body rate (deg/s)", title="Body rate omega_BN_B")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "rate.png", dpi=110)
+    plt.close(fig)
+    made.append("rate.png")
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ang = np.degrees(euler_from_quat(tel["q_BN"], "321"))
+    for i, lbl in enumerate(("yaw (3)", "pitch (2)", "roll (1)")):
+        ax.plot(t, ang[:, i], lw=0.6, label=lbl)
+    ax.set(xlabel="t (s)", ylabel="angle (deg)", title="Attitude q_BN as 3-2-1 Euler angles")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "attitude.png", dpi=110)
+    plt.close(fig)
+    made.append("attitude.png")
+
+    cmd_cols = [k for k in tel if k.endswith(".dipole_B") or k == "dipole_cmd_B"]
+    if cmd_cols:
+        fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+        for k in cmd_cols:
+            for i, ax in enumerate(axes):
+                ax.plot(t, tel[k][:, i], lw=0.6, label=k)
+                ax.set_ylabel(f"m_{'xyz'[i]} (A m^2)")
+                ax.grid(alpha=0.3)
+        axes[0].legend(loc="upper right", fontsize=8)
+        axes[0].set_title("Magnetorquer dipole: commanded and produced")
+        axes[-1].set_xlabel("t (s)")
+        fig.tight_layout()
+        fig.savefig(out_dir / "dipole.png", dpi=110)
+        plt.close(fig)
+        made.append("dipole.png")
+    return made
+
+
+def write_markdown(summary: dict, plots: list[str], out_dir: Path) -> None:
+    lines = [f"# Run report: {summary['scenario']}", "",
+             f"**{'PASS' if summary['pass'] else 'FAIL'}** ({summary['status']})", ""]
+    if summary["error"]:
+        lines += [f"Error: {summary['error']}", ""]
+    lines += [f"Simulated {summary['sim_duration_s']:g} s in {summary['wall_time_s']:g} s of wall time "
+              f"({summary['realtime_factor']} x real time).", "", "| criterion | value | limit | pass |",
+              "|---|---|---|---|"]
+    for c in summary["criteria"]:
+        lines.append(f"| {c['name']} | {c['value']:.4g} | {c['limit']} | {'yes' if c['pass'] else 'NO'} |")
+    lines += ["", "## Models", ""]
+    lines += [f"- built `{m['model']}`: {m['reason']}" for m in summary["models"]["built"]]
+    lines += [f"- left out `{m['model']}`: {m['reason']}" for m in summary["models"]["left_out"]]
+    lines += ["", "## Plots", ""] + [f"![{p}]({p})" for p in plots]
+    (out_dir / "report.md").write_text("\n".join(lines) + "\n")

@@ -1,0 +1,446 @@
+"""Scenario files: TOML with units in the key names, validated before t = 0.
+
+Every value is checked here, before anything is built, so an impossible run is refused at once
+with one sentence naming the field, the value and what is allowed (``ScenarioError``), not at
+minute nine. Units are converted to SI on the way in; nothing past this module sees degrees or km.
+
+Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented example)::
+
+    [scenario]     name, description, epoch (UTC ISO 8601), duration_s, seed
+    [dynamics]     step_s, integrator, torques = ["magnetic", "gravity_gradient"]
+    [orbit]        altitude_km | a_km | p_km, e, i_deg, raan_deg, argp_deg, nu_deg | mean_anomaly_deg,
+                   gravity = "point" | "j2", step_s
+    [spacecraft]   mass_kg, inertia_kg_m2 (3 principal moments or 3x3), q_BN, omega_BN_B_deg_s
+    [environment]  magnetic_field = "dipole", earth_rotation = "uniform" | "iau2006", era0_deg
+    [[devices]]    name, kind = "magnetorquer", link = "emulated", interface, channel, q_SB, ...
+    [controller]   kind = "bdot" | "none" | "plugin", rate_hz, ...
+    [[criteria]]   name, metric, max | min, at_s
+    [recording]    rate_hz
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.attitude import check_inertia
+from sim.constants import R_EARTH
+from sim.time import Epoch
+
+from .errors import MISSING, ScenarioError
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+SCENARIO_DIR = FIXTURES / "scenarios"
+DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
+
+TORQUES = ("magnetic", "gravity_gradient")
+DEVICE_KINDS = ("magnetorquer",)
+CONTROLLER_KINDS = ("bdot", "none", "plugin")
+METRICS = {
+    "final_rate_deg_s": "body rate |omega| at the end of the run (deg/s)",
+    "rate_deg_s_at": "body rate |omega| at time at_s (deg/s)",
+    "max_rate_deg_s_after": "largest body rate |omega| after time at_s (deg/s)",
+    "frames_rejected": "device frames rejected by any codec (count)",
+    "overruns": "ticks that ran past their real-time deadline (count, paced runs only)",
+}
+
+
+class _Table:
+    """A TOML table that remembers its dotted path, hands out validated values and notices typos."""
+
+    def __init__(self, data: Any, path: str, source: str | None):
+        if not isinstance(data, dict):
+            raise ScenarioError(path, data, "a table of key = value pairs is expected", source)
+        self.data = data
+        self.path = path
+        self.source = source
+        self.used: set[str] = set()
+
+    def _name(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key: str, value, allowed: str) -> ScenarioError:
+        return ScenarioError(self._name(key), value, allowed, self.source)
+
+    def raw(self, key: str, default=MISSING):
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def number(self, key: str, default=MISSING, *, lo=None, hi=None, lo_open=False, hi_open=False,
+               integer=False) -> float:
+        value = self.raw(key, default)
+        rng = _range_text(lo, hi, lo_open, hi_open)
+        kind = "a whole number" if integer else "a number"
+        if value is MISSING:
+            raise self.error(key, value, f"{kind}{rng} is required")
+        if isinstance(value, bool) or not isinstance(value, int | float) or (integer and not isinstance(value, int)):
+            raise self.error(key, value, f"{kind}{rng} is expected")
+        if not math.isfinite(value):
+            raise self.error(key, value, f"a finite number{rng} is expected")
+        if (lo is not None and (value < lo or (lo_open and value == lo))) or (
+            hi is not None and (value > hi or (hi_open and value == hi))
+        ):
+            raise self.error(key, value, f"{kind}{rng} is expected")
+        return value
+
+    def choice(self, key: str, options, default=MISSING) -> str:
+        value = self.raw(key, default)
+        if value not in options:
+            raise self.error(key, MISSING if value is MISSING else value,
+                             "one of " + ", ".join(repr(o) for o in options))
+        return value
+
+    def text(self, key: str, default=MISSING) -> str:
+        value = self.raw(key, default)
+        if not isinstance(value, str) or not value:
+            raise self.error(key, value, "a non-empty string is expected")
+        return value
+
+    def vector(self, key: str, n: int, default=MISSING) -> np.ndarray:
+        value = self.raw(key, default)
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            arr = None
+        if value is MISSING or arr is None or arr.shape != (n,) or not np.all(np.isfinite(arr)):
+            raise self.error(key, value, f"a list of {n} finite numbers is expected")
+        return arr
+
+    def table(self, key: str, required: bool = True) -> _Table:
+        value = self.raw(key, MISSING)
+        if value is MISSING:
+            if required:
+                raise ScenarioError(self._name(key), value, "this table is required", self.source)
+            value = {}
+        return _Table(value, self._name(key), self.source)
+
+    def check_unknown(self, allowed_extra: tuple[str, ...] = ()) -> None:
+        unknown = sorted(set(self.data) - self.used - set(allowed_extra))
+        if unknown:
+            key = unknown[0]
+            raise self.error(key, self.data[key], "this key is not known here (a typo?); known keys: "
+                             + ", ".join(sorted(self.used | set(allowed_extra))))
+
+
+def _range_text(lo, hi, lo_open, hi_open) -> str:
+    if lo is None and hi is None:
+        return ""
+    parts = []
+    if lo is not None:
+        parts.append(f"{'>' if lo_open else '>='} {lo:g}")
+    if hi is not None:
+        parts.append(f"{'<' if hi_open else '<='} {hi:g}")
+    return " " + " and ".join(parts)
+
+
+@dataclass(frozen=True)
+class OrbitSpec:
+    e: float
+    i_rad: float
+    raan_rad: float
+    argp_rad: float
+    a_m: float | None
+    p_m: float | None
+    nu_rad: float | None
+    mean_anomaly_rad: float | None
+    gravity: str
+    step_s: float
+
+
+@dataclass(frozen=True)
+class SpacecraftSpec:
+    mass_kg: float
+    inertia_kg_m2: np.ndarray
+    q_BN: np.ndarray
+    omega_BN_B: np.ndarray
+
+
+@dataclass(frozen=True)
+class EnvironmentSpec:
+    magnetic_field: str
+    earth_rotation: str
+    era0_rad: float
+
+
+@dataclass(frozen=True)
+class MagnetorquerSpec:
+    """A magnetorquer board with an on-board magnetometer on a CAN bus."""
+
+    name: str
+    link: str
+    interface: str
+    channel: str
+    q_SB: np.ndarray
+    sample_rate_hz: float
+    max_dipole_A_m2: float
+    dipole_lsb_A_m2: float
+    mag_noise_T: float
+    mag_bias_T: np.ndarray
+    coil_coupling_T_per_A_m2: np.ndarray
+    kind: str = "magnetorquer"
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    kind: str
+    rate_hz: float
+    params: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Criterion:
+    name: str
+    metric: str
+    max: float | None
+    min: float | None
+    at_s: float | None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    description: str
+    source: str
+    epoch: Epoch
+    duration_s: float
+    seed: int
+    step_s: float
+    integrator: str
+    torques: tuple[str, ...]
+    orbit: OrbitSpec
+    spacecraft: SpacecraftSpec
+    environment: EnvironmentSpec
+    devices: tuple[MagnetorquerSpec, ...]
+    controller: ControllerSpec
+    criteria: tuple[Criterion, ...]
+    record_rate_hz: float
+
+    def device(self, kind: str) -> MagnetorquerSpec | None:
+        return next((d for d in self.devices if d.kind == kind), None)
+
+
+def load(path: str | Path) -> Scenario:
+    """Read and validate a scenario file; raises ``ScenarioError`` naming the first bad field."""
+    path = Path(path)
+    if not path.exists() and not path.suffix:
+        candidate = SCENARIO_DIR / f"{path}.toml"
+        if candidate.exists():
+            path = candidate
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ScenarioError("SCENARIO", str(path), f"a readable TOML file is required ({exc.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError("SCENARIO", str(path), f"valid TOML is required ({exc})") from None
+    return parse(data, source=path.name)
+
+
+def parse(data: dict, source: str | None = None) -> Scenario:
+    root = _Table(data, "", source)
+    sc = root.table("scenario")
+    name = sc.text("name")
+    description = sc.raw("description", "")
+    epoch_text = sc.text("epoch")
+    try:
+        epoch = Epoch.from_iso(epoch_text)
+    except ValueError as exc:
+        raise sc.error("epoch", epoch_text, str(exc).rstrip(".")) from None
+    duration_s = sc.number("duration_s", lo=0, lo_open=True, hi=30 * 86400)
+    seed = int(sc.number("seed", 0, lo=0, integer=True))
+    sc.check_unknown()
+
+    dyn = root.table("dynamics")
+    step_s = dyn.number("step_s", lo=1e-6, hi=10.0)
+    integrator = dyn.choice("integrator", ("rk4",), "rk4")
+    torques = dyn.raw("torques", ["magnetic", "gravity_gradient"])
+    if not isinstance(torques, list) or any(t not in TORQUES for t in torques):
+        raise dyn.error("torques", torques, "a list drawn from " + ", ".join(repr(t) for t in TORQUES))
+    dyn.check_unknown()
+
+    orbit = _orbit(root.table("orbit"))
+    spacecraft = _spacecraft(root.table("spacecraft"), step_s)
+    environment = _environment(root.table("environment", required=False))
+
+    devices_raw = root.raw("devices", [])
+    if not isinstance(devices_raw, list):
+        raise root.error("devices", devices_raw, "an array of [[devices]] tables is expected")
+    devices = tuple(_device(_Table(d, f"devices[{k}]", source), step_s) for k, d in enumerate(devices_raw))
+    names = [d.name for d in devices]
+    if len(set(names)) != len(names):
+        raise root.error("devices", names, "device names must be unique")
+
+    controller = _controller(root.table("controller", required=False), step_s, devices)
+    crit_raw = root.raw("criteria", [])
+    if not isinstance(crit_raw, list):
+        raise root.error("criteria", crit_raw, "an array of [[criteria]] tables is expected")
+    criteria = tuple(_criterion(_Table(c, f"criteria[{k}]", source), duration_s) for k, c in enumerate(crit_raw))
+
+    rec = root.table("recording", required=False)
+    record_rate_hz = _rate(rec, "rate_hz", step_s, default=1.0 / step_s)
+    rec.check_unknown()
+    root.check_unknown()
+    return Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
+                    tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
+                    record_rate_hz)
+
+
+def _rate(t: _Table, key: str, step_s: float, default=MISSING) -> float:
+    """A rate in Hz whose period is a whole number of dynamics steps (rates are exact ratios)."""
+    hz = t.number(key, default, lo=0, lo_open=True, hi=1.0 / step_s)
+    ratio = 1.0 / (hz * step_s)
+    if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise t.error(key, hz, f"a rate whose period is a whole number of dynamics steps ({step_s:g} s), "
+                      f"e.g. {1.0 / step_s:g}, {0.5 / step_s:g} or {0.1 / step_s:g} Hz")
+    return hz
+
+
+def _orbit(t: _Table) -> OrbitSpec:
+    e = t.number("e", 0.0, lo=0.0)
+    sizes = [k for k in ("altitude_km", "a_km", "p_km") if t.has(k)]
+    if len(sizes) != 1:
+        raise t.error("altitude_km", sizes or MISSING, "exactly one of altitude_km (circular), a_km or p_km")
+    a_m = p_m = None
+    if sizes[0] == "altitude_km":
+        alt = t.number("altitude_km", lo=100.0, hi=100000.0)
+        if e != 0.0:
+            raise t.error("e", e, "0 when the orbit is given by altitude_km (a circular orbit); use a_km or p_km")
+        a_m = R_EARTH + alt * 1e3
+    elif sizes[0] == "a_km":
+        a_m = t.number("a_km") * 1e3
+        if e < 1.0 and a_m <= 0:
+            raise t.error("a_km", a_m / 1e3, "a positive semi-major axis for an elliptic orbit (e < 1)")
+        if e > 1.0 and a_m >= 0:
+            raise t.error("a_km", a_m / 1e3, "a negative semi-major axis for a hyperbolic orbit (e > 1)")
+        if e == 1.0:
+            raise t.error("a_km", a_m / 1e3, "p_km instead: a parabola (e = 1) has no finite semi-major axis")
+    else:
+        p_m = t.number("p_km", lo=0.0, lo_open=True) * 1e3
+    peri = a_m * (1.0 - e) if a_m is not None else p_m / (1.0 + e)
+    if peri < R_EARTH:
+        raise t.error(sizes[0], (a_m or p_m) / 1e3,
+                      f"an orbit whose perigee radius ({peri / 1e3:.1f} km) is above the Earth's surface "
+                      f"({R_EARTH / 1e3:.1f} km)")
+    anomalies = [k for k in ("nu_deg", "mean_anomaly_deg") if t.has(k)]
+    if len(anomalies) > 1:
+        raise t.error("nu_deg", anomalies, "only one of nu_deg or mean_anomaly_deg")
+    nu = math.radians(t.number("nu_deg", 0.0)) if "mean_anomaly_deg" not in anomalies else None
+    mean = math.radians(t.number("mean_anomaly_deg")) if "mean_anomaly_deg" in anomalies else None
+    spec = OrbitSpec(
+        e=e,
+        i_rad=math.radians(t.number("i_deg", lo=0.0, hi=180.0)),
+        raan_rad=math.radians(t.number("raan_deg", 0.0, lo=-360.0, hi=360.0)),
+        argp_rad=math.radians(t.number("argp_deg", 0.0, lo=-360.0, hi=360.0)),
+        a_m=a_m, p_m=p_m, nu_rad=nu, mean_anomaly_rad=mean,
+        gravity=t.choice("gravity", ("point", "j2"), "j2"),
+        step_s=t.number("step_s", 10.0, lo=1e-3, hi=60.0),
+    )
+    t.check_unknown()
+    return spec
+
+
+def _spacecraft(t: _Table, step_s: float) -> SpacecraftSpec:
+    from sim.attitude import check_step
+    from sim.rotations import check_unit
+
+    mass = t.number("mass_kg", lo=0.0, lo_open=True)
+    raw_I = t.raw("inertia_kg_m2")
+    try:
+        inertia = check_inertia(raw_I, "spacecraft.inertia_kg_m2")
+    except (ValueError, TypeError) as exc:
+        raise t.error("inertia_kg_m2", raw_I, str(exc).rstrip(".")) from None
+    q = t.vector("q_BN", 4, [1.0, 0.0, 0.0, 0.0])
+    try:
+        check_unit(q, "spacecraft.q_BN")
+    except ValueError:
+        raise t.error("q_BN", q.tolist(), f"a unit quaternion [w, x, y, z] (its norm is {np.linalg.norm(q):.9g})") from None
+    omega = np.radians(t.vector("omega_BN_B_deg_s", 3, [0.0, 0.0, 0.0]))
+    try:
+        check_step(inertia, omega, step_s, "dynamics.step_s")
+    except ValueError as exc:
+        raise ScenarioError("dynamics.step_s", step_s, str(exc).rstrip("."), t.source) from None
+    t.check_unknown()
+    return SpacecraftSpec(mass, inertia, q, omega)
+
+
+def _environment(t: _Table) -> EnvironmentSpec:
+    spec = EnvironmentSpec(
+        magnetic_field=t.choice("magnetic_field", ("dipole",), "dipole"),
+        earth_rotation=t.choice("earth_rotation", ("iau2006", "uniform"), "iau2006"),
+        era0_rad=math.radians(t.number("era0_deg", 0.0, lo=-360.0, hi=360.0)),
+    )
+    t.check_unknown()
+    return spec
+
+
+def _device(t: _Table, step_s: float) -> MagnetorquerSpec:
+    kind = t.choice("kind", DEVICE_KINDS)
+    name = t.text("name")
+    link = t.choice("link", ("emulated",), "emulated")
+    q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0])
+    if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
+        raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
+    max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=100.0)
+    spec = MagnetorquerSpec(
+        name=name,
+        link=link,
+        interface=t.text("interface", "virtual"),
+        channel=t.text("channel", f"stand-{name}"),
+        q_SB=q_SB,
+        sample_rate_hz=_rate(t, "sample_rate_hz", step_s, 10.0),
+        max_dipole_A_m2=max_dipole,
+        dipole_lsb_A_m2=t.number("dipole_lsb_A_m2", 1e-5, lo=0.0, hi=max_dipole),
+        mag_noise_T=t.number("mag_noise_nT", 0.0, lo=0.0, hi=1e5) * 1e-9,
+        mag_bias_T=t.vector("mag_bias_nT", 3, [0.0, 0.0, 0.0]) * 1e-9,
+        coil_coupling_T_per_A_m2=np.asarray(
+            t.vector("coil_coupling_nT_per_A_m2", 3, [0.0, 0.0, 0.0]), dtype=float) * 1e-9,
+    )
+    t.check_unknown()
+    return spec
+
+
+def _controller(t: _Table, step_s: float, devices) -> ControllerSpec:
+    kind = t.choice("kind", CONTROLLER_KINDS, "none")
+    if kind == "none":
+        t.check_unknown()
+        return ControllerSpec("none", 1.0 / step_s)
+    rate = _rate(t, "rate_hz", step_s)
+    params: dict = {}
+    if kind == "bdot":
+        if not any(d.kind == "magnetorquer" for d in devices):
+            raise t.error("kind", kind, "a controller that has its devices: B-dot needs a [[devices]] entry "
+                          "of kind 'magnetorquer'")
+        params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True)
+        params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True)
+        params["skip_coil_active"] = bool(t.raw("skip_coil_active", True))
+    else:
+        params["module"] = t.text("module")
+        params["options"] = t.raw("options", {})
+    t.check_unknown()
+    return ControllerSpec(kind, rate, params)
+
+
+def _criterion(t: _Table, duration_s: float) -> Criterion:
+    metric = t.choice("metric", tuple(METRICS))
+    c = Criterion(
+        name=t.text("name", metric),
+        metric=metric,
+        max=t.number("max") if t.has("max") else None,
+        min=t.number("min") if t.has("min") else None,
+        at_s=t.number("at_s", lo=0.0, hi=duration_s) if t.has("at_s") else None,
+    )
+    if c.max is None and c.min is None:
+        raise t.error("max", MISSING, "a max or a min limit for the criterion")
+    if metric in ("rate_deg_s_at", "max_rate_deg_s_after") and c.at_s is None:
+        raise t.error("at_s", MISSING, f"a time in [0, {duration_s:g}] s for metric {metric!r}")
+    t.check_unknown()
+    return c

@@ -1,0 +1,97 @@
+"""``stand screen``: render one star-screen frame to PNG files with its truth as JSON.
+
+    stand screen --ra DEG --dec DEG --roll DEG --out DIR [--epoch ISO] [--aberration on|off]
+                 [--screen WxH] [--scenario S --tracker NAME]
+
+Writes ``DIR/screen.png`` (what the panel shows, 8-bit drive codes), ``DIR/detector.png`` (what an
+ideal tracker records through the collimator, 16-bit) and ``DIR/truth.json`` (q_SN, optics, every
+star drawn with its Hipparcos number, magnitude and detector pixel position).
+
+Pointing: the boresight (+z of the tracker frame) points to (ra, dec); roll 0 puts celestial north
+up in the image (-y) and east to the left; positive roll turns the sky counter-clockwise on the
+image (see ``star_screen.attitude``). Without a scenario the default tracker is used: 20 x 15 deg
+on 1024 x 768 pixels, limiting magnitude Hp 8, behind a 1.1 m collimator and a 1920 x 1080 screen.
+``--aberration off`` draws catalog places (proper motion only, no parallax or aberration).
+Exit codes: 0 written, 2 usage error (message names the option, the value and what is allowed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+DEFAULT_EPOCH = "2026-01-01T00:00:00Z"
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "screen",
+        help="render one star-screen frame (screen.png, detector.png, truth.json)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("--ra", type=float, required=True, help="boresight right ascension, deg")
+    p.add_argument("--dec", type=float, required=True, help="boresight declination, deg in [-90, 90]")
+    p.add_argument("--roll", type=float, default=0.0,
+                   help="roll about the boresight, deg (0: north up, east left; + turns the sky CCW)")
+    p.add_argument("--out", required=True, help="output directory (created if missing)")
+    p.add_argument("--epoch", default=DEFAULT_EPOCH, help=f"UTC epoch, ISO 8601 (default {DEFAULT_EPOCH})")
+    p.add_argument("--aberration", choices=("on", "off"), default="on",
+                   help="apparent places (on, default) or catalog places with proper motion only (off)")
+    p.add_argument("--screen", default="1920x1080", help="screen resolution WxH (default 1920x1080)")
+    p.add_argument("--scenario", default=None, help="scenario file (not yet supported)")
+    p.add_argument("--tracker", default=None, help="tracker name in the scenario (not yet supported)")
+    p.set_defaults(func=run)
+    return p
+
+
+def _fail(msg: str) -> int:
+    print(f"stand screen: {msg}", file=sys.stderr)
+    return 2
+
+
+def run(args) -> int:
+    if args.scenario is not None or args.tracker is not None:
+        return _fail("--scenario and --tracker are not yet supported; use the default tracker "
+                     "(omit both options).")
+    try:
+        w_txt, h_txt = str(args.screen).lower().split("x")
+        width, height = int(w_txt), int(h_txt)
+    except ValueError:
+        return _fail(f"--screen {args.screen!r} is not a resolution; write it as WIDTHxHEIGHT, e.g. 1920x1080.")
+    from sim.time import Epoch
+    from star_screen.attitude import q_SN_from_radec_roll
+    from star_screen.geometry import default_bench
+    from star_screen.outputs import write_frame
+    from star_screen.render import Renderer
+
+    try:
+        epoch = Epoch.from_iso(args.epoch)
+        q_SN = q_SN_from_radec_roll(args.ra, args.dec, args.roll)
+        bench = default_bench(width, height)
+    except ValueError as exc:
+        return _fail(str(exc))
+    problems = bench.check_fits()
+    if problems:
+        return _fail(f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems))
+    renderer = Renderer(bench, aberration=(args.aberration == "on"))
+    frame = renderer.render(q_SN, epoch, time_tag_ns=0)
+    try:
+        truth = write_frame(args.out, frame, renderer)
+    except OSError as exc:
+        return _fail(f"--out {args.out!r}: {exc}")
+    print(f"wrote {args.out}/screen.png, detector.png, truth.json: {truth['n_stars']} stars, "
+          f"q_SN = {[round(v, 9) for v in truth['q_SN']]}")
+    return 0
+
+
+def main(argv=None) -> int:
+    """Stand-alone entry (``python -m stand.screen_command ...``) until the lead wires stand.cli."""
+    parser = argparse.ArgumentParser(prog="stand")
+    sub = parser.add_subparsers(dest="command", required=True)
+    register(sub)
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""The telemetry log: written off the hot path, readable after a crash or a SIGKILL.
+
+Layout of ``RUN_DIR/telemetry/``:
+
+* ``schema.json``: written once before the first row: column names, their widths and units.
+* ``rows.f64``: little-endian float64 rows appended by a writer thread. A row is never split
+  across a write that is not flushed as a whole, and ``load`` ignores a trailing partial row, so
+  a log cut by SIGKILL reads back up to the last flush (at most ``FLUSH_S`` old).
+* ``RUN_DIR/events.jsonl``: one JSON object per line for what happened (start, warnings, device
+  errors, the end), flushed at once.
+
+The loop hands rows as flat tuples of floats to ``Recorder.record``; batching and the numpy
+conversion happen on the writer thread.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+#: Longest time (wall clock) a recorded row waits before it is on disk.
+FLUSH_S = 0.5
+BATCH_ROWS = 2048
+SCHEMA = "schema.json"
+ROWS = "rows.f64"
+
+
+class Recorder:
+    """Append rows of floats to the log from the loop; a thread writes them."""
+
+    def __init__(self, run_dir: str | Path, columns: list[tuple[str, int, str]], clock=time.monotonic):
+        self.dir = Path(run_dir) / "telemetry"
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.columns = columns
+        self.width = sum(w for _, w, _ in columns)
+        schema = {
+            "format": "rows of little-endian float64, one row per record",
+            "row_floats": self.width,
+            "columns": [{"name": n, "width": w, "unit": u} for n, w, u in columns],
+        }
+        (self.dir / SCHEMA).write_text(json.dumps(schema, indent=1))
+        self._file = open(self.dir / ROWS, "wb")  # noqa: SIM115 - closed by close()
+        self._clock = clock
+        self._buffer: list[tuple] = []
+        self._last_handoff = clock()
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._writer, name="telemetry-writer", daemon=True)
+        self._thread.start()
+        self.rows = 0
+        self.closed = False
+
+    def record(self, row: tuple) -> None:
+        self._buffer.append(row)
+        if len(self._buffer) >= BATCH_ROWS or self._clock() - self._last_handoff >= FLUSH_S:
+            self._handoff()
+
+    def _handoff(self) -> None:
+        if self._buffer:
+            self._queue.put(self._buffer)
+            self.rows += len(self._buffer)
+            self._buffer = []
+        self._last_handoff = self._clock()
+
+    def _writer(self) -> None:
+        while True:
+            batch = self._queue.get()
+            if batch is None:
+                break
+            arr = np.asarray(batch, dtype="<f8")
+            if arr.ndim != 2 or arr.shape[1] != self.width:
+                raise ValueError(f"telemetry row has {arr.shape[-1]} values; the schema has {self.width}.")
+            self._file.write(arr.tobytes())
+            self._file.flush()
+
+    def close(self) -> None:
+        """Write what is buffered and stop the writer. Idempotent."""
+        if self.closed:
+            return
+        self.closed = True
+        self._handoff()
+        self._queue.put(None)
+        self._thread.join()
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class EventLog:
+    """``events.jsonl``: one line per event, flushed immediately (it survives a kill)."""
+
+    def __init__(self, run_dir: str | Path):
+        Path(run_dir).mkdir(parents=True, exist_ok=True)
+        self.path = Path(run_dir) / "events.jsonl"
+        self._file = open(self.path, "a", buffering=1)  # noqa: SIM115 - line-buffered, closed by close()
+
+    def log(self, kind: str, message: str, **fields) -> None:
+        if not self._file.closed:
+            self._file.write(json.dumps({"kind": kind, "message": message, **fields}) + "\n")
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+
+def load(run_dir: str | Path) -> dict[str, np.ndarray]:
+    """A run's telemetry as columns: ``t_s`` (n,), ``q_BN`` (n, 4), ``omega_BN_B`` (n, 3), ...
+
+    Reads whatever whole rows are on disk, so it works on a run that is still going or was killed.
+    """
+    d = Path(run_dir) / "telemetry"
+    try:
+        schema = json.loads((d / SCHEMA).read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{run_dir} holds no telemetry ({d / SCHEMA} is missing).") from None
+    width = int(schema["row_floats"])
+    raw = np.fromfile(d / ROWS, dtype="<f8")
+    n = raw.size // width
+    rows = raw[: n * width].reshape(n, width)
+    out: dict[str, np.ndarray] = {}
+    col = 0
+    for c in schema["columns"]:
+        w = int(c["width"])
+        out[c["name"]] = rows[:, col] if w == 1 else rows[:, col:col + w]
+        col += w
+    return out
+
+
+def units(run_dir: str | Path) -> dict[str, str]:
+    """Column name -> unit, from the schema."""
+    schema = json.loads((Path(run_dir) / "telemetry" / SCHEMA).read_text())
+    return {c["name"]: c["unit"] for c in schema["columns"]}

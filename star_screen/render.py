@@ -1,0 +1,338 @@
+"""Star-screen renderer: the stars a tracker sees at an attitude, drawn on the screen and on an ideal
+detector, with their truth.
+
+Per frame (``Renderer.render``), with no per-star Python loop:
+
+1. astrometric places at the epoch (proper motion, parallax; cached per epoch), cut at the
+   tracker's limiting magnitude once;
+2. one matrix-vector product and one compare cull the catalog to a cone around the boresight;
+3. annual plus orbital aberration for the culled stars only (``aberration=False`` skips it and the
+   parallax: catalog places with proper motion only, for comparisons);
+4. rotation to the tracker frame, projection to detector pixels (tracker optics) and to screen
+   pixels (collimator + screen), keeping stars that land on the detector;
+5. pixel-integrated Gaussian spots (exact ``erf`` integrals, so the emitted-light centroid of a
+   spot is its ideal position up to truncation at 4 sigma), smeared along each star's path during
+   the exposure when the tracker rotates;
+6. screen: linear luminance accumulated in a persistent float buffer, converted to drive codes
+   through the panel's inverse response (nearest emitted luminance), and written into a
+   persistent uint8 frame, clearing only the pixels the previous frame lit (cost grows with the
+   number of stars, not the screen size);
+7. detector: the same spots at the tracker's own PSF sigma, in electrons (noise-free float32).
+
+Dynamic-range policy (screen, see docs/star_screen.md):
+
+* A star of magnitude ``mag_full`` centred on a pixel has a peak of full scale at the nominal
+  spot sigma. Fainter stars scale in flux by 10^(-0.4 dm) at the same sigma.
+* Brighter stars keep their flux and are *widened* (sigma grows so the centred peak stays at full
+  scale) up to ``max_bright_sigma_px``; stars brighter still are drawn at that sigma with full-scale
+  peak and flagged ``clipped`` in the truth with the magnitude actually shown (``mag_shown``).
+* Stars fainter than the tracker's ``mag_limit`` are not drawn. With mag_full = 2 and a limit of 8
+  the faintest peak is ~1/255 of full scale in luminance (code ~20 of 255 on a gamma-2.2 panel).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import erf, erfinv
+
+from sim.ephemeris import aberrate, earth_pv_bcrs
+from sim.rotations import dcm
+from sim.time import Epoch
+from star_screen.catalog import Catalog
+from star_screen.geometry import Bench
+
+__all__ = ["Photometry", "Renderer", "Frame", "StarsInField", "splat_gaussians", "centred_peak_fraction"]
+
+_SQRT2 = math.sqrt(2.0)
+#: Cull margin beyond the detector's half diagonal: aberration (25") + spot wings + safety.
+_CULL_MARGIN_RAD = math.radians(0.25)
+
+
+def centred_peak_fraction(sigma) -> np.ndarray:
+    """Fraction of a pixel-integrated Gaussian's flux in its central pixel when centred on it."""
+    return erf(0.5 / (_SQRT2 * np.asarray(sigma, dtype=float))) ** 2
+
+
+@dataclass(frozen=True)
+class Photometry:
+    """Screen spot size and brightness policy (see the module docstring)."""
+
+    mag_full: float = 2.0
+    defocus_fraction: float = 0.5  #: screen sigma = this x tracker PSF sigma (in screen px), clipped
+    min_sigma_px: float = 0.7  #: below ~0.6 screen px the sampled centroid is biased
+    max_sigma_px: float = 1.0
+    max_bright_sigma_px: float = 3.0
+    truncate_sigmas: float = 4.0
+
+    def __post_init__(self):
+        if not (0.5 <= self.min_sigma_px <= self.max_sigma_px <= self.max_bright_sigma_px):
+            raise ValueError(
+                "photometry needs 0.5 <= min_sigma_px <= max_sigma_px <= max_bright_sigma_px; got "
+                f"{self.min_sigma_px}, {self.max_sigma_px}, {self.max_bright_sigma_px}."
+            )
+
+
+def splat_gaussians(x, y, flux, sigma, width: int, height: int, truncate: float = 4.0):
+    """Pixel-integrated Gaussian spots as (flat pixel indices, values, per-spot peak value).
+
+    ``x, y`` are spot centres in pixel coordinates ((0.5, 0.5) is the centre of pixel (0, 0)),
+    ``flux`` their integrals, ``sigma`` scalar or per spot. Spots are grouped by stamp radius
+    (a handful of groups), each group vectorised. Pixels outside the array are dropped.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    flux = np.asarray(flux, dtype=float)
+    sigma = np.broadcast_to(np.asarray(sigma, dtype=float), x.shape)
+    if x.size == 0:
+        return np.empty(0, np.int64), np.empty(0, np.float32), np.empty(0)
+    radius = np.ceil(truncate * sigma).astype(np.int64)
+    idx_parts, val_parts = [], []
+    peak = np.empty(x.shape)
+    for R in np.unique(radius):
+        sel = np.flatnonzero(radius == R)
+        xs, ys, fs, ss = x[sel], y[sel], flux[sel], sigma[sel]
+        k = np.arange(2 * R + 2)
+        ix0 = np.floor(xs).astype(np.int64) - R
+        iy0 = np.floor(ys).astype(np.int64) - R
+        inv = 1.0 / (_SQRT2 * ss)[:, None]
+        cx = erf((ix0[:, None] + k - xs[:, None]) * inv)
+        cy = erf((iy0[:, None] + k - ys[:, None]) * inv)
+        fx = 0.5 * np.diff(cx, axis=1)
+        fy = 0.5 * np.diff(cy, axis=1) * fs[:, None]
+        stamp = fy[:, :, None] * fx[:, None, :]  # (n, K, K) rows then columns
+        peak[sel] = stamp.reshape(len(sel), -1).max(axis=1)
+        cols = ix0[:, None] + k[:-1]
+        rows = iy0[:, None] + k[:-1]
+        ok = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
+        flat = rows[:, :, None] * width + cols[:, None, :]
+        idx_parts.append(flat[ok])
+        val_parts.append(stamp[ok].astype(np.float32))
+    return np.concatenate(idx_parts), np.concatenate(val_parts), peak
+
+
+@dataclass
+class StarsInField:
+    """Stars drawn in one frame (arrays over stars, brightest first)."""
+
+    hip: np.ndarray
+    mag: np.ndarray
+    d_S: np.ndarray  #: (n, 3) apparent unit directions in the tracker frame at mid-exposure
+    detector_xy: np.ndarray  #: (n, 2) ideal detector pixel at mid-exposure
+    screen_xy: np.ndarray  #: (n, 2) screen pixel at mid-exposure
+    on_detector: np.ndarray  #: (n,) bool, the spot centre lies on the detector array
+    screen_flux: np.ndarray = field(default=None)  #: (n,) relative-luminance pixel sum drawn
+    screen_sigma: np.ndarray = field(default=None)
+    screen_peak: np.ndarray = field(default=None)  #: (n,) peak relative luminance of the spot
+    clipped: np.ndarray = field(default=None)
+    mag_shown: np.ndarray = field(default=None)
+    detector_flux_e: np.ndarray = field(default=None)
+
+    def __len__(self) -> int:
+        return len(self.hip)
+
+    def as_records(self) -> list[dict]:
+        out = []
+        for i in range(len(self)):
+            rec = {
+                "hip": int(self.hip[i]),
+                "mag": round(float(self.mag[i]), 4),
+                "detector_xy": [round(float(v), 5) for v in self.detector_xy[i]],
+                "screen_xy": [round(float(v), 5) for v in self.screen_xy[i]],
+                "on_detector": bool(self.on_detector[i]),
+            }
+            if self.mag_shown is not None:
+                rec["mag_shown"] = round(float(self.mag_shown[i]), 4)
+                rec["clipped"] = bool(self.clipped[i])
+            out.append(rec)
+        return out
+
+
+@dataclass
+class Frame:
+    """One rendered frame: images, the stars drawn, attitude, time tag and bright-body flags."""
+
+    q_SN: np.ndarray
+    epoch: Epoch
+    time_tag_ns: int | None
+    stars: StarsInField
+    screen: np.ndarray | None  #: (H, W) uint8 drive codes
+    detector: np.ndarray | None  #: (h, w) float32 electrons, noise-free
+    aberration: bool
+    bodies: dict = field(default_factory=dict)
+
+
+class Renderer:
+    """Render frames for one bench (tracker + collimator + screen).
+
+    ``catalog`` defaults to the hip2 fixture cut at the tracker's limiting magnitude. The screen
+    and detector arrays are persistent and updated sparsely; ``render(copy=False)`` returns views
+    that the next call overwrites (what a display loop wants), ``copy=True`` (default) fresh arrays.
+    ``bright_bodies`` is an optional :class:`star_screen.bodies.BrightBodies` evaluated per frame.
+    """
+
+    def __init__(self, bench: Bench | None = None, catalog: Catalog | None = None, *,
+                 photometry: Photometry | None = None, aberration: bool = True, bright_bodies=None):
+        self.bench = bench if bench is not None else Bench()
+        t = self.bench.tracker
+        self.photometry = photometry if photometry is not None else Photometry()
+        if catalog is None:
+            catalog = Catalog.load(mag_limit=min(t.mag_limit, 9.0))
+        elif t.mag_limit > catalog.hp_limit:
+            raise ValueError(
+                f"tracker mag_limit = {t.mag_limit} is fainter than the catalog's limit Hp {catalog.hp_limit}."
+            )
+        self.catalog = catalog
+        self.aberration = bool(aberration)
+        self.bright_bodies = bright_bodies
+        ph = self.photometry
+        self.sigma_screen = float(np.clip(ph.defocus_fraction * t.psf_sigma_px * self.bench.screen_px_per_tracker_px,
+                                          ph.min_sigma_px, ph.max_sigma_px))
+        self.flux_full = 1.0 / float(centred_peak_fraction(self.sigma_screen))
+        s = self.bench.screen
+        self._thresholds = s.inverse_table().astype(np.float32)
+        self._screen = np.zeros((s.height, s.width), np.uint8)
+        self._lin = np.zeros(s.height * s.width, np.float32)
+        self._screen_prev = np.empty(0, np.int64)
+        self._det = np.zeros((t.height, t.width), np.float32)
+        self._det_prev = np.empty(0, np.int64)
+        self._cos_cull = math.cos(t.half_diagonal_rad() + _CULL_MARGIN_RAD)
+        self._places_key = None
+        self._places = None
+        self._v_earth_key = None
+        self._v_earth = None
+
+    # ------------------------------------------------------------------ geometry
+    def _places_at(self, epoch: Epoch):
+        key = (epoch.jd_tt, self.aberration)
+        if key != self._places_key:
+            lim = self.bench.tracker.mag_limit
+            self._places = self.catalog.places(epoch, parallax=self.aberration).brighter_than(lim)
+            self._places_key = key
+        return self._places
+
+    def observer_velocity(self, epoch: Epoch, v_sc_gcrs_m_s=None) -> np.ndarray:
+        """Barycentric velocity of the spacecraft (m/s): Earth's (epv00) plus the orbital velocity."""
+        key = epoch.jd_tt
+        if key != self._v_earth_key:
+            self._v_earth = earth_pv_bcrs(epoch)[1]
+            self._v_earth_key = key
+        v = self._v_earth
+        return v + np.asarray(v_sc_gcrs_m_s, dtype=float) if v_sc_gcrs_m_s is not None else v
+
+    def stars_in_field(self, q_SN, epoch: Epoch, v_sc_gcrs_m_s=None) -> StarsInField:
+        """Stars whose spots reach the detector at attitude ``q_SN`` (apparent places unless
+        ``aberration=False``), with detector and screen positions; no drawing."""
+        places = self._places_at(epoch)
+        C = dcm(q_SN)
+        sel = places.cull(C[2], self._cos_cull)
+        u = places.u_N[sel]
+        if self.aberration and len(sel):
+            u = aberrate(u, self.observer_velocity(epoch, v_sc_gcrs_m_s))
+        d_S = u @ C.T
+        t = self.bench.tracker
+        det, front = t.project(d_S)
+        m = 4.0 * t.psf_sigma_px
+        keep = front & (det[:, 0] > -m) & (det[:, 0] < t.width + m) & (det[:, 1] > -m) & (det[:, 1] < t.height + m)
+        sel, d_S, det = sel[keep], d_S[keep], det[keep]
+        scr, _ = self.bench.direction_to_screen(d_S)
+        on = (det[:, 0] >= 0) & (det[:, 0] < t.width) & (det[:, 1] >= 0) & (det[:, 1] < t.height)
+        return StarsInField(places.hip[sel], places.mag[sel], d_S, det, scr, on)
+
+    # ------------------------------------------------------------------ drawing
+    def _smear_offsets(self, stars: StarsInField, omega_SN_S, exposure_s: float):
+        """Directions along each star's path during the exposure: (n, k, 3) and the sample count k."""
+        if omega_SN_S is None or exposure_s <= 0:
+            return None
+        w = np.asarray(omega_SN_S, dtype=float)
+        rate = float(np.linalg.norm(w))
+        if rate == 0.0:
+            return None
+        trail_rad = rate * exposure_s
+        trail_px = trail_rad * max(self.bench.k_px, self.bench.tracker.fx)
+        k = int(np.clip(math.ceil(trail_px / (0.5 * min(self.sigma_screen, self.bench.tracker.psf_sigma_px))) + 1,
+                        2, 256))
+        ts = (np.arange(k) + 0.5) / k - 0.5  # fractions of the exposure about mid-exposure
+        axis = w / rate
+        ang = -rate * exposure_s * ts  # an inertial direction turns by -omega t in S
+        d = stars.d_S
+        c, s = np.cos(ang)[None, :, None], np.sin(ang)[None, :, None]
+        kxd = np.cross(axis, d)[:, None, :]
+        kdd = (d @ axis)[:, None, None] * axis
+        return d[:, None, :] * c + kxd * s + kdd * (1 - c), k
+
+    def render(self, q_SN, epoch: Epoch, *, v_sc_gcrs_m_s=None, omega_SN_S=None, exposure_s: float | None = None,
+               time_tag_ns: int | None = None, screen: bool = True, detector: bool = True,
+               copy: bool = True, r_sc_gcrs_m=None) -> Frame:
+        """Render one frame at the tracker's mid-exposure attitude ``q_SN`` and ``epoch``.
+
+        ``v_sc_gcrs_m_s``: spacecraft velocity relative to the Earth (orbital aberration);
+        ``omega_SN_S`` (rad/s) and ``exposure_s`` (default: the tracker's) smear the stars;
+        ``time_tag_ns``: sim time of the frame (every displayed frame carries it);
+        ``r_sc_gcrs_m``: spacecraft position (needed only for the Earth among bright bodies).
+        """
+        t = self.bench.tracker
+        ph = self.photometry
+        stars = self.stars_in_field(q_SN, epoch, v_sc_gcrs_m_s)
+        exposure = t.exposure_s if exposure_s is None else float(exposure_s)
+        path = self._smear_offsets(stars, omega_SN_S, exposure)
+        n = len(stars)
+        mag = stars.mag.astype(float)
+        # --- screen photometry policy
+        flux = self.flux_full * 10.0 ** (-0.4 * (mag - ph.mag_full))
+        sigma = np.full(n, self.sigma_screen)
+        bright = flux * centred_peak_fraction(self.sigma_screen) > 1.0
+        clipped = np.zeros(n, bool)
+        if np.any(bright):
+            sig_b = 1.0 / (2.0 * _SQRT2 * erfinv(np.sqrt(1.0 / flux[bright])))
+            over = sig_b > ph.max_bright_sigma_px
+            sig_b = np.minimum(sig_b, ph.max_bright_sigma_px)
+            fb = flux[bright]
+            fb = np.where(over, 1.0 / centred_peak_fraction(ph.max_bright_sigma_px), fb)
+            sigma[bright] = sig_b
+            flux[bright] = fb
+            clipped[np.flatnonzero(bright)[over]] = True
+        mag_shown = ph.mag_full - 2.5 * np.log10(flux / self.flux_full)
+        stars.screen_flux, stars.screen_sigma, stars.clipped, stars.mag_shown = flux, sigma, clipped, mag_shown
+        det_flux = t.flux_mag0_e * 10.0 ** (-0.4 * mag)
+        stars.detector_flux_e = det_flux
+        # --- sample positions (smear) -> spots
+        if path is not None:
+            dirs, k = path
+            flat = dirs.reshape(-1, 3)
+            s_xy = self.bench.direction_to_screen(flat)[0]
+            d_xy = t.project(flat)[0]
+            rep = lambda a: np.repeat(a, k) / k  # noqa: E731
+            s_in = (s_xy, rep(flux), np.repeat(sigma, k))
+            d_in = (d_xy, rep(det_flux))
+        else:
+            s_in = (stars.screen_xy, flux, sigma)
+            d_in = (stars.detector_xy, det_flux)
+        scr_out = det_out = None
+        if screen:
+            sw, sh = self.bench.screen.width, self.bench.screen.height
+            idx, val, peak = splat_gaussians(s_in[0][:, 0], s_in[0][:, 1], s_in[1], s_in[2], sw, sh, ph.truncate_sigmas)
+            stars.screen_peak = peak if path is None else None
+            lin = self._lin
+            np.add.at(lin, idx, val)
+            codes = np.searchsorted(self._thresholds, lin[idx], side="right").astype(np.uint8)
+            lin[idx] = 0.0
+            sflat = self._screen.reshape(-1)
+            sflat[self._screen_prev] = 0
+            sflat[idx] = codes
+            self._screen_prev = idx
+            scr_out = self._screen.copy() if copy else self._screen
+        if detector:
+            idx, val, _ = splat_gaussians(d_in[0][:, 0], d_in[0][:, 1], d_in[1], t.psf_sigma_px, t.width, t.height,
+                                          ph.truncate_sigmas)
+            dflat = self._det.reshape(-1)
+            dflat[self._det_prev] = 0.0
+            np.add.at(dflat, idx, val)
+            self._det_prev = idx
+            det_out = self._det.copy() if copy else self._det
+        bodies = {}
+        if self.bright_bodies is not None:
+            bodies = self.bright_bodies.evaluate(q_SN, epoch, r_sc_gcrs_m=r_sc_gcrs_m)
+        return Frame(np.asarray(q_SN, float), epoch, time_tag_ns, stars, scr_out, det_out, self.aberration, bodies)
