@@ -228,8 +228,10 @@ class DbcCodec:
                 raw = round((value - sig.offset) / sig.scale)
             elif kind == _IDENTITY:
                 raw = round(value)
-            else:
-                raw = self._raw_of(sig, value)
+            else:  # cantools' integer-scale path: avoid a division when the value is exact
+                raw = value - sig.offset
+                quotient, remainder = divmod(raw, sig.scale)
+                raw = round(quotient if remainder == 0 else raw / sig.scale)
             if not sig.raw_lo <= raw <= sig.raw_hi:
                 raise self._out_of_range(entry, sig, value)
             word |= (raw & sig.mask) << sig.start

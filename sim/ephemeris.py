@@ -16,8 +16,8 @@ epochs. Nothing here reads the wall clock.
 
 from __future__ import annotations
 
-import numpy as np
 import erfa
+import numpy as np
 
 from sim.constants import AU, C_LIGHT, DAY_S
 from sim.time import Epoch

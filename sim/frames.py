@@ -14,9 +14,8 @@ Every function returns a direction cosine matrix ``dcm_XY`` that maps Y componen
 
 from __future__ import annotations
 
-import numpy as np
-
 import erfa
+import numpy as np
 
 from .constants import OMEGA_EARTH
 from .time import Epoch

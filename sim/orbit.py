@@ -21,8 +21,8 @@ Mean anomaly ``M`` is the conic-appropriate one: ``E - e sin E`` (elliptic),
 matching mean motions are ``sqrt(mu/a**3)``, ``sqrt(mu/(-a)**3)`` and ``2 sqrt(mu/p**3)``, so
 ``M = n (t - tp)`` for every conic.
 
-Numerics (see ``/work/shared/notes/numerics.md`` sections 2.3, 2.4 and 3.4)
---------------------------------------------------------------------------
+Numerics (the project's numerics research note, sections 2.3, 2.4 and 3.4)
+-------------------------------------------------------------------------
 * Kepler's equation: Markley (1995) starter with its fifth-order correction, then Newton steps on the
   cancellation-free residual ``(E - sin E) + (1 - e) sin E - M`` (series for ``E - sin E`` at small
   ``E``). Hyperbolic: a starter that is a proven upper bound (cubic or logarithmic), then Halley on
@@ -73,12 +73,14 @@ INC_EQUATORIAL = 1e-11
 
 _TWO_PI = 2.0 * math.pi
 _EPS = np.finfo(float).eps
-# 2 pi split in three parts (Cody-Waite): the first two carry 33 significant bits each, so k * part
-# is exact for |k| < 2**20 (|M| up to about 6.6e6 rad) and M - k * 2 pi keeps full relative accuracy
-# even when M is close to a multiple of 2 pi.
-_TWO_PI_1 = 6.2831853069365025
-_TWO_PI_2 = 2.4308402025215864e-10
-_TWO_PI_3 = 8.089064995183803e-21
+# 2 pi split in four parts (Cody-Waite): the first three carry 26 significant bits each, so k * part
+# is exact for |k| < 2**27 (|M| up to 8.4e8 rad) and M - k * 2 pi keeps full relative accuracy even
+# when M is close to a multiple of 2 pi (which matters near perigee as e -> 1, where dE/dM ~ 1/(1-e)).
+_TWO_PI_1 = 6.283185243606567
+_TWO_PI_2 = 6.357301884918343e-08
+_TWO_PI_3 = 2.4492935728214377e-16
+_TWO_PI_4 = 2.54732686540438e-24
+_EXACT_K_MAX = 2.0 ** 27
 
 # Taylor coefficients of the Stumpff functions: S(z) = sum (-z)**k / (2k+3)!, C(z) = sum (-z)**k / (2k+2)!.
 # With |z| < 2.25 the first omitted term is below 1e-18 relative.
@@ -100,7 +102,7 @@ def _shown(value) -> str:
     arr = np.asarray(value, dtype=float)
     if arr.ndim == 0:
         return repr(float(arr))
-    return repr(float(arr.ravel()[0])) + f" (first offending of {arr.size} values)"
+    return repr(float(arr.ravel()[0])) + f" (the first of {arr.size} offending values)"
 
 
 def _fail(field: str, bad, value, allowed: str) -> None:
@@ -180,10 +182,27 @@ def _stumpff(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # Kepler's equation.
 
 
+def _wrap_2pi(x: np.ndarray) -> np.ndarray:
+    """x modulo 2 pi in [0, 2 pi): np.mod rounds tiny negative angles up to exactly 2 pi."""
+    y = np.mod(x, _TWO_PI)
+    return np.where(y >= _TWO_PI, 0.0, y)
+
+
 def _reduce_angle(M: np.ndarray) -> np.ndarray:
-    """M - 2 pi k in [-pi, pi] with k = round(M / 2 pi), accurate near multiples of 2 pi."""
+    """M - 2 pi k in [-pi, pi] with k = round(M / 2 pi), accurate near multiples of 2 pi.
+
+    Exact-product Cody-Waite reduction for |M| < 8.4e8 rad. Beyond, the binary64 M itself is coarse
+    (ulp >= 1.2e-7) and the reduction is done against the binary64 2 pi with fmod (exact), which
+    costs an absolute phase error of about 4e-17 |M|: still round-off relative to |M|.
+    """
     k = np.round(M / _TWO_PI)
-    return ((M - k * _TWO_PI_1) - k * _TWO_PI_2) - k * _TWO_PI_3
+    exact = np.abs(k) < _EXACT_K_MAX
+    k = np.where(exact, k, 0.0)
+    r = (((M - k * _TWO_PI_1) - k * _TWO_PI_2) - k * _TWO_PI_3) - k * _TWO_PI_4
+    if not np.all(exact):
+        far = np.fmod(M[~exact], _TWO_PI)
+        r[~exact] = far - _TWO_PI * np.round(far / _TWO_PI)
+    return r
 
 
 def _kepler_elliptic(M: np.ndarray, e: np.ndarray) -> np.ndarray:
@@ -198,11 +217,11 @@ def _kepler_elliptic(M: np.ndarray, e: np.ndarray) -> np.ndarray:
     alpha = (3.0 * pi2 + 1.6 * math.pi * (math.pi - m) / (1.0 + e)) / (pi2 - 6.0)
     d = 3.0 * one_minus_e + alpha * e
     q = 2.0 * alpha * d * one_minus_e - m * m
-    r = 3.0 * alpha * d * (d - one_minus_e) * m + m ** 3
-    w = (np.abs(r) + np.sqrt(np.maximum(q ** 3 + r * r, 0.0))) ** (2.0 / 3.0)
+    r = 3.0 * alpha * d * (d - one_minus_e) * m + m * m * m
+    w = np.cbrt(np.abs(r) + np.sqrt(np.maximum(q * q * q + r * r, 0.0))) ** 2
     E = (2.0 * r * w / (w * w + w * q + q * q) + m) / d
 
-    def residual(E):
+    def residual(E, m, e, one_minus_e):
         # E - e sin E - m = (E - sin E) + (1 - e) sin E - m: no cancellation as e -> 1, E -> 0.
         sE = np.sin(E)
         f0 = _x_minus_sin(E) + one_minus_e * sE - m
@@ -211,20 +230,25 @@ def _kepler_elliptic(M: np.ndarray, e: np.ndarray) -> np.ndarray:
         return f0, f1, e * sE, e * np.cos(E)
 
     # Markley's fifth-order correction (one step of a Householder-type iteration).
-    f0, f1, f2, f3 = residual(E)
+    f0, f1, f2, f3 = residual(E, m, e, one_minus_e)
     d3 = -f0 / (f1 - 0.5 * f0 * f2 / f1)
     d4 = -f0 / (f1 + 0.5 * d3 * f2 + d3 * d3 * f3 / 6.0)
-    d5 = -f0 / (f1 + 0.5 * d4 * f2 + d4 * d4 * f3 / 6.0 - d4 ** 3 * f2 / 24.0)
+    d5 = -f0 / (f1 + 0.5 * d4 * f2 + d4 * d4 * f3 / 6.0 - d4 * d4 * d4 * f2 / 24.0)
     E = E + d5
 
-    # Newton polish on the accurate residual; usually one step that changes nothing.
+    # Newton polish on the accurate residual, usually one step that changes nothing. Converged
+    # entries are frozen, so a result does not depend on what else is in the batch.
     step = np.zeros_like(E)
+    active = np.ones(E.shape, dtype=bool)
     for _ in range(_KEPLER_ELLIPTIC_ITER):
-        f0, f1, _, _ = residual(E)
-        step = -f0 / f1
-        E = E + step
-        if np.all(np.abs(step) <= 2.0 * _EPS * E):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
             break
+        f0, f1, _, _ = residual(E[idx], m[idx], e[idx], one_minus_e[idx])
+        step_a = -f0 / f1
+        E[idx] += step_a
+        step[idx] = step_a
+        active[idx] = np.abs(step_a) > 2.0 * _EPS * E[idx]
     _check_converged("solve_kepler (elliptic)", step, E)
     E = sign * E
     # Return M + (E - M) computed in the reduced range, so the revolution count of M is kept exactly
@@ -253,20 +277,30 @@ def _kepler_hyperbolic(M: np.ndarray, e: np.ndarray) -> np.ndarray:
         B = np.where(A > 0.0, P / (3.0 * A), 0.0)
         h_cubic = np.where(A > 0.0, Q / (A * A + P / 3.0 + B * B), 0.0)
     h_cubic = np.where(big, np.inf, h_cubic)
-    h_log = np.log(2.0 * m + em1) - np.log(em1)
+    h_log = np.log(2.0 * mc + em1) - np.log(em1)
+    h_log = np.where(big, np.log(np.where(big, m, 1.0)) - np.log(em1) + math.log(2.0), h_log)
     H = np.arcsinh((m + np.minimum(h_cubic, h_log)) / e)
+    # For M > 1e280 sinh would overflow in the iteration; there e sinh H = e e^H / 2 to double
+    # precision (e^-2H < 1e-17), and H << ulp(M), so the root is ln(2M/e) in closed form.
+    huge = m > 1e280
+    H[huge] = np.log(m[huge]) + math.log(2.0) - np.log(e[huge])
 
     step = np.zeros_like(H)
+    active = ~huge
     for _ in range(_KEPLER_HYPERBOLIC_ITER):
-        sh = np.sinh(H)
-        f0 = _sinh_minus_x(H) + em1 * sh - m
-        f1 = em1 * np.cosh(H) + 2.0 * np.sinh(0.5 * H) ** 2  # e cosh H - 1 without cancellation
-        f2 = e * sh
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(f0 == 0.0, 0.0, -2.0 * f0 * f1 / (2.0 * f1 * f1 - f0 * f2))  # Halley
-        H = H + step
-        if np.all(np.abs(step) <= 2.0 * _EPS * H):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
             break
+        Ha, ea, em1a = H[idx], e[idx], em1[idx]
+        sh = np.sinh(Ha)
+        f0 = _sinh_minus_x(Ha) + em1a * sh - m[idx]
+        f1 = em1a * np.cosh(Ha) + 2.0 * np.sinh(0.5 * Ha) ** 2  # e cosh H - 1 without cancellation
+        newton = -f0 / f1
+        # Halley written as a Newton step divided by a correction, so f0 * f1 never underflows.
+        step_a = newton / (1.0 + 0.5 * newton * ea * sh / f1)
+        H[idx] = Ha + step_a
+        step[idx] = step_a
+        active[idx] = np.abs(step_a) > 2.0 * _EPS * H[idx]
     _check_converged("solve_kepler (hyperbolic)", step, H)
     return sign * H
 
@@ -274,11 +308,16 @@ def _kepler_hyperbolic(M: np.ndarray, e: np.ndarray) -> np.ndarray:
 def _barker(M: np.ndarray) -> np.ndarray:
     """D = tan(nu/2) solving D + D^3/3 = M (Barker), closed form plus one Newton polish."""
     m = np.abs(M)
-    w = 1.5 * m + np.hypot(1.0, 1.5 * m)
+    # Beyond 1e100, D = cbrt(3M) to double precision (the next term is relatively 1e-67), and the
+    # closed form below would overflow.
+    big = m > 1e100
+    mc = np.where(big, 1.0, m)
+    w = 1.5 * mc + np.hypot(1.0, 1.5 * mc)
     z = np.cbrt(w)
     # D = z - 1/z, rewritten as 3M / (z^2 + 1 + z^-2) because z^3 - z^-3 = 3M: no cancellation.
-    D = 3.0 * m / (z * z + 1.0 + 1.0 / (z * z))
-    D = D - (D + D ** 3 / 3.0 - m) / (1.0 + D * D)
+    D = 3.0 * mc / (z * z + 1.0 + 1.0 / (z * z))
+    D = D - (D + D ** 3 / 3.0 - mc) / (1.0 + D * D)
+    D = np.where(big, np.cbrt(3.0) * np.cbrt(m), D)
     return np.where(M < 0.0, -D, D)
 
 
@@ -405,16 +444,16 @@ def _mean_from_true(nu: np.ndarray, e: np.ndarray) -> np.ndarray:
     par = e == 1.0
     if np.any(ell):
         v, ee = nu[ell], e[ell]
-        s = np.sqrt((1.0 - ee) * (1.0 + ee))
-        beta = ee / (1.0 + s)
-        # 1 + beta cos nu = (1 - beta) + 2 beta cos^2(nu/2): accurate near nu = pi as e -> 1.
-        den = ((1.0 - ee) + s) / (1.0 + s) + 2.0 * beta * np.cos(0.5 * v) ** 2
-        E = v - 2.0 * np.arctan2(beta * np.sin(v), den)
-        # E - e sin E; the cancellation-free form matters only for small |E| (no revolutions there).
-        small = np.abs(E) < 1.0
-        M_ell = E - ee * np.sin(E)
-        M_ell[small] = _x_minus_sin(E[small]) + (1.0 - ee[small]) * np.sin(E[small])
-        M[ell] = M_ell
+        # Reduce nu to (-pi, pi] keeping k revolutions, then tan(E/2) = sqrt((1-e)/(1+e)) tan(nu/2) in
+        # atan2 form: no cancellation for small E as e -> 1 (nu - 2 atan(...) would lose digits).
+        k = np.round(v / _TWO_PI)
+        v0 = _reduce_angle(v)
+        E0 = 2.0 * np.arctan2(np.sqrt(1.0 - ee) * np.sin(0.5 * v0), np.sqrt(1.0 + ee) * np.cos(0.5 * v0))
+        # E - e sin E; the cancellation-free form for small |E|.
+        small = np.abs(E0) < 1.0
+        M0 = E0 - ee * np.sin(E0)
+        M0[small] = _x_minus_sin(E0[small]) + (1.0 - ee[small]) * np.sin(E0[small])
+        M[ell] = np.where(k == 0.0, M0, M0 + k * _TWO_PI)
     if np.any(hyp):
         v, ee = nu[hyp], e[hyp]
         # tanh(H/2) = sqrt((e-1)/(e+1)) tan(nu/2); clamp below 1 so rounding at the asymptote gives a
@@ -582,6 +621,22 @@ def _check_state(r, v) -> tuple[np.ndarray, np.ndarray]:
     return r, v
 
 
+def _check_orbit_plane(r: np.ndarray, v: np.ndarray, rn: np.ndarray, hn: np.ndarray) -> None:
+    """Refuse r = 0 and r x v = 0 (rectilinear motion has no orbit plane), showing the vectors."""
+
+    def first(x, bad):
+        return [float(c) for c in np.broadcast_to(x, bad.shape + (3,))[bad][0]]
+
+    if np.any(rn == 0.0):
+        raise ValueError(f"r = {first(r, rn == 0.0)} is not allowed: the position must not be the centre of "
+                         "attraction (|r| > 0 m).")
+    if np.any(hn == 0.0):
+        bad = hn == 0.0
+        raise ValueError(f"v = {first(v, bad)} m/s is not allowed with r = {first(r, bad)} m: the angular "
+                         "momentum r x v must not be zero (rectilinear motion has no orbit plane and is "
+                         "not supported).")
+
+
 def state_to_elements(r, v, mu=MU_EARTH) -> Elements:
     """Classical elements from inertial position ``r`` (m) and velocity ``v`` (m/s), vectorised.
 
@@ -596,11 +651,9 @@ def state_to_elements(r, v, mu=MU_EARTH) -> Elements:
     mu = _check_mu(mu)
     r, v = np.broadcast_arrays(r, v)
     rn = np.linalg.norm(r, axis=-1)
-    _fail("r", rn == 0.0, rn, "the position r must not be the centre of attraction (|r| > 0 m)")
     h = np.cross(r, v)
     hn = np.linalg.norm(h, axis=-1)
-    _fail("v", hn == 0.0, hn, "the angular momentum |r x v| must be > 0 m^2/s (a rectilinear "
-          "trajectory has no orbit plane)")
+    _check_orbit_plane(r, v, rn, hn)
     hx, hy, hz = h[..., 0], h[..., 1], h[..., 2]
     hxy = np.hypot(hx, hy)
     p = hn * hn / mu
@@ -615,7 +668,7 @@ def state_to_elements(r, v, mu=MU_EARTH) -> Elements:
     safe_hxy = np.where(equatorial, 1.0, hxy)
     sO = np.where(equatorial, 0.0, hx / safe_hxy)
     cO = np.where(equatorial, 1.0, -hy / safe_hxy)
-    raan = np.where(equatorial, 0.0, np.mod(np.arctan2(sO, cO), _TWO_PI))
+    raan = np.where(equatorial, 0.0, _wrap_2pi(np.arctan2(sO, cO)))
 
     # Components along the line of nodes N = (cos raan, sin raan, 0) and along h_hat x N (which
     # reduces to cos i (-sin raan, cos raan, 0) + sin i (0, 0, 1)); with raan := 0 for equatorial
@@ -627,21 +680,22 @@ def state_to_elements(r, v, mu=MU_EARTH) -> Elements:
         along_m = ci * (x[..., 1] * cO - x[..., 0] * sO) + si * x[..., 2]
         return np.arctan2(along_m, along_n)
 
-    arglat = np.mod(in_plane_angle(r), _TWO_PI)
+    arglat = _wrap_2pi(in_plane_angle(r))
     # True anomaly straight from the state: e cos nu = p/r - 1, e sin nu = (r . v) |h| / (mu |r|).
     ecosnu = p / rn - 1.0
     esinnu = np.sum(r * v, axis=-1) * hn / (mu * rn)
     nu = np.arctan2(esinnu, ecosnu)
     nu = np.where(circular, arglat, nu)
     closed = e < 1.0
-    nu = np.where(closed, np.mod(nu, _TWO_PI), nu)
-    argp = np.where(circular, 0.0, np.mod(arglat - nu, _TWO_PI))
-    truelon = np.mod(raan + arglat, _TWO_PI)
+    nu = np.where(closed, _wrap_2pi(nu), nu)
+    argp = np.where(circular, 0.0, _wrap_2pi(arglat - nu))
+    truelon = _wrap_2pi(raan + arglat)
 
     one_m_e2 = (1.0 - e) * (1.0 + e)
     with np.errstate(divide="ignore"):
         a = np.where(e == 1.0, np.inf, p / np.where(e == 1.0, 1.0, one_m_e2))
     M = _mean_from_true(nu, e)
+    M = np.where(closed, _wrap_2pi(M), M)
     return Elements(p=p[()], a=a[()], e=e[()], i=inc[()], raan=raan[()], argp=argp[()], nu=nu[()],
                     M=np.asarray(M)[()], arglat=arglat[()], truelon=truelon[()])
 
@@ -668,10 +722,15 @@ def propagate_kepler(r, v, dt, mu=MU_EARTH):
     r, v : numpy.ndarray, shape (..., 3)
 
     Method: Goodyear/Shepperd/Vallado universal variable chi with Stumpff functions (series near zero,
-    so it is continuous across e = 1), solved by Laguerre-Conway steps inside a bracket that is
-    known to hold the root (F(chi) is increasing with F' = r, and |chi| <= sqrt(mu)|dt|/r_p), with
-    bisection whenever a step leaves the bracket; at most 100 iterations. Elliptic ``dt`` is first
-    reduced modulo the period. Zero angular momentum (rectilinear motion) is refused.
+    so it is continuous across e = 1), started from Kepler's equation of the osculating conic and
+    solved by Laguerre-Conway steps inside a bracket that is known to hold the root (F(chi) is
+    increasing with F' = r, and |chi| <= sqrt(mu)|dt|/r_p), with bisection whenever a step leaves the
+    bracket or stalls; at most 100 iterations. Elliptic ``dt`` is first reduced modulo the period.
+    Zero angular momentum (rectilinear motion) is refused.
+
+    Accuracy is limited by the state itself: alpha = 2/r - v^2/mu loses log10(1/|1 - e|) digits to
+    cancellation, so the timing of a long near-parabolic arc carries a relative error of about
+    1e-16/|1 - e| (e.g. one period of an e = 0.999999 orbit is uncertain by parts in 1e10).
     """
     r, v = _check_state(r, v)
     mu = float(_check_mu(mu))
@@ -682,11 +741,9 @@ def propagate_kepler(r, v, dt, mu=MU_EARTH):
     dt = np.broadcast_to(dt, shape).ravel().astype(float)
 
     r0n = np.linalg.norm(r0, axis=-1)
-    _fail("r", r0n == 0.0, r0n, "the position r must not be the centre of attraction (|r| > 0 m)")
     hvec = np.cross(r0, v0)
     hn = np.linalg.norm(hvec, axis=-1)
-    _fail("v", hn == 0.0, hn, "the angular momentum |r x v| must be > 0 m^2/s (rectilinear motion is "
-          "not supported)")
+    _check_orbit_plane(r0, v0, r0n, hn)
     sqmu = math.sqrt(mu)
     rv = np.sum(r0 * v0, axis=-1)
     sigma0 = rv / sqmu
@@ -707,40 +764,47 @@ def propagate_kepler(r, v, dt, mu=MU_EARTH):
     chi_max[ell] = np.minimum(chi_max[ell], (math.pi + 2.0 * ecc[ell]) / np.sqrt(alpha[ell]))
     lo = np.where(dt_r >= 0.0, 0.0, -chi_max)
     hi = np.where(dt_r >= 0.0, chi_max, 0.0)
-    # Starter: mean motion for ellipses (chi = Delta E / sqrt(alpha)), else the local rate sqrt(mu)/r0.
-    chi = np.where(ell, sqmu * alpha * dt_r, sqmu * dt_r / r0n)
-    chi = np.clip(chi, lo, hi)
+    chi = np.clip(_universal_starter(r0n, sigma0, alpha, hn * hn / mu, dt_r, mu), lo, hi)
     one_m_ar = 1.0 - alpha * r0n
     sdt = sqmu * dt_r
 
     done = dt_r == 0.0
     chi[done] = 0.0
+    last_step = np.full_like(chi, np.inf)  # |step| one and two iterations ago, for the safeguard
+    prev_step = np.full_like(chi, np.inf)
     n_lag = 5.0
     for _ in range(_UNIVERSAL_ITER):
-        if np.all(done):
+        idx = np.flatnonzero(~done)
+        if idx.size == 0:
             break
-        act = ~done
-        x = chi[act]
-        z = alpha[act] * x * x
+        x = chi[idx]
+        z = alpha[idx] * x * x
         with np.errstate(over="ignore", invalid="ignore"):
             c, s = _stumpff(z)
             x2 = x * x
-            F = sigma0[act] * x2 * c + one_m_ar[act] * x2 * x * s + r0n[act] * x - sdt[act]
-            dF = sigma0[act] * x * (1.0 - z * s) + one_m_ar[act] * x2 * c + r0n[act]
-            d2F = sigma0[act] * (1.0 - z * c) + one_m_ar[act] * x * (1.0 - z * s)
+            F = sigma0[idx] * x2 * c + one_m_ar[idx] * x2 * x * s + r0n[idx] * x - sdt[idx]
+            dF = sigma0[idx] * x * (1.0 - z * s) + one_m_ar[idx] * x2 * c + r0n[idx]
+            d2F = sigma0[idx] * (1.0 - z * c) + one_m_ar[idx] * x * (1.0 - z * s)
             # F is increasing: its sign tells which side of the root x is on. An overflowed F (far out
             # on a hyperbola) is beyond the root on the side of x.
             bad_F = ~np.isfinite(F)
-            lo_a = np.where((F < 0.0) | (bad_F & (x < 0.0)), x, lo[act])
-            hi_a = np.where((F > 0.0) | (bad_F & (x > 0.0)), x, hi[act])
+            lo_a = np.where((F < 0.0) | (bad_F & (x < 0.0)), x, lo[idx])
+            hi_a = np.where((F > 0.0) | (bad_F & (x > 0.0)), x, hi[idx])
+            # Laguerre-Conway step (n = 5).
             disc = np.sqrt(np.abs((n_lag - 1.0) ** 2 * dF * dF - n_lag * (n_lag - 1.0) * F * d2F))
             x_new = x - n_lag * F / (dF + disc)
-        outside = ~np.isfinite(x_new) | (x_new <= lo_a) | (x_new >= hi_a)
-        x_new = np.where(outside & (F != 0.0), 0.5 * (lo_a + hi_a), np.where(F == 0.0, x, x_new))
+        # Safeguard (as in rtsafe): bisect when the step leaves the bracket or is not at least half the
+        # step before last, e.g. while creeping down the exponential wall of a hyperbola.
+        slow = np.abs(x_new - x) > 0.5 * prev_step[idx]
+        bisect = ~np.isfinite(x_new) | (x_new <= lo_a) | (x_new >= hi_a) | slow
+        x_new = np.where(F == 0.0, x, np.where(bisect, 0.5 * (lo_a + hi_a), x_new))
+        step = np.abs(x_new - x)
         tol = 4.0 * _EPS * np.maximum(np.abs(x_new), 1e-300)
-        conv = (np.abs(x_new - x) <= tol) | (hi_a - lo_a <= tol) | (F == 0.0)
-        lo[act], hi[act], chi[act] = lo_a, hi_a, x_new
-        done[act] = conv
+        conv = (step <= tol) | (hi_a - lo_a <= tol) | (F == 0.0)
+        lo[idx], hi[idx], chi[idx] = lo_a, hi_a, x_new
+        prev_step[idx] = last_step[idx]
+        last_step[idx] = step
+        done[idx] = conv
     if not np.all(done):
         raise ArithmeticError("propagate_kepler did not converge within its iteration bound; please report "
                               "this input.")
@@ -756,6 +820,39 @@ def propagate_kepler(r, v, dt, mu=MU_EARTH):
     r_out = f[:, None] * r0 + g[:, None] * v0
     v_out = fdot[:, None] * r0 + gdot[:, None] * v0
     return r_out.reshape(shape + (3,)), v_out.reshape(shape + (3,))
+
+
+def _universal_starter(r0n, sigma0, alpha, p, dt, mu):
+    """Starting chi from Kepler's equation for the conic that alpha = 1/a says it is.
+
+    chi = Delta E / sqrt(alpha) (ellipse), Delta H / sqrt(-alpha) (hyperbola), sqrt(p) Delta D
+    (parabola). The eccentricity is taken as sqrt(1 - p alpha) so it always agrees with the sign of
+    alpha. Only a starter: the universal iteration polishes it (the state -> anomaly map is
+    ill-conditioned near e = 1, the universal equation is not).
+    """
+    chi = np.zeros_like(r0n)
+    e = np.sqrt(np.maximum(1.0 - p * alpha, 0.0))
+    ell = alpha > 0.0
+    hyp = alpha < 0.0
+    par = alpha == 0.0
+    if np.any(ell):
+        sa = np.sqrt(alpha[ell])
+        ee = e[ell]
+        E0 = np.arctan2(sigma0[ell] * sa, 1.0 - r0n[ell] * alpha[ell])
+        M1 = E0 - ee * np.sin(E0) + math.sqrt(mu) * sa ** 3 * dt[ell]
+        chi[ell] = (solve_kepler(M1, ee) - E0) / sa
+    if np.any(hyp):
+        sa = np.sqrt(-alpha[hyp])
+        ee = e[hyp]
+        H0 = np.arcsinh(sigma0[hyp] * sa / ee)
+        M1 = ee * np.sinh(H0) - H0 + math.sqrt(mu) * sa ** 3 * dt[hyp]
+        chi[hyp] = (solve_kepler(M1, ee) - H0) / sa
+    if np.any(par):
+        sp = np.sqrt(p[par])
+        D0 = sigma0[par] / sp
+        D1 = solve_kepler(D0 + D0 ** 3 / 3.0 + 2.0 * math.sqrt(mu) / sp ** 3 * dt[par], 1.0)
+        chi[par] = sp * (D1 - D0)
+    return chi
 
 
 # --------------------------------------------------------------------------------------------------

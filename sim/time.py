@@ -14,7 +14,7 @@ from __future__ import annotations
 import re
 import warnings
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import erfa
 
@@ -61,7 +61,7 @@ class Epoch:
                 f"epoch {text!r} is not an ISO 8601 UTC time; write it like '2026-03-20T12:00:00Z'."
             ) from None
         if dt.tzinfo is not None:
-            if dt.utcoffset() != timezone.utc.utcoffset(None):
+            if dt.utcoffset() != UTC.utcoffset(None):
                 raise ValueError(f"epoch {text!r} must be in UTC (end it with 'Z' or '+00:00').")
         if not 1900 <= dt.year <= 2100:
             raise ValueError(f"epoch {text!r} has year {dt.year}; years 1900 to 2100 are supported.")

@@ -362,7 +362,8 @@ def _spacecraft(t: _Table, step_s: float) -> SpacecraftSpec:
     try:
         check_unit(q, "spacecraft.q_BN")
     except ValueError:
-        raise t.error("q_BN", q.tolist(), f"a unit quaternion [w, x, y, z] (its norm is {np.linalg.norm(q):.9g})") from None
+        raise t.error("q_BN", q.tolist(),
+                      f"a unit quaternion [w, x, y, z] (its norm is {np.linalg.norm(q):.9g})") from None
     omega = np.radians(t.vector("omega_BN_B_deg_s", 3, [0.0, 0.0, 0.0]))
     try:
         check_step(inertia, omega, step_s, "dynamics.step_s")
@@ -391,6 +392,7 @@ def _device(t: _Table, step_s: float) -> MagnetorquerSpec:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
     max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=100.0)
     spec = MagnetorquerSpec(
+        kind=kind,
         name=name,
         link=link,
         interface=t.text("interface", "virtual"),
@@ -422,6 +424,14 @@ def _controller(t: _Table, step_s: float, devices) -> ControllerSpec:
         params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True)
         params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True)
         params["skip_coil_active"] = bool(t.raw("skip_coil_active", True))
+        # Coils on for this fraction of the control period; the on-time must be whole dynamics steps
+        # so the zero-order hold switches exactly on a step boundary.
+        duty = t.number("duty_cycle", 1.0, lo=0.0, lo_open=True, hi=1.0)
+        on_steps = duty / (rate * step_s)
+        if abs(on_steps - round(on_steps)) > 1e-9 * on_steps:
+            raise t.error("duty_cycle", duty, f"a fraction whose on-time is whole dynamics steps of {step_s:g} s "
+                          f"(the control period is {1.0 / rate:g} s)")
+        params["duty_cycle"] = duty
     else:
         params["module"] = t.text("module")
         params["options"] = t.raw("options", {})

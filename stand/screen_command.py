@@ -31,12 +31,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     )
     p.add_argument("--ra", type=float, required=True, help="boresight right ascension, deg")
     p.add_argument("--dec", type=float, required=True, help="boresight declination, deg in [-90, 90]")
-    p.add_argument("--roll", type=float, default=0.0,
-                   help="roll about the boresight, deg (0: north up, east left; + turns the sky CCW)")
+    p.add_argument(
+        "--roll",
+        type=float,
+        default=0.0,
+        help="roll about the boresight, deg (0: north up, east left; + turns the sky CCW)",
+    )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
     p.add_argument("--epoch", default=DEFAULT_EPOCH, help=f"UTC epoch, ISO 8601 (default {DEFAULT_EPOCH})")
-    p.add_argument("--aberration", choices=("on", "off"), default="on",
-                   help="apparent places (on, default) or catalog places with proper motion only (off)")
+    p.add_argument(
+        "--aberration",
+        choices=("on", "off"),
+        default="on",
+        help="apparent places (on, default) or catalog places with proper motion only (off)",
+    )
     p.add_argument("--screen", default="1920x1080", help="screen resolution WxH (default 1920x1080)")
     p.add_argument("--scenario", default=None, help="scenario file (not yet supported)")
     p.add_argument("--tracker", default=None, help="tracker name in the scenario (not yet supported)")
@@ -51,13 +59,16 @@ def _fail(msg: str) -> int:
 
 def run(args) -> int:
     if args.scenario is not None or args.tracker is not None:
-        return _fail("--scenario and --tracker are not yet supported; use the default tracker "
-                     "(omit both options).")
+        return _fail(
+            "--scenario and --tracker are not yet supported; use the default tracker (omit both options)."
+        )
     try:
         w_txt, h_txt = str(args.screen).lower().split("x")
         width, height = int(w_txt), int(h_txt)
     except ValueError:
-        return _fail(f"--screen {args.screen!r} is not a resolution; write it as WIDTHxHEIGHT, e.g. 1920x1080.")
+        return _fail(
+            f"--screen {args.screen!r} is not a resolution; write it as WIDTHxHEIGHT, e.g. 1920x1080."
+        )
     from sim.time import Epoch
     from star_screen.attitude import q_SN_from_radec_roll
     from star_screen.geometry import default_bench
@@ -72,15 +83,19 @@ def run(args) -> int:
         return _fail(str(exc))
     problems = bench.check_fits()
     if problems:
-        return _fail(f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems))
+        return _fail(
+            f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems)
+        )
     renderer = Renderer(bench, aberration=(args.aberration == "on"))
     frame = renderer.render(q_SN, epoch, time_tag_ns=0)
     try:
         truth = write_frame(args.out, frame, renderer)
     except OSError as exc:
         return _fail(f"--out {args.out!r}: {exc}")
-    print(f"wrote {args.out}/screen.png, detector.png, truth.json: {truth['n_stars']} stars, "
-          f"q_SN = {[round(v, 9) for v in truth['q_SN']]}")
+    print(
+        f"wrote {args.out}/screen.png, detector.png, truth.json: {truth['n_stars']} stars, "
+        f"q_SN = {[round(v, 9) for v in truth['q_SN']]}"
+    )
     return 0
 
 

@@ -28,7 +28,12 @@ from sim.time import Epoch
 from star_screen.geometry import TrackerOptics
 
 __all__ = [
-    "BrightBodies", "R_SUN", "R_MOON", "dcm_itrs_gcrs", "dcm_lvlh_gcrs", "earth_point_in_camera_chain",
+    "BrightBodies",
+    "R_SUN",
+    "R_MOON",
+    "dcm_itrs_gcrs",
+    "dcm_lvlh_gcrs",
+    "earth_point_in_camera_chain",
     "DEFAULT_MARGINS_DEG",
 ]
 
@@ -129,15 +134,21 @@ class BrightBodies:
             r_moon = ephemeris.moon_position_gcrs(epoch)
             rel = r_moon - r_sc
             s = r_sun - r_moon
-            phase = math.acos(float(np.clip(np.dot(-rel, s) / (np.linalg.norm(rel) * np.linalg.norm(s)), -1, 1)))
+            phase = math.acos(
+                float(np.clip(np.dot(-rel, s) / (np.linalg.norm(rel) * np.linalg.norm(s)), -1, 1))
+            )
             out["moon"] = self._flag("moon", rel, R_MOON, C, illum=0.5 * (1 + math.cos(phase)))
         if "earth" in self.bodies:
             if r_sc_gcrs_m is None:
-                raise ValueError("the Earth is listed among bright bodies, so r_sc_gcrs_m (spacecraft position, m) "
-                                 "is required.")
+                raise ValueError(
+                    "the Earth is listed among bright bodies, so r_sc_gcrs_m (spacecraft position, m) "
+                    "is required."
+                )
             rel = -r_sc
             s = r_sun
-            phase = math.acos(float(np.clip(np.dot(-rel, s) / (np.linalg.norm(rel) * np.linalg.norm(s)), -1, 1)))
+            phase = math.acos(
+                float(np.clip(np.dot(-rel, s) / (np.linalg.norm(rel) * np.linalg.norm(s)), -1, 1))
+            )
             out["earth"] = self._flag("earth", rel, R_EARTH, C, illum=0.5 * (1 + math.cos(phase)))
         out["any_in_field"] = any(v["in_field"] for v in out.values() if isinstance(v, dict))
         return out

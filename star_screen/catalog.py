@@ -107,9 +107,15 @@ class Catalog:
                 f"Hp {hp_limit}; choose mag_limit <= {hp_limit}."
             )
         cat = cls(
-            hip=cols["hip"], ra_rad=cols["ra_rad"], dec_rad=cols["dec_rad"], plx_mas=cols["plx_mas"],
-            pmra_mas_yr=cols["pmra_mas_yr"], pmdec_mas_yr=cols["pmdec_mas_yr"], mag=cols["hp_mag"],
-            bv_mag=cols["bv_mag"], hp_limit=hp_limit,
+            hip=cols["hip"],
+            ra_rad=cols["ra_rad"],
+            dec_rad=cols["dec_rad"],
+            plx_mas=cols["plx_mas"],
+            pmra_mas_yr=cols["pmra_mas_yr"],
+            pmdec_mas_yr=cols["pmdec_mas_yr"],
+            mag=cols["hp_mag"],
+            bv_mag=cols["bv_mag"],
+            hp_limit=hp_limit,
         )
         return cat.brighter_than(mag_limit) if mag_limit is not None else cat
 
@@ -119,8 +125,15 @@ class Catalog:
     def brighter_than(self, mag_limit: float) -> Catalog:
         n = int(np.searchsorted(self.mag, np.float32(mag_limit), side="right"))
         return Catalog(
-            self.hip[:n], self.ra_rad[:n], self.dec_rad[:n], self.plx_mas[:n], self.pmra_mas_yr[:n],
-            self.pmdec_mas_yr[:n], self.mag[:n], self.bv_mag[:n], min(self.hp_limit, float(mag_limit)),
+            self.hip[:n],
+            self.ra_rad[:n],
+            self.dec_rad[:n],
+            self.plx_mas[:n],
+            self.pmra_mas_yr[:n],
+            self.pmdec_mas_yr[:n],
+            self.mag[:n],
+            self.bv_mag[:n],
+            min(self.hp_limit, float(mag_limit)),
         )
 
     def places(self, epoch: Epoch | tuple[float, float], parallax: bool = True) -> StarPlaces:

@@ -47,7 +47,9 @@ class BrownConrady:
         c = np.ravel(np.asarray(coeffs, dtype=float))
         c = np.concatenate((c, np.zeros(max(0, 5 - c.size))))
         if np.any(c[5:] != 0.0):
-            raise ValueError("only the 5-term OpenCV model (k1, k2, p1, p2, k3) is supported; got more terms.")
+            raise ValueError(
+                "only the 5-term OpenCV model (k1, k2, p1, p2, k3) is supported; got more terms."
+            )
         return cls(*(float(v) for v in c[:5]))
 
     def as_opencv(self) -> np.ndarray:
@@ -131,7 +133,7 @@ class TrackerOptics:
 
     @classmethod
     def from_fov(cls, fov_x_deg: float, fov_y_deg: float, width: int, height: int, **kw) -> TrackerOptics:
-        """Optics whose (undistorted) full field is ``fov_x_deg`` x ``fov_y_deg`` on ``width`` x ``height``."""
+        """Optics whose undistorted full field is ``fov_x_deg`` x ``fov_y_deg`` on ``width`` x ``height``."""
         for key, v, hi in (("fov_x_deg", fov_x_deg, 170.0), ("fov_y_deg", fov_y_deg, 170.0)):
             if not (0.0 < v < hi):
                 raise ValueError(f"tracker {key} = {v!r}; it must be between 0 and {hi} deg.")
@@ -219,7 +221,7 @@ class Screen:
         return (np.arange(256) / 255.0) ** self.gamma
 
     def inverse_table(self) -> np.ndarray:
-        """Luminance thresholds (255,): code ``c`` is chosen for L in [t[c-1], t[c]) (nearest in luminance)."""
+        """Luminance thresholds (255,): code ``c`` is chosen for L in [t[c-1], t[c]) (nearest luminance)."""
         lum = self.response()
         return 0.5 * (lum[1:] + lum[:-1])
 
@@ -271,7 +273,9 @@ class Bench:
         xyd = self.collimator.distortion.distort(xy)
         sx = -1.0 if self.flip_x else 1.0
         sy = -1.0 if self.flip_y else 1.0
-        return np.stack((self.sx0 + sx * self.k_px * xyd[..., 0], self.sy0 + sy * self.k_px * xyd[..., 1]), axis=-1)
+        return np.stack(
+            (self.sx0 + sx * self.k_px * xyd[..., 0], self.sy0 + sy * self.k_px * xyd[..., 1]), axis=-1
+        )
 
     def direction_to_screen(self, d_S) -> tuple[np.ndarray, np.ndarray]:
         """Screen pixel ``(..., 2)`` the tracker sees in direction ``d_S``, and the in-front mask."""
@@ -285,7 +289,9 @@ class Bench:
         px = np.asarray(px, dtype=float)
         sx = -1.0 if self.flip_x else 1.0
         sy = -1.0 if self.flip_y else 1.0
-        xyd = np.stack(((px[..., 0] - self.sx0) * sx / self.k_px, (px[..., 1] - self.sy0) * sy / self.k_px), axis=-1)
+        xyd = np.stack(
+            ((px[..., 0] - self.sx0) * sx / self.k_px, (px[..., 1] - self.sy0) * sy / self.k_px), axis=-1
+        )
         xy = self.collimator.distortion.undistort(xyd)
         d = np.concatenate((xy, np.ones(xy.shape[:-1] + (1,))), axis=-1)
         return d / np.linalg.norm(d, axis=-1, keepdims=True)

@@ -16,11 +16,22 @@ from scipy.spatial import cKDTree
 __all__ = ["emitted_centroids", "isolated", "tan_wcs_params", "reference_tan_pixels"]
 
 
-def emitted_centroids(image_codes: np.ndarray, response: np.ndarray, xy, radius: int):
+def emitted_centroids(image_codes: np.ndarray, response: np.ndarray, xy, radius):
     """Centroid (n, 2) and summed luminance (n,) of the emitted light in a (2 radius + 1)^2 window
     around each position ``xy`` (pixel coordinates; (0.5, 0.5) is the centre of pixel (0, 0)).
-    Windows crossing the image border give NaN."""
-    xy = np.asarray(xy, float)
+    ``radius`` is a whole number of pixels, scalar or per position. Windows crossing the image
+    border give NaN."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    radius = np.broadcast_to(np.asarray(radius, int), (len(xy),))
+    c = np.full((len(xy), 2), np.nan)
+    flux = np.full(len(xy), np.nan)
+    for R in np.unique(radius):
+        sel = np.flatnonzero(radius == R)
+        c[sel], flux[sel] = _window_moments(image_codes, response, xy[sel], int(R))
+    return c, flux
+
+
+def _window_moments(image_codes, response, xy, radius):
     h, w = image_codes.shape
     lum = np.asarray(response, float)
     ix = np.floor(xy[:, 0]).astype(int)
@@ -42,13 +53,20 @@ def emitted_centroids(image_codes: np.ndarray, response: np.ndarray, xy, radius:
     return c, flux
 
 
-def isolated(xy, min_separation: float) -> np.ndarray:
-    """Mask of points with no other point closer than ``min_separation``."""
-    xy = np.asarray(xy, float)
+def isolated(xy, radius, gap: float = 3.0) -> np.ndarray:
+    """Mask of points whose window of ``radius`` (scalar or per point, px) keeps ``gap`` px away from
+    every other point's window: ``|p_i - p_j| >= r_i + r_j + gap`` for all j."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    r = np.broadcast_to(np.asarray(radius, float), (len(xy),))
+    ok = np.ones(len(xy), bool)
     if len(xy) < 2:
-        return np.ones(len(xy), bool)
-    d, _ = cKDTree(xy).query(xy, k=2)
-    return d[:, 1] >= min_separation
+        return ok
+    pairs = cKDTree(xy).query_pairs(2 * float(r.max()) + gap, output_type="ndarray")
+    if len(pairs):
+        d = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
+        close = pairs[d < r[pairs[:, 0]] + r[pairs[:, 1]] + gap]
+        ok[close.ravel()] = False
+    return ok
 
 
 def tan_wcs_params(ra_deg, dec_deg, roll_deg, fx, fy, cx, cy):
@@ -61,8 +79,9 @@ def tan_wcs_params(ra_deg, dec_deg, roll_deg, fx, fy, cx, cy):
     return {"crval": (float(ra_deg), float(dec_deg)), "crpix": (cx + 0.5, cy + 0.5), "cd": cd}
 
 
-def reference_tan_pixels(ra_deg, dec_deg, star_ra_deg, star_dec_deg, roll_deg, fx, fy, cx, cy,
-                         use_astropy: bool | None = None):
+def reference_tan_pixels(
+    ra_deg, dec_deg, star_ra_deg, star_dec_deg, roll_deg, fx, fy, cx, cy, use_astropy: bool | None = None
+):
     """Pixel positions of stars by an independent TAN projection; returns (xy (n, 2), name of the method)."""
     p = tan_wcs_params(ra_deg, dec_deg, roll_deg, fx, fy, cx, cy)
     sra = np.asarray(star_ra_deg, float)
@@ -79,6 +98,9 @@ def reference_tan_pixels(ra_deg, dec_deg, star_ra_deg, star_dec_deg, roll_deg, f
             w.wcs.crval = list(p["crval"])
             w.wcs.crpix = list(p["crpix"])
             w.wcs.cd = p["cd"]
+            # LONPOLE = 180 always (the FITS default except exactly at dec = +90, where the default
+            # 0 would flip the image by 180 deg relative to the limit approaching the pole).
+            w.wcs.lonpole = 180.0
             px = np.stack(w.all_world2pix(sra, sdec, 1), axis=-1)
             return px - 0.5, "astropy WCS TAN"
     # Gnomonic standard coordinates (spherical trigonometry).

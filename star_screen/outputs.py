@@ -35,7 +35,9 @@ def write_png(path, image: np.ndarray) -> pathlib.Path:
     """Write a uint8 or uint16 single-channel image as PNG; returns the path."""
     path = pathlib.Path(path)
     if image.dtype not in (np.uint8, np.uint16) or image.ndim != 2:
-        raise ValueError(f"PNG output takes a 2-D uint8 or uint16 array; got {image.dtype} with shape {image.shape}.")
+        raise ValueError(
+            f"PNG output takes a 2-D uint8 or uint16 array; got {image.dtype} with shape {image.shape}."
+        )
     if not _cv2().imwrite(str(path), image):
         raise OSError(f"could not write PNG file {str(path)!r}.")
     return path

@@ -173,8 +173,15 @@ class Renderer:
     ``bright_bodies`` is an optional :class:`star_screen.bodies.BrightBodies` evaluated per frame.
     """
 
-    def __init__(self, bench: Bench | None = None, catalog: Catalog | None = None, *,
-                 photometry: Photometry | None = None, aberration: bool = True, bright_bodies=None):
+    def __init__(
+        self,
+        bench: Bench | None = None,
+        catalog: Catalog | None = None,
+        *,
+        photometry: Photometry | None = None,
+        aberration: bool = True,
+        bright_bodies=None,
+    ):
         self.bench = bench if bench is not None else Bench()
         t = self.bench.tracker
         self.photometry = photometry if photometry is not None else Photometry()
@@ -182,14 +189,20 @@ class Renderer:
             catalog = Catalog.load(mag_limit=min(t.mag_limit, 9.0))
         elif t.mag_limit > catalog.hp_limit:
             raise ValueError(
-                f"tracker mag_limit = {t.mag_limit} is fainter than the catalog's limit Hp {catalog.hp_limit}."
+                f"tracker mag_limit = {t.mag_limit} exceeds the catalog's limit Hp {catalog.hp_limit}; "
+                "load the catalog with a fainter limit or lower mag_limit."
             )
         self.catalog = catalog
         self.aberration = bool(aberration)
         self.bright_bodies = bright_bodies
         ph = self.photometry
-        self.sigma_screen = float(np.clip(ph.defocus_fraction * t.psf_sigma_px * self.bench.screen_px_per_tracker_px,
-                                          ph.min_sigma_px, ph.max_sigma_px))
+        self.sigma_screen = float(
+            np.clip(
+                ph.defocus_fraction * t.psf_sigma_px * self.bench.screen_px_per_tracker_px,
+                ph.min_sigma_px,
+                ph.max_sigma_px,
+            )
+        )
         self.flux_full = 1.0 / float(centred_peak_fraction(self.sigma_screen))
         s = self.bench.screen
         self._thresholds = s.inverse_table().astype(np.float32)
@@ -235,7 +248,13 @@ class Renderer:
         t = self.bench.tracker
         det, front = t.project(d_S)
         m = 4.0 * t.psf_sigma_px
-        keep = front & (det[:, 0] > -m) & (det[:, 0] < t.width + m) & (det[:, 1] > -m) & (det[:, 1] < t.height + m)
+        keep = (
+            front
+            & (det[:, 0] > -m)
+            & (det[:, 0] < t.width + m)
+            & (det[:, 1] > -m)
+            & (det[:, 1] < t.height + m)
+        )
         sel, d_S, det = sel[keep], d_S[keep], det[keep]
         scr, _ = self.bench.direction_to_screen(d_S)
         on = (det[:, 0] >= 0) & (det[:, 0] < t.width) & (det[:, 1] >= 0) & (det[:, 1] < t.height)
@@ -252,8 +271,13 @@ class Renderer:
             return None
         trail_rad = rate * exposure_s
         trail_px = trail_rad * max(self.bench.k_px, self.bench.tracker.fx)
-        k = int(np.clip(math.ceil(trail_px / (0.5 * min(self.sigma_screen, self.bench.tracker.psf_sigma_px))) + 1,
-                        2, 256))
+        k = int(
+            np.clip(
+                math.ceil(trail_px / (0.5 * min(self.sigma_screen, self.bench.tracker.psf_sigma_px))) + 1,
+                2,
+                256,
+            )
+        )
         ts = (np.arange(k) + 0.5) / k - 0.5  # fractions of the exposure about mid-exposure
         axis = w / rate
         ang = -rate * exposure_s * ts  # an inertial direction turns by -omega t in S
@@ -263,9 +287,20 @@ class Renderer:
         kdd = (d @ axis)[:, None, None] * axis
         return d[:, None, :] * c + kxd * s + kdd * (1 - c), k
 
-    def render(self, q_SN, epoch: Epoch, *, v_sc_gcrs_m_s=None, omega_SN_S=None, exposure_s: float | None = None,
-               time_tag_ns: int | None = None, screen: bool = True, detector: bool = True,
-               copy: bool = True, r_sc_gcrs_m=None) -> Frame:
+    def render(
+        self,
+        q_SN,
+        epoch: Epoch,
+        *,
+        v_sc_gcrs_m_s=None,
+        omega_SN_S=None,
+        exposure_s: float | None = None,
+        time_tag_ns: int | None = None,
+        screen: bool = True,
+        detector: bool = True,
+        copy: bool = True,
+        r_sc_gcrs_m=None,
+    ) -> Frame:
         """Render one frame at the tracker's mid-exposure attitude ``q_SN`` and ``epoch``.
 
         ``v_sc_gcrs_m_s``: spacecraft velocity relative to the Earth (orbital aberration);
@@ -295,7 +330,12 @@ class Renderer:
             flux[bright] = fb
             clipped[np.flatnonzero(bright)[over]] = True
         mag_shown = ph.mag_full - 2.5 * np.log10(flux / self.flux_full)
-        stars.screen_flux, stars.screen_sigma, stars.clipped, stars.mag_shown = flux, sigma, clipped, mag_shown
+        stars.screen_flux, stars.screen_sigma, stars.clipped, stars.mag_shown = (
+            flux,
+            sigma,
+            clipped,
+            mag_shown,
+        )
         det_flux = t.flux_mag0_e * 10.0 ** (-0.4 * mag)
         stars.detector_flux_e = det_flux
         # --- sample positions (smear) -> spots
@@ -313,7 +353,9 @@ class Renderer:
         scr_out = det_out = None
         if screen:
             sw, sh = self.bench.screen.width, self.bench.screen.height
-            idx, val, peak = splat_gaussians(s_in[0][:, 0], s_in[0][:, 1], s_in[1], s_in[2], sw, sh, ph.truncate_sigmas)
+            idx, val, peak = splat_gaussians(
+                s_in[0][:, 0], s_in[0][:, 1], s_in[1], s_in[2], sw, sh, ph.truncate_sigmas
+            )
             stars.screen_peak = peak if path is None else None
             lin = self._lin
             np.add.at(lin, idx, val)
@@ -325,8 +367,9 @@ class Renderer:
             self._screen_prev = idx
             scr_out = self._screen.copy() if copy else self._screen
         if detector:
-            idx, val, _ = splat_gaussians(d_in[0][:, 0], d_in[0][:, 1], d_in[1], t.psf_sigma_px, t.width, t.height,
-                                          ph.truncate_sigmas)
+            idx, val, _ = splat_gaussians(
+                d_in[0][:, 0], d_in[0][:, 1], d_in[1], t.psf_sigma_px, t.width, t.height, ph.truncate_sigmas
+            )
             dflat = self._det.reshape(-1)
             dflat[self._det_prev] = 0.0
             np.add.at(dflat, idx, val)
@@ -335,4 +378,6 @@ class Renderer:
         bodies = {}
         if self.bright_bodies is not None:
             bodies = self.bright_bodies.evaluate(q_SN, epoch, r_sc_gcrs_m=r_sc_gcrs_m)
-        return Frame(np.asarray(q_SN, float), epoch, time_tag_ns, stars, scr_out, det_out, self.aberration, bodies)
+        return Frame(
+            np.asarray(q_SN, float), epoch, time_tag_ns, stars, scr_out, det_out, self.aberration, bodies
+        )

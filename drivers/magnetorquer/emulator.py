@@ -137,7 +137,7 @@ class EmulatorConfig:
 
 _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False
-_EPS_S = 1e-9  # time comparisons: a period boundary reached within 1 ns counts as reached
+_EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
 class MagnetorquerEmulator:
@@ -181,7 +181,7 @@ class MagnetorquerEmulator:
                 f"can carry ({codec.dipole_range_A_m2[1]!r} A m^2)."
             )
 
-        self._bias = np.asarray(config.mag_bias_T, dtype=float)
+        self._bias_xyz = tuple(float(x) for x in config.mag_bias_T)
         self._coupling = np.asarray(config.coil_coupling_T_per_A_m2, dtype=float)
         self._na = np.asarray(config.coil_area_turns_m2, dtype=float)
         self._mag_lsb = config.mag_lsb_T
@@ -219,6 +219,7 @@ class MagnetorquerEmulator:
 
         self.mode: str = config.initial_mode
         self._dipole = _ZERO3  # driven dipole (saturated, quantised), read-only array
+        self._coil_field = (0.0, 0.0, 0.0)  # coupling @ dipole: what the coils add at the magnetometer
         self._driven = False  # a command with a duration is running
         self._on_until_s = -math.inf
         self._any_nonzero = False
@@ -228,7 +229,7 @@ class MagnetorquerEmulator:
         self._sample_seq = 0
         self._heartbeat_counter = 0
 
-        self._noise = np.empty((0, 3))
+        self._noise: list[list[float]] = []  # the current block of pre-drawn noise, T
         self._noise_i = 0
 
     # -- lifecycle ------------------------------------------------------------------------------
@@ -358,9 +359,12 @@ class MagnetorquerEmulator:
         dipole = np.array(driven)
         dipole.flags.writeable = False
         self._dipole = dipole
+        self._coil_field = tuple((self._coupling @ dipole).tolist())
         self._any_nonzero = any(driven)
         self._driven = True
-        self._on_until_s = t_s + cmd.duration_s
+        # The watchdog deadline gets the same tolerance as the publication schedule, so coils
+        # commanded for exactly one period are off when the next period's sample is taken.
+        self._on_until_s = t_s + cmd.duration_s - _EPS_S
 
     def _apply_mode(self, cmd: ModeCommand) -> None:
         if cmd.mode != self.mode:
@@ -419,32 +423,38 @@ class MagnetorquerEmulator:
             raise DriverError(f"mtq emulator: cannot send on {self.bus.channel_info}: {exc}") from exc
         self.counters["sent"] += 1
 
-    def _next_noise(self) -> np.ndarray:
-        i = self._noise_i
-        if i >= len(self._noise):
-            self._noise = self.rng.standard_normal((self.config.noise_block, 3)) * self.config.mag_noise_T
-            i = 0
-        self._noise_i = i + 1
-        return self._noise[i]
-
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
         truth = self.field_source(t_s)
-        b = self._bias + self._next_noise()
-        b += truth
+        i = self._noise_i
+        if i >= len(self._noise):  # draw the next block: one Generator call per noise_block samples
+            block = self.rng.standard_normal((self.config.noise_block, 3)) * self.config.mag_noise_T
+            self._noise = block.tolist()
+            i = 0
+        self._noise_i = i + 1
+        nx, ny, nz = self._noise[i]
+        bias_x, bias_y, bias_z = self._bias_xyz
         active = self.coil_active(t_s)
-        if active:
-            b += self._coupling @ self._dipole
         lsb = self._mag_lsb
         n_lo, n_hi = self._n_lo, self._n_hi
         valid = True
         out = []
-        for x in b.tolist():
-            n = round(x / lsb)
-            if n > n_hi or n < n_lo:
-                n = n_hi if n > n_hi else n_lo
-                valid = False
-            out.append(n * lsb)
+        try:
+            tx, ty, tz = truth
+            b = [float(tx) + bias_x + nx, float(ty) + bias_y + ny, float(tz) + bias_z + nz]
+            if active:
+                cx, cy, cz = self._coil_field
+                b = [b[0] + cx, b[1] + cy, b[2] + cz]
+            for x in b:
+                n = round(x / lsb)
+                if n > n_hi or n < n_lo:
+                    n = n_hi if n > n_hi else n_lo
+                    valid = False
+                out.append(n * lsb)
+        except (ValueError, TypeError, OverflowError):  # wrong length, not numbers, NaN, infinity
+            raise ValueError(
+                f"field_source({t_s!r}) must return 3 finite floats (T, sensor axes); got {truth!r}."
+            ) from None
         if not valid:
             self.counters["mag_saturations"] += 1
         seq = self._sample_seq

@@ -6,9 +6,11 @@ MagnetorquerEmulator` on a python-can ``virtual`` bus: the driver cannot tell, a
 
 Hot path, once per control tick::
 
-    board.poll()                       # drain what arrived, never blocks
-    sample = board.take_sample()       # the newest MagSample once, or None
+    sample = board.take_sample()       # drain what arrived (never blocks); the newest MagSample once, or None
     board.command_dipole(m, 0.2)       # one MTQ_DIPOLE_CMD frame
+
+(``take_sample`` polls by itself; call :meth:`MagnetorquerBoard.poll` on ticks that take no sample
+to keep status, counters and heartbeat fresh.)
 
 Receiving never raises on bad traffic: frames with an id the board does not send (other nodes,
 commands from another host, 29-bit ids), a wrong length, or an undecodable value are counted in

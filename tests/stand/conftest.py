@@ -1,0 +1,54 @@
+import itertools
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from stand.scenario import DEFAULT_SCENARIO
+
+_channels = itertools.count()
+
+
+@pytest.fixture
+def scenario_dict():
+    """The default scenario as a dict, on a CAN channel of its own (tests share one process)."""
+    data = tomllib.loads(Path(DEFAULT_SCENARIO).read_text())
+    for d in data.get("devices", []):
+        d["channel"] = f"test-{d['name']}-{next(_channels)}"
+    return data
+
+
+def to_toml(data: dict) -> str:
+    """Enough TOML writing for scenario dicts (tables, arrays of tables, scalars, lists)."""
+
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + "}"
+        return repr(v)
+
+    lines = []
+    for name, table in data.items():
+        if isinstance(table, list):
+            for item in table:
+                lines.append(f"[[{name}]]")
+                lines += [f"{k} = {value(v)}" for k, v in item.items()]
+        else:
+            lines.append(f"[{name}]")
+            lines += [f"{k} = {value(v)}" for k, v in table.items()]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture
+def write_scenario(tmp_path):
+    def write(data: dict, name: str = "scenario.toml") -> Path:
+        p = tmp_path / name
+        p.write_text(to_toml(data))
+        return p
+
+    return write

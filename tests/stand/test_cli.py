@@ -1,0 +1,79 @@
+"""The command line: exit codes and one-sentence errors (never a traceback on user input)."""
+
+import json
+
+import pytest
+
+from stand.cli import main
+
+
+def run_cli(argv, capsys):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_check_lists_built_and_left_out(capsys):
+    code, out, _ = run_cli(["check", "detumble"], capsys)
+    assert code == 0
+    assert "magnetic_field.dipole" in out and "left out:" in out and "moon" in out
+    code, out, _ = run_cli(["check", "detumble", "--json"], capsys)
+    data = json.loads(out)
+    assert {m["model"] for m in data["left_out"]} >= {"sun", "moon", "star_screen"}
+
+
+@pytest.mark.parametrize("section, key, value, field", [
+    ("spacecraft", "inertia_kg_m2", [0.0, 0.02, 0.01], "spacecraft.inertia_kg_m2"),
+    ("orbit", "e", -0.5, "orbit.e"),
+])
+def test_bad_scenario_exits_2_with_one_line(scenario_dict, write_scenario, capsys, tmp_path, section, key, value,
+                                            field):
+    scenario_dict[section][key] = value
+    code, out, err = run_cli(["run", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2
+    assert err.startswith(f"stand: error: {field} = ") and err.count("\n") == 1
+    assert "Traceback" not in err
+
+
+def test_unknown_device_exits_2(scenario_dict, write_scenario, capsys, tmp_path):
+    scenario_dict["devices"][0]["kind"] = "reaction_wheel"
+    code, _, err = run_cli(["check", str(write_scenario(scenario_dict))], capsys)
+    assert code == 2 and "devices[0].kind = 'reaction_wheel'" in err
+
+
+def test_port_that_cannot_be_opened_exits_2(scenario_dict, write_scenario, capsys, tmp_path):
+    scenario_dict["devices"][0]["interface"] = "no_such_interface"
+    code, _, err = run_cli(["run", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "no_such_interface" in err and "Traceback" not in err
+
+
+def test_run_passes_and_fails_by_criteria(scenario_dict, write_scenario, capsys, tmp_path):
+    scenario_dict["scenario"]["duration_s"] = 5.0
+    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "a")], capsys)
+    assert code == 1 and "FAIL  detumbled" in out  # still spinning after 5 s
+    scenario_dict["criteria"][0]["max"] = 100.0
+    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict, "b.toml")), "--out", str(tmp_path / "b")],
+                           capsys)
+    assert code == 0
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    for key in ("scenario", "sim_duration_s", "wall_time_s", "realtime_factor", "criteria", "pass", "models",
+                "timing"):
+        assert key in summary
+    assert summary["pass"] is True and summary["sim_duration_s"] == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["run", "--speed", "warp"], "--speed 'warp'"),
+    (["run", "--seed", "-3"], "--seed"),
+    (["bench", "nonsense"], "bench 'nonsense'"),
+])
+def test_usage_errors_exit_2(argv, text, capsys, tmp_path):
+    code, _, err = run_cli(argv + ["--out", str(tmp_path / "x")] if argv[0] == "run" else argv, capsys)
+    assert code == 2 and text in err
+
+
+def test_out_dir_is_never_overwritten(capsys, tmp_path):
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "summary.json").write_text("{}")
+    code, _, err = run_cli(["run", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "--out" in err
