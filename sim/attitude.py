@@ -133,26 +133,28 @@ class RigidBody:
         ``torque(t, q, w) -> (tx, ty, tz)`` in N m, body frame; ``None`` means torque-free.
         Returns the renormalised quaternion and the rate as float tuples.
         """
+        # Written out stage by stage on floats: generator expressions over zip() cost more than
+        # the arithmetic at this size, and this step runs tens of thousands of times per orbit.
         f = self.derivatives
         zero = (0.0, 0.0, 0.0)
         h2 = 0.5 * h
-        tq = torque(t, q, w) if torque else zero
-        dq1, dw1 = f(q, w, tq)
-        q2 = tuple(a + h2 * b for a, b in zip(q, dq1, strict=True))
-        w2 = tuple(a + h2 * b for a, b in zip(w, dw1, strict=True))
-        tq = torque(t + h2, q2, w2) if torque else zero
-        dq2, dw2 = f(q2, w2, tq)
-        q3 = tuple(a + h2 * b for a, b in zip(q, dq2, strict=True))
-        w3 = tuple(a + h2 * b for a, b in zip(w, dw2, strict=True))
-        tq = torque(t + h2, q3, w3) if torque else zero
-        dq3, dw3 = f(q3, w3, tq)
-        q4 = tuple(a + h * b for a, b in zip(q, dq3, strict=True))
-        w4 = tuple(a + h * b for a, b in zip(w, dw3, strict=True))
-        tq = torque(t + h, q4, w4) if torque else zero
-        dq4, dw4 = f(q4, w4, tq)
+        q0, q1, q2, q3 = q
+        w0, w1, w2 = w
+        (a0, a1, a2, a3), (b0, b1, b2) = f(q, w, torque(t, q, w) if torque else zero)
+        qs = (q0 + h2 * a0, q1 + h2 * a1, q2 + h2 * a2, q3 + h2 * a3)
+        ws = (w0 + h2 * b0, w1 + h2 * b1, w2 + h2 * b2)
+        (c0, c1, c2, c3), (d0, d1, d2) = f(qs, ws, torque(t + h2, qs, ws) if torque else zero)
+        qs = (q0 + h2 * c0, q1 + h2 * c1, q2 + h2 * c2, q3 + h2 * c3)
+        ws = (w0 + h2 * d0, w1 + h2 * d1, w2 + h2 * d2)
+        (e0, e1, e2, e3), (g0, g1, g2) = f(qs, ws, torque(t + h2, qs, ws) if torque else zero)
+        qs = (q0 + h * e0, q1 + h * e1, q2 + h * e2, q3 + h * e3)
+        ws = (w0 + h * g0, w1 + h * g1, w2 + h * g2)
+        (k0, k1, k2, k3), (m0, m1, m2) = f(qs, ws, torque(t + h, qs, ws) if torque else zero)
         h6 = h / 6.0
-        qn = [a + h6 * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(q, dq1, dq2, dq3, dq4, strict=True)]
-        wn = tuple(a + h6 * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(w, dw1, dw2, dw3, dw4, strict=True))
+        qn = (q0 + h6 * (a0 + 2.0 * (c0 + e0) + k0), q1 + h6 * (a1 + 2.0 * (c1 + e1) + k1),
+              q2 + h6 * (a2 + 2.0 * (c2 + e2) + k2), q3 + h6 * (a3 + 2.0 * (c3 + e3) + k3))
+        wn = (w0 + h6 * (b0 + 2.0 * (d0 + g0) + m0), w1 + h6 * (b1 + 2.0 * (d1 + g1) + m1),
+              w2 + h6 * (b2 + 2.0 * (d2 + g2) + m2))
         n = math.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
         if not math.isfinite(n) or not all(math.isfinite(x) for x in wn):
             raise FloatingPointError(

@@ -46,8 +46,7 @@ class BDot:
         self.samples_skipped = 0
 
     def update(self, t_s: float) -> None:
-        self.board.poll()
-        sample = self.board.take_sample()
+        sample = self.board.take_sample()  # polls the bus
         if sample is None:
             return
         if self.skip_coil_active and sample.coil_active or not sample.valid:

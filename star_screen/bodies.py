@@ -18,11 +18,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import erfa
 import numpy as np
 
 from sim import ephemeris
 from sim.constants import R_EARTH
+from sim.frames import dcm_itrs_gcrs, dcm_lvlh_gcrs
 from sim.rotations import dcm
 from sim.time import Epoch
 from star_screen.geometry import TrackerOptics
@@ -41,24 +41,6 @@ R_SUN = 6.957e8  # m, IAU 2015 nominal
 R_MOON = 1.7374e6  # m
 DEFAULT_MARGINS_DEG = {"sun": 30.0, "moon": 10.0, "earth": 15.0}
 _KNOWN = ("sun", "moon", "earth")
-
-
-def dcm_itrs_gcrs(epoch: Epoch) -> np.ndarray:
-    """Matrix mapping GCRS components to ITRS (IAU 2006/2000A, no polar motion)."""
-    tt1, tt2 = epoch.jd_tt
-    u1, u2 = epoch.jd_ut1
-    return np.asarray(erfa.c2t06a(tt1, tt2, u1, u2, 0.0, 0.0))
-
-
-def dcm_lvlh_gcrs(r_N, v_N) -> np.ndarray:
-    """Matrix mapping GCRS components to LVLH (z nadir, y negative orbit normal, x completes)."""
-    r = np.asarray(r_N, float)
-    v = np.asarray(v_N, float)
-    z = -r / np.linalg.norm(r, axis=-1, keepdims=True)
-    h = np.cross(r, v)
-    y = -h / np.linalg.norm(h, axis=-1, keepdims=True)
-    x = np.cross(y, z)
-    return np.stack((x, y, z), axis=-2)
 
 
 def earth_point_in_camera_chain(r_point_itrs, epoch: Epoch, r_sc_N, v_sc_N, q_BO, q_SB) -> np.ndarray:

@@ -7,14 +7,10 @@ import pytest
 
 from sim import ephemeris
 from sim.constants import MU_EARTH, R_EARTH
+from sim.frames import dcm_itrs_gcrs, dcm_lvlh_gcrs
 from sim.rotations import compose, dcm, quat_from_dcm, quat_from_euler
 from star_screen.attitude import q_SN_from_radec_roll
-from star_screen.bodies import (
-    BrightBodies,
-    dcm_itrs_gcrs,
-    dcm_lvlh_gcrs,
-    earth_point_in_camera_chain,
-)
+from star_screen.bodies import BrightBodies, earth_point_in_camera_chain
 from star_screen.catalog import unit_to_radec
 from star_screen.geometry import TrackerOptics, default_bench
 from star_screen.render import Renderer
