@@ -92,6 +92,8 @@ def run(args) -> int:
         truth = write_frame(args.out, frame, renderer)
     except OSError as exc:
         return _fail(f"--out {args.out!r}: {exc}")
+    except RuntimeError as exc:  # an optional dependency (OpenCV for PNG) is not installed
+        return _fail(str(exc))
     print(
         f"wrote {args.out}/screen.png, detector.png, truth.json: {truth['n_stars']} stars, "
         f"q_SN = {[round(v, 9) for v in truth['q_SN']]}"
