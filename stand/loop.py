@@ -123,6 +123,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                 if has_field:
                     row += tuple(truth.b_B())
                 for host, emu in zip(hosts, emulators, strict=True):
+                    host.poll()  # log every sample that crossed the bus, not only those the ADCS took
                     s = host.latest_sample
                     row += (*(s.b_T if s else NAN3), float(s.coil_active) if s else math.nan,
                             *emu.dipole_at(t))
