@@ -14,7 +14,6 @@ end if it exists. The reference B-dot below is written against the same API.
 from __future__ import annotations
 
 import importlib
-import math
 
 import numpy as np
 
@@ -83,6 +82,3 @@ def load_plugin(spec: str):
     except AttributeError:
         raise ValueError(f"controller.module = {spec!r}: {module_name!r} has no {attr!r}.") from None
 
-
-def controller_period_s(rate_hz: float) -> float:
-    return 1.0 / rate_hz if rate_hz > 0 else math.inf

@@ -39,6 +39,7 @@ from typing import Any
 import can
 import numpy as np
 
+from drivers.endpoint import BusEndpoint
 from drivers.errors import DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
     MODES,
@@ -140,7 +141,7 @@ _ZERO3.flags.writeable = False
 _EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
-class MagnetorquerEmulator:
+class MagnetorquerEmulator(BusEndpoint):
     """The magnetorquer board, emulated on ``bus`` (see the module docstring for the behaviour).
 
     Args:
@@ -233,24 +234,6 @@ class MagnetorquerEmulator:
         self._noise_i = 0
 
     # -- lifecycle ------------------------------------------------------------------------------
-
-    def close(self) -> None:
-        """Stop emulating (and shut the bus down if owned). Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        if self._owns_bus:
-            self.bus.shutdown()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
-    def __enter__(self) -> MagnetorquerEmulator:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         return f"MagnetorquerEmulator(mode={self.mode!r}, counters={self.counters})"

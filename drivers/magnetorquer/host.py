@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
+from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
     Counters,
@@ -41,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["MagnetorquerBoard"]
 
 
-class MagnetorquerBoard:
+class MagnetorquerBoard(BusEndpoint):
     """Host-side driver of the magnetorquer board on an open python-can ``bus``.
 
     Args:
@@ -111,24 +112,6 @@ class MagnetorquerBoard:
         return cls(open_bus(interface, channel, **bus_kwargs), codec=codec, name=name, owns_bus=True)
 
     # -- lifecycle ------------------------------------------------------------------------------
-
-    def close(self) -> None:
-        """Stop using the bus (and shut it down if this driver owns it). Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
-        if self._owns_bus:
-            self.bus.shutdown()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
-    def __enter__(self) -> MagnetorquerBoard:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
