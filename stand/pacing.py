@@ -43,6 +43,7 @@ class Pacer:
         self.sleep = sleep
         self.start = None
         self._lateness: list[float] = []
+        self._starts: list[float] = []
         self.overruns = 0
 
     def begin(self) -> None:
@@ -61,6 +62,7 @@ class Pacer:
             now = self.clock()
         late = now - deadline
         self._lateness.append(late)
+        self._starts.append(now)
         if late > self.tick_s / self.factor:
             self.overruns += 1
 
@@ -72,5 +74,14 @@ class Pacer:
                 "lateness_ms_p50": round(float(np.percentile(lat, 50)), 4),
                 "lateness_ms_p99": round(float(np.percentile(lat, 99)), 4),
                 "lateness_ms_max": round(float(lat.max()), 4),
+            })
+        if len(self._starts) > 2:
+            # Tick-to-tick periods in wall time, against the nominal tick_s / factor.
+            period = np.diff(self._starts) * 1e3
+            nominal = self.tick_s / self.factor * 1e3
+            out.update({
+                "period_ms_nominal": round(nominal, 4),
+                "period_ms_std": round(float(period.std()), 4),
+                "period_ms_worst_late": round(float(period.max() - nominal), 4),
             })
         return out
