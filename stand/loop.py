@@ -31,6 +31,38 @@ from .pacing import Pacer
 from .telemetry import EventLog, Recorder
 
 NAN3 = (math.nan, math.nan, math.nan)
+#: A device whose magnetometer has sent nothing for this many sample periods is reported silent.
+SILENT_PERIODS = 5
+
+
+class DeviceWatch:
+    """Notices a device that stops answering (and comes back), once per change, for the event log.
+
+    It reads the host driver's sample counter once per second of sim time; the run goes on either
+    way (the controller holds, the board's watchdog switches the coils off).
+    """
+
+    def __init__(self, name: str, host, period_s: float, events: EventLog):
+        self.name, self.host, self.events = name, host, events
+        self.limit_s = SILENT_PERIODS * period_s
+        self.count = 0
+        self.last_change_s = 0.0
+        self.silent = False
+        self.silences = 0
+
+    def check(self, t_s: float) -> None:
+        n = self.host.counters.get("samples", 0)
+        if n != self.count:
+            self.count, self.last_change_s = n, t_s
+            if self.silent:
+                self.silent = False
+                self.events.log("device_recovered", f"{self.name}: samples again at t = {t_s:.3f} s", t_s=t_s)
+        elif not self.silent and t_s - self.last_change_s > self.limit_s:
+            self.silent = True
+            self.silences += 1
+            self.events.log("device_silent", f"{self.name}: no magnetometer sample since t = "
+                            f"{self.last_change_s:.3f} s (expected every {self.limit_s / SILENT_PERIODS:g} s)",
+                            t_s=t_s)
 
 
 def columns(scene: Scene) -> list[tuple[str, int, str]]:
@@ -99,6 +131,9 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     rec_every = ticks_per(sc.record_rate_hz, sc.step_s)
     has_field = truth.has_field
     record_cmd = controller is not None and hasattr(controller, "last_command")
+    watches = [DeviceWatch(d.name, scene.hosts[d.name], 1.0 / d.sample_rate_hz, events)
+               for d in sc.devices if d.name in scene.hosts]
+    watch_every = ticks_per(1.0, sc.step_s)
     status, error = "completed", None
     events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
     wall0 = clock()
@@ -131,6 +166,10 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                     row += tuple(controller.last_command)
                 recorder.record(row)
                 bar.update(t)
+            if k % watch_every == 0:
+                for w in watches:
+                    w.host.poll()
+                    w.check(t)
             if k >= n_steps:
                 break
             truth.step(dipole)
@@ -145,6 +184,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
         bar.update(truth.t_s, force=True)
         counters = {name: dict(h.counters) for name, h in scene.hosts.items()}
         counters.update({f"{name}.emulator": dict(e.counters) for name, e in scene.emulators.items()})
+        for w in watches:
+            counters[w.name]["silences"] = w.silences
         if error:
             events.log(status, error)
         events.log("end", status, ticks=k, wall_time_s=wall)

@@ -169,3 +169,22 @@ def test_plugin_controller_gets_the_host_drivers(scenario_dict, write_scenario, 
         assert scene.controller.calls == 10
     tel = telemetry.load(tmp_path / "out")
     np.testing.assert_allclose(tel["mtq.dipole_B"][1:-1], [[0.05, 0.0, -0.05]] * 19, atol=1e-5)
+
+
+def test_a_device_that_stops_answering_is_logged_and_the_run_goes_on(scenario_dict, write_scenario, tmp_path):
+    sc = short(scenario_dict, write_scenario, 20.0)
+    with build(sc) as scene:
+        emu = scene.emulators["mtq"]
+        publish = emu.publish
+        emu.publish = lambda t: 0 if 5.0 <= t < 12.0 else publish(t)  # the board goes quiet for 7 s
+        result = run(scene, tmp_path / "out")
+    assert result.status == "completed" and result.counters["mtq"]["silences"] == 1
+    events = [json.loads(line) for line in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]
+    kinds = [e["kind"] for e in events]
+    assert "device_silent" in kinds and "device_recovered" in kinds
+    silent = next(e for e in events if e["kind"] == "device_silent")
+    assert 5.0 < silent["t_s"] <= 7.0 and "mtq" in silent["message"]
+    tel = telemetry.load(tmp_path / "out")
+    quiet = (tel["t_s"] > 5.2) & (tel["t_s"] < 12.0)
+    # Coils off within one period of the last command: the board's watchdog, not the stand, did it.
+    assert np.all(tel["mtq.dipole_B"][quiet] == 0.0)
