@@ -10,7 +10,9 @@ Rows (``bench_render(quick) -> list[dict]`` with ``name, value, unit`` and optio
 * brightness: emitted flux against the flux the photometry policy asked for, as magnitudes.
 * detector: truth detector pixels against the independent projection.
 * speed: screen frame time (wall clock, persistent sparse update, no copy) at 1920 x 1080,
-  2560 x 1440 and 3840 x 2160 with stars to Hp 8, median and p95, and the 4K / 1080p ratio.
+  2560 x 1440 and 3840 x 2160 with stars to Hp 8, median and p95, and the 4K / 1080p ratio; the
+  same as thread CPU time (what an idle core would take) beside each.
+* display node: state sent over loopback UDP -> frame rendered and handed on, median and p95.
 """
 
 from __future__ import annotations
@@ -138,28 +140,17 @@ def speed_rows(n_frames: int) -> list[dict]:
         med, p95 = np.median(ts), np.percentile(ts, 95)
         medians[w] = med
         note = f"{len(qs)} frames, stars per frame mean {np.mean(ns):.0f} max {max(ns)}, Hp <= 8, apparent"
-        if w == 1920:
-            rows.append(_row(f"render {w}x{h} median", med, "ms", 3.0, med <= 3.0, note))
-            rows.append(_row(f"render {w}x{h} p95", p95, "ms", 5.0, p95 <= 5.0))
-            rows.append(
-                _row(
-                    f"render {w}x{h} CPU median / p95 (info)",
-                    np.median(cpu),
-                    "ms",
-                    note=f"p95 {np.percentile(cpu, 95):.2f} ms; thread CPU time, immune to other load",
-                )
-            )
-        else:
-            rows.append(_row(f"render {w}x{h} median", med, "ms", note=note))
-            rows.append(_row(f"render {w}x{h} p95", p95, "ms"))
-            rows.append(
-                _row(
-                    f"render {w}x{h} CPU median / p95 (info)",
-                    np.median(cpu),
-                    "ms",
-                    note=f"p95 {np.percentile(cpu, 95):.2f} ms",
-                )
-            )
+        # Wall clock is what a display loop lives by (and what the limits apply to); thread CPU time
+        # is what the frame costs on an idle core. On a shared machine wall - CPU is preemption.
+        lim = w == 1920
+        rows.append(_row(f"render {w}x{h} median", med, "ms", 3.0 if lim else None, med <= 3.0 if lim else None,
+                         "wall clock; " + note))
+        rows.append(_row(f"render {w}x{h} p95", p95, "ms", 5.0 if lim else None, p95 <= 5.0 if lim else None,
+                         "wall clock"))
+        rows.append(_row(f"render {w}x{h} CPU median (info)", np.median(cpu), "ms",
+                         note="thread CPU time, immune to other load"))
+        rows.append(_row(f"render {w}x{h} CPU p95 (info)", np.percentile(cpu, 95), "ms",
+                         note=f"wall p95 - CPU p95 = {p95 - np.percentile(cpu, 95):.2f} ms (preemption)"))
     ratio = medians[3840] / medians[1920]
     rows.append(
         _row(
@@ -181,9 +172,44 @@ def speed_rows(n_frames: int) -> list[dict]:
     return rows
 
 
+def display_node_rows(n_frames: int) -> list[dict]:
+    """Round trip of the display node on loopback: state sent -> frame rendered and handed on.
+
+    Sender and node run in one thread (send, then ``serve(max_frames=1)``), so the time is the
+    node's own work: UDP send and receive, decode, render at 1920 x 1080, push to the output."""
+    from star_screen.outputs import FrameQueue
+
+    from .display import DisplayNode, StateSender
+
+    epoch = Epoch.from_iso(EPOCH)
+    qs = _attitudes(n_frames + 5, seed=11)[: n_frames + 5]
+    renderer = Renderer(default_bench(1920, 1080))
+    ts = []
+    with DisplayNode(("127.0.0.1", 0), renderer, FrameQueue(1), copy=False) as node, StateSender(
+        *node.address, scenario_epoch=epoch
+    ) as sender:
+        for i, q in enumerate(qs):
+            t0 = time.perf_counter()
+            sender.send(q, i * 100_000_000, v_sc_gcrs_m_s=(7000.0, 0.0, 0.0))
+            node.serve(max_frames=1, timeout_s=2.0)
+            if i >= 5:  # the first frames warm the caches
+                ts.append(time.perf_counter() - t0)
+        st = node.stats
+    ts = np.array(ts) * 1e3
+    note = (f"{len(ts)} frames, loopback UDP, send -> decode -> render 1920x1080 -> output, one thread, wall clock; "
+            f"{st.rendered} rendered, {st.corrupt + st.duplicate + st.out_of_order + st.superseded} dropped; "
+            "sim time advances 0.1 s per frame, so the renderer recomputes catalog places every frame "
+            "(~3 ms of it; the render rows above keep one epoch)")
+    return [
+        _row("display node round trip 1920x1080 median", np.median(ts), "ms", note=note),
+        _row("display node round trip 1920x1080 p95", np.percentile(ts, 95), "ms"),
+    ]
+
+
 def bench_render(quick: bool = False) -> list[dict]:
     """Measure the star-screen acceptance; ``quick`` uses fewer attitudes and frames."""
-    return geometry_rows(20 if quick else 120) + speed_rows(60 if quick else 300)
+    return (geometry_rows(20 if quick else 120) + speed_rows(60 if quick else 300)
+            + display_node_rows(30 if quick else 300))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,7 +18,7 @@ from pathlib import Path
 from .errors import ScenarioError
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
-EXTRA_COMMANDS = ("stand.screen_command",)
+EXTRA_COMMANDS = ("stand.screen_command", "stand.display", "stand.emulate_command", "stand.solve_command")
 
 
 def _fail(message: str) -> int:

@@ -1,0 +1,376 @@
+"""Display node: a screen PC that receives time-tagged attitude state over UDP and renders locally.
+
+The sim PC sends state, not pixels (``star_screen.state_message``: ~120-190 bytes per frame); each
+display PC renders with its own catalog, bench geometry and vsync and hands the frame to its output
+(a :class:`star_screen.window.ScreenWindow`, a :class:`star_screen.outputs.FrameQueue` for
+emulators, or PNG files). UDP because the state of the newest frame is all that matters: a lost
+datagram is replaced by the next one, and nothing queues behind a slow receiver.
+
+Policy of :meth:`DisplayNode.serve`: every datagram waiting when the node is ready is read; corrupt
+ones (bad magic, version, length, crc32, non-unit quaternion) are counted and skipped; a sequence
+number not above the newest one accepted from the same stream is dropped as ``duplicate`` or
+``out_of_order`` (a late datagram must never move the sky backwards); of the rest only the newest is
+rendered and the older ones count as ``superseded``. A new ``stream_id`` (a restarted sender)
+restarts sequencing. Every rendered frame carries the state's ``sim_time_ns`` as its time tag.
+
+    stand display-node --bind 127.0.0.1:PORT [--window [--display N] [--windowed] | --out DIR]
+                       [--screen WxH] [--max-frames N] [--timeout S] [--aberration on|off]
+
+Exit codes: 0 after a normal stop (max frames, idle timeout, window closed), 2 for a usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import secrets
+import socket
+import sys
+import time
+from collections import deque
+from dataclasses import asdict, dataclass
+
+from sim.time import Epoch
+from star_screen.state_message import DisplayState, StateMessageError, decode, encode
+
+__all__ = ["StateSender", "DisplayNode", "NodeStats", "DirectoryOutput", "register", "run"]
+
+#: A UDP datagram can never be longer; a state message is far shorter.
+_MAX_DATAGRAM = 65_535
+#: Datagrams read in one drain before rendering; bounds the work per frame under a flood.
+_MAX_DRAIN = 4_096
+
+
+class StateSender:
+    """Sim side: sends one state datagram per frame to a display node at ``(host, port)``.
+
+    ``scenario_epoch`` lets :meth:`send` derive each frame's instant from its sim time;
+    ``stream_id`` (default random) tells the node that a restarted sender starts a new sequence.
+    """
+
+    def __init__(self, host: str, port: int, *, scenario_epoch: Epoch | None = None, stream_id: int | None = None):
+        if not 0 < int(port) < 65536:
+            raise ValueError(f"port = {port}; allowed 1 to 65535.")
+        self.address = (str(host), int(port))
+        self.scenario_epoch = scenario_epoch
+        self.stream_id = secrets.randbits(32) if stream_id is None else int(stream_id)
+        self.sequence = 0
+        self.sent = 0
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.connect(self.address)
+
+    def send(
+        self,
+        q_SN,
+        sim_time_ns: int,
+        *,
+        epoch: Epoch | None = None,
+        v_sc_gcrs_m_s=(0.0, 0.0, 0.0),
+        omega_SN_S=None,
+        sun_N=None,
+        moon_N=None,
+    ) -> DisplayState:
+        """Send the state of the frame at ``sim_time_ns``; ``epoch`` is the frame's instant (default
+        ``scenario_epoch + sim_time_ns``). Returns what was sent (with its sequence number)."""
+        if epoch is None:
+            if self.scenario_epoch is None:
+                raise ValueError("epoch = None and no scenario_epoch was given; pass one of them.")
+            epoch = self.scenario_epoch.add_ns(int(sim_time_ns))
+        state = DisplayState(self.sequence, int(sim_time_ns), epoch, tuple(float(x) for x in q_SN),
+                             tuple(float(x) for x in v_sc_gcrs_m_s),
+                             None if omega_SN_S is None else tuple(float(x) for x in omega_SN_S),
+                             None if sun_N is None else tuple(float(x) for x in sun_N),
+                             None if moon_N is None else tuple(float(x) for x in moon_N),
+                             stream_id=self.stream_id)
+        self.send_state(state)
+        self.sequence += 1
+        return state
+
+    def send_state(self, state: DisplayState) -> int:
+        """Send a prepared state as is (its own sequence and stream id); returns the bytes sent."""
+        return self.send_bytes(encode(state))
+
+    def send_bytes(self, data: bytes) -> int:
+        n = self._sock.send(data)
+        self.sent += 1
+        return n
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@dataclass
+class NodeStats:
+    """Counters of a display node (cumulative over :meth:`DisplayNode.serve` calls)."""
+
+    received: int = 0
+    corrupt: int = 0
+    duplicate: int = 0
+    out_of_order: int = 0
+    superseded: int = 0
+    rendered: int = 0
+    stream_restarts: int = 0
+    stop_reason: str = ""
+    last_error: str = ""
+
+
+@dataclass(frozen=True)
+class NodeFrame:
+    """Log record of one rendered frame: its state's sequence and time tag, and clock readings (ns)."""
+
+    sequence: int
+    sim_time_ns: int
+    received_ns: int
+    pushed_ns: int
+
+
+class DirectoryOutput:
+    """Writes each frame as ``DIR/NNNNNN/{screen.png, detector.png, truth.json}`` (debugging; slow)."""
+
+    def __init__(self, out_dir, renderer):
+        from pathlib import Path
+
+        self.out = Path(out_dir)
+        self.renderer = renderer
+        self.count = 0
+
+    def push(self, frame) -> None:
+        from star_screen.outputs import write_frame
+
+        if frame.time_tag_ns is None:
+            raise ValueError("every frame handed to an output must carry time_tag_ns (sim time in ns).")
+        write_frame(self.out / f"{self.count:06d}", frame, self.renderer)
+        self.count += 1
+
+
+class DisplayNode:
+    """Screen side: receives state datagrams on ``bind`` and renders the newest into ``output``.
+
+    ``output`` has ``push(frame)`` (ScreenWindow, FrameQueue, DirectoryOutput). ``detector``: also
+    render the detector image (for emulators). ``copy=False`` hands out the renderer's persistent
+    arrays (fine for a window, which shows them at once). ``clock`` (ns) stamps the log.
+    """
+
+    def __init__(self, bind=("127.0.0.1", 0), renderer=None, output=None, *, detector: bool = False,
+                 copy: bool = True, clock=time.monotonic_ns, log_length: int = 100_000):
+        if renderer is None or output is None:
+            raise ValueError("a DisplayNode needs a renderer and an output (an object with push(frame)).")
+        self.renderer = renderer
+        self.output = output
+        self.detector = bool(detector)
+        self.copy = bool(copy)
+        self.clock = clock
+        self.stats = NodeStats()
+        self.log: deque[NodeFrame] = deque(maxlen=int(log_length))
+        self._stream: int | None = None
+        self._last_seq = -1
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind((str(bind[0]), int(bind[1])))
+        except OSError as exc:
+            self._sock.close()
+            raise ValueError(f"bind = {bind[0]}:{bind[1]} cannot be bound ({exc.strerror}); give a local "
+                             "address and a free port (0 picks one).") from None
+        self.address = self._sock.getsockname()
+
+    # ------------------------------------------------------------------ receiving
+    def _accept(self, data: bytes, newest: DisplayState | None) -> DisplayState | None:
+        st = self.stats
+        st.received += 1
+        try:
+            state = decode(data)
+        except StateMessageError as exc:
+            st.corrupt += 1
+            st.last_error = str(exc)
+            return newest
+        if state.stream_id != self._stream:
+            if self._stream is not None:
+                st.stream_restarts += 1
+                if newest is not None:
+                    st.superseded += 1
+                    newest = None
+            self._stream, self._last_seq = state.stream_id, -1
+        if state.sequence <= self._last_seq:
+            if state.sequence == self._last_seq:
+                st.duplicate += 1
+            else:
+                st.out_of_order += 1
+            return newest
+        if newest is not None:
+            st.superseded += 1
+        self._last_seq = state.sequence
+        return state
+
+    def _drain(self, first: bytes) -> DisplayState | None:
+        newest = self._accept(first, None)
+        self._sock.setblocking(False)
+        try:
+            for _ in range(_MAX_DRAIN):
+                try:
+                    data = self._sock.recv(_MAX_DATAGRAM)
+                except BlockingIOError:
+                    break
+                newest = self._accept(data, newest)
+        finally:
+            self._sock.setblocking(True)
+        return newest
+
+    def render_state(self, state: DisplayState):
+        """Render one state exactly as the node does (also what a local reference calls)."""
+        frame = self.renderer.render(
+            state.q_SN, state.epoch, v_sc_gcrs_m_s=state.v_sc_gcrs_m_s, omega_SN_S=state.omega_SN_S,
+            time_tag_ns=state.sim_time_ns, detector=self.detector, copy=self.copy,
+        )
+        if state.sun_N is not None or state.moon_N is not None:
+            frame.bodies = {**frame.bodies, "sender_u_N": {"sun": state.sun_N, "moon": state.moon_N}}
+        return frame
+
+    def serve(self, max_frames: int | None = None, timeout_s: float | None = 5.0,
+              duration_s: float | None = None) -> NodeStats:
+        """Receive and render until ``max_frames`` frames were rendered in this call, no new state came
+        for ``timeout_s`` seconds, ``duration_s`` passed, or the window asked to quit. ``None``
+        removes that bound (a bench node runs with ``timeout_s=None`` until its window is closed)."""
+        for name, v in (("max_frames", max_frames), ("timeout_s", timeout_s), ("duration_s", duration_s)):
+            if v is not None and not v > 0:
+                raise ValueError(f"{name} = {v}; give a positive number or None for no bound.")
+        quit_requested = getattr(self.output, "quit_requested", None)
+        end = None if duration_s is None else time.monotonic() + duration_s
+        idle_end = None if timeout_s is None else time.monotonic() + timeout_s
+        rendered = 0
+        while max_frames is None or rendered < max_frames:
+            now = time.monotonic()
+            waits = [t - now for t in (end, idle_end) if t is not None]
+            # Without any bound the node still wakes every 0.2 s to service the window.
+            wait = min(waits) if waits else 0.2
+            if waits and wait <= 0:
+                self.stats.stop_reason = "duration" if end is not None and now >= end else "timeout"
+                return self.stats
+            self._sock.settimeout(min(wait, 0.2) if quit_requested is not None else wait)
+            try:
+                data = self._sock.recv(_MAX_DATAGRAM)
+            except TimeoutError:
+                if quit_requested is not None and quit_requested():
+                    self.stats.stop_reason = "window closed"
+                    return self.stats
+                continue
+            received_ns = self.clock()
+            state = self._drain(data)
+            if state is None:
+                continue
+            frame = self.render_state(state)
+            self.output.push(frame)
+            self.log.append(NodeFrame(state.sequence, state.sim_time_ns, received_ns, self.clock()))
+            self.stats.rendered += 1
+            rendered += 1
+            if timeout_s is not None:
+                idle_end = time.monotonic() + timeout_s
+            if quit_requested is not None and quit_requested():
+                self.stats.stop_reason = "window closed"
+                return self.stats
+        self.stats.stop_reason = "max_frames"
+        return self.stats
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+# ---------------------------------------------------------------------- command line
+def _fail(message: str) -> int:
+    print(f"stand: error: {message}", file=sys.stderr)
+    return 2
+
+
+def parse_hostport(text: str, field: str = "--bind") -> tuple[str, int]:
+    host, sep, port = str(text).rpartition(":")
+    try:
+        port_i = int(port)
+    except ValueError:
+        port_i = -1
+    if not sep or not host or not 0 <= port_i <= 65535:
+        raise ValueError(f"{field} {text!r} is not HOST:PORT; write it like 127.0.0.1:5600 (port 0 to 65535).")
+    return host, port_i
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "display-node",
+        help="receive attitude state over UDP and render the star screen locally (window, PNG or memory)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("--bind", required=True, help="HOST:PORT to listen on, e.g. 127.0.0.1:5600")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--window", action="store_true", help="show frames in a fullscreen window (display extra)")
+    where.add_argument("--out", help="write every frame as PNG + truth.json into this directory (slow)")
+    p.add_argument("--display", type=int, default=0, help="monitor index for --window (default 0)")
+    p.add_argument("--windowed", action="store_true", help="with --window: a plain window, not fullscreen")
+    p.add_argument("--no-corner-code", action="store_true", help="with --window: do not draw the frame counter")
+    p.add_argument("--screen", default="1920x1080", help="screen resolution WxH (default 1920x1080)")
+    p.add_argument("--aberration", choices=("on", "off"), default="on", help="apparent places (default) or not")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after N rendered frames")
+    p.add_argument("--timeout", type=float, default=None,
+                   help="stop after S seconds without a new state (default: run until stopped)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args) -> int:
+    try:
+        host, port = parse_hostport(args.bind)
+        w_txt, _, h_txt = str(args.screen).lower().partition("x")
+        try:
+            width, height = int(w_txt), int(h_txt)
+        except ValueError:
+            raise ValueError(f"--screen {args.screen!r} is not a resolution; write it as WIDTHxHEIGHT, "
+                             "e.g. 1920x1080.") from None
+        if args.max_frames is not None and args.max_frames < 1:
+            raise ValueError(f"--max-frames {args.max_frames}; give a whole number >= 1.")
+        if args.timeout is not None and not args.timeout > 0:
+            raise ValueError(f"--timeout {args.timeout}; give a positive number of seconds.")
+        from star_screen.geometry import default_bench
+        from star_screen.outputs import FrameQueue
+        from star_screen.render import Renderer
+
+        bench = default_bench(width, height)
+        problems = bench.check_fits()
+        if problems:
+            raise ValueError(f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems))
+        renderer = Renderer(bench, aberration=(args.aberration == "on"))
+        if args.window:
+            from star_screen.window import ScreenWindow
+
+            output = ScreenWindow((width, height), display=args.display, fullscreen=not args.windowed,
+                                  corner_code=not args.no_corner_code, clock=time.monotonic_ns)
+        elif args.out:
+            output = DirectoryOutput(args.out, renderer)
+        else:
+            output = FrameQueue(1)
+        node = DisplayNode((host, port), renderer, output, copy=not args.window)
+    except (ValueError, RuntimeError) as exc:
+        return _fail(str(exc))
+    print(f"display node listening on {node.address[0]}:{node.address[1]} (UDP)", file=sys.stderr)
+    try:
+        with node:
+            stats = node.serve(max_frames=args.max_frames, timeout_s=args.timeout)
+    except KeyboardInterrupt:
+        stats = node.stats
+        stats.stop_reason = "interrupted"
+    finally:
+        close = getattr(output, "close", None)
+        if close is not None:
+            close()
+    counts = {k: v for k, v in asdict(stats).items() if k not in ("last_error",)}
+    print("display node stopped: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    if stats.last_error:
+        print(f"last corrupt datagram: {stats.last_error}", file=sys.stderr)
+    return 0

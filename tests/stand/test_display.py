@@ -1,0 +1,165 @@
+"""Display node on loopback: the sim sends state over UDP, the node renders it locally."""
+
+import numpy as np
+import pytest
+
+from sim.time import Epoch
+from stand.cli import main
+from stand.display import DisplayNode, StateSender
+from star_screen.attitude import q_SN_from_radec_roll
+from star_screen.catalog import Catalog
+from star_screen.geometry import default_bench
+from star_screen.outputs import FrameQueue
+from star_screen.render import Renderer
+from star_screen.state_message import encode
+
+EPOCH = Epoch.from_iso("2026-01-01T00:00:00Z")
+W, H = 640, 360
+
+
+@pytest.fixture(scope="module")
+def catalog():
+    return Catalog.load()
+
+
+@pytest.fixture
+def node(catalog):
+    with DisplayNode(("127.0.0.1", 0), Renderer(default_bench(W, H), catalog), FrameQueue(8), detector=True) as n:
+        yield n
+
+
+@pytest.fixture
+def sender(node):
+    with StateSender(*node.address, scenario_epoch=EPOCH, stream_id=1) as s:
+        yield s
+
+
+def _q(ra, dec, roll=0.0):
+    return q_SN_from_radec_roll(ra, dec, roll)
+
+
+def test_node_frames_equal_local_frames_bit_for_bit(node, sender, catalog):
+    local = Renderer(default_bench(W, H), catalog)
+    cases = [
+        dict(q=_q(83.8, -5.4, 12.0), t_ns=0, v=(0.0, 0.0, 0.0), omega=None),
+        dict(q=_q(0.01, 89.9), t_ns=100_000_000, v=(-6100.0, 3500.0, 1200.0), omega=None),
+        dict(q=_q(359.99, -30.0, 200.0), t_ns=250_000_123, v=(7000.0, 0.0, 0.0), omega=(0.0, 0.01, 0.02)),
+    ]
+    for c in cases:
+        sent = sender.send(c["q"], c["t_ns"], v_sc_gcrs_m_s=c["v"], omega_SN_S=c["omega"],
+                           sun_N=(1.0, 0.0, 0.0))
+        stats = node.serve(max_frames=1, timeout_s=5.0)
+        assert stats.stop_reason == "max_frames"
+        got = node.output.latest()
+        want = local.render(c["q"], EPOCH.add_ns(c["t_ns"]), v_sc_gcrs_m_s=c["v"], omega_SN_S=c["omega"],
+                            time_tag_ns=c["t_ns"])
+        assert got.time_tag_ns == c["t_ns"] == sent.sim_time_ns
+        assert got.screen.max() > 0
+        np.testing.assert_array_equal(got.screen, want.screen)
+        np.testing.assert_array_equal(got.detector, want.detector)
+        np.testing.assert_array_equal(got.stars.hip, want.stars.hip)
+        assert got.bodies["sender_u_N"]["sun"] == (1.0, 0.0, 0.0)
+    assert [f.sequence for f in node.log] == [0, 1, 2]
+    assert [f.sim_time_ns for f in node.log] == [c["t_ns"] for c in cases]
+    assert node.stats.rendered == 3 and node.stats.corrupt == 0
+
+
+def test_corrupt_datagrams_are_counted_and_skipped(node, sender):
+    good = sender.send(_q(10, 10), 1_000)
+    bad_crc = bytearray(encode(good))
+    bad_crc[40] ^= 0xFF
+    sender.send_bytes(b"not a state message at all")
+    sender.send_bytes(bytes(bad_crc))
+    sender.send_bytes(encode(good)[:-3])
+    stats = node.serve(max_frames=2, timeout_s=0.3)
+    assert (stats.received, stats.corrupt, stats.rendered) == (4, 3, 1)
+    assert stats.stop_reason == "timeout" and "length" in stats.last_error
+    assert node.output.latest().time_tag_ns == 1_000
+
+
+def test_late_duplicate_and_out_of_order_states_are_dropped(node, sender):
+    def send(seq, t_ns):
+        sender.sequence = seq
+        sender.send(_q(20, 20), t_ns)
+
+    send(5, 500)
+    send(3, 300)  # arrives after 5: older, dropped
+    assert node.serve(max_frames=1, timeout_s=2.0).rendered == 1
+    assert node.output.latest().time_tag_ns == 500
+    send(5, 500)  # duplicate of the frame shown
+    send(4, 400)  # late
+    send(6, 600)
+    send(7, 700)  # 6 and 7 waiting together: only the newest is rendered
+    stats = node.serve(max_frames=5, timeout_s=0.3)
+    assert (stats.duplicate, stats.out_of_order, stats.superseded, stats.rendered) == (1, 2, 1, 2)
+    assert [f.sim_time_ns for f in node.log] == [500, 700]
+    assert all(f.time_tag_ns is not None for f in node.output._frames)
+
+
+def test_a_restarted_sender_starts_a_new_stream(node, sender):
+    sender.sequence = 100
+    sender.send(_q(30, 0), 1)
+    node.serve(max_frames=1, timeout_s=2.0)
+    with StateSender(*node.address, scenario_epoch=EPOCH, stream_id=2) as again:
+        again.send(_q(30, 0), 2)  # sequence 0 of a new stream is accepted
+    stats = node.serve(max_frames=1, timeout_s=2.0)
+    assert (stats.rendered, stats.stream_restarts, stats.out_of_order) == (2, 1, 0)
+
+
+def test_node_stops_by_itself(node):
+    stats = node.serve(timeout_s=0.05)
+    assert (stats.stop_reason, stats.rendered) == ("timeout", 0)
+    assert node.serve(duration_s=0.05, timeout_s=None).stop_reason == "duration"
+    with pytest.raises(ValueError, match="max_frames = 0"):
+        node.serve(max_frames=0)
+
+
+def test_sender_and_node_refuse_bad_arguments(catalog):
+    with pytest.raises(ValueError, match="port = 0"):
+        StateSender("127.0.0.1", 0)
+    with StateSender("127.0.0.1", 9, stream_id=3) as s, pytest.raises(ValueError, match="scenario_epoch"):
+        s.send(_q(0, 0), 0)
+    with pytest.raises(ValueError, match="renderer and an output"):
+        DisplayNode(("127.0.0.1", 0))
+    with pytest.raises(ValueError, match="bind = 192.0.2.1"):
+        DisplayNode(("192.0.2.1", 0), Renderer(default_bench(W, H), catalog), FrameQueue())
+
+
+def test_cli_display_node_stops_on_timeout_and_reports(capsys):
+    assert main(["display-node", "--bind", "127.0.0.1:0", "--screen", f"{W}x{H}", "--timeout", "0.05"]) == 0
+    out = capsys.readouterr()
+    assert "listening on 127.0.0.1:" in out.err and "stop_reason timeout" in out.out and "rendered 0" in out.out
+
+
+@pytest.mark.parametrize(
+    "argv, field",
+    [
+        (["--bind", "localhost"], "--bind 'localhost'"),
+        (["--bind", "127.0.0.1:70000"], "--bind"),
+        (["--bind", "127.0.0.1:0", "--screen", "big"], "--screen 'big'"),
+        (["--bind", "127.0.0.1:0", "--max-frames", "0"], "--max-frames 0"),
+        (["--bind", "127.0.0.1:0", "--timeout", "-1"], "--timeout -1"),
+    ],
+)
+def test_cli_display_node_usage_errors(argv, field, capsys):
+    assert main(["display-node", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stand: error: ") and field in err and err.count("\n") == 1
+
+
+def test_cli_display_node_window_on_dummy_video(monkeypatch, capsys):
+    pytest.importorskip("pygame", reason="the display extra (pygame-ce) is not installed")
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    argv = ["display-node", "--bind", "127.0.0.1:0", "--screen", f"{W}x{H}", "--window", "--windowed",
+            "--timeout", "0.05"]
+    assert main(argv) == 0
+    assert "stop_reason timeout" in capsys.readouterr().out
+
+
+def test_bench_reports_the_display_node_round_trip():
+    from stand.bench_render import display_node_rows
+
+    rows = display_node_rows(3)
+    assert [r["name"] for r in rows] == ["display node round trip 1920x1080 median",
+                                         "display node round trip 1920x1080 p95"]
+    assert all(r["unit"] == "ms" and r["value"] > 0 for r in rows) and "8 rendered, 0 dropped" in rows[0]["note"]
