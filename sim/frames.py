@@ -14,6 +14,8 @@ Every function returns a direction cosine matrix ``dcm_XY`` that maps Y componen
 
 from __future__ import annotations
 
+import warnings
+
 import erfa
 import numpy as np
 
@@ -28,14 +30,28 @@ def _unit(v, name: str) -> np.ndarray:
     return v / n
 
 
-def dcm_itrs_gcrs(epoch: Epoch, xp_rad: float = 0.0, yp_rad: float = 0.0) -> np.ndarray:
+def dcm_itrs_gcrs(epoch: Epoch, xp_rad: float = 0.0, yp_rad: float = 0.0, eop=None) -> np.ndarray:
     """GCRS -> ITRS at ``epoch`` by IAU 2006/2000A (ERFA ``c2t06a``), with polar motion if given.
 
     UT1 comes from ``epoch.dut1_s``; without IERS data both UT1 - UTC and polar motion are 0,
     which costs at most 13.5 arcsec of Earth rotation and 0.5 arcsec of pole position.
+    ``eop``: a :class:`sim.eop.EOP` (values at this epoch), a :class:`sim.eop.EOPTable` or
+    ``"default"`` (astropy-iers-data's table if installed, else the zero fallback); it then
+    supplies UT1 - UTC and polar motion, replacing ``epoch.dut1_s``, ``xp_rad`` and ``yp_rad``.
     """
     tt1, tt2 = epoch.jd_tt
-    u1, u2 = epoch.jd_ut1
+    if eop is not None:
+        from .eop import EOP, eop_at
+
+        e = eop if isinstance(eop, EOP) else eop_at(epoch, eop)
+        xp_rad, yp_rad = e.xp_rad, e.yp_rad
+        # erfa.utcut1 handles the stretched quasi-JD of a leap-second day (Epoch.jd_ut1 adds
+        # dut1 / 86400 to it, which is up to 1 s off in UT1 on such a day).
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=".*dubious year.*")
+            u1, u2 = erfa.utcut1(*epoch.jd_utc, e.dut1_s)
+    else:
+        u1, u2 = epoch.jd_ut1
     return np.asarray(erfa.c2t06a(tt1, tt2, u1, u2, xp_rad, yp_rad))
 
 

@@ -113,9 +113,16 @@ class Epoch:
 
     @property
     def jd_ut1(self) -> tuple[float, float]:
-        """UT1 as a split Julian date, using ``dut1_s`` (UT1 - UTC)."""
+        """UT1 as a split Julian date, using ``dut1_s`` (UT1 - UTC).
+
+        ERFA's UTC date is stretched on a leap-second day (86401 s to the day), so adding
+        ``dut1_s / 86400`` to it would be up to a second off there; ``erfa.utcut1`` accounts for it.
+        """
         u1, u2 = self.jd_utc
-        return _norm(u1, u2 + self.dut1_s / 86400.0)
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=_DUBIOUS.pattern)
+            a, b = erfa.utcut1(u1, u2, self.dut1_s)
+        return _norm(float(a), float(b))
 
     @property
     def iso(self) -> str:

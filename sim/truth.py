@@ -135,7 +135,7 @@ class TruthModel:
     """Orbit + attitude truth of one spacecraft, advanced one dynamics step at a time."""
 
     def __init__(self, *, inertia, q_BN, omega_BN_B, r_N, v_N, step_ns: int, gravity: str = "j2",
-                 orbit_step_s: float = 10.0, field_itrs: Callable | None = None,
+                 orbit_step_s: float = 10.0, field_itrs: Callable | None = None,  # (t_s, r_itrs) -> B_itrs
                  earth_rotation: EarthRotation | None = None, torques=("magnetic", "gravity_gradient")):
         if step_ns <= 0 or step_ns % 2:
             raise ValueError(f"step_ns = {step_ns}; the dynamics step must be a positive even number of ns.")
@@ -161,7 +161,9 @@ class TruthModel:
             def field_N(ts, pos):
                 C = rot.dcm_itrs_gcrs(ts)
                 r_itrs = np.einsum("nij,nj->ni", C, pos)
-                return np.einsum("nji,nj->ni", C, field_itrs(r_itrs))
+                # The field model's slow time dependence (secular variation, ~0.3 nT a day) is
+                # taken at the chunk's start.
+                return np.einsum("nji,nj->ni", C, field_itrs(float(ts[0]), r_itrs))
 
         self.track = OrbitTrack(r_N, v_N, gravity=gravity, orbit_step_s=orbit_step_s,
                                 half_step_ns=self.step_ns // 2, field_N=field_N)

@@ -7,7 +7,9 @@ torque needs it, and so on). ``stand check`` prints the plan without opening any
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -39,16 +41,21 @@ def plan(sc: Scenario) -> list[Choice]:
     if "magnetic" in sc.torques:
         field_why.append("magnetic torque")
     gg = "gravity_gradient" in sc.torques
+    env = sc.environment
+    needs_eop = needs_field and env.earth_rotation == "iau2006" and env.eop == "iers"
+    if env.magnetic_field == "igrf":
+        field_why.append(f"degree {env.igrf_degree}")
     choices = [
         Choice("orbit", True, f"{'J2' if sc.orbit.gravity == 'j2' else 'point-mass'} gravity, RK4 at "
                f"{sc.orbit.step_s:g} s with the force re-evaluated at every stage, Hermite-interpolated "
                "to the dynamics steps"),
         Choice("attitude", True, f"rigid body, {sc.integrator.upper()} at {sc.step_s:g} s"),
         Choice(f"magnetic_field.{sc.environment.magnetic_field}", needs_field,
-               "needed by " + " and ".join(field_why) if needs_field
+               "needed by " + ", ".join(field_why) if needs_field
                else "no magnetometer, magnetorquer, cage or magnetic torque in the scene"),
         Choice(f"earth_rotation.{sc.environment.earth_rotation}", needs_field,
                "the field model is Earth-fixed" if needs_field else "nothing Earth-fixed is evaluated"),
+        Choice("eop.iers", needs_eop, _eop_reason(sc, needs_field)),
         Choice("torque.magnetic", "magnetic" in sc.torques,
                "listed in dynamics.torques" if "magnetic" in sc.torques else "not in dynamics.torques"),
         Choice("torque.gravity_gradient", gg, "listed in dynamics.torques" if gg else "not in dynamics.torques"),
@@ -66,6 +73,23 @@ def plan(sc: Scenario) -> list[Choice]:
                           f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
                           else "no controller in the scenario: open loop"))
     return choices
+
+
+def _eop_reason(sc: Scenario, needs_field: bool) -> str:
+    env = sc.environment
+    if not needs_field:
+        return "nothing Earth-fixed is evaluated"
+    if env.earth_rotation != "iau2006":
+        return f"earth_rotation = {env.earth_rotation!r} has no UT1 or polar motion"
+    if env.eop == "none":
+        return "environment.eop = 'none': UT1 - UTC and polar motion taken as 0"
+    from sim.eop import eop_at
+
+    e = eop_at(sc.epoch)
+    if not e.available:
+        return "no IERS table installed or epoch outside it: UT1 - UTC and polar motion taken as 0"
+    return (f"UT1 - UTC = {e.dut1_s:+.4f} s, polar motion ({e.xp_rad * 206264806.2:.1f}, "
+            f"{e.yp_rad * 206264806.2:.1f}) mas from {Path(e.source).name}{' (predicted)' if e.predicted else ''}")
 
 
 @dataclass
@@ -115,14 +139,24 @@ def build(sc: Scenario) -> Scene:
     choices = plan(sc)
     built = {c.model for c in choices if c.built}
     r0, v0 = initial_state(sc)
-    field_model = sc.environment.magnetic_field
-    needs_field = f"magnetic_field.{field_model}" in built
-    rotation = EarthRotation(sc.epoch, sc.environment.earth_rotation, sc.environment.era0_rad) if needs_field else None
+    env = sc.environment
+    needs_field = f"magnetic_field.{env.magnetic_field}" in built
+    epoch, xp, yp = sc.epoch, 0.0, 0.0
+    if "eop.iers" in built:
+        from sim.eop import eop_at
+
+        e = eop_at(sc.epoch)
+        epoch, xp, yp = dataclasses.replace(sc.epoch, dut1_s=e.dut1_s), e.xp_rad, e.yp_rad
+    rotation = EarthRotation(epoch, env.earth_rotation, env.era0_rad, xp, yp) if needs_field else None
+
+    def field_itrs(t_s, r_itrs):
+        return magnetic_field_itrs(epoch + t_s, r_itrs, env.magnetic_field, env.igrf_degree)
+
     truth = TruthModel(
         inertia=sc.spacecraft.inertia_kg_m2, q_BN=sc.spacecraft.q_BN, omega_BN_B=sc.spacecraft.omega_BN_B,
         r_N=r0, v_N=v0, step_ns=seconds_to_ns(sc.step_s), gravity=sc.orbit.gravity,
         orbit_step_s=sc.orbit.step_s,
-        field_itrs=(lambda r: magnetic_field_itrs(sc.epoch, r, field_model)) if needs_field else None,
+        field_itrs=field_itrs if needs_field else None,
         earth_rotation=rotation, torques=sc.torques,
     )
     scene = Scene(sc, truth, choices)

@@ -168,6 +168,8 @@ class EnvironmentSpec:
     magnetic_field: str
     earth_rotation: str
     era0_rad: float
+    igrf_degree: int = 13
+    eop: str = "iers"
 
 
 @dataclass(frozen=True)
@@ -269,7 +271,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
 
     orbit = _orbit(root.table("orbit"))
     spacecraft = _spacecraft(root.table("spacecraft"), step_s)
-    environment = _environment(root.table("environment", required=False))
+    environment = _environment(root.table("environment", required=False), epoch)
 
     devices_raw = root.raw("devices", [])
     if not isinstance(devices_raw, list):
@@ -373,12 +375,18 @@ def _spacecraft(t: _Table, step_s: float) -> SpacecraftSpec:
     return SpacecraftSpec(mass, inertia, q, omega)
 
 
-def _environment(t: _Table) -> EnvironmentSpec:
+def _environment(t: _Table, epoch: Epoch) -> EnvironmentSpec:
     spec = EnvironmentSpec(
-        magnetic_field=t.choice("magnetic_field", ("dipole",), "dipole"),
+        # IGRF-14 unless the scenario asks for the centred dipole (comparison cases).
+        magnetic_field=t.choice("magnetic_field", ("igrf", "dipole"), "igrf"),
         earth_rotation=t.choice("earth_rotation", ("iau2006", "uniform"), "iau2006"),
         era0_rad=math.radians(t.number("era0_deg", 0.0, lo=-360.0, hi=360.0)),
+        igrf_degree=int(t.number("igrf_degree", 13, lo=1, hi=13, integer=True)),
+        eop=t.choice("eop", ("iers", "none"), "iers"),
     )
+    if spec.magnetic_field == "igrf" and not 1900.0 <= epoch.decimal_year <= 2030.0:
+        raise t.error("magnetic_field", "igrf", "a scenario epoch within IGRF-14's validity, 1900.0 to 2030.0, "
+                      "or magnetic_field = 'dipole'")
     t.check_unknown()
     return spec
 

@@ -49,3 +49,10 @@ def test_ut1_uses_dut1():
 def test_bad_epoch_is_named(text):
     with pytest.raises(ValueError, match="epoch"):
         Epoch.from_iso(text)
+
+
+def test_ut1_on_a_leap_second_day_is_tai_minus_37_s_plus_dut1():
+    # 2016-12-31 had 86401 s. Late that day UT1 = UTC + dut1 and TAI - UTC = 36 s, so
+    # UT1 = TAI - 36 s + dut1 whatever ERFA's stretched quasi-JD of UTC looks like.
+    e = Epoch.from_iso("2016-12-31T23:59:00Z", dut1_s=0.4)
+    assert abs(days_between(e.jd_ut1, e.jd_tai) * DAY - (-36.0 + 0.4)) < 1e-6
