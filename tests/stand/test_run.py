@@ -188,3 +188,23 @@ def test_a_device_that_stops_answering_is_logged_and_the_run_goes_on(scenario_di
     quiet = (tel["t_s"] > 5.2) & (tel["t_s"] < 12.0)
     # Coils off within one period of the last command: the board's watchdog, not the stand, did it.
     assert np.all(tel["mtq.dipole_B"][quiet] == 0.0)
+
+
+def test_dipole_scene_never_evaluates_igrf_and_igrf_scene_does(scenario_dict, write_scenario, tmp_path, monkeypatch):
+    import sim.igrf
+
+    calls = []
+    real = sim.igrf.field_itrs
+    monkeypatch.setattr(sim.igrf, "field_itrs", lambda *a, **k: calls.append(1) or real(*a, **k))
+    sc = short(scenario_dict, write_scenario, 5.0)  # the default asks for the centred dipole
+    with build(sc) as scene:
+        run(scene, tmp_path / "dipole")
+    assert calls == []
+    scenario_dict["environment"] = {"magnetic_field": "igrf", "igrf_degree": 10, "earth_rotation": "iau2006"}
+    sc = scenario.load(write_scenario(scenario_dict, "igrf.toml"))
+    with build(sc) as scene:
+        assert "magnetic_field.igrf" in {c.model for c in scene.choices if c.built}
+        run(scene, tmp_path / "igrf")
+    assert calls
+    b = np.linalg.norm(telemetry.load(tmp_path / "igrf")["b_true_B"], axis=1)
+    assert np.all((b > 15e-6) & (b < 65e-6))  # LEO field strength, any latitude
