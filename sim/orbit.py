@@ -1042,3 +1042,29 @@ def _propagate_j2_dop853(r0, v0, t, mu, j2, r_eq, rtol, atol):
     if not sol.success:
         raise ArithmeticError(f"DOP853 failed: {sol.message}")
     return t, sol.y[:3].T.copy(), sol.y[3:].T.copy()
+
+
+def propagate_cowell(r0, v0, duration_s, step_s, accel, t0_s: float = 0.0):
+    """Fixed-step RK4 of ``r'' = accel(t, r, v)`` (Cowell), the force re-evaluated at every stage.
+
+    ``accel(t_s, r (3,), v (3,)) -> a (3,)`` in m/s^2, any force model (``sim.forces.OrbitForces``);
+    ``t_s`` is absolute sim time, starting at ``t0_s``. Output grid as :func:`propagate_j2`.
+    """
+    t = _output_grid(float(duration_s), float(step_s)) if duration_s > 0 else np.zeros(1)
+    r = np.asarray(r0, dtype=float).copy()
+    v = np.asarray(v0, dtype=float).copy()
+    rs, vs = [r.copy()], [v.copy()]
+    for k in range(1, t.size):
+        h = t[k] - t[k - 1]
+        ts = t0_s + t[k - 1]
+        a1 = accel(ts, r, v)
+        a2 = accel(ts + 0.5 * h, r + 0.5 * h * v, v + 0.5 * h * a1)
+        a3 = accel(ts + 0.5 * h, r + 0.5 * h * (v + 0.5 * h * a1), v + 0.5 * h * a2)
+        a4 = accel(ts + h, r + h * (v + 0.5 * h * a2), v + h * a3)
+        r = r + h * v + h * h / 6.0 * (a1 + a2 + a3)
+        v = v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(v))):
+            raise FloatingPointError(f"orbit propagation produced a non-finite state at t = {ts + h:.6g} s.")
+        rs.append(r)
+        vs.append(v)
+    return t + t0_s, np.array(rs), np.array(vs)

@@ -2,7 +2,7 @@
 
 What it computes and where:
 
-* The orbit does not depend on the attitude (no drag or radiation pressure in this model), so it
+* The orbit does not depend on the attitude (drag and radiation pressure are cannonball models), so it
   runs ahead of the attitude in chunks: RK4 with the J2 force re-evaluated at every stage at a
   coarse ``orbit_step_s`` (10 s: 0.44 m per day), then cubic Hermite interpolation from positions
   and velocities (0.3 mm at 10 s in LEO) onto the half-step grid the attitude RK4 samples.
@@ -50,9 +50,10 @@ class OrbitTrack:
     """Orbit positions and (optionally) the inertial field on the dynamics half-step grid."""
 
     def __init__(self, r0_N, v0_N, *, gravity: str, orbit_step_s: float, half_step_ns: int,
-                 field_N: Callable | None, mu: float = MU_EARTH):
-        if gravity not in ("point", "j2"):
-            raise ValueError(f"gravity {gravity!r} is not one of 'point', 'j2'.")
+                 field_N: Callable | None, mu: float = MU_EARTH, forces: Callable | None = None):
+        if forces is None and gravity not in ("point", "j2"):
+            raise ValueError(f"gravity {gravity!r} needs a force model (sim.forces.OrbitForces).")
+        self.forces = forces  # None: the fast point-mass + J2 path
         self.j2 = J2_EARTH if gravity == "j2" else 0.0
         self.mu = mu
         self.orbit_step_s = float(orbit_step_s)
@@ -80,9 +81,13 @@ class OrbitTrack:
             raise RuntimeError("the orbit track only runs forward in time.")
         span = t_end - self._t0_s
         n = max(1, int(math.ceil(span / self.orbit_step_s - 1e-9)))
-        t, r, v = orbit_mod.propagate_j2(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
-                                         mu=self.mu, j2=self.j2, r_eq=R_EARTH)
-        t = t + self._t0_s
+        if self.forces is None:
+            t, r, v = orbit_mod.propagate_j2(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
+                                             mu=self.mu, j2=self.j2, r_eq=R_EARTH)
+            t = t + self._t0_s
+        else:
+            t, r, v = orbit_mod.propagate_cowell(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
+                                                 self.forces, t0_s=self._t0_s)
         ts = (np.arange(start, start + per_chunk + 1) * h_half)
         k = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, len(t) - 2)
         H = t[k + 1] - t[k]
@@ -136,7 +141,8 @@ class TruthModel:
 
     def __init__(self, *, inertia, q_BN, omega_BN_B, r_N, v_N, step_ns: int, gravity: str = "j2",
                  orbit_step_s: float = 10.0, field_itrs: Callable | None = None,  # (t_s, r_itrs) -> B_itrs
-                 earth_rotation: EarthRotation | None = None, torques=("magnetic", "gravity_gradient")):
+                 earth_rotation: EarthRotation | None = None, torques=("magnetic", "gravity_gradient"),
+                 forces: Callable | None = None):
         if step_ns <= 0 or step_ns % 2:
             raise ValueError(f"step_ns = {step_ns}; the dynamics step must be a positive even number of ns.")
         self.body = RigidBody(inertia)
@@ -166,7 +172,7 @@ class TruthModel:
                 return np.einsum("nji,nj->ni", C, field_itrs(float(ts[0]), r_itrs))
 
         self.track = OrbitTrack(r_N, v_N, gravity=gravity, orbit_step_s=orbit_step_s,
-                                half_step_ns=self.step_ns // 2, field_N=field_N)
+                                half_step_ns=self.step_ns // 2, field_N=field_N, forces=forces)
         self.has_field = field_N is not None
         self.dipole_B = (0.0, 0.0, 0.0)
         self._I = self.body._I

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from sim.environment import magnetic_field_itrs
+from sim.ephemeris import EphemerisTrack
+from sim.forces import OrbitForces
 from sim.frames import EarthRotation
 from sim.orbit import elements_to_state
 from sim.rotations import dcm
@@ -34,35 +36,50 @@ class Choice:
 def plan(sc: Scenario) -> list[Choice]:
     """Every model the stand knows, built or left out, with the reason."""
     mtq = [d for d in sc.devices if d.kind == "magnetorquer"]
+    o, env = sc.orbit, sc.environment
     needs_field = bool(mtq) or "magnetic" in sc.torques
     field_why = []
     if mtq:
         field_why.append("magnetometer of " + ", ".join(d.name for d in mtq))
     if "magnetic" in sc.torques:
         field_why.append("magnetic torque")
-    gg = "gravity_gradient" in sc.torques
-    env = sc.environment
-    needs_eop = needs_field and env.earth_rotation == "iau2006" and env.eop == "iers"
     if env.magnetic_field == "igrf":
         field_why.append(f"degree {env.igrf_degree}")
+    rotation_why = [why for why, on in (("the field model", needs_field), ("harmonic gravity", o.gravity == "jgm3"),
+                                        ("drag", o.drag is not None)) if on]
+    needs_rotation = bool(rotation_why)
+    needs_eop = needs_rotation and env.earth_rotation == "iau2006" and env.eop == "iers"
+    sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp)) if on]
+    gg = "gravity_gradient" in sc.torques
+    gravity = {"point": "point-mass", "j2": "J2", "jgm3": f"JGM-3 to degree and order {o.gravity_degree}"}[o.gravity]
+
+    def listed(on: bool, where: str) -> str:
+        return f"listed in {where}" if on else f"not in {where}"
+
     choices = [
-        Choice("orbit", True, f"{'J2' if sc.orbit.gravity == 'j2' else 'point-mass'} gravity, RK4 at "
-               f"{sc.orbit.step_s:g} s with the force re-evaluated at every stage, Hermite-interpolated "
-               "to the dynamics steps"),
+        Choice("orbit", True, f"{gravity} gravity, RK4 at {o.step_s:g} s with the force re-evaluated at every "
+               "stage, Hermite-interpolated to the dynamics steps"),
         Choice("attitude", True, f"rigid body, {sc.integrator.upper()} at {sc.step_s:g} s"),
-        Choice(f"magnetic_field.{sc.environment.magnetic_field}", needs_field,
+        Choice(f"magnetic_field.{env.magnetic_field}", needs_field,
                "needed by " + ", ".join(field_why) if needs_field
                else "no magnetometer, magnetorquer, cage or magnetic torque in the scene"),
-        Choice(f"earth_rotation.{sc.environment.earth_rotation}", needs_field,
-               "the field model is Earth-fixed" if needs_field else "nothing Earth-fixed is evaluated"),
-        Choice("eop.iers", needs_eop, _eop_reason(sc, needs_field)),
-        Choice("torque.magnetic", "magnetic" in sc.torques,
-               "listed in dynamics.torques" if "magnetic" in sc.torques else "not in dynamics.torques"),
-        Choice("torque.gravity_gradient", gg, "listed in dynamics.torques" if gg else "not in dynamics.torques"),
-        Choice("sun", False, "no sun sensor, star tracker or eclipse-aware device in the scene"),
-        Choice("moon", False, "no star tracker or sensor that cares about the Moon in the scene"),
-        Choice("eclipse", False, "no sun sensor or power model in the scene"),
-        Choice("atmosphere", False, "no drag torque or force requested"),
+        Choice(f"earth_rotation.{env.earth_rotation}", needs_rotation,
+               "Earth-fixed: " + ", ".join(rotation_why) if needs_rotation else "nothing Earth-fixed is evaluated"),
+        Choice("eop.iers", needs_eop, _eop_reason(sc, needs_rotation)),
+        Choice("torque.magnetic", "magnetic" in sc.torques, listed("magnetic" in sc.torques, "dynamics.torques")),
+        Choice("torque.gravity_gradient", gg, listed(gg, "dynamics.torques")),
+        Choice("third_body.sun", "sun" in o.third_bodies, listed("sun" in o.third_bodies, "orbit.third_bodies")),
+        Choice("third_body.moon", "moon" in o.third_bodies, listed("moon" in o.third_bodies, "orbit.third_bodies")),
+        Choice("srp.cannonball", o.srp is not None,
+               "listed in [orbit.srp]" if o.srp is not None else "no [orbit.srp] table in the scenario"),
+        Choice("sun", bool(sun_why), "ephemeris track for " + ", ".join(sun_why) if sun_why
+               else "no sun sensor, star tracker, radiation pressure or third-body Sun in the scene"),
+        Choice("moon", "moon" in o.third_bodies, "ephemeris track for the third-body Moon" if "moon" in o.third_bodies
+               else "no star tracker, sensor or force that cares about the Moon in the scene"),
+        Choice("eclipse", o.srp is not None, "conical shadow for radiation pressure" if o.srp is not None
+               else "no sun sensor, power model or radiation pressure in the scene"),
+        Choice("atmosphere", o.drag is not None, "exponential density for drag" if o.drag is not None
+               else "no drag requested (no [orbit.drag] table)"),
         Choice("star_screen", False, "no star tracker in the scene"),
     ]
     for d in sc.devices:
@@ -147,7 +164,14 @@ def build(sc: Scenario) -> Scene:
 
         e = eop_at(sc.epoch)
         epoch, xp, yp = dataclasses.replace(sc.epoch, dut1_s=e.dut1_s), e.xp_rad, e.yp_rad
-    rotation = EarthRotation(epoch, env.earth_rotation, env.era0_rad, xp, yp) if needs_field else None
+    needs_rotation = f"earth_rotation.{env.earth_rotation}" in built
+    rotation = EarthRotation(epoch, env.earth_rotation, env.era0_rad, xp, yp) if needs_rotation else None
+    o = sc.orbit
+    forces = None
+    if o.gravity == "jgm3" or o.third_bodies or o.drag or o.srp:
+        tracks = {b: EphemerisTrack(sc.epoch, b) for b in ("sun", "moon") if b in built}
+        forces = OrbitForces(gravity=o.gravity, degree=o.gravity_degree, rotation=rotation, tracks=tracks,
+                             third_bodies=o.third_bodies, drag=o.drag, srp=o.srp, mass_kg=sc.spacecraft.mass_kg)
 
     def field_itrs(t_s, r_itrs):
         return magnetic_field_itrs(epoch + t_s, r_itrs, env.magnetic_field, env.igrf_degree)
@@ -157,7 +181,7 @@ def build(sc: Scenario) -> Scene:
         r_N=r0, v_N=v0, step_ns=seconds_to_ns(sc.step_s), gravity=sc.orbit.gravity,
         orbit_step_s=sc.orbit.step_s,
         field_itrs=field_itrs if needs_field else None,
-        earth_rotation=rotation, torques=sc.torques,
+        earth_rotation=rotation, torques=sc.torques, forces=forces,
     )
     scene = Scene(sc, truth, choices)
     try:

@@ -153,6 +153,10 @@ class OrbitSpec:
     mean_anomaly_rad: float | None
     gravity: str
     step_s: float
+    gravity_degree: int = 20
+    third_bodies: tuple[str, ...] = ()
+    drag: dict | None = None
+    srp: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -343,11 +347,33 @@ def _orbit(t: _Table) -> OrbitSpec:
         raan_rad=math.radians(t.number("raan_deg", 0.0, lo=-360.0, hi=360.0)),
         argp_rad=math.radians(t.number("argp_deg", 0.0, lo=-360.0, hi=360.0)),
         a_m=a_m, p_m=p_m, nu_rad=nu, mean_anomaly_rad=mean,
-        gravity=t.choice("gravity", ("point", "j2"), "j2"),
+        gravity=t.choice("gravity", ("point", "j2", "jgm3"), "j2"),
         step_s=t.number("step_s", 10.0, lo=1e-3, hi=60.0),
+        gravity_degree=int(t.number("gravity_degree", 20, lo=2, hi=20, integer=True)),
+        third_bodies=tuple(_subset(t, "third_bodies", ("sun", "moon"))),
+        drag=_coefficients(t, "drag", {"cd": (2.2, 0.5, 5.0), "area_m2": (None, 1e-6, 100.0)}),
+        srp=_coefficients(t, "srp", {"cr": (1.5, 0.0, 2.0), "area_m2": (None, 1e-6, 100.0)}),
     )
     t.check_unknown()
     return spec
+
+
+def _subset(t: _Table, key: str, options) -> list:
+    value = t.raw(key, [])
+    if not isinstance(value, list) or any(v not in options for v in value) or len(set(value)) != len(value):
+        raise t.error(key, value, "a list drawn from " + ", ".join(repr(o) for o in options) + " without repeats")
+    return value
+
+
+def _coefficients(t: _Table, key: str, spec: dict) -> dict | None:
+    """An optional table of named numbers: ``{name: (default or None if required, lo, hi)}``."""
+    if not t.has(key):
+        t.raw(key)
+        return None
+    sub = t.table(key)
+    out = {name: sub.number(name, MISSING if d is None else d, lo=lo, hi=hi) for name, (d, lo, hi) in spec.items()}
+    sub.check_unknown()
+    return out
 
 
 def _spacecraft(t: _Table, step_s: float) -> SpacecraftSpec:

@@ -13,7 +13,7 @@ import pytest
 
 import sim.environment
 from stand import scenario, telemetry
-from stand.compose import build
+from stand.compose import build, plan
 from stand.loop import run
 from stand.report import write_summary
 
@@ -208,3 +208,24 @@ def test_dipole_scene_never_evaluates_igrf_and_igrf_scene_does(scenario_dict, wr
     assert calls
     b = np.linalg.norm(telemetry.load(tmp_path / "igrf")["b_true_B"], axis=1)
     assert np.all((b > 15e-6) & (b < 65e-6))  # LEO field strength, any latitude
+
+
+def test_full_force_model_is_built_only_when_asked(scenario_dict, write_scenario, tmp_path, capsys):
+    from stand.cli import main
+
+    scenario_dict["orbit"].update(gravity="jgm3", gravity_degree=12, third_bodies=["sun", "moon"],
+                                  drag={"cd": 2.2, "area_m2": 0.03}, srp={"cr": 1.5, "area_m2": 0.03})
+    path = write_scenario(scenario_dict)
+    assert main(["check", str(path), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    built = {m["model"] for m in report["built"]}
+    assert {"third_body.sun", "third_body.moon", "srp.cannonball", "sun", "moon", "eclipse", "atmosphere"} <= built
+    sc = scenario.load(path)
+    with build(sc) as scene:
+        result = run(scene, tmp_path / "out", duration_s=60.0)
+    assert result.status == "completed"
+    r = telemetry.load(tmp_path / "out")["r_BN_N"]
+    assert np.all(np.abs(np.linalg.norm(r, axis=1) - 6878137.0) < 20e3)
+    # and the default scene builds none of them
+    left = {c.model for c in plan(scenario.load(scenario.DEFAULT_SCENARIO)) if not c.built}
+    assert {"third_body.sun", "third_body.moon", "srp.cannonball", "sun", "moon", "eclipse", "atmosphere"} <= left
