@@ -46,6 +46,17 @@ def rotate_to_body(q, v):
             vz - 2.0 * (w * cz - (x * cy - y * cx)))
 
 
+def compose_floats(q_CB, q_BN):
+    """``compose(q_CB, q_BN)`` (``dcm = dcm(q_CB) @ dcm(q_BN)``) on float tuples, ``w >= 0``."""
+    pw, px, py, pz = q_BN
+    qw, qx, qy, qz = q_CB
+    w = pw * qw - px * qx - py * qy - pz * qz
+    x = pw * qx + px * qw + py * qz - pz * qy
+    y = pw * qy - px * qz + py * qw + pz * qx
+    z = pw * qz + px * qy - py * qx + pz * qw
+    return (w, x, y, z) if w >= 0.0 else (-w, -x, -y, -z)
+
+
 class OrbitTrack:
     """Orbit positions and (optionally) the inertial field on the dynamics half-step grid."""
 

@@ -17,7 +17,11 @@ import numpy as np
 BENCHES = {
     "loop": "stand.bench:bench_loop",
     "render": "stand.bench_render:bench_render",
+    "env": "stand.bench_env:bench_env",
+    "accuracy": "stand.bench_accuracy:bench_accuracy",
     "pacing": "stand.bench:bench_pacing",
+    "tracker": "stand.bench_tracker:bench_tracker",
+    "tracker-link": "stand.bench_tracker_link:bench_tracker_link",
 }
 
 #: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.

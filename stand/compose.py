@@ -24,6 +24,7 @@ from sim.truth import TruthModel, rotate_to_body
 
 from .controllers import BDot, load_plugin
 from .scenario import Scenario
+from .trackers import build_tracker
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,11 @@ def plan(sc: Scenario) -> list[Choice]:
                                         ("drag", o.drag is not None)) if on]
     needs_rotation = bool(rotation_why)
     needs_eop = needs_rotation and env.earth_rotation == "iau2006" and env.eop == "iers"
-    sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp)) if on]
+    trackers = [d.name for d in sc.devices if d.kind == "star_tracker"]
+    exclusion = f"exclusion of {', '.join(trackers)}" if trackers else ""
+    sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp),
+                                (exclusion, bool(trackers))) if on]
+    moon_why = [w for w, on in (("third-body Moon", "moon" in o.third_bodies), (exclusion, bool(trackers))) if on]
     gg = "gravity_gradient" in sc.torques
     gravity = {"point": "point-mass", "j2": "J2", "jgm3": f"JGM-3 to degree and order {o.gravity_degree}"}[o.gravity]
 
@@ -74,17 +79,23 @@ def plan(sc: Scenario) -> list[Choice]:
                "listed in [orbit.srp]" if o.srp is not None else "no [orbit.srp] table in the scenario"),
         Choice("sun", bool(sun_why), "ephemeris track for " + ", ".join(sun_why) if sun_why
                else "no sun sensor, star tracker, radiation pressure or third-body Sun in the scene"),
-        Choice("moon", "moon" in o.third_bodies, "ephemeris track for the third-body Moon" if "moon" in o.third_bodies
+        Choice("moon", bool(moon_why), "ephemeris track for " + ", ".join(moon_why) if moon_why
                else "no star tracker, sensor or force that cares about the Moon in the scene"),
         Choice("eclipse", o.srp is not None, "conical shadow for radiation pressure" if o.srp is not None
                else "no sun sensor, power model or radiation pressure in the scene"),
         Choice("atmosphere", o.drag is not None, "exponential density for drag" if o.drag is not None
                else "no drag requested (no [orbit.drag] table)"),
-        Choice("star_screen", False, "no star tracker in the scene"),
+        Choice("star_screen", False, "trackers use truth plus noise: " + ", ".join(trackers) if trackers
+               else "no star tracker in the scene"),
     ]
     for d in sc.devices:
-        choices.append(Choice(f"device.{d.name}", True, f"{d.kind} board, {d.link} on CAN "
-                              f"{d.interface}:{d.channel}, magnetometer at {d.sample_rate_hz:g} Hz"))
+        if d.kind == "magnetorquer":
+            why = (f"magnetorquer board, {d.link} on CAN {d.interface}:{d.channel}, magnetometer at "
+                   f"{d.sample_rate_hz:g} Hz")
+        else:
+            why = (f"star tracker, {d.link} on a serial {d.port} pair, {d.source} plus noise, a solution every "
+                   f"{d.emulator['output_interval_s']:g} s")
+        choices.append(Choice(f"device.{d.name}", True, why))
     ctl = sc.controller
     choices.append(Choice(f"controller.{ctl.kind}", ctl.kind != "none",
                           f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
@@ -119,6 +130,7 @@ class Scene:
     emulators: dict = field(default_factory=dict)
     hosts: dict = field(default_factory=dict)
     buses: list = field(default_factory=list)
+    trackers: dict = field(default_factory=dict)
     controller: object | None = None
     closed: bool = False
 
@@ -128,6 +140,8 @@ class Scene:
         self.closed = True
         if self.controller is not None and hasattr(self.controller, "close"):
             self.controller.close()
+        for link in self.trackers.values():
+            link.close()
         for h in self.hosts.values():
             h.close()
         for b in self.buses:
@@ -168,8 +182,8 @@ def build(sc: Scenario) -> Scene:
     rotation = EarthRotation(epoch, env.earth_rotation, env.era0_rad, xp, yp) if needs_rotation else None
     o = sc.orbit
     forces = None
+    tracks = {b: EphemerisTrack(sc.epoch, b) for b in ("sun", "moon") if b in built}
     if o.gravity == "jgm3" or o.third_bodies or o.drag or o.srp:
-        tracks = {b: EphemerisTrack(sc.epoch, b) for b in ("sun", "moon") if b in built}
         forces = OrbitForces(gravity=o.gravity, degree=o.gravity_degree, rotation=rotation, tracks=tracks,
                              third_bodies=o.third_bodies, drag=o.drag, srp=o.srp, mass_kg=sc.spacecraft.mass_kg)
 
@@ -187,6 +201,9 @@ def build(sc: Scenario) -> Scene:
     try:
         rng = np.random.SeedSequence(sc.seed)
         for d, child in zip(sc.devices, rng.spawn(len(sc.devices)), strict=True):
+            if d.kind == "star_tracker":
+                scene.trackers[d.name] = build_tracker(d, truth, tracks, np.random.default_rng(child))
+                continue
             dcm_SB = dcm(d.q_SB)
             q_SB = tuple(float(x) for x in d.q_SB)
 

@@ -75,7 +75,17 @@ def columns(scene: Scene) -> list[tuple[str, int, str]]:
                  (f"{name}.dipole_B", 3, "A m^2")]
     if scene.controller is not None and hasattr(scene.controller, "last_command"):
         cols.append(("dipole_cmd_B", 3, "A m^2"))
+    for name in scene.trackers:
+        # The newest solution the host received (repeated until the next): exposure time in sim
+        # time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon,
+        # 4 Earth, 8 rate), and its error against the truth at that exposure.
+        cols += [(f"{name}.t_exposure_s", 1, "s"), (f"{name}.q_TN", 4, "1"), (f"{name}.valid", 1, "1"),
+                 (f"{name}.mode", 1, "1"), (f"{name}.flags", 1, "1"), (f"{name}.err_cross", 1, "arcsec"),
+                 (f"{name}.err_roll", 1, "arcsec")]
     return cols
+
+
+NO_SOLUTION = (math.nan,) * 10
 
 
 @dataclass
@@ -125,6 +135,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
     bar = Progress(n_steps * sc.step_s, progress)
     emulators = list(scene.emulators.values())
+    trackers = list(scene.trackers.values())
     hosts = list(scene.hosts.values())
     controller = scene.controller
     ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if controller is not None else 0
@@ -132,7 +143,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     has_field = truth.has_field
     record_cmd = controller is not None and hasattr(controller, "last_command")
     watches = [DeviceWatch(d.name, scene.hosts[d.name], 1.0 / d.sample_rate_hz, events)
-               for d in sc.devices if d.name in scene.hosts]
+               for d in sc.devices if d.name in scene.hosts]  # CAN boards
     watch_every = ticks_per(1.0, sc.step_s)
     status, error = "completed", None
     events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
@@ -146,6 +157,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
             pacer.wait(t)
             for emu in emulators:
                 emu.publish(t)
+            for link in trackers:
+                link.step(t)
             if controller is not None and k % ctl_every == 0 and k < n_steps:
                 controller.update(t)
             dipole = (0.0, 0.0, 0.0)
@@ -164,6 +177,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                             *emu.dipole_at(t))
                 if record_cmd:
                     row += tuple(controller.last_command)
+                for link in trackers:
+                    row += link.last or NO_SOLUTION
                 recorder.record(row)
                 bar.update(t)
             if k % watch_every == 0:
@@ -186,6 +201,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
         counters.update({f"{name}.emulator": dict(e.counters) for name, e in scene.emulators.items()})
         for w in watches:
             counters[w.name]["silences"] = w.silences
+        for name, link in scene.trackers.items():
+            counters[name] = link.summary()
         if error:
             events.log(status, error)
         events.log("end", status, ticks=k, wall_time_s=wall)

@@ -33,10 +33,45 @@ def metric_value(c: Criterion, tel, result: RunResult) -> float:
         sel = t >= c.at_s - 1e-9
         return float(_rate_deg_s(tel)[sel].max()) if np.any(sel) else math.nan
     if c.metric == "frames_rejected":
-        return float(sum(v for cnt in result.counters.values() for k, v in cnt.items() if k.startswith("rejected")))
+        return float(_rejected(result.counters))
+    if c.metric.startswith("tracker_"):
+        sol = _tracker_solutions(tel)
+        if sol is None:
+            return math.nan
+        if c.metric == "tracker_availability_after":
+            sel = sol["t"] >= c.at_s - 1e-9
+            return float(sol["valid"][sel].mean()) if np.any(sel) else math.nan
+        err = sol["cross" if "cross" in c.metric else "roll"][sol["valid"] == 1.0]
+        err = err[np.isfinite(err)]
+        return float(np.percentile(err, 95)) if len(err) else math.nan
     if c.metric == "overruns":
         return float(result.timing.get("overruns", 0))
     raise ValueError(f"unknown metric {c.metric!r}; known: {', '.join(METRICS)}")
+
+
+def _rejected(counters: dict) -> int:
+    """Every frame any codec rejected, in nested counter dicts too (trackers report host and emulator)."""
+    total = 0
+    for k, v in counters.items():
+        if isinstance(v, dict):
+            total += _rejected(v)
+        elif k.startswith("rejected") and isinstance(v, int | float):
+            total += v
+    return total
+
+
+def _tracker_solutions(tel) -> dict | None:
+    """The first star tracker's solutions, one per exposure (telemetry repeats the newest)."""
+    names = sorted(k[: -len(".t_exposure_s")] for k in tel if k.endswith(".t_exposure_s"))
+    if not names:
+        return None
+    n = names[0]
+    t = tel[f"{n}.t_exposure_s"]
+    ok = np.isfinite(t)
+    _, first = np.unique(t[ok], return_index=True)
+    idx = np.flatnonzero(ok)[first]
+    return {"t": t[idx], "valid": tel[f"{n}.valid"][idx], "cross": tel[f"{n}.err_cross"][idx],
+            "roll": tel[f"{n}.err_roll"][idx]}
 
 
 def evaluate(criteria, tel, result: RunResult) -> list[dict]:

@@ -39,7 +39,7 @@ SCENARIO_DIR = FIXTURES / "scenarios"
 DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
 
 TORQUES = ("magnetic", "gravity_gradient")
-DEVICE_KINDS = ("magnetorquer",)
+DEVICE_KINDS = ("magnetorquer", "star_tracker")
 CONTROLLER_KINDS = ("bdot", "none", "plugin")
 METRICS = {
     "final_rate_deg_s": "body rate |omega| at the end of the run (deg/s)",
@@ -47,6 +47,9 @@ METRICS = {
     "max_rate_deg_s_after": "largest body rate |omega| after time at_s (deg/s)",
     "frames_rejected": "device frames rejected by any codec (count)",
     "overruns": "ticks that ran past their real-time deadline (count, paced runs only)",
+    "tracker_availability_after": "fraction of star-tracker solutions after time at_s that are valid",
+    "tracker_error_cross_arcsec_p95": "95th percentile of the valid solutions' cross-boresight error (arcsec)",
+    "tracker_error_roll_arcsec_p95": "95th percentile of the valid solutions' roll error (arcsec)",
 }
 
 
@@ -195,6 +198,20 @@ class MagnetorquerSpec:
 
 
 @dataclass(frozen=True)
+class StarTrackerSpec:
+    """A star tracker on a serial line, emulated from truth plus noise (drivers.star_tracker)."""
+
+    name: str
+    link: str
+    port: str  # "pty": an in-process pty pair
+    address: int | None
+    q_SB: np.ndarray  # tracker frame (boresight +z) relative to body
+    source: str
+    emulator: dict  # keyword arguments of drivers.star_tracker.emulator.EmulatorConfig
+    kind: str = "star_tracker"
+
+
+@dataclass(frozen=True)
 class ControllerSpec:
     kind: str
     rate_hz: float
@@ -224,12 +241,12 @@ class Scenario:
     orbit: OrbitSpec
     spacecraft: SpacecraftSpec
     environment: EnvironmentSpec
-    devices: tuple[MagnetorquerSpec, ...]
+    devices: tuple[MagnetorquerSpec | StarTrackerSpec, ...]
     controller: ControllerSpec
     criteria: tuple[Criterion, ...]
     record_rate_hz: float
 
-    def device(self, kind: str) -> MagnetorquerSpec | None:
+    def device(self, kind: str) -> MagnetorquerSpec | StarTrackerSpec | None:
         return next((d for d in self.devices if d.kind == kind), None)
 
 
@@ -417,13 +434,59 @@ def _environment(t: _Table, epoch: Epoch) -> EnvironmentSpec:
     return spec
 
 
-def _device(t: _Table, step_s: float) -> MagnetorquerSpec:
+#: Star-tracker emulator settings a scenario may give: key -> (default, lo, hi, integer). Units are
+#: in the names; the defaults are those of drivers.star_tracker.emulator.EmulatorConfig.
+TRACKER_SETTINGS = {
+    "noise_cross_arcsec": (2.0, 0.0, 3600.0, False),
+    "noise_roll_arcsec": (10.0, 0.0, 3600.0, False),
+    "output_interval_s": (0.2, 0.01, 60.0, False),
+    "output_delay_s": (0.1, 0.0, 10.0, False),
+    "clock_offset_s": (0.0, -1e6, 1e6, False),
+    "clock_drift_ppm": (0.0, -1e3, 1e3, False),
+    "sun_exclusion_deg": (40.0, 0.0, 90.0, False),
+    "moon_exclusion_deg": (40.0, 0.0, 90.0, False),
+    "earth_exclusion_deg": (30.0, 0.0, 90.0, False),
+    "rate_limit_deg_s": (1.0, 0.01, 90.0, False),
+    "boot_time_s": (1.0, 0.0, 600.0, False),
+    "min_stars_matched": (6, 3, 100, True),
+    "stable_count": (5, 1, 1000, True),
+    "track_loss_count": (3, 1, 1000, True),
+}
+
+
+def _whole_steps(t: _Table, key: str, value: float, step_s: float) -> None:
+    n = value / step_s
+    if abs(n - round(n)) > 1e-9 * max(n, 1.0):
+        raise t.error(key, value, f"a whole number of dynamics steps ({step_s:g} s), so exposures fall on ticks")
+
+
+def _star_tracker(t: _Table, name: str, link: str, q_SB: np.ndarray, step_s: float) -> StarTrackerSpec:
+    settings = {}
+    for key, (default, lo, hi, integer) in TRACKER_SETTINGS.items():
+        v = t.number(key, default, lo=lo, hi=hi, integer=integer)
+        settings[key] = int(v) if integer else float(v)
+    for key in ("output_interval_s", "boot_time_s"):
+        _whole_steps(t, key, settings[key], step_s)
+    address = t.raw("address", None)
+    if address is not None and (isinstance(address, bool) or not isinstance(address, int) or not 0 <= address <= 255):
+        raise t.error("address", address, "a whole number from 0 to 255")
+    # In a run the flight-software side is in process; `stand emulate star-tracker --port URL` serves
+    # a real flight computer instead.
+    spec = StarTrackerSpec(name=name, link=link, port=t.choice("port", ("pty",), "pty"), address=address, q_SB=q_SB,
+                           source=t.choice("source", ("truth",), "truth"), emulator=settings)
+    t.check_unknown()
+    return spec
+
+
+def _device(t: _Table, step_s: float) -> MagnetorquerSpec | StarTrackerSpec:
     kind = t.choice("kind", DEVICE_KINDS)
     name = t.text("name")
     link = t.choice("link", ("emulated",), "emulated")
     q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0])
     if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
+    if kind == "star_tracker":
+        return _star_tracker(t, name, link, q_SB, step_s)
     max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=100.0)
     spec = MagnetorquerSpec(
         kind=kind,
@@ -484,7 +547,7 @@ def _criterion(t: _Table, duration_s: float) -> Criterion:
     )
     if c.max is None and c.min is None:
         raise t.error("max", MISSING, "a max or a min limit for the criterion")
-    if metric in ("rate_deg_s_at", "max_rate_deg_s_after") and c.at_s is None:
+    if metric in ("rate_deg_s_at", "max_rate_deg_s_after", "tracker_availability_after") and c.at_s is None:
         raise t.error("at_s", MISSING, f"a time in [0, {duration_s:g}] s for metric {metric!r}")
     t.check_unknown()
     return c

@@ -1,0 +1,168 @@
+"""Serial ports for device drivers and emulators: URLs in, one small byte-stream interface out.
+
+A port is given as
+
+- a URL or path that pyserial's ``serial_for_url`` understands: ``loop://``, ``socket://host:port``,
+  ``spy://...``, ``/dev/ttyUSB0``, a pty slave path such as ``/dev/pts/5`` or a socat link;
+- an already open object with ``read``, ``write``, ``in_waiting`` and ``close`` (a
+  ``serial.Serial``, or :class:`FdPort`), which the caller keeps owning unless told otherwise.
+
+:class:`FdPort` wraps a raw file descriptor (the master side of ``os.openpty()``), and
+:func:`pty_pair` makes an in-process pty pair: the emulator serves on the master fd, the code
+under test opens the slave path like any serial device. :class:`SerialEndpoint` is the serial
+sibling of :class:`drivers.endpoint.BusEndpoint`: an owned port, idempotent ``close()``, context
+manager.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import tty
+from typing import Any
+
+from drivers.errors import ConnectError
+
+__all__ = ["FdPort", "SerialEndpoint", "open_port", "port_name", "pty_pair"]
+
+
+class FdPort:
+    """A byte stream on a file descriptor, with the parts of the ``serial.Serial`` API drivers use.
+
+    ``timeout`` (s, None = block) bounds :meth:`read` like pyserial's: it returns as soon as
+    ``size`` bytes arrived or the timeout passed. The descriptor is closed by :meth:`close` (twice is fine).
+    """
+
+    def __init__(self, fd: int, name: str = "", timeout: float | None = 0.0) -> None:
+        self.fd = fd
+        self.name = name or f"fd:{fd}"
+        self.timeout = timeout
+        self.port = self.name
+        self.is_open = True
+
+    def fileno(self) -> int:
+        return self.fd
+
+    @property
+    def in_waiting(self) -> int:
+        if not self.is_open:
+            return 0
+        r, _, _ = select.select([self.fd], [], [], 0)
+        return 4096 if r else 0
+
+    def read(self, size: int = 1) -> bytes:
+        import time
+
+        out = bytearray()
+        deadline = None if self.timeout is None else time.monotonic() + self.timeout
+        while len(out) < size:
+            wait = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+            r, _, _ = select.select([self.fd], [], [], wait)
+            if not r:
+                break
+            try:
+                chunk = os.read(self.fd, size - len(out))
+            except OSError:  # EIO: the other side of a pty is closed
+                break
+            if not chunk:
+                break
+            out += chunk
+        return bytes(out)
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def reset_input_buffer(self) -> None:
+        while self.in_waiting:
+            if not os.read(self.fd, 4096):
+                break
+
+    def close(self) -> None:
+        if self.is_open:
+            self.is_open = False
+            os.close(self.fd)
+
+    def __repr__(self) -> str:
+        return f"FdPort({self.name!r})"
+
+
+def pty_pair() -> tuple[FdPort, str, int]:
+    """An in-process pty pair: ``(master, slave_path, slave_fd)``, both sides raw.
+
+    Serve on ``master`` (an :class:`FdPort`); open ``slave_path`` with :func:`open_port`. Keep
+    ``slave_fd`` open while the pair is in use (it keeps the pty alive between openings) and close
+    it with ``os.close`` at the end.
+    """
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    return FdPort(master, f"pty-master:{os.ttyname(slave)}"), os.ttyname(slave), slave
+
+
+def open_port(
+    port: Any, *, baudrate: int = 115200, timeout: float | None = 0.0, name: str = "serial"
+) -> tuple[Any, bool]:
+    """Open ``port`` (URL/path) with pyserial, or pass an open port object through.
+
+    Returns ``(port_object, owned)``; raises :class:`ConnectError` naming the URL and the OS reason.
+    """
+    if not isinstance(port, (str, os.PathLike)):
+        for attr in ("read", "write", "close"):
+            if not hasattr(port, attr):
+                raise ConnectError(
+                    f"{name}: port must be a URL (loop://, socket://host:port, /dev/tty...) or an open serial "
+                    f"object with read/write/close; got {port!r}.",
+                    where=repr(port),
+                )
+        return port, False
+    import serial
+
+    url = os.fspath(port)
+    try:
+        ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=2.0)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise ConnectError(f"{name}: cannot open serial port {url!r}: {exc}", where=url, reason=str(exc)) from exc
+    return ser, True
+
+
+def port_name(port: Any) -> str:
+    """How messages name a port object."""
+    for attr in ("portstr", "port", "name"):
+        v = getattr(port, attr, None)
+        if isinstance(v, str) and v:
+            return v
+    return repr(port)
+
+
+class SerialEndpoint:
+    """Lifecycle shared by serial host drivers and emulators: ``self.port`` (owned when
+    ``self._owns_port``), idempotent :meth:`close`, context manager."""
+
+    port: Any
+    _owns_port: bool
+    _closed: bool
+
+    def close(self) -> None:
+        """Stop using the port (and close it if this endpoint opened it). Safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._owns_port and self.port is not None:
+            self.port.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

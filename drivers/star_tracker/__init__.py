@@ -1,0 +1,73 @@
+"""Serial star tracker (ICD: ``fixtures/devices/star_tracker.toml``; document: ``docs/star_tracker_icd.md``).
+
+- :mod:`.slip`: sans-I/O SLIP framing (feed bytes, get frames; bad input counted);
+- :mod:`.codec`: pure codec built from the TOML, messages as frozen dataclasses in SI units;
+- :mod:`.host`: :class:`StarTrackerHost`, the stand talking to a tracker;
+- :mod:`.emulator`: :class:`StarTrackerEmulator`, the stand being the tracker (truth plus noise);
+- :mod:`.icd`: renders the ICD document from the TOML.
+
+The host and emulator modules import pyserial lazily (only to open a URL).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from drivers.star_tracker.codec import (
+    Ack,
+    Action,
+    FrameRejected,
+    GetParam,
+    Nack,
+    NackError,
+    ParamValue,
+    RequestTelemetry,
+    SetParam,
+    Solution,
+    StarTrackerCodec,
+    Status,
+    Subscribe,
+    Unsubscribe,
+)
+from drivers.star_tracker.slip import SlipDecoder
+
+if TYPE_CHECKING:  # pragma: no cover
+    from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator, TrackerTruth
+    from drivers.star_tracker.host import StarTrackerHost
+
+__all__ = [
+    "Ack",
+    "Action",
+    "EmulatorConfig",
+    "FrameRejected",
+    "GetParam",
+    "Nack",
+    "NackError",
+    "ParamValue",
+    "RequestTelemetry",
+    "SetParam",
+    "SlipDecoder",
+    "Solution",
+    "StarTrackerCodec",
+    "StarTrackerEmulator",
+    "StarTrackerHost",
+    "Status",
+    "Subscribe",
+    "TrackerTruth",
+    "Unsubscribe",
+]
+
+_LAZY = {
+    "StarTrackerHost": "drivers.star_tracker.host",
+    "StarTrackerEmulator": "drivers.star_tracker.emulator",
+    "EmulatorConfig": "drivers.star_tracker.emulator",
+    "TrackerTruth": "drivers.star_tracker.emulator",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

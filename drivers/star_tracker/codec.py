@@ -1,0 +1,545 @@
+"""Pure codec of the serial star tracker, built from ``fixtures/devices/star_tracker.toml``.
+
+No port, no clock. The frame layout, message ids, field types, scaling, ranges, enum tables,
+flag bits and parameters all come from the TOML; this module holds the dataclasses (SI units) and
+checks at load time that their attributes are exactly the ones the TOML maps fields to, so the ICD
+and the code cannot drift apart.
+
+Frame (before SLIP escaping): ``address u8 | message id u8 | payload | CRC-16/CCITT-FALSE u16 LE``,
+the CRC over address..payload; on the wire ``END body-escaped END``.
+
+``encode(msg, address) -> bytes`` (a whole SLIP frame); ``decode_body(body, address) -> msg``
+raises :class:`FrameRejected` (a :class:`~drivers.errors.ProtocolError`) with the frame in hex, a
+``kind`` (``short``, ``crc``, ``address``, ``unknown_id``, ``direction``, ``length``, ``value``) and
+expected vs computed (the CRC, the address, the length). Encoding a value outside its field raises
+:class:`~drivers.errors.EncodeError` naming the message, the field, the value and the range.
+"""
+
+from __future__ import annotations
+
+import binascii
+import math
+import struct
+import tomllib
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from drivers.errors import DriverError, EncodeError, ProtocolError
+from drivers.star_tracker.slip import escape
+
+__all__ = [
+    "Ack",
+    "Action",
+    "FieldSpec",
+    "FrameRejected",
+    "GetParam",
+    "Message",
+    "MessageSpec",
+    "Nack",
+    "NackError",
+    "ParamSpec",
+    "ParamValue",
+    "RequestTelemetry",
+    "SetParam",
+    "Solution",
+    "StarTrackerCodec",
+    "Status",
+    "Subscribe",
+    "Unsubscribe",
+    "crc16",
+    "default_icd_path",
+]
+
+HOST_TO_DEVICE = "host->device"
+DEVICE_TO_HOST = "device->host"
+
+
+def crc16(data: bytes | bytearray) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+# -- messages (SI units) ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class SetParam:
+    """Set parameter ``param_id`` to ``value`` (the parameter's wire unit; see :meth:`StarTrackerCodec.set_param`)."""
+
+    param_id: int
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class GetParam:
+    param_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class RequestTelemetry:
+    """Ask for telemetry message ``telemetry_id`` (the message id of SOLUTION or STATUS)."""
+
+    telemetry_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class Action:
+    """``"BOOT"``, ``"SET_TIME"`` (``argument`` = device time, us) or ``"RESET_COUNTERS"``."""
+
+    action: str
+    argument: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Subscribe:
+    """Publish ``telemetry_id`` every ``period_s`` (0 = every new solution)."""
+
+    telemetry_id: int
+    period_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class Unsubscribe:
+    telemetry_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class Ack:
+    command_id: int
+
+
+@dataclass(frozen=True, slots=True)
+class Nack:
+    command_id: int
+    error: str
+
+
+@dataclass(frozen=True, slots=True)
+class ParamValue:
+    param_id: int
+    value: float
+
+
+@dataclass(frozen=True, slots=True)
+class Solution:
+    """Attitude solution: ``q_TN`` of the tracker frame relative to GCRS, scalar first; mid-exposure
+    ``time_us`` in the device clock; 1-sigma errors across and about the boresight (rad)."""
+
+    time_us: int
+    q_TN: tuple[float, float, float, float]
+    sigma_cross_rad: float
+    sigma_roll_rad: float
+    stars_centroided: int
+    stars_matched: int
+    mode: str
+    valid: bool
+    sun_in_field: bool
+    moon_in_field: bool
+    earth_in_field: bool
+    rate_too_high: bool
+    time_synced: bool
+    stable_count: int
+    temperature_C: float
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """Device status and counters (each wraps at its field width)."""
+
+    time_us: int
+    uptime_s: float
+    mode: str
+    time_synced: bool
+    subscribed_solution: bool
+    subscribed_status: bool
+    frames_received: int
+    frames_sent: int
+    rejected_crc: int
+    rejected_other: int
+    commands_nacked: int
+    solutions: int
+    temperature_C: float
+
+
+Message = (
+    SetParam | GetParam | RequestTelemetry | Action | Subscribe | Unsubscribe | Ack | Nack | ParamValue | Solution
+    | Status
+)
+
+#: Message name in the ICD -> dataclass.
+CLASSES: dict[str, type] = {
+    "SET_PARAM": SetParam,
+    "GET_PARAM": GetParam,
+    "REQUEST_TELEMETRY": RequestTelemetry,
+    "ACTION": Action,
+    "SUBSCRIBE": Subscribe,
+    "UNSUBSCRIBE": Unsubscribe,
+    "ACK": Ack,
+    "NACK": Nack,
+    "PARAM_VALUE": ParamValue,
+    "SOLUTION": Solution,
+    "STATUS": Status,
+}
+
+
+# -- errors -------------------------------------------------------------------------------------
+
+
+class FrameRejected(ProtocolError):
+    """A frame body cannot be accepted; ``kind`` says why (short, crc, address, unknown_id,
+    direction, length, value)."""
+
+    def __init__(self, kind: str, reason: str, **kw: Any) -> None:
+        super().__init__(reason, **kw)
+        self.kind = kind
+
+
+class NackError(DriverError):
+    """The device refused a command with a NACK: ``command`` (name), ``error`` (name from the ICD)."""
+
+    def __init__(self, message: str, *, command: str, error: str) -> None:
+        super().__init__(message)
+        self.command = command
+        self.error = error
+
+
+# -- the ICD ------------------------------------------------------------------------------------
+
+_TYPES = {
+    "u8": ("B", 0, 0xFF),
+    "u16": ("H", 0, 0xFFFF),
+    "u32": ("I", 0, 0xFFFF_FFFF),
+    "u64": ("Q", 0, 0xFFFF_FFFF_FFFF_FFFF),
+    "i16": ("h", -0x8000, 0x7FFF),
+    "i32": ("i", -0x8000_0000, 0x7FFF_FFFF),
+    "f32": ("f", -3.4028234663852886e38, 3.4028234663852886e38),
+}
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    name: str
+    type: str
+    attr: str
+    index: int | None
+    scale: float
+    lo: float
+    hi: float
+    enum: tuple[str, ...] | None
+    bits: tuple[str, ...] | None
+    doc: str
+
+    @property
+    def is_float(self) -> bool:
+        return self.type == "f32"
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    id: int
+    name: str
+    direction: str
+    telemetry: bool
+    doc: str
+    fields: tuple[FieldSpec, ...]
+    fmt: str
+    payload_len: int
+    cls: type
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    id: int
+    name: str
+    unit: str
+    scale: float
+    attr: str
+    lo: float
+    hi: float
+    default: float
+    integer: bool
+    doc: str
+
+    def check_wire(self, value: float) -> str | None:
+        """None when ``value`` (wire unit) is allowed, else what is allowed."""
+        ok = isinstance(value, (int, float)) and math.isfinite(value) and self.lo <= value <= self.hi
+        if ok and self.integer and value != round(value):
+            ok = False
+        if ok:
+            return None
+        kind = "a whole number" if self.integer else "a number"
+        return f"{kind} from {self.lo:g} to {self.hi:g} {self.unit}"
+
+
+def default_icd_path() -> Path:
+    """``fixtures/devices/star_tracker.toml``."""
+    from drivers import fixture_path
+
+    return fixture_path("devices/star_tracker.toml")
+
+
+def load_icd(path: str | Path | None = None) -> dict[str, Any]:
+    """The ICD TOML as a dict."""
+    path = default_icd_path() if path is None else Path(path)
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+class StarTrackerCodec:
+    """Encode and decode star-tracker frames, from the ICD at ``icd_path`` (default: the fixture).
+
+    Attributes:
+        icd: the TOML as a dict; messages: name -> :class:`MessageSpec`; by_id: id -> spec;
+        params: name -> :class:`ParamSpec`; params_by_id; enums: name -> tuple of names;
+        default_address, max_body; solution_id, status_id (the telemetry ids).
+    """
+
+    def __init__(self, icd_path: str | Path | None = None) -> None:
+        icd = self.icd = load_icd(icd_path)
+        proto = icd["protocol"]
+        if proto.get("byte_order") != "little":
+            raise ValueError(f"star tracker ICD: byte_order must be 'little'; got {proto.get('byte_order')!r}.")
+        crc = proto["crc"]
+        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
+            raise ValueError(
+                f"star tracker ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}."
+            )
+        fr = proto["framing"]
+        if (fr["end"], fr["esc"], fr["esc_end"], fr["esc_esc"]) != (0xC0, 0xDB, 0xDC, 0xDD):
+            raise ValueError(f"star tracker ICD: the SLIP bytes {fr} differ from drivers.star_tracker.slip.")
+        self.default_address: int = int(proto["default_address"])
+        self.max_body: int = int(proto["max_body_bytes"])
+        self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd["enums"].items()}
+        self.messages: dict[str, MessageSpec] = {}
+        self.by_id: dict[int, MessageSpec] = {}
+        for m in icd["messages"]:
+            spec = self._message_spec(m)
+            if spec.id in self.by_id:
+                raise ValueError(f"star tracker ICD: message id 0x{spec.id:02X} is used twice.")
+            self.messages[spec.name] = spec
+            self.by_id[spec.id] = spec
+        if set(self.messages) != set(CLASSES):
+            raise ValueError(
+                f"star tracker ICD: messages {sorted(self.messages)} differ from the codec's {sorted(CLASSES)}."
+            )
+        self._by_cls = {spec.cls: spec for spec in self.messages.values()}
+        self.params: dict[str, ParamSpec] = {}
+        self.params_by_id: dict[int, ParamSpec] = {}
+        for p in icd["parameters"]:
+            ps = ParamSpec(
+                int(p["id"]), p["name"], p["unit"], float(p["scale"]), p["attr"], float(p["min"]), float(p["max"]),
+                float(p["default"]), bool(p.get("integer", False)), p.get("doc", ""),
+            )
+            if ps.check_wire(ps.default) is not None:
+                raise ValueError(f"star tracker ICD: default of parameter {ps.name} is outside its range.")
+            self.params[ps.name] = ps
+            self.params_by_id[ps.id] = ps
+        self.solution_id = self.messages["SOLUTION"].id
+        self.status_id = self.messages["STATUS"].id
+        self.telemetry_ids = frozenset(s.id for s in self.messages.values() if s.telemetry)
+        self.command_ids = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
+        self.reply_ids = frozenset(s.id for s in self.messages.values() if s.direction == DEVICE_TO_HOST)
+
+    def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
+        name = m["name"]
+        cls = CLASSES.get(name)
+        if cls is None:
+            raise ValueError(f"star tracker ICD: message {name!r} has no dataclass in the codec.")
+        if m["direction"] not in (HOST_TO_DEVICE, DEVICE_TO_HOST):
+            raise ValueError(f"star tracker ICD: message {name} direction must be host->device or device->host.")
+        specs = []
+        covered: set[str] = set()
+        for f in m["fields"]:
+            char, tlo, thi = _TYPES[f["type"]]
+            enum = tuple(self.enums[f["enum"]]) if "enum" in f else None
+            bits = tuple(f["bits"]) if "bits" in f else None
+            lo = float(f.get("min", tlo)) if f["type"] == "f32" else int(f.get("min", tlo))
+            hi = float(f.get("max", thi)) if f["type"] == "f32" else int(f.get("max", thi))
+            if enum is not None:
+                hi = len(enum) - 1
+            if bits is not None:
+                hi = (1 << len(bits)) - 1
+                covered.update(bits)
+            else:
+                covered.add(f["attr"])
+            specs.append(FieldSpec(f["name"], f["type"], f["attr"], f.get("index"), float(f.get("scale", 1.0)),
+                                   lo, hi, enum, bits, f.get("doc", "")))
+        attrs = {x.name for x in fields(cls)}
+        if covered != attrs:
+            raise ValueError(
+                f"star tracker ICD: message {name} maps fields to {sorted(covered)}, but {cls.__name__} has "
+                f"{sorted(attrs)}."
+            )
+        fmt = "<" + "".join(_TYPES[s.type][0] for s in specs)
+        return MessageSpec(int(m["id"]), name, m["direction"], bool(m.get("telemetry", False)), m.get("doc", ""),
+                           tuple(specs), fmt, struct.calcsize(fmt), cls)
+
+    # -- parameters ---------------------------------------------------------------------------
+
+    def param(self, key: str | int) -> ParamSpec:
+        """The parameter named ``key`` (or with id ``key``); ValueError listing the known ones."""
+        spec = self.params_by_id.get(key) if isinstance(key, int) else self.params.get(key)
+        if spec is None:
+            known = ", ".join(f"{p.name} ({p.id})" for p in self.params.values())
+            raise EncodeError(f"Unknown star tracker parameter {key!r}; known parameters: {known}.")
+        return spec
+
+    def set_param(self, key: str | int, value_si: float) -> SetParam:
+        """A SET_PARAM for parameter ``key`` with ``value_si`` in SI units (checked against the ICD range)."""
+        spec = self.param(key)
+        wire = value_si / spec.scale if isinstance(value_si, (int, float)) else value_si
+        if isinstance(wire, float) and spec.integer and abs(wire - round(wire)) < 1e-9:
+            wire = float(round(wire))
+        allowed = spec.check_wire(wire)
+        if allowed is not None:
+            raise EncodeError(
+                f"Star tracker parameter {spec.name} = {value_si!r} (SI) is "
+                f"{f'{wire:.6g}' if isinstance(wire, float) else repr(wire)} {spec.unit}; allowed: {allowed}."
+            )
+        return SetParam(spec.id, float(wire))
+
+    # -- encode -------------------------------------------------------------------------------
+
+    def spec_of(self, msg: Message) -> MessageSpec:
+        try:
+            return self._by_cls[type(msg)]
+        except KeyError:
+            raise TypeError(
+                f"Cannot encode {type(msg).__name__}: expected one of "
+                f"{', '.join(c.__name__ for c in CLASSES.values())}."
+            ) from None
+
+    def payload(self, msg: Message) -> bytes:
+        """The payload bytes of ``msg`` (no address, id or CRC)."""
+        spec = self.spec_of(msg)
+        values = []
+        for f in spec.fields:
+            values.append(self._wire_value(spec, f, msg))
+        return struct.pack(spec.fmt, *values)
+
+    def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Message) -> int | float:
+        where = f"{spec.name}.{f.name}"
+        if f.bits is not None:
+            v = 0
+            for i, bit in enumerate(f.bits):
+                if getattr(msg, bit):
+                    v |= 1 << i
+            return v
+        value = getattr(msg, f.attr)
+        if f.index is not None:
+            try:
+                value = value[f.index]
+            except (TypeError, IndexError):
+                raise EncodeError(
+                    f"{where}: {f.attr} must be a sequence with an element {f.index}; got {value!r}."
+                ) from None
+        if f.enum is not None:
+            if isinstance(value, str) and value.upper() in f.enum:
+                return f.enum.index(value.upper())
+            if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
+                return value
+            allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
+            raise EncodeError(f"{where} = {value!r} is not allowed; allowed: {allowed}.")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            try:
+                value = float(value)
+            except (TypeError, ValueError):
+                raise EncodeError(f"{where} = {value!r} is not a number.") from None
+        wire = value / f.scale if f.scale != 1.0 else value
+        unit = f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
+        if f.is_float:
+            if not math.isfinite(wire) or not (f.lo <= wire <= f.hi):
+                raise EncodeError(f"{where} = {wire!r}{unit} is outside the field: allowed a finite number from "
+                                  f"{f.lo:g} to {f.hi:g}.")
+            return float(wire)
+        if not math.isfinite(wire):
+            raise EncodeError(f"{where} = {wire!r}{unit} is not finite; allowed: {f.lo} to {f.hi}.")
+        n = round(wire)
+        if not (f.lo <= n <= f.hi):
+            raise EncodeError(f"{where} = {wire!r}{unit} is outside the field: allowed {f.lo} to {f.hi} ({f.type}).")
+        return n
+
+    def encode_body(self, msg: Message, address: int | None = None) -> bytes:
+        """``address | id | payload | CRC``, unescaped."""
+        address = self.default_address if address is None else address
+        if not (isinstance(address, int) and 0 <= address <= 0xFF):
+            raise EncodeError(f"Star tracker address = {address!r} is not allowed; allowed: 0 to 255.")
+        spec = self.spec_of(msg)
+        head = bytes((address, spec.id)) + self.payload(msg)
+        return head + crc16(head).to_bytes(2, "little")
+
+    def encode(self, msg: Message, address: int | None = None) -> bytes:
+        """One whole SLIP frame of ``msg`` for ``address`` (default: the ICD's)."""
+        return escape(self.encode_body(msg, address))
+
+    # -- decode -------------------------------------------------------------------------------
+
+    def decode_body(self, body: bytes, address: int | None = None, direction: str | None = None) -> Message:
+        """Decode one unescaped body. ``address``: the only address accepted (None = any);
+        ``direction``: only messages of this direction are accepted (None = both)."""
+        hx = body.hex().upper()
+        if len(body) < 4:
+            raise FrameRejected("short", "star tracker frame too short", frame_hex=hx,
+                                expected=">= 4 bytes", computed=f"{len(body)} bytes")
+        got = int.from_bytes(body[-2:], "little")
+        calc = crc16(body[:-2])
+        if got != calc:
+            raise FrameRejected("crc", "star tracker frame with a bad CRC-16", frame_hex=hx,
+                                expected=f"0x{got:04X} (received)", computed=f"0x{calc:04X}")
+        if address is not None and body[0] != address:
+            raise FrameRejected("address", "star tracker frame for another address", frame_hex=hx,
+                                expected=f"0x{address:02X}", computed=f"0x{body[0]:02X}")
+        spec = self.by_id.get(body[1])
+        if spec is None:
+            raise FrameRejected("unknown_id", f"unknown star tracker message id 0x{body[1]:02X}", frame_hex=hx,
+                                expected=f"one of {sorted(hex(i) for i in self.by_id)}", computed=f"0x{body[1]:02X}")
+        if direction is not None and spec.direction != direction:
+            raise FrameRejected("direction", f"message {spec.name} is sent {spec.direction}, not {direction}",
+                                frame_hex=hx)
+        payload = body[2:-2]
+        if len(payload) != spec.payload_len:
+            raise FrameRejected("length", f"{spec.name} payload of the wrong length", frame_hex=hx,
+                                expected=f"{spec.payload_len} bytes", computed=f"{len(payload)} bytes")
+        return self.decode_payload(spec, payload, hx)
+
+    def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Message:
+        raw = struct.unpack(spec.fmt, payload)
+        kw: dict[str, Any] = {}
+        tuples: dict[str, dict[int, float]] = {}
+        for f, v in zip(spec.fields, raw, strict=True):
+            if f.bits is not None:
+                if v >> len(f.bits):
+                    raise FrameRejected("value", f"{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
+                                        frame_hex=hx or payload.hex().upper(), expected=f"<= 0x{f.hi:X}",
+                                        computed=f"0x{v:X}")
+                for i, bit in enumerate(f.bits):
+                    kw[bit] = bool(v >> i & 1)
+                continue
+            if f.enum is not None:
+                if v >= len(f.enum):
+                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is not in its table",
+                                        frame_hex=hx or payload.hex().upper(), expected=f"0..{len(f.enum) - 1}",
+                                        computed=v)
+                val: Any = f.enum[v]
+            elif f.is_float:
+                if not math.isfinite(v):
+                    raise FrameRejected("value", f"{spec.name}.{f.name} is not finite",
+                                        frame_hex=hx or payload.hex().upper(), expected="a finite number",
+                                        computed=v)
+                val = v * f.scale if f.scale != 1.0 else v
+            elif f.scale != 1.0:
+                val = v * f.scale
+            else:
+                val = v
+            if not f.is_float and f.enum is None and not (f.lo <= v <= f.hi):
+                raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is outside its range",
+                                    frame_hex=hx or payload.hex().upper(), expected=f"{f.lo}..{f.hi}", computed=v)
+            if f.index is not None:
+                tuples.setdefault(f.attr, {})[f.index] = val
+            else:
+                kw[f.attr] = val
+        for attr, items in tuples.items():
+            kw[attr] = tuple(items[i] for i in range(len(items)))
+        return spec.cls(**kw)

@@ -1,0 +1,646 @@
+"""Emulator: the stand *being* the serial star tracker, on any port (URL, pty, open serial object).
+
+It serves the ICD (``fixtures/devices/star_tracker.toml``) through the same codec as the host
+driver and knows no physics: the stand hands it ``measurement_source(t_s) -> TrackerTruth``, the
+TRUE attitude of the tracker frame T (+z boresight) relative to GCRS at sim time ``t_s``, the rate
+``omega_TN_T`` and the Sun/Moon/Earth directions in tracker axes with their angular radii. The
+source is called with exposure times, which lie at most one service step before the current
+service time (answer with the current state or interpolate).
+
+Behaviour (times are sim seconds passed to :meth:`StarTrackerEmulator.service`; the emulator
+reads no clock there; :meth:`StarTrackerEmulator.run` is the stand-alone wall-clock loop):
+
+- Power-up at the first service time in mode BOOT; with ``auto_boot`` (default) the application
+  starts at once, otherwise on the BOOT action; it is ready ``boot_time_s`` later, in
+  LOST_IN_SPACE. A BOOT action while running reboots (mode BOOT, stable count 0).
+- Exposures every ``output_interval_s`` from the time the application is ready; the solution of an
+  exposure (mid-exposure time ``t_e``) is computed from ``measurement_source(t_e)`` and becomes
+  available ``output_delay_s`` later. Its time stamp is ``t_e`` in the DEVICE clock:
+  ``clock_offset_s + t_e * (1 + clock_drift_ppm 1e-6)`` until a SET_TIME action sets it
+  (then ``T_set + (t_e - t_set) * (1 + drift)``, and ``time_synced`` is set).
+- Measured attitude: ``q_meas = q_TN (x) dq`` (Hamilton, so ``dcm(q_meas) = dcm(dq) dcm(q_TN)``)
+  where ``dq`` is the rotation vector ``bias + (s_c n1, s_c n2, s_r n3)`` in tracker axes, ``n``
+  standard normal from the emulator's Generator, ``s_c``/``s_r`` the cross-boresight and roll sigmas.
+- Flags per exposure: a body is in the field when the angle from the boresight to its centre
+  minus its angular radius is below its exclusion half-angle; the Sun blinds the detector (no
+  star matched); ``rate_too_high`` when ``|omega_TN_T|`` exceeds the rate limit. Stars centroided:
+  ``truth.stars_in_field`` or Poisson(``mean_stars``); matched: Binomial(centroided,
+  ``match_probability``). An exposure is good when no body is in the field, the rate is within the
+  limit and at least ``min_stars_matched`` stars matched.
+- State machine: a good exposure adds one to ``stable_count``, a bad one zeroes it. LOST_IN_SPACE
+  turns to TRACKING when ``stable_count`` reaches the configured count; TRACKING falls back to
+  LOST_IN_SPACE after ``track_loss_count`` bad exposures in a row. ``valid`` = good and TRACKING.
+- Requests: REQUEST_TELEMETRY(SOLUTION) returns the newest available solution (NACK NOT_READY
+  before the first one); STATUS any time. SUBSCRIBE publishes SOLUTION/STATUS every period
+  (0 = each new solution). Parameters from the ICD table are set and read by SET/GET_PARAM.
+- Frames with bad CRC, another address, unknown id, wrong length, bad escapes or oversize are
+  counted, never raised; frames for another address are ignored silently (a shared bus).
+
+``counters``: ``bytes_received``, ``frames_received`` (good, for this address), ``sent``,
+``rejected_crc``, ``rejected_address``, ``rejected_unknown_id``, ``rejected_length``,
+``rejected_other`` (short, bad escape, oversize, bad value), ``commands_nacked``, ``solutions``,
+``exposures_skipped``, ``published``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from drivers.errors import DriverError
+from drivers.serial_port import SerialEndpoint, open_port, port_name
+from drivers.star_tracker.codec import (
+    HOST_TO_DEVICE,
+    Ack,
+    Action,
+    FrameRejected,
+    GetParam,
+    Message,
+    Nack,
+    ParamValue,
+    RequestTelemetry,
+    SetParam,
+    Solution,
+    StarTrackerCodec,
+    Status,
+    Subscribe,
+    Unsubscribe,
+)
+from drivers.star_tracker.slip import SlipDecoder
+
+__all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
+
+ARCSEC = math.pi / 180.0 / 3600.0
+DEG = math.pi / 180.0
+_EPS_S = 1e-9
+
+
+@dataclass(frozen=True)
+class TrackerTruth:
+    """What the stand knows at one instant, in tracker axes (T: +z boresight).
+
+    Attributes:
+        q_TN: true attitude of T relative to GCRS, scalar first (normalised here).
+        omega_TN_T: angular rate of T relative to GCRS, in T, rad/s.
+        sun_T, moon_T, earth_T: direction to the body's centre in T (any length), or None when the
+            stand left the body out (it then never counts as in the field).
+        sun_radius_rad, moon_radius_rad, earth_radius_rad: angular radius of each disk (the Earth's
+            with its atmosphere), rad.
+        stars_in_field: stars bright enough to be centroided, if the stand knows it (else drawn).
+    """
+
+    q_TN: Sequence[float]
+    omega_TN_T: Sequence[float] = (0.0, 0.0, 0.0)
+    sun_T: Sequence[float] | None = None
+    moon_T: Sequence[float] | None = None
+    earth_T: Sequence[float] | None = None
+    sun_radius_rad: float = 4.65e-3
+    moon_radius_rad: float = 4.5e-3
+    earth_radius_rad: float = 1.15
+    stars_in_field: int | None = None
+
+
+MeasurementSource = Callable[[float], TrackerTruth]
+
+#: ICD parameter attr -> (EmulatorConfig attribute, factor from the config unit to SI).
+_PARAM_FROM_CONFIG = {
+    "output_interval_s": ("output_interval_s", 1.0),
+    "min_stars_matched": ("min_stars_matched", 1.0),
+    "stable_count": ("stable_count", 1.0),
+    "rate_limit_rad_s": ("rate_limit_deg_s", DEG),
+    "sun_exclusion_rad": ("sun_exclusion_deg", DEG),
+    "moon_exclusion_rad": ("moon_exclusion_deg", DEG),
+    "earth_exclusion_rad": ("earth_exclusion_deg", DEG),
+    "track_loss_count": ("track_loss_count", 1.0),
+}
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Realism knobs; defaults are the S2E HILS settings of an Arcsec Sagitta (notes 1.1).
+
+    Attributes:
+        noise_cross_arcsec, noise_roll_arcsec: 1-sigma attitude noise across and about the
+            boresight (2 and 10 arcsec).
+        bias_arcsec: constant misalignment as a rotation vector in tracker axes, arcsec.
+        output_delay_s: from mid-exposure to the solution being available (0.1 s).
+        output_interval_s: time between exposures (0.2 s = 5 Hz); ICD parameter output_interval.
+        clock_offset_s, clock_drift_ppm: the device clock before SET_TIME is
+            ``clock_offset_s + t * (1 + drift)``; the drift also applies after SET_TIME.
+        sun_exclusion_deg, moon_exclusion_deg, earth_exclusion_deg: exclusion half-angles (40, 40, 30).
+        rate_limit_deg_s: above it the solution is invalid (1 deg/s).
+        boot_time_s: from BOOT to LOST_IN_SPACE (1 s); auto_boot: boot at power-up.
+        min_stars_matched, stable_count, track_loss_count: see the module docstring (6, 5, 3).
+        mean_stars: mean stars in the field when the truth does not say (12); match_probability (0.95).
+        temperature_C: reported detector temperature.
+        address: device address (the ICD's default, 0x21, when None).
+        reported_sigma: report the configured sigmas as the solution's sigmas (else 0).
+    """
+
+    noise_cross_arcsec: float = 2.0
+    noise_roll_arcsec: float = 10.0
+    bias_arcsec: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    output_delay_s: float = 0.1
+    output_interval_s: float = 0.2
+    clock_offset_s: float = 0.0
+    clock_drift_ppm: float = 0.0
+    sun_exclusion_deg: float = 40.0
+    moon_exclusion_deg: float = 40.0
+    earth_exclusion_deg: float = 30.0
+    rate_limit_deg_s: float = 1.0
+    boot_time_s: float = 1.0
+    auto_boot: bool = True
+    min_stars_matched: int = 6
+    stable_count: int = 5
+    track_loss_count: int = 3
+    mean_stars: float = 12.0
+    match_probability: float = 0.95
+    temperature_C: float = 20.0
+    address: int | None = None
+    reported_sigma: bool = True
+
+    def __post_init__(self) -> None:
+        nonneg = ("noise_cross_arcsec", "noise_roll_arcsec", "output_delay_s", "boot_time_s", "mean_stars",
+                  "sun_exclusion_deg", "moon_exclusion_deg", "earth_exclusion_deg")
+        for name in nonneg:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"EmulatorConfig.{name} must be a finite number >= 0; got {v!r}.")
+        for name in ("output_interval_s", "rate_limit_deg_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"EmulatorConfig.{name} must be a finite number > 0; got {v!r}.")
+        for name in ("clock_offset_s", "clock_drift_ppm", "temperature_C"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                raise ValueError(f"EmulatorConfig.{name} must be a finite number; got {v!r}.")
+        if not abs(self.clock_drift_ppm) < 1e5:
+            raise ValueError(f"EmulatorConfig.clock_drift_ppm must be within +-1e5 ppm; got {self.clock_drift_ppm!r}.")
+        if not (0.0 <= self.match_probability <= 1.0):
+            raise ValueError(f"EmulatorConfig.match_probability must be in [0, 1]; got {self.match_probability!r}.")
+        b = np.asarray(self.bias_arcsec, dtype=float)
+        if b.shape != (3,) or not np.all(np.isfinite(b)):
+            raise ValueError(f"EmulatorConfig.bias_arcsec must be 3 finite numbers; got {self.bias_arcsec!r}.")
+        if self.address is not None and not (isinstance(self.address, int) and 0 <= self.address <= 255):
+            raise ValueError(f"EmulatorConfig.address must be an int from 0 to 255; got {self.address!r}.")
+
+
+def _hamilton(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
+def _small_rotation(v: Sequence[float]) -> tuple[float, float, float, float]:
+    x, y, z = v
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-300:
+        return (1.0, 0.0, 0.0, 0.0)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), x * s, y * s, z * s)
+
+
+class StarTrackerEmulator(SerialEndpoint):
+    """The star tracker, emulated on ``port`` (see the module docstring for the behaviour).
+
+    Args:
+        port: URL/path (opened with pyserial and closed by :meth:`close`) or an open port object
+            (``serial.Serial``, :class:`~drivers.serial_port.FdPort`; the caller keeps it).
+        measurement_source: ``measurement_source(t_s) -> TrackerTruth``.
+        config: :class:`EmulatorConfig`.
+        rng: a ``numpy.random.Generator`` or a seed.
+        codec: a :class:`StarTrackerCodec` (default: the ICD in ``fixtures/``).
+        baudrate: for URL ports.
+    """
+
+    def __init__(
+        self,
+        port: Any,
+        measurement_source: MeasurementSource,
+        config: EmulatorConfig | None = None,
+        rng: np.random.Generator | int = 0,
+        codec: StarTrackerCodec | None = None,
+        *,
+        baudrate: int = 115200,
+        name: str = "star tracker emulator",
+    ) -> None:
+        self._closed = True
+        self.port = None
+        self._owns_port = False
+        self.name = name
+        self.config = cfg = config if config is not None else EmulatorConfig()
+        self.codec = codec = codec if codec is not None else StarTrackerCodec()
+        self.source = measurement_source
+        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.address = codec.default_address if cfg.address is None else cfg.address
+        #: Current parameter values, SI, keyed by the ICD's parameter attr.
+        self.params: dict[str, float] = {}
+        for ps in codec.params.values():
+            if ps.attr not in _PARAM_FROM_CONFIG:
+                raise ValueError(f"star tracker ICD parameter {ps.name} ({ps.attr}) has no emulator setting.")
+            cname, factor = _PARAM_FROM_CONFIG[ps.attr]
+            value_si = float(getattr(cfg, cname)) * factor
+            allowed = ps.check_wire(value_si / ps.scale if not ps.integer else round(value_si / ps.scale, 9))
+            if allowed is not None:
+                raise ValueError(
+                    f"EmulatorConfig.{cname} = {getattr(cfg, cname)!r} is outside the ICD parameter {ps.name}: "
+                    f"allowed {allowed}."
+                )
+            self.params[ps.attr] = value_si
+        self._bias = tuple(float(b) * ARCSEC for b in cfg.bias_arcsec)
+        self._decoder = SlipDecoder(codec.max_body)
+        self.counters: dict[str, int] = {
+            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_address": 0,
+            "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0, "commands_nacked": 0,
+            "solutions": 0, "exposures_skipped": 0, "published": 0,
+        }
+        self._dev = {"frames_received": 0, "frames_sent": 0, "rejected_crc": 0, "rejected_other": 0,
+                     "commands_nacked": 0, "solutions": 0}
+        #: Reply silently dropped while True (a device that went quiet; for tests and fault injection).
+        self.silent = False
+        self.mode = "BOOT"
+        self.stable_count = 0
+        self._bad_run = 0
+        self._t_on: float | None = None
+        self._t_ready: float | None = None
+        self._k_exposure = 0
+        self._pending: deque[tuple[float, Solution]] = deque()
+        self.latest_solution: Solution | None = None
+        self._seq = 0
+        self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
+        self.time_synced = False
+        self._subs: dict[int, list[float]] = {}  # telemetry id -> [period_s, next_due_s]
+        self._new_solution = False
+        self._now = 0.0
+        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=0.0, name=name)
+        self._closed = False
+
+    def __repr__(self) -> str:
+        return f"StarTrackerEmulator({port_name(self.port)!r}, mode={self.mode!r}, counters={self.counters})"
+
+    # -- device clock ---------------------------------------------------------------------------
+
+    def device_time_s(self, t_s: float) -> float:
+        """The device clock at sim time ``t_s``, s."""
+        rate = 1.0 + self.config.clock_drift_ppm * 1e-6
+        if self._clock_ref is None:
+            return self.config.clock_offset_s + t_s * rate
+        t_set, dev_set = self._clock_ref
+        return dev_set + (t_s - t_set) * rate
+
+    def device_time_us(self, t_s: float) -> int:
+        us = round(self.device_time_s(t_s) * 1e6)
+        return min(max(us, 0), 0xFFFF_FFFF_FFFF_FFFF)
+
+    # -- service --------------------------------------------------------------------------------
+
+    def service(self, t_s: float) -> None:
+        """Non-blocking: read and answer requests, run exposures due by ``t_s``, publish what is due."""
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        self._now = t_s
+        if self._t_on is None:
+            self._t_on = t_s
+            if self.config.auto_boot:
+                self._start_boot(t_s)
+        self._advance(t_s)
+        self._receive(t_s)
+        self._publish(t_s)
+
+    def _start_boot(self, t_s: float) -> None:
+        self.mode = "BOOT"
+        self.stable_count = 0
+        self._bad_run = 0
+        self._t_ready = t_s + self.config.boot_time_s
+        self._k_exposure = 0
+        self._pending.clear()
+        self.latest_solution = None
+
+    def _advance(self, t_s: float) -> None:
+        if self._t_ready is None:
+            return
+        if self.mode == "BOOT":
+            if t_s + _EPS_S < self._t_ready:
+                return
+            self.mode = "LOST_IN_SPACE"
+        interval = self.params["output_interval_s"]
+        since = t_s - self._t_ready + _EPS_S
+        if since >= self._k_exposure * interval:
+            last = math.floor(since / interval)
+            if last > self._k_exposure:
+                self.counters["exposures_skipped"] += last - self._k_exposure
+            t_e = self._t_ready + last * interval
+            sol = self.expose(t_e)
+            self._pending.append((t_e + self.config.output_delay_s, sol))
+            self._k_exposure = last + 1
+        while self._pending and self._pending[0][0] <= t_s + _EPS_S:
+            self.latest_solution = self._pending.popleft()[1]
+            self._new_solution = True
+
+    def expose(self, t_e: float) -> Solution:
+        """Take one exposure at mid-exposure time ``t_e``: the solution and the state-machine step."""
+        cfg = self.config
+        p = self.params
+        truth = self.source(t_e)
+        try:
+            q = [float(x) for x in truth.q_TN]
+            n = math.sqrt(sum(x * x for x in q))
+            if len(q) != 4 or not math.isfinite(n) or n < 0.5:
+                raise ValueError
+            q = [x / n for x in q]
+            wx, wy, wz = (float(x) for x in truth.omega_TN_T)
+            rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+            if not math.isfinite(rate):
+                raise ValueError
+        except (TypeError, ValueError, AttributeError):
+            raise ValueError(
+                f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers) "
+                f"and a finite omega_TN_T (3 numbers, rad/s); got {truth!r}."
+            ) from None
+        sun = self._in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
+        moon = self._in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
+        earth = self._in_field(truth.earth_T, truth.earth_radius_rad, p["earth_exclusion_rad"])
+        rate_high = rate > p["rate_limit_rad_s"]
+        rng = self.rng
+        n_stars = truth.stars_in_field if truth.stars_in_field is not None else int(rng.poisson(cfg.mean_stars))
+        n_stars = min(max(int(n_stars), 0), 255)
+        matched = 0 if sun else int(rng.binomial(n_stars, cfg.match_probability))
+        good = not (sun or moon or earth or rate_high) and matched >= p["min_stars_matched"]
+        if good:
+            self.stable_count += 1
+            self._bad_run = 0
+            if self.mode == "LOST_IN_SPACE" and self.stable_count >= p["stable_count"]:
+                self.mode = "TRACKING"
+        else:
+            self.stable_count = 0
+            self._bad_run += 1
+            if self.mode == "TRACKING" and self._bad_run >= p["track_loss_count"]:
+                self.mode = "LOST_IN_SPACE"
+        valid = good and self.mode == "TRACKING"
+        sc = cfg.noise_cross_arcsec * ARCSEC
+        sr = cfg.noise_roll_arcsec * ARCSEC
+        n1, n2, n3 = rng.standard_normal(3)
+        b = self._bias
+        dq = _small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
+        qm = _hamilton(q, dq)
+        if qm[0] < 0:
+            qm = (-qm[0], -qm[1], -qm[2], -qm[3])
+        self.counters["solutions"] += 1
+        self._dev["solutions"] += 1
+        seq = self._seq
+        self._seq = (seq + 1) & 0xFFFF
+        return Solution(
+            time_us=self.device_time_us(t_e),
+            q_TN=qm,
+            sigma_cross_rad=sc if cfg.reported_sigma else 0.0,
+            sigma_roll_rad=sr if cfg.reported_sigma else 0.0,
+            stars_centroided=n_stars,
+            stars_matched=matched,
+            mode=self.mode,
+            valid=valid,
+            sun_in_field=sun,
+            moon_in_field=moon,
+            earth_in_field=earth,
+            rate_too_high=rate_high,
+            time_synced=self.time_synced,
+            stable_count=self.stable_count,
+            temperature_C=cfg.temperature_C,
+            seq=seq,
+        )
+
+    @staticmethod
+    def _in_field(direction: Sequence[float] | None, radius: float, exclusion: float) -> bool:
+        if direction is None:
+            return False
+        x, y, z = (float(v) for v in direction)
+        norm = math.sqrt(x * x + y * y + z * z)
+        if not norm > 0:
+            return False
+        angle = math.acos(max(-1.0, min(1.0, z / norm)))
+        return angle - radius < exclusion
+
+    # -- receive --------------------------------------------------------------------------------
+
+    def _read_available(self) -> bytes:
+        port = self.port
+        try:
+            n = port.in_waiting
+            return port.read(n) if n else b""
+        except (OSError, ValueError) as exc:
+            raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
+        except Exception as exc:  # serial.SerialException (kept lazy)
+            if type(exc).__name__.endswith("SerialException"):
+                raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
+            raise
+
+    def _receive(self, t_s: float) -> int:
+        data = self._read_available()
+        if not data:
+            return 0
+        self.counters["bytes_received"] += len(data)
+        dec = self._decoder
+        before = dec.counters["oversize"] + dec.counters["bad_escape"]
+        bodies = dec.feed(data)
+        slip_bad = dec.counters["oversize"] + dec.counters["bad_escape"] - before
+        if slip_bad:
+            self.counters["rejected_other"] += slip_bad
+            self._dev["rejected_other"] += slip_bad
+        for body in bodies:
+            self._handle(body, t_s)
+        return len(bodies)
+
+    def _handle(self, body: bytes, t_s: float) -> None:
+        try:
+            msg = self.codec.decode_body(body, self.address, HOST_TO_DEVICE)
+        except FrameRejected as exc:
+            kind = exc.kind
+            if kind == "address":
+                self.counters["rejected_address"] += 1
+                return
+            if kind == "crc":
+                self.counters["rejected_crc"] += 1
+                self._dev["rejected_crc"] += 1
+                return
+            key = {"unknown_id": "rejected_unknown_id", "direction": "rejected_unknown_id",
+                   "length": "rejected_length"}.get(kind, "rejected_other")
+            self.counters[key] += 1
+            self._dev["rejected_other"] += 1
+            if kind in ("unknown_id", "direction", "length", "value") and len(body) >= 4:
+                error = {"length": "BAD_LENGTH", "value": "VALUE_OUT_OF_RANGE"}.get(kind, "UNKNOWN_MESSAGE")
+                self._nack(body[1], error)
+            return
+        self.counters["frames_received"] += 1
+        self._dev["frames_received"] += 1
+        reply = self._apply(msg, t_s)
+        if reply is not None:
+            self._send(reply)
+
+    def _nack(self, command_id: int, error: str) -> None:
+        self.counters["commands_nacked"] += 1
+        self._dev["commands_nacked"] += 1
+        self._send(Nack(command_id, error))
+
+    def _apply(self, msg: Message, t_s: float) -> Message | None:
+        ids = self.codec.messages
+        if isinstance(msg, RequestTelemetry):
+            if msg.telemetry_id == self.codec.status_id:
+                return self.status(t_s)
+            if msg.telemetry_id == self.codec.solution_id:
+                if self.latest_solution is None:
+                    return self._refuse(ids["REQUEST_TELEMETRY"].id, "NOT_READY")
+                return self.latest_solution
+            return self._refuse(ids["REQUEST_TELEMETRY"].id, "UNKNOWN_TELEMETRY")
+        if isinstance(msg, SetParam):
+            cid = ids["SET_PARAM"].id
+            ps = self.codec.params_by_id.get(msg.param_id)
+            if ps is None:
+                return self._refuse(cid, "UNKNOWN_PARAMETER")
+            if ps.check_wire(msg.value) is not None:
+                return self._refuse(cid, "VALUE_OUT_OF_RANGE")
+            if ps.attr == "output_interval_s" and self._t_ready is not None and self._k_exposure > 0:
+                # a new exposure grid, anchored at the last exposure
+                self._t_ready += (self._k_exposure - 1) * self.params["output_interval_s"]
+                self._k_exposure = 1
+            self.params[ps.attr] = msg.value * ps.scale
+            return Ack(cid)
+        if isinstance(msg, GetParam):
+            ps = self.codec.params_by_id.get(msg.param_id)
+            if ps is None:
+                return self._refuse(ids["GET_PARAM"].id, "UNKNOWN_PARAMETER")
+            return ParamValue(ps.id, self.params[ps.attr] / ps.scale)
+        if isinstance(msg, Action):
+            cid = ids["ACTION"].id
+            if msg.action == "BOOT":
+                self._start_boot(t_s)
+            elif msg.action == "SET_TIME":
+                self._clock_ref = (t_s, msg.argument * 1e-6)
+                self.time_synced = True
+            elif msg.action == "RESET_COUNTERS":
+                for k in self._dev:
+                    self._dev[k] = 0
+            else:
+                return self._refuse(cid, "UNKNOWN_ACTION")
+            return Ack(cid)
+        if isinstance(msg, Subscribe):
+            cid = ids["SUBSCRIBE"].id
+            if msg.telemetry_id not in self.codec.telemetry_ids:
+                return self._refuse(cid, "UNKNOWN_TELEMETRY")
+            self._subs[msg.telemetry_id] = [msg.period_s, t_s + msg.period_s]
+            return Ack(cid)
+        if isinstance(msg, Unsubscribe):
+            cid = ids["UNSUBSCRIBE"].id
+            if msg.telemetry_id not in self.codec.telemetry_ids:
+                return self._refuse(cid, "UNKNOWN_TELEMETRY")
+            self._subs.pop(msg.telemetry_id, None)
+            return Ack(cid)
+        return None  # pragma: no cover - decode_body only lets commands through
+
+    def _refuse(self, command_id: int, error: str) -> Nack:
+        self.counters["commands_nacked"] += 1
+        self._dev["commands_nacked"] += 1
+        return Nack(command_id, error)
+
+    # -- publish --------------------------------------------------------------------------------
+
+    def _publish(self, t_s: float) -> None:
+        new = self._new_solution
+        self._new_solution = False
+        for tid, sub in self._subs.items():
+            period, due = sub
+            if period <= 0.0:
+                fire = new
+            else:
+                fire = t_s + _EPS_S >= due
+                if fire:
+                    sub[1] = due + period * max(1, math.floor((t_s + _EPS_S - due) / period) + 1)
+            if not fire:
+                continue
+            if tid == self.codec.solution_id:
+                if self.latest_solution is None:
+                    continue
+                self._send(self.latest_solution)
+            else:
+                self._send(self.status(t_s))
+            self.counters["published"] += 1
+
+    def status(self, t_s: float) -> Status:
+        """The STATUS the device reports at ``t_s`` (counters wrapped at their field width)."""
+        d = self._dev
+        return Status(
+            time_us=self.device_time_us(t_s),
+            uptime_s=min(max(t_s - (self._t_on or 0.0), 0.0), 0xFFFF_FFFF * 1e-3),
+            mode=self.mode,
+            time_synced=self.time_synced,
+            subscribed_solution=self.codec.solution_id in self._subs,
+            subscribed_status=self.codec.status_id in self._subs,
+            frames_received=d["frames_received"] & 0xFFFF_FFFF,
+            frames_sent=d["frames_sent"] & 0xFFFF_FFFF,
+            rejected_crc=d["rejected_crc"] & 0xFFFF,
+            rejected_other=d["rejected_other"] & 0xFFFF,
+            commands_nacked=d["commands_nacked"] & 0xFFFF,
+            solutions=d["solutions"] & 0xFFFF_FFFF,
+            temperature_C=self.config.temperature_C,
+        )
+
+    def _send(self, msg: Message) -> None:
+        if self.silent:
+            return
+        frame = self.codec.encode(msg, self.address)
+        try:
+            self.port.write(frame)
+        except Exception as exc:
+            raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
+        self.counters["sent"] += 1
+        self._dev["frames_sent"] += 1
+
+    # -- stand-alone loop -----------------------------------------------------------------------
+
+    def run(
+        self,
+        duration_s: float | None = None,
+        *,
+        stop: Callable[[], bool] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        max_wait_s: float = 0.02,
+    ) -> None:
+        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
+        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
+        import select
+
+        fileno = getattr(self.port, "fileno", None)
+        try:
+            fd = fileno() if fileno is not None else None
+        except Exception:  # loop:// and socket:// objects without a usable descriptor
+            fd = None
+        t0 = clock()
+        while True:
+            t = clock() - t0
+            if duration_s is not None and t >= duration_s:
+                break
+            if stop is not None and stop():
+                break
+            self.service(t)
+            wait = max_wait_s
+            if self._t_ready is not None:
+                interval = self.params["output_interval_s"]
+                next_exp = self._t_ready + self._k_exposure * interval
+                wait = min(wait, max(next_exp - (clock() - t0), 0.0))
+            if self._pending:
+                wait = min(wait, max(self._pending[0][0] - (clock() - t0), 0.0))
+            if duration_s is not None:
+                wait = min(wait, max(duration_s - (clock() - t0), 0.0))
+            if fd is not None:
+                select.select([fd], [], [], wait)
+            elif wait > 0:
+                time.sleep(min(wait, 0.001))

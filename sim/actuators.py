@@ -1,0 +1,219 @@
+"""Stiff actuator sub-models as exact discrete updates: magnetorquer coil, wheel friction, flexible mode.
+
+Each is linear (or piecewise linear) with inputs held over a step (zero-order hold), so its exact
+solution over a step costs as much as one explicit stage and has no stability limit. Integrating
+them inside the attitude ODE with explicit RK4 would need h < 2.78 tau (coil), h < 2.78 / stiffness
+(regularised friction) or h < 2.83 / omega_n (flexible mode) just to stay stable, and at the
+dynamics step of 10-100 ms they are stiff (numerics.md section 3.6: RK4 blew up a tau = 1 ms coil in
+0.04 s and wiped out a 40 Hz mode). ``max_explicit_step_s`` on each model states that limit, for
+the step guard of a scene that would put the model into an explicit integrator.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.linalg import expm
+
+#: RK4's stability interval on the negative real axis (|lambda h| <= 2.785).
+RK4_REAL_LIMIT = 2.785
+#: RK4's stability interval on the imaginary axis (|lambda h| <= 2 sqrt 2).
+RK4_IMAG_LIMIT = 2.0 * math.sqrt(2.0)
+
+
+def _positive(name: str, value, unit: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v > 0.0):
+        raise ValueError(f"{name} = {value!r} {unit}; it must be a finite positive number.")
+    return v
+
+
+def _non_negative(name: str, value, unit: str) -> float:
+    v = float(value)
+    if not (math.isfinite(v) and v >= 0.0):
+        raise ValueError(f"{name} = {value!r} {unit}; it must be a finite number >= 0.")
+    return v
+
+
+class CoilLR:
+    """Magnetorquer coil: L di/dt = V - R i, with V held over each step (exact ZOH update).
+
+    ``inductance_h`` (H), ``resistance_ohm`` (ohm), ``turns_area_m2`` (N A, m^2: dipole per ampere).
+    ``step(i_A, v_V, h_s)`` broadcasts over coils; the update is
+    i+ = V/R + (i - V/R) exp(-h R / L), exact for any h.
+    """
+
+    def __init__(self, inductance_h: float, resistance_ohm: float, turns_area_m2: float = 1.0):
+        self.inductance_h = _positive("inductance_h", inductance_h, "H")
+        self.resistance_ohm = _positive("resistance_ohm", resistance_ohm, "ohm")
+        self.turns_area_m2 = _positive("turns_area_m2", turns_area_m2, "m^2")
+        self._decay: dict[float, float] = {}
+
+    @property
+    def tau_s(self) -> float:
+        """Time constant L / R (s)."""
+        return self.inductance_h / self.resistance_ohm
+
+    @property
+    def max_explicit_step_s(self) -> float:
+        """Largest step (s) at which explicit RK4 on this coil would still be stable."""
+        return RK4_REAL_LIMIT * self.tau_s
+
+    def step(self, i_A, v_V, h_s: float):
+        """Current (A) after ``h_s`` seconds at held voltage ``v_V`` (V), from current ``i_A``."""
+        h = _positive("h_s", h_s, "s")
+        d = self._decay.get(h)
+        if d is None:
+            # exp(-h/tau) is cached per step length: the loop uses one or two step lengths.
+            d = self._decay[h] = math.exp(-h / self.tau_s)
+        i_ss = np.asarray(v_V, dtype=float) / self.resistance_ohm
+        return i_ss + (np.asarray(i_A, dtype=float) - i_ss) * d
+
+    def dipole(self, i_A):
+        """Magnetic dipole (A m^2) of current ``i_A``."""
+        return self.turns_area_m2 * np.asarray(i_A, dtype=float)
+
+
+class ReactionWheel:
+    """Wheel speed with Coulomb + viscous friction and stiction, stepped exactly (Karnopp stick/slip).
+
+    J dOmega/dt = u - tau_c sign(Omega) - c Omega while slipping; the wheel sticks at Omega = 0 while
+    |u| <= tau_static. ``inertia_kg_m2`` J, ``coulomb_nm`` tau_c, ``viscous_nms`` c (N m s/rad),
+    ``static_nm`` tau_static (>= tau_c; default tau_c). Between sign changes the motion is solved in
+    closed form, zero crossings are located exactly inside the step and the stick test is applied
+    there, so the speed never chatters round zero and friction never adds energy.
+    """
+
+    def __init__(self, inertia_kg_m2: float, coulomb_nm: float, viscous_nms: float = 0.0,
+                 static_nm: float | None = None):
+        self.inertia = _positive("inertia_kg_m2", inertia_kg_m2, "kg m^2")
+        self.coulomb = _non_negative("coulomb_nm", coulomb_nm, "N m")
+        self.viscous = _non_negative("viscous_nms", viscous_nms, "N m s/rad")
+        self.static = self.coulomb if static_nm is None else _non_negative("static_nm", static_nm, "N m")
+        if self.static < self.coulomb:
+            raise ValueError(
+                f"static_nm = {static_nm!r} N m is below coulomb_nm = {coulomb_nm!r} N m; breakaway "
+                "friction must be at least the sliding friction."
+            )
+
+    @property
+    def max_explicit_step_s(self) -> float:
+        """Explicit RK4 stability limit (s) of the viscous part alone (inf without viscosity).
+
+        A bare sign() Coulomb term has no stable explicit step at all (it chatters at ~h tau_c / J);
+        that is why this model is stepped exactly.
+        """
+        return math.inf if self.viscous == 0.0 else RK4_REAL_LIMIT * self.inertia / self.viscous
+
+    def _segment(self, w0: float, s: float, u: float, t: float):
+        """Speed and integral of speed after time t slipping with sign s (no crossing inside)."""
+        # Omega(t) = w0 e^(-kt) + b phi(t), phi = (1 - e^(-kt)) / k, k = c / J, b = (u - tau_c s) / J;
+        # series for small kt, so no 0/0 or inf/inf for negligible (even subnormal) viscosity.
+        k = self.viscous / self.inertia
+        b = (u - self.coulomb * s) / self.inertia
+        kt = k * t
+        if kt < 1e-5:
+            phi = t * (1.0 - kt / 2.0 + kt * kt / 6.0)
+            psi = t * t * (0.5 - kt / 6.0 + kt * kt / 24.0)  # integral of phi from 0 to t
+        else:
+            phi = -math.expm1(-kt) / k
+            psi = (t - phi) / k
+        return w0 * math.exp(-kt) + b * phi, w0 * phi + b * psi
+
+    def _time_to_zero(self, w0: float, s: float, u: float) -> float:
+        """Time (s) for a slipping wheel to reach Omega = 0, or inf if it does not decelerate to 0."""
+        k = self.viscous / self.inertia
+        b = (u - self.coulomb * s) / self.inertia
+        if w0 * b >= 0.0:
+            return math.inf  # accelerating (or coasting without friction): never reaches zero
+        x = -k * w0 / b  # > 0
+        if x < 1e-5:
+            return (-w0 / b) * (1.0 - x / 2.0 + x * x / 3.0)
+        return math.log1p(x) / k
+
+    def step(self, omega_rad_s: float, u_nm: float, h_s: float):
+        """Advance the wheel ``h_s`` seconds with motor torque ``u_nm`` held.
+
+        Returns ``(omega, body_torque_nm, friction_energy_J)``: the new wheel speed (rad/s), the mean
+        torque the wheel puts on the body over the step (-J dOmega/h, so momentum is exchanged
+        exactly) and the energy friction dissipated (>= 0).
+        """
+        h = _positive("h_s", h_s, "s")
+        w = float(omega_rad_s)
+        u = float(u_nm)
+        if not (math.isfinite(w) and math.isfinite(u)):
+            raise ValueError(f"omega_rad_s = {omega_rad_s!r}, u_nm = {u_nm!r}; both must be finite.")
+        J = self.inertia
+        w_start = w
+        remaining = h
+        motor_work = 0.0
+        for _ in range(3):  # at most: slip to zero, then stick or slip the other way
+            if remaining <= 0.0:
+                break
+            if w == 0.0:
+                if abs(u) <= self.static:
+                    break  # stuck: friction balances the motor; the wheel stays at exactly 0
+                s = 1.0 if u > 0.0 else -1.0
+            else:
+                s = 1.0 if w > 0.0 else -1.0
+            t0 = self._time_to_zero(w, s, u) if w != 0.0 else math.inf
+            if t0 < remaining:
+                _, integral = self._segment(w, s, u, t0)
+                motor_work += u * integral
+                w = 0.0  # land exactly on zero: the stick test decides what happens next
+                remaining -= t0
+            else:
+                w_new, integral = self._segment(w, s, u, remaining)
+                if w_new * s < 0.0:
+                    w_new = 0.0  # round-off at the crossing: never overshoot through zero
+                motor_work += u * integral
+                w = w_new
+                remaining = 0.0
+        d_energy = 0.5 * J * (w * w - w_start * w_start)
+        friction = max(motor_work - d_energy, 0.0)
+        return w, -J * (w - w_start) / h, friction
+
+
+class FlexibleMode:
+    """One flexible mode eta'' + 2 zeta wn eta' + wn^2 eta = f, stepped with its exact transition.
+
+    ``frequency_hz`` (natural), ``damping_ratio`` zeta (0 <= zeta < 1). ``step(x, f, h_s)`` takes the
+    state ``x = (eta, eta_dot)`` and a modal force ``f`` (per unit modal mass, m/s^2 equivalent)
+    held over the step and returns the exact state after ``h_s``:
+    x+ = Phi x + Gamma f with Phi = expm(A h), Gamma = int_0^h expm(A s) ds B (cached per h).
+    """
+
+    def __init__(self, frequency_hz: float, damping_ratio: float):
+        self.omega_n = 2.0 * math.pi * _positive("frequency_hz", frequency_hz, "Hz")
+        self.zeta = _non_negative("damping_ratio", damping_ratio, "")
+        if self.zeta >= 1.0:
+            raise ValueError(f"damping_ratio = {damping_ratio!r}; a flexible mode needs 0 <= zeta < 1.")
+        self.A = np.array([[0.0, 1.0], [-self.omega_n ** 2, -2.0 * self.zeta * self.omega_n]])
+        self._cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    @property
+    def max_explicit_step_s(self) -> float:
+        """Largest step (s) at which explicit RK4 on this mode would still be stable (undamped bound)."""
+        return RK4_IMAG_LIMIT / self.omega_n
+
+    def transition(self, h_s: float):
+        """``(Phi, Gamma)`` for step ``h_s`` (s): the exact ZOH discretisation."""
+        h = _positive("h_s", h_s, "s")
+        if h not in self._cache:
+            # Van Loan: expm([[A, B], [0, 0]] h) holds Phi and Gamma together.
+            M = np.zeros((3, 3))
+            M[:2, :2] = self.A
+            M[1, 2] = 1.0
+            E = expm(M * h)
+            self._cache[h] = (E[:2, :2].copy(), E[:2, 2].copy())
+        return self._cache[h]
+
+    def step(self, x, f, h_s: float):
+        Phi, Gamma = self.transition(h_s)
+        return Phi @ np.asarray(x, dtype=float) + Gamma * float(f)
+
+    def energy(self, x):
+        """Modal energy per unit modal mass: 0.5 (eta_dot^2 + wn^2 eta^2)."""
+        x = np.asarray(x, dtype=float)
+        return 0.5 * (x[..., 1] ** 2 + self.omega_n ** 2 * x[..., 0] ** 2)

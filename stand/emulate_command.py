@@ -1,0 +1,150 @@
+"""``stand emulate DEVICE --port URL``: run one device emulator alone, so a flight computer or a
+terminal can be wired to it.
+
+    stand emulate star-tracker --port URL [--address N] [--duration S] [--baud B]
+                  [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
+                  [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
+                  [--interval-s S] [--delay-s S]
+
+The star tracker is the truth-plus-noise emulator (``drivers.star_tracker.emulator``) with a
+built-in measurement source: the boresight (+z of the tracker frame) at right ascension ``--ra``
+and declination ``--dec`` (GCRS), rolled by ``--roll`` about it (roll 0: celestial north along
+tracker -y, east along -x: north up and east left on the image), spinning at ``--rate-deg-s``
+(tracker axes; default at rest). No Sun, Moon or Earth in the field. Sim time is wall time since
+start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its counters as one JSON line.
+Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+
+import numpy as np
+
+DEVICES = ("star-tracker",)
+
+
+def register(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser(
+        "emulate",
+        help="run one device emulator on a serial port URL (star-tracker)",
+        description=__doc__.split("\n\n")[0],
+    )
+    p.add_argument("device", help="device to emulate: " + ", ".join(DEVICES))
+    p.add_argument("--port", required=True, help="port URL or path: /dev/ttyUSB0, a pty or socat link, socket://...")
+    p.add_argument("--address", type=lambda s: int(s, 0), default=None, help="device address (default 0x21)")
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    p.add_argument("--ra", type=float, default=0.0, help="boresight right ascension, deg (default 0)")
+    p.add_argument("--dec", type=float, default=0.0, help="boresight declination, deg in [-90, 90] (default 0)")
+    p.add_argument("--roll", type=float, default=0.0, help="roll about the boresight, deg (default 0)")
+    p.add_argument("--rate-deg-s", default="0,0,0", help="constant spin in tracker axes, deg/s, as X,Y,Z")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--noise-cross-arcsec", type=float, default=None, help="1-sigma noise across the boresight")
+    p.add_argument("--noise-roll-arcsec", type=float, default=None, help="1-sigma noise about the boresight")
+    p.add_argument("--boot-time-s", type=float, default=None, help="boot time, s (default 1)")
+    p.add_argument("--interval-s", type=float, default=None, help="time between exposures, s (default 0.2)")
+    p.add_argument("--delay-s", type=float, default=None, help="output delay after mid-exposure, s (default 0.1)")
+    p.set_defaults(func=run)
+    return p
+
+
+def _fail(msg: str) -> int:
+    print(f"stand emulate: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def q_from_pointing(ra_deg: float, dec_deg: float, roll_deg: float) -> np.ndarray:
+    """q_TN with the tracker +z at (ra, dec); at roll 0 north is along -y and east along -x."""
+    from sim.rotations import quat_from_dcm
+
+    ra, dec, roll = np.radians([ra_deg, dec_deg, roll_deg])
+    z = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+    east = np.array([-math.sin(ra), math.cos(ra), 0.0])  # well defined at the poles too (ra picks it)
+    north = np.cross(z, east)
+    x0, y0 = -east, -north  # image x right, y down: north up, east left
+    x = math.cos(roll) * x0 + math.sin(roll) * y0
+    y = -math.sin(roll) * x0 + math.cos(roll) * y0
+    return quat_from_dcm(np.stack([x, y, z]))
+
+
+class SpinSource:
+    """Built-in measurement source: ``q_TN(t) = q0 (x) exp(omega t / 2)``, no bright body in view."""
+
+    def __init__(self, q0: np.ndarray, omega_rad_s: np.ndarray) -> None:
+        self.q0 = np.asarray(q0, dtype=float)
+        self.omega = np.asarray(omega_rad_s, dtype=float)
+        self.rate = float(np.linalg.norm(self.omega))
+
+    def __call__(self, t_s: float):
+        from drivers.star_tracker.emulator import TrackerTruth
+        from sim.rotations import hamilton
+
+        if self.rate > 0:
+            angle = self.rate * t_s
+            axis = self.omega / self.rate
+            dq = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
+            q = hamilton(self.q0, dq)
+        else:
+            q = self.q0
+        return TrackerTruth(q_TN=tuple(float(x) for x in q), omega_TN_T=tuple(float(x) for x in self.omega))
+
+
+def run(args) -> int:
+    if args.device not in DEVICES:
+        return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        return _fail(f"--duration {args.duration!r} is not allowed; give a positive number of seconds.")
+    if not -90.0 <= args.dec <= 90.0:
+        return _fail(f"--dec {args.dec!r} is not allowed; give a declination from -90 to 90 deg.")
+    try:
+        rate = np.array([float(x) for x in args.rate_deg_s.split(",")])
+        if rate.shape != (3,) or not np.all(np.isfinite(rate)):
+            raise ValueError
+    except ValueError:
+        return _fail(f"--rate-deg-s {args.rate_deg_s!r} is not allowed; give three numbers X,Y,Z in deg/s.")
+    if args.address is not None and not 0 <= args.address <= 255:
+        return _fail(f"--address {args.address!r} is not allowed; give a number from 0 to 255.")
+
+    from drivers.errors import DriverError
+    from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator
+
+    overrides = {
+        "noise_cross_arcsec": args.noise_cross_arcsec,
+        "noise_roll_arcsec": args.noise_roll_arcsec,
+        "boot_time_s": args.boot_time_s,
+        "output_interval_s": args.interval_s,
+        "output_delay_s": args.delay_s,
+        "address": args.address,
+    }
+    try:
+        config = EmulatorConfig(**{k: v for k, v in overrides.items() if v is not None})
+        source = SpinSource(q_from_pointing(args.ra, args.dec, args.roll), np.radians(rate))
+        emu = StarTrackerEmulator(args.port, source, config, rng=args.seed, baudrate=args.baud)
+    except (ValueError, DriverError) as exc:
+        return _fail(str(exc))
+
+    def _term(signum, frame):  # SIGTERM stops like Ctrl-C
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _term)
+    status = 0
+    with emu:
+        print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port}"
+              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C"), flush=True)
+        try:
+            emu.run(args.duration)
+        except KeyboardInterrupt:
+            pass
+        except DriverError as exc:
+            print(f"stand emulate: {exc}", file=sys.stderr)
+            status = 1
+        finally:
+            signal.signal(signal.SIGTERM, old)
+        print(json.dumps({"device": args.device, "port": args.port, "mode": emu.mode, "counters": emu.counters}),
+              flush=True)
+    return status

@@ -1,0 +1,117 @@
+"""Attitude from matched vector pairs: weighted SVD solution of Wahba's problem and its covariance.
+
+Given unit vectors ``b_S`` measured in the tracker frame and the matching catalog directions
+``r_N`` (GCRS), find ``q_SN`` minimising ``sum_i a_i |b_i - dcm(q_SN) r_i|^2`` (Markley 1988, SVD
+method): ``B = sum_i a_i b_i r_i^T = U S V^T``, ``dcm = U diag(1, 1, det U det V) V^T``.
+
+Covariance (Shuster's QUEST measurement model, each ``b_i`` carrying isotropic noise of ``sigma_i``
+rad perpendicular to itself): the small rotation error ``dtheta_S`` (tracker frame, rad) of the
+estimate has covariance ``P = (sum_i (I - b_i b_i^T) / sigma_i^2)^-1``. The per-star sigmas are
+known only up to a common factor (they come from a photometric model), so the factor is estimated
+from the post-fit residuals, ``s^2 = sum_i a_i |res_i|^2 / (2 n - 3)`` (two residual components per
+star, three attitude parameters), and ``P`` is scaled by it. The error convention is
+``dcm(q_est) = exp(-[dtheta x]) dcm(q_true)``, i.e. ``dtheta`` is the small rotation that takes the
+true tracker frame to the estimated one, in tracker axes; ``dtheta_z`` is the roll about the boresight.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["AttitudeEstimate", "estimate_attitude", "attitude_error_S", "wahba_dcm"]
+
+
+@dataclass(frozen=True)
+class AttitudeEstimate:
+    """``q_SN`` (scalar first, w >= 0), covariance ``cov_S`` (3, 3) of the rotation error in tracker
+    axes (rad^2), its cross-boresight sigma ``sqrt(P_xx + P_yy)`` (rad: RMS angle between estimated
+    and true boresight) and roll sigma ``sqrt(P_zz)`` (rad), and per-pair residual angles (rad)."""
+
+    q_SN: np.ndarray
+    dcm_SN: np.ndarray
+    cov_S: np.ndarray
+    sigma_cross_rad: float
+    sigma_roll_rad: float
+    residual_rad: np.ndarray
+
+
+def wahba_dcm(b_S, r_N, a) -> np.ndarray:
+    """``dcm_SN`` minimising ``sum a_i |b_i - dcm r_i|^2`` (SVD method; no covariance, no checks)."""
+    B = (b_S * a[:, None]).T @ r_N
+    U, _, Vt = np.linalg.svd(B)
+    M = U @ Vt
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = M.tolist()
+    if a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0) > 0:
+        return M
+    # det(U V^T) = -1: flip the axis of the smallest singular value (a proper rotation is required).
+    return M - 2.0 * np.outer(U[:, 2], Vt[2])
+
+
+def _quat_from_orthonormal(C: np.ndarray) -> np.ndarray:
+    """Quaternion (w >= 0) of one proper rotation matrix; Shepperd's method on Python floats.
+
+    ``C`` comes out of the SVD solution orthonormal to rounding, so the validation in
+    :func:`sim.rotations.quat_from_dcm` (which the tests compare against) is skipped for speed."""
+    (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = C.tolist()
+    tr = c00 + c11 + c22
+    k = max(range(4), key=(tr, c00, c11, c22).__getitem__)
+    if k == 0:
+        q = (1 + tr, c12 - c21, c20 - c02, c01 - c10)
+    elif k == 1:
+        q = (c12 - c21, 1 + 2 * c00 - tr, c01 + c10, c20 + c02)
+    elif k == 2:
+        q = (c20 - c02, c01 + c10, 1 + 2 * c11 - tr, c12 + c21)
+    else:
+        q = (c01 - c10, c20 + c02, c12 + c21, 1 + 2 * c22 - tr)
+    v = np.array(q)
+    v /= math.sqrt(float(v @ v))
+    return -v if v[0] < 0 else v
+
+
+def estimate_attitude(b_S, r_N, sigma_rad=None, *, scale_from_residuals: bool = True) -> AttitudeEstimate:
+    """Weighted least-squares attitude from ``n >= 2`` pairs of unit vectors ``(n, 3)``.
+
+    ``sigma_rad``: per-pair measurement sigma (rad), scalar or ``(n,)``; default 1 (equal weights).
+    ``scale_from_residuals``: scale the covariance by the residual variance factor (needs n >= 3;
+    with fewer pairs the given sigmas are taken as absolute).
+    """
+    b = np.asarray(b_S, dtype=float).reshape(-1, 3)
+    r = np.asarray(r_N, dtype=float).reshape(-1, 3)
+    n = len(b)
+    if n < 2 or len(r) != n:
+        raise ValueError(f"estimate_attitude needs at least 2 matched pairs of equal count; got {n} and {len(r)}.")
+    sig = np.broadcast_to(np.asarray(1.0 if sigma_rad is None else sigma_rad, dtype=float), (n,))
+    a = 1.0 / sig**2
+    C = wahba_dcm(b, r, a)
+    pred = r @ C.T
+    res = b - pred
+    res_ang = np.linalg.norm(res, axis=1)
+    F = a.sum() * np.eye(3) - (b * a[:, None]).T @ b
+    try:
+        P = np.linalg.inv(F)
+    except np.linalg.LinAlgError:
+        P = np.full((3, 3), np.inf)
+    if scale_from_residuals and n >= 3:
+        s2 = float(np.sum(a * res_ang**2) / (2 * n - 3))
+        P = P * s2
+    q = _quat_from_orthonormal(C)
+    sc = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
+    sr = math.sqrt(max(P[2, 2], 0.0))
+    return AttitudeEstimate(q, C, P, sc, sr, res_ang)
+
+
+def attitude_error_S(q_est_SN, q_true_SN) -> np.ndarray:
+    """Small rotation ``dtheta`` (rad, tracker axes, ``(..., 3)``) with
+    ``dcm(q_est) = exp(-[dtheta x]) dcm(q_true)``: x, y cross-boresight, z roll."""
+    from sim.rotations import dcm
+
+    E = dcm(q_est_SN) @ np.swapaxes(dcm(q_true_SN), -1, -2)
+    # exp(-[t x]) = I - [t x] + ...; [t x] = [[0, -tz, ty], [tz, 0, -tx], [-ty, tx, 0]]
+    v = 0.5 * np.stack((E[..., 1, 2] - E[..., 2, 1], E[..., 2, 0] - E[..., 0, 2], E[..., 0, 1] - E[..., 1, 0]), -1)
+    s = np.linalg.norm(v, axis=-1, keepdims=True)
+    c = (np.trace(E, axis1=-2, axis2=-1)[..., None] - 1.0) / 2.0
+    ang = np.arctan2(s, c)
+    return np.where(s > 0, v / np.where(s > 0, s, 1.0) * ang, 0.0)

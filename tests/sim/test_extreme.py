@@ -1,0 +1,236 @@
+"""Extreme and stiff cases of numerics.md section 4 and issue 6, with their pass criteria."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from sim import attitude as att
+from sim.orbit import MU_EARTH, R_EARTH, elements_to_state, propagate_kepler, state_to_elements
+from sim.rotations import angle_between, quat_from_axis_angle
+from sim.torque_free import TorqueFreeBody
+
+DEG = math.pi / 180.0
+Q0 = [1.0, 0.0, 0.0, 0.0]
+
+
+# -- A: attitude ---------------------------------------------------------------------------------
+
+def test_flat_plate_at_the_triangle_limit_is_accepted_and_integrates_exactly():
+    I = [1.0, 2.0, 3.0]  # I1 + I2 = I3: a flat plate
+    w0 = [0.3, 0.05, 0.2]
+    t, q, w = att.propagate(I, Q0, w0, 60.0, 0.01)
+    assert angle_between(q[-1], TorqueFreeBody(I, Q0, w0).attitude(60.0)) < 1e-7 * DEG
+
+
+@pytest.mark.parametrize("I", [[1.0, 1.0, 3.0], [1.0, 2.0, 3.001], [0.0, 1.0, 1.0], [-1.0, 2.0, 2.0]])
+def test_inertia_beyond_the_triangle_limit_or_non_positive_is_refused(I):
+    with pytest.raises(ValueError, match="inertia"):
+        att.propagate(I, Q0, [0.1, 0.0, 0.0], 1.0, 0.1)
+    with pytest.raises(ValueError, match="inertia"):
+        TorqueFreeBody(I, Q0, [0.1, 0.0, 0.0])
+
+
+def test_axisymmetric_body_matches_the_trigonometric_solution():
+    # numerics.md A7 with an inertia that exists (diag(10, 10, 30) violates the triangle rule).
+    I, w0 = [20.0, 20.0, 30.0], [0.3, 0.0, 2.0]
+    t, q, w = att.propagate(I, Q0, w0, 600.0, 0.02)
+    ref = TorqueFreeBody(I, Q0, w0)
+    assert ref.k2 == 0.0
+    assert angle_between(q[-1], ref.attitude(600.0)) < 1e-3 * DEG
+    T = att.kinetic_energy(I, w)
+    assert np.max(np.abs(T / T[0] - 1.0)) < 1e-7
+
+
+@pytest.mark.parametrize(("axis", "rate"), [(0, 1.0), (2, 1.0), (0, 20.0), (2, 20.0), (1, 1.0)])
+def test_spin_exactly_about_a_principal_axis(axis, rate):
+    w0 = np.zeros(3)
+    w0[axis] = rate
+    T = 10.0
+    t, q, w = att.propagate([10.0, 20.0, 30.0], Q0, w0, T, 1e-3 if rate > 5 else 0.01)
+    assert np.max(np.abs(w - w0)) <= 1e-14 * rate  # the zero products propagate exactly
+    expected = quat_from_axis_angle(np.eye(3)[axis], rate * t)
+    assert np.max(angle_between(q, expected)) < 1e-6 * DEG
+
+
+def test_middle_axis_spin_perturbed_flips_at_the_oracle_times():
+    I, w0 = [10.0, 20.0, 30.0], [0.0, 0.5, 1e-4]
+    t, q, w = att.propagate(I, Q0, w0, 200.0, 0.02)
+    ref_w = TorqueFreeBody(I, Q0, w0).omega(t)
+    flips = t[1:][np.diff(np.sign(w[:, 1])) != 0]
+    ref_flips = t[1:][np.diff(np.sign(ref_w[:, 1])) != 0]
+    assert len(flips) == len(ref_flips) >= 1
+    np.testing.assert_allclose(flips, ref_flips, atol=0.02 + 1e-9)
+
+
+@pytest.mark.parametrize(("method", "step", "energy_bound"), [("rk4", 0.5, 1e-7), ("rkmk4", 1.0, 2e-6)])
+def test_24_hours_keep_the_quaternion_unit_and_the_energy(method, step, energy_bound):
+    # numerics.md A10: slow tumble (0.05 rad/s), 24 simulated hours; guard limit is 2 s. RKMK4
+    # does not renormalise, so its norm error is pure round-off accumulated over 86,400 steps.
+    I, w0 = [10.0, 20.0, 30.0], [0.02, 0.03, 0.035]
+    t, q, w = att.propagate(I, Q0, w0, 86400.0, step, method)
+    assert np.max(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < 1e-12
+    T = att.kinetic_energy(I, w)
+    drift = np.abs(T / T[0] - 1.0)
+    assert np.max(drift) < energy_bound
+    # No super-linear growth: the second half drifts at most ~twice the first half's maximum.
+    assert np.max(drift) <= 2.5 * np.max(drift[: len(drift) // 2]) + 1e-15
+
+
+def test_torqued_fixed_step_runs_are_bit_identical():
+    def torque(t, q, w):
+        return np.array([1e-3 * math.sin(t), -2e-3 * q[1], 1e-3 * w[0]])
+
+    a = att.propagate([10.0, 20.0, 30.0], Q0, [0.01, 0.5, 0.01], 30.0, 0.1, "rkmk4", torque=torque)
+    b = att.propagate([10.0, 20.0, 30.0], Q0, [0.01, 0.5, 0.01], 30.0, 0.1, "rkmk4", torque=torque)
+    for x, y in zip(a, b, strict=True):
+        assert np.array_equal(x, y)
+
+
+@pytest.mark.parametrize(
+    ("q0", "w0", "step", "match"),
+    [
+        ([1.001, 0.0, 0.0, 0.0], [0.1, 0, 0], 0.1, "q_BN has norm 1.001"),
+        ([math.nan, 0.0, 0.0, 1.0], [0.1, 0, 0], 0.1, "q_BN .* NaN"),
+        ([0.0, 0.0, 0.0, 0.0], [0.1, 0, 0], 0.1, "q_BN has norm 0"),
+        (Q0, [0.1, math.nan, 0], 0.1, "omega_BN_B .* finite"),
+        (Q0, [0.1, 0, 0], 0.0, "step_s = 0.0"),
+        (Q0, [0.1, 0, 0], -0.1, "step_s = -0.1"),
+        (Q0, [0.1, 0, 0], math.nan, "step_s = nan"),
+    ],
+)
+def test_input_errors_are_named(q0, w0, step, match):
+    with pytest.raises(ValueError, match=match):
+        att.propagate([10.0, 20.0, 30.0], q0, w0, 1.0, step)
+
+
+# -- C: orbits through propagate_kepler ----------------------------------------------------------
+
+RP = 7.0e6
+
+
+def _invariants(r, v):
+    return 0.5 * v @ v - MU_EARTH / np.linalg.norm(r), np.cross(r, v)
+
+
+@pytest.mark.parametrize("e", [0.0, 0.9, 0.99, 0.999999])
+def test_elliptic_orbits_reach_apogee_at_half_period(e):
+    a = RP / (1.0 - e)
+    r0, v0 = elements_to_state(e=e, i=0.7, raan=1.0, argp=2.0, a=a, nu=0.0)
+    half = math.pi * math.sqrt(a ** 3 / MU_EARTH)
+    r, v = propagate_kepler(r0, v0, half)
+    # Apogee. The double state fixes a only to ~2 eps / (1 - e) relative (v^2/mu cancels 2/r),
+    # 4.4e-10 at e = 0.999999, so the tolerance follows that conditioning.
+    tol = max(1e-11, 20 * np.finfo(float).eps / (1.0 - e))
+    assert np.linalg.norm(r) == pytest.approx(a * (1.0 + e), rel=tol)
+    E0, h0 = _invariants(r0, v0)
+    E1, h1 = _invariants(r, v)
+    assert E1 == pytest.approx(E0, rel=1e-9)
+    np.testing.assert_allclose(h1, h0, rtol=1e-9, atol=1e-9 * np.linalg.norm(h0))
+    if e < 0.9999:
+        # Back to perigee. Not at e = 0.999999: its half period is ~5000 years and a part in 1e10
+        # of timing uncertainty in the double state is metres at perigee (orbit README).
+        rb, vb = propagate_kepler(r, v, -half)
+        np.testing.assert_allclose(rb, r0, atol=1e-6 * RP)
+
+
+def test_parabolic_orbit_follows_barker():
+    p = 2.0 * RP
+    r0, v0 = elements_to_state(e=1.0, i=0.3, raan=0.0, argp=0.0, p=p, nu=0.0)
+    t = 5000.0
+    r, v = propagate_kepler(r0, v0, t)
+    # Barker: t = 0.5 sqrt(p^3/mu) (D + D^3/3), D = tan(nu/2); r = p / (1 + cos nu).
+    D = brentq(lambda d: 0.5 * math.sqrt(p ** 3 / MU_EARTH) * (d + d ** 3 / 3.0) - t, 0.0, 100.0, xtol=1e-15)
+    nu = 2.0 * math.atan(D)
+    assert np.linalg.norm(r) == pytest.approx(p / (1.0 + math.cos(nu)), rel=1e-11)
+    assert 0.5 * v @ v - MU_EARTH / np.linalg.norm(r) == pytest.approx(0.0, abs=1e-9 * MU_EARTH / RP)
+
+
+@pytest.mark.parametrize("e", [1.000001, 1.5, 5.0])
+def test_hyperbolic_orbit_follows_the_hyperbolic_kepler_equation(e):
+    a = -RP / (e - 1.0)
+    r0, v0 = elements_to_state(e=e, i=0.3, raan=0.2, argp=0.1, a=a, nu=0.0)
+    t = 3000.0
+    r, v = propagate_kepler(r0, v0, t)
+    N = math.sqrt(MU_EARTH / (-a) ** 3) * t
+    H = brentq(lambda x: e * math.sinh(x) - x - N, 0.0, 50.0, xtol=1e-15)
+    assert np.linalg.norm(r) == pytest.approx(a * (1.0 - e * math.cosh(H)), rel=1e-9)
+
+
+@pytest.mark.parametrize(("i", "e"), [(0.0, 0.1), (0.0, 0.0), (math.pi / 2, 0.1), (math.pi, 0.3), (math.pi / 2, 0.0)])
+def test_equatorial_and_polar_orbits_round_trip_through_state_to_elements(i, e):
+    r0, v0 = elements_to_state(e=e, i=i, raan=0.4, argp=0.9, p=RP * (1 + e), nu=1.3)
+    el = state_to_elements(r0, v0)
+    assert float(el.i) == pytest.approx(i, abs=1e-12)
+    assert np.all(np.isfinite([el.raan, el.argp, el.nu]))
+    r1, v1 = elements_to_state(e=el.e, i=el.i, raan=el.raan, argp=el.argp, p=el.p, nu=el.nu)
+    np.testing.assert_allclose(r1, r0, rtol=0, atol=1e-11 * np.linalg.norm(r0) * 10)
+    np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-11 * np.linalg.norm(v0) * 10)
+
+
+@pytest.mark.parametrize(
+    ("kw", "field"),
+    [
+        ({"e": -0.1, "p": 7e6}, "eccentricity"),
+        ({"e": 0.1, "p": -7e6}, "semi-latus rectum"),
+        ({"e": 0.1, "p": 7e6, "i": 4.0}, "inclination"),
+        ({"e": 1.5, "a": 7e6}, "inconsistent a and e"),
+        ({"e": 0.1, "p": 6e6, "min_radius": R_EARTH}, "perigee radius"),
+    ],
+)
+def test_orbit_input_errors_are_named(kw, field):
+    args = {"i": 0.1, "raan": 0.0, "argp": 0.0, "nu": 0.0} | kw
+    with pytest.raises(ValueError, match=field):
+        elements_to_state(**args)
+
+
+# -- A8: Euler-angle kinematics (the seed paper's 3-2-1 and 3-1-3) --------------------------------
+
+@pytest.mark.parametrize("seq", ["321", "313"])
+def test_euler_rates_match_the_derivative_of_the_quaternion_angles(seq):
+    from sim.euler_kinematics import euler_rates
+    from sim.rotations import euler_from_quat, hamilton, quat_from_euler
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a = np.array([rng.uniform(-3, 3), rng.uniform(-1.2, 1.2) if seq == "321" else rng.uniform(0.3, 2.8),
+                      rng.uniform(-3, 3)])
+        w = rng.normal(size=3)
+        q = quat_from_euler(a, seq)
+        dt = 1e-6
+        qp = hamilton(q, quat_from_axis_angle(w, np.linalg.norm(w) * dt))
+        qm = hamilton(q, quat_from_axis_angle(w, -np.linalg.norm(w) * dt))
+        d = (np.unwrap([euler_from_quat(qm, seq), euler_from_quat(qp, seq)], axis=0))
+        np.testing.assert_allclose(euler_rates(a, w, seq), (d[1] - d[0]) / (2 * dt), atol=1e-6)
+
+
+@pytest.mark.parametrize("seq", ["321", "313"])
+def test_euler_kinematics_away_from_the_singularity_track_the_quaternion(seq):
+    from sim.euler_kinematics import compare_with_quaternion
+    from sim.rotations import quat_from_euler
+
+    q0 = quat_from_euler([0.3, 0.4, -0.2] if seq == "321" else [0.3, 1.2, -0.2], seq)
+    res = compare_with_quaternion([10.0, 20.0, 30.0], q0, [0.01, 0.02, 0.03], 100.0, 0.1, seq)
+    assert res["stopped_at_s"] is None
+    assert res["max_error_deg"] < 1e-8
+
+
+def test_euler_321_through_pitch_90_is_refused_or_flagged_never_nan():
+    from sim.euler_kinematics import EulerSingularityError, compare_with_quaternion
+
+    # Pure pitch rate about y from pitch 0: the path crosses pitch 90 deg at t = pi / (2 * 0.1) s.
+    args = ([10.0, 20.0, 30.0], Q0, [0.0, 0.1, 0.0], 30.0, 0.1, "321")
+    with pytest.raises(EulerSingularityError, match="guard band at t = 15"):
+        compare_with_quaternion(*args, guard_band_rad=math.radians(2.0))
+    res = compare_with_quaternion(*args, guard_band_rad=math.radians(2.0), on_singularity="flag")
+    assert res["stopped_at_s"] == pytest.approx(15.3, abs=0.11)
+    assert np.all(np.isfinite(res["error_rad"])) and res["max_error_deg"] < 1e-6
+
+
+def test_euler_313_at_identity_is_refused_at_once():
+    from sim.euler_kinematics import EulerSingularityError, compare_with_quaternion
+
+    # The identity has nutation 0: the 3-1-3 singularity itself (the first step enters the band).
+    with pytest.raises(EulerSingularityError, match="313"):
+        compare_with_quaternion([10.0, 20.0, 30.0], Q0, [0.01, 0.5, 0.01], 10.0, 0.1, "313")

@@ -1,0 +1,124 @@
+"""sim.attitude.propagate(method=...): every integrator against the closed form, order, guards."""
+
+import numpy as np
+import pytest
+
+from sim import attitude as att
+from sim.integrators import METHODS, UnstableMethodWarning
+from sim.rotations import angle_between, dcm
+from sim.torque_free import TorqueFreeBody
+
+DEG = np.pi / 180.0
+I = [10.0, 20.0, 30.0]
+Q0 = [1.0, 0.0, 0.0, 0.0]
+W_SEP = [0.01, 0.5, 0.01]  # BENCHMARKS.md near-separatrix case
+W_FAST = [20.0 * np.sin(4 * DEG), 0.0, 20.0 * np.cos(4 * DEG)]  # 20 rad/s, 4 deg off the major axis
+
+
+def _err_deg(method, h, T, w0=W_SEP, **kw):
+    t, q, w = att.propagate(I, Q0, w0, T, h, method, **kw)
+    return float(angle_between(q[-1], TorqueFreeBody(I, Q0, w0).attitude(T))) / DEG
+
+
+def test_rk4_at_0_1_s_near_separatrix_meets_the_acceptance():
+    assert _err_deg("rk4", 0.1, 600.0) <= 2e-4
+
+
+def test_rkmk4_at_0_1_s_near_separatrix_meets_the_acceptance():
+    assert _err_deg("rkmk4", 0.1, 600.0) <= 1e-3
+
+
+@pytest.mark.parametrize("method", ["rk4", "rkmk4"])
+def test_fourth_order_methods_converge_at_order_four(method):
+    e1, e2 = _err_deg(method, 0.16, 300.0), _err_deg(method, 0.08, 300.0)
+    assert 3.5 <= np.log2(e1 / e2) <= 4.5
+
+
+def test_implicit_midpoint_is_second_order_and_conserves_energy():
+    e1, e2 = _err_deg("implicit_midpoint", 0.016, 20.0), _err_deg("implicit_midpoint", 0.008, 20.0)
+    assert 1.7 <= np.log2(e1 / e2) <= 2.3
+    t, q, w = att.propagate(I, Q0, W_SEP, 20.0, 0.01, "implicit_midpoint")
+    T = att.kinetic_energy(I, w)
+    assert np.max(np.abs(T / T[0] - 1.0)) < 1e-13
+    assert np.max(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < 1e-13  # Cayley: round-off only
+
+
+def test_dop853_follows_its_tolerance():
+    assert _err_deg("dop853", 600.0, 600.0, rtol=1e-11, atol=1e-13) < 1e-5
+    rep = {}
+    t, q, w = att.propagate(I, Q0, W_SEP, 10.0, 0.5, "dop853", rtol=1e-9, report=rep)
+    assert len(t) == 21 and rep["rhs_evals"] > 0
+
+
+def test_trapezoid_warns_and_is_far_less_accurate_than_rk4():
+    with pytest.warns(UnstableMethodWarning):
+        e = _err_deg("trapezoid", 0.01, 60.0)
+    assert e > 100 * _err_deg("rk4", 0.01, 60.0)
+
+
+def test_trapezoid_on_fast_spin_is_refused_for_its_instability():
+    with pytest.warns(UnstableMethodWarning), pytest.raises(ValueError, match="unstable"):
+        att.propagate(I, Q0, W_FAST, 600.0, 2e-4, "trapezoid")
+
+
+def test_fast_spin_at_1_ms_stays_accurate():
+    # 60 s (190 revolutions); the bench runs the full 600 s acceptance (<= 1e-3 deg).
+    assert _err_deg("rk4", 1e-3, 60.0, W_FAST) < 1e-4
+
+
+@pytest.mark.parametrize("method", ["rk4", "rkmk4", "trapezoid", "implicit_midpoint"])
+def test_fast_spin_step_of_0_1_s_is_refused_naming_the_limit(method):
+    with pytest.raises(ValueError, match=r"step_s <= .* s here") as err:
+        att.propagate(I, Q0, W_FAST, 10.0, 0.1, method)
+    assert "20 rad/s" in str(err.value) and "nutation" in str(err.value)
+
+
+def test_fast_spin_step_of_0_1_s_is_subdivided_on_request_and_reports_n():
+    rep = {}
+    t, q, w = att.propagate(I, Q0, W_FAST, 2.0, 0.1, subdivide=True, report=rep)
+    assert rep["substeps"] == 20 and rep["internal_step_s"] == pytest.approx(0.005)
+    assert np.all(np.isfinite(q)) and len(t) == 21
+    assert angle_between(q[-1], TorqueFreeBody(I, Q0, W_FAST).attitude(2.0)) < 1e-3 * DEG
+
+
+@pytest.mark.parametrize("method", ["rk4", "rkmk4", "implicit_midpoint"])
+def test_constant_torque_spins_up_a_sphere_linearly(method):
+    tau = np.array([0.0, 0.0, 1e-3])
+    t, q, w = att.propagate([0.1, 0.1, 0.1], Q0, [0.0, 0.0, 0.0], 10.0, 0.01, method,
+                            torque=lambda t, q, w: tau)
+    np.testing.assert_allclose(w[:, 2], 1e-2 * t, rtol=1e-12, atol=1e-15)
+    # Attitude: rotation about z by 0.5 alpha t^2.
+    ang = 2 * np.arctan2(q[-1, 3], q[-1, 0])
+    assert abs(ang - 0.5 * 1e-2 * 100.0) < (1e-8 if method == "implicit_midpoint" else 1e-12)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_runs_are_bit_identical_when_repeated(method):
+    kw = {"max_angle_rad": 0.1} if method in ("trapezoid", "implicit_midpoint") else {}
+    with pytest.warns(UnstableMethodWarning) if method == "trapezoid" else _nothing():
+        a = att.propagate(I, Q0, W_SEP, 20.0, 0.1, method, **kw)
+    with pytest.warns(UnstableMethodWarning) if method == "trapezoid" else _nothing():
+        b = att.propagate(I, Q0, W_SEP, 20.0, 0.1, method, **kw)
+    for x, y in zip(a, b, strict=True):
+        assert np.array_equal(x, y)
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+@pytest.mark.parametrize(("method", "bound"), [("rk4", 1e-7), ("rkmk4", 1e-7), ("implicit_midpoint", 1e-5)])
+def test_torque_free_conserves_inertial_momentum(method, bound):
+    # Second-order implicit midpoint keeps |H| and T exactly but not the direction of H_N.
+    t, q, w = att.propagate(I, Q0, W_SEP, 100.0, 0.01, method)
+    H_N = np.einsum("nji,nj->ni", dcm(q), w @ np.diag(I))
+    assert np.max(np.linalg.norm(H_N - H_N[0], axis=1)) / np.linalg.norm(H_N[0]) < bound
+
+
+def test_unknown_method_is_named():
+    with pytest.raises(ValueError, match="allowed: rk4, rkmk4, dop853"):
+        att.propagate(I, Q0, W_SEP, 1.0, 0.1, "euler")

@@ -1,0 +1,139 @@
+"""``stand emulate star-tracker``: the emulator alone in its own process, on a pty (the test holds
+the master side) and on a socat pty pair (two processes each see a tty path; skipped without
+socat); usage errors are one sentence and exit 2."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from drivers.serial_port import pty_pair
+from drivers.star_tracker.codec import NackError
+from drivers.star_tracker.host import StarTrackerHost
+from stand.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+FAST = ["--boot-time-s", "0", "--interval-s", "0.05", "--delay-s", "0.01"]
+
+
+def _emulate(port: str, *extra: str) -> tuple[subprocess.Popen, str]:
+    """Start the emulator process and wait for its banner (the port is open then: pyserial flushes
+    its input when it opens a port, so a request sent earlier would be lost)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "stand.cli", "emulate", "star-tracker", "--port", port, *FAST, *extra],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    banner = proc.stdout.readline()  # bounded: the process prints it or exits (EOF)
+    return proc, banner
+
+
+def _first_solution(host: StarTrackerHost):
+    for _ in range(300):  # the first solution comes one output delay after boot: wait for it
+        try:
+            return host.request_solution(timeout_s=2.0)
+        except NackError:
+            time.sleep(0.01)
+    raise AssertionError("no solution from the emulator process")
+
+
+def _finish(proc: subprocess.Popen) -> tuple[str, str]:
+    try:
+        out, err = proc.communicate(timeout=15)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        raise
+    return out, err
+
+
+def test_emulate_serves_a_pty_for_a_bounded_duration_and_prints_counters():
+    master, slave_path, slave_fd = pty_pair()
+    proc, banner = _emulate(slave_path, "--duration", "3", "--ra", "30", "--dec", "40", "--roll", "0")
+    try:
+        with StarTrackerHost(master, timeout_s=2.0) as host:
+            sol = _first_solution(host)
+            # boresight at (30, 40) deg: the third row of dcm(q_TN) is the boresight in GCRS
+            from sim.rotations import dcm
+
+            z = dcm(sol.q_TN)[2]
+            assert z == pytest.approx([0.66341395, 0.38302222, 0.64278761], abs=1e-4)
+            status = host.request_status()
+            assert status.frames_received >= 2
+        out, err = _finish(proc)  # stops by itself after --duration
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        master.close()
+        os.close(slave_fd)
+    assert proc.returncode == 0, err
+    lines = out.strip().splitlines()
+    assert banner.startswith(f"stand emulate: star tracker at address 0x21 on {slave_path} for 3 s")
+    report = json.loads(lines[-1])
+    assert report["device"] == "star-tracker" and report["counters"]["frames_received"] >= 2
+    assert report["counters"]["sent"] >= 2
+
+
+@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed (apt-get install socat)")
+def test_two_processes_over_a_socat_pty_pair_and_sigterm_stops_the_emulator(tmp_path):
+    a, b = tmp_path / "ttyST_A", tmp_path / "ttyST_B"
+    socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = None
+    try:
+        for _ in range(500):
+            if a.exists() and b.exists():
+                break
+            time.sleep(0.01)
+        assert a.exists() and b.exists(), "socat did not create its pty pair"
+        proc, banner = _emulate(str(b), "--duration", "20", "--address", "0x30")
+        assert "address 0x30" in banner
+        with StarTrackerHost(str(a), address=0x30, timeout_s=2.0) as host:
+            sol = _first_solution(host)
+            # default pointing (ra 0, dec 0, roll 0): boresight along GCRS +x
+            from sim.rotations import dcm
+
+            assert dcm(sol.q_TN)[2] == pytest.approx([1.0, 0.0, 0.0], abs=1e-4)
+            assert host.counters["rejected_crc"] == 0
+        proc.send_signal(signal.SIGTERM)  # like Ctrl-C: stop and print the counters
+        out, err = _finish(proc)
+        assert proc.returncode == 0, err
+        assert json.loads(out.strip().splitlines()[-1])["counters"]["frames_received"] >= 1
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+        socat.send_signal(signal.SIGTERM)
+        socat.wait(5)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["emulate", "reaction-wheel", "--port", "loop://"],
+         "device 'reaction-wheel' is not known; available: star-tracker"),
+        (["emulate", "star-tracker", "--port", "loop://", "--duration", "-1"], "--duration -1.0 is not allowed"),
+        (["emulate", "star-tracker", "--port", "loop://", "--dec", "95"], "--dec 95.0 is not allowed"),
+        (["emulate", "star-tracker", "--port", "loop://", "--rate-deg-s", "1,2"], "--rate-deg-s '1,2' is not allowed"),
+        (["emulate", "star-tracker", "--port", "/nonexistent/tty"], "cannot open serial port '/nonexistent/tty'"),
+    ],
+)
+def test_usage_errors_are_one_sentence_and_exit_2(argv, message, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_emulate_on_loop_url_stops_after_duration(capsys):
+    assert main(["emulate", "star-tracker", "--port", "loop://", "--duration", "0.2"]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    assert json.loads(out[-1])["port"] == "loop://"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL or callable(signal.getsignal(signal.SIGTERM))

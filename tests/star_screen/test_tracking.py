@@ -1,0 +1,272 @@
+"""Image-based star tracker: extraction, identification (lost in space, tracking), estimation.
+
+Truth is independent of the tracker: the attitude a frame was rendered at, closed-form Gaussian
+spots at known sub-pixel positions, and vector pairs drawn with known noise.
+"""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from star_screen_helpers import ARCSEC
+
+from sim.rotations import angle_between, compose, dcm, quat_from_axis_angle
+from star_screen.geometry import default_bench
+from star_screen.render import Renderer, splat_gaussians
+from star_screen.tracking import StarTracker
+from star_screen.tracking.estimate import attitude_error_S, estimate_attitude
+from star_screen.tracking.extract import extract_stars
+from star_screen.tracking.identify import false_match_probability
+from star_screen.tracking.noise import camera_noise
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    return Renderer(default_bench(), aberration=False)
+
+
+@pytest.fixture(scope="module")
+def tracker(epoch):
+    return StarTracker(epoch=epoch)
+
+
+def _random_q(rng, n):
+    q = rng.normal(size=(n, 4))
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _spots(optics, x, y, flux):
+    idx, val, _ = splat_gaussians(x, y, flux, optics.psf_sigma_px, optics.width, optics.height)
+    img = np.zeros(optics.width * optics.height, np.float32)
+    np.add.at(img, idx, val)
+    return img.reshape(optics.height, optics.width)
+
+
+# ---------------------------------------------------------------------------------------- extraction
+@pytest.mark.parametrize("sigma", [1.0, 1.5])
+def test_centroid_of_gaussian_spots_at_known_subpixel_positions(sigma):
+    rng = np.random.default_rng(7)
+    w, h = 320, 240
+    # A grid of well separated spots at random sub-pixel phases, on a constant background.
+    gx, gy = np.meshgrid(np.arange(20, w - 20, 40.0), np.arange(20, h - 20, 40.0))
+    x = gx.ravel() + rng.uniform(-0.5, 0.5, gx.size)
+    y = gy.ravel() + rng.uniform(-0.5, 0.5, gy.size)
+    flux = rng.uniform(2e3, 5e4, x.size)
+    idx, val, _ = splat_gaussians(x, y, flux, sigma, w, h)
+    img = np.full(w * h, 100.0, np.float32)
+    np.add.at(img, idx, val)
+    stars = extract_stars(img.reshape(h, w), sigma)
+    assert len(stars) == x.size
+    d = np.hypot(stars.xy[:, None, 0] - x[None], stars.xy[:, None, 1] - y[None])
+    j = d.argmin(axis=1)
+    assert len(set(j.tolist())) == x.size
+    err = stars.xy - np.column_stack((x[j], y[j]))
+    assert np.abs(err).max() < 0.02
+    # Brightest first, and the window sum is the spot's flux (background removed).
+    assert np.all(np.diff(stars.flux) <= 0)
+    np.testing.assert_allclose(stars.flux, flux[j], rtol=0.02)
+
+
+def test_centroid_pixel_convention_half_pixel():
+    """A spot centred on pixel (column 10, row 20) is at (10.5, 20.5)."""
+    idx, val, _ = splat_gaussians([10.5], [20.5], [1e4], 1.0, 40, 40)
+    img = np.zeros(1600, np.float32)
+    np.add.at(img, idx, val)
+    stars = extract_stars(img.reshape(40, 40), 1.0)
+    np.testing.assert_allclose(stars.xy[0], [10.5, 20.5], atol=1e-3)
+
+
+def test_extraction_of_noise_only_and_empty_images():
+    rng = np.random.default_rng(3)
+    assert len(extract_stars(np.zeros((64, 80)), 1.0)) == 0
+    noise = camera_noise(np.zeros((768, 1024)), rng)
+    # 5 sigma and two pixels above threshold: Gaussian noise gives essentially no detection.
+    assert len(extract_stars(noise, 1.0)) <= 1
+
+
+# ---------------------------------------------------------------------------------------- estimate
+def test_estimate_recovers_exact_attitude_and_covariance_matches_scatter():
+    rng = np.random.default_rng(11)
+    q_true = _random_q(rng, 1)[0]
+    C = dcm(q_true)
+    # 30 stars inside a 10 deg cone about the boresight; one noise level per star.
+    d = np.column_stack((rng.uniform(-0.15, 0.15, 30), rng.uniform(-0.12, 0.12, 30), np.ones(30)))
+    b0 = d / np.linalg.norm(d, axis=1, keepdims=True)
+    r_N = b0 @ C  # v_N = C^T v_S
+    est = estimate_attitude(b0, r_N)
+    assert angle_between(est.q_SN, q_true) < 1e-12
+    assert est.q_SN[0] >= 0
+    sig = rng.uniform(2.0, 8.0, 30) * ARCSEC
+    errs, covs = [], []
+    for _ in range(400):
+        n = rng.normal(size=(30, 3)) * sig[:, None]
+        n -= np.sum(n * b0, axis=1, keepdims=True) * b0  # perpendicular noise (the model)
+        b = b0 + n
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        e = estimate_attitude(b, r_N, sig, scale_from_residuals=False)
+        errs.append(attitude_error_S(e.q_SN, q_true))
+        covs.append(e.cov_S)
+    errs = np.array(errs)
+    P = np.mean(covs, axis=0)
+    emp = errs.T @ errs / len(errs)
+    # Diagonal variances agree within sampling error (400 trials: ~7 % rms; allow 25 %).
+    np.testing.assert_allclose(np.diag(emp), np.diag(P), rtol=0.25)
+    assert P[2, 2] > 5 * P[0, 0]  # roll is the weak axis of a narrow field
+
+
+def test_false_match_probability_is_a_binomial_tail():
+    p, n = 0.01, 40
+    exact = sum(math.comb(n, k) * p**k * (1 - p) ** (n - k) for k in range(8, n + 1))
+    assert false_match_probability(8, n, p) == pytest.approx(exact, rel=1e-9)
+    assert false_match_probability(0, n, p) == 1.0
+    assert false_match_probability(41, n, p) == 0.0
+
+
+# ---------------------------------------------------------------------------------------- solve
+def test_lost_in_space_solves_rendered_frames(renderer, tracker, epoch):
+    rng = np.random.default_rng(20260104)
+    optics = renderer.bench.tracker
+    for q in _random_q(rng, 4):
+        frame = renderer.render(q, epoch, screen=False)
+        sol = tracker.solve(camera_noise(frame.detector, rng), optics)
+        assert sol.valid and sol.mode == "lis"
+        assert sol.q_SN[0] >= 0
+        e = attitude_error_S(sol.q_SN, q) / ARCSEC
+        assert math.hypot(e[0], e[1]) < 3.0, e
+        assert abs(e[2]) < 15.0, e
+        assert sol.stars_matched >= 0.8 * sol.stars_centroided
+        assert sol.false_prob < 1e-9
+        assert 0 < sol.sigma_cross_arcsec < 3 and 0 < sol.sigma_roll_arcsec < 15
+        # Matched stars are the ones drawn.
+        assert set(sol.matched_hip.tolist()) <= set(frame.stars.hip.tolist())
+
+
+def test_tracking_from_a_perturbed_prior_converges(renderer, tracker, epoch):
+    rng = np.random.default_rng(5)
+    optics = renderer.bench.tracker
+    q = _random_q(rng, 1)[0]
+    img = camera_noise(renderer.render(q, epoch, screen=False).detector, rng)
+    for axis, angle_deg in (([1, 0, 0], 0.3), ([0, 1, 0.2], 0.5), ([0.1, 0.2, 1], 0.2), ([1, 1, 1], 0.05)):
+        prior = compose(quat_from_axis_angle(axis, math.radians(angle_deg)), q)
+        sol = tracker.solve(img, optics, prior=prior)
+        assert sol.valid and sol.mode == "tracking"
+        assert angle_between(sol.q_SN, q) < 15 * ARCSEC
+    # A prior far off (10 deg) cannot track; the tracker falls back to lost in space and still solves.
+    prior = compose(quat_from_axis_angle([1, 0, 0], math.radians(10.0)), q)
+    sol = tracker.solve(img, optics, prior=prior)
+    assert sol.valid and sol.mode == "lis"
+    assert angle_between(sol.q_SN, q) < 15 * ARCSEC
+
+
+def test_empty_field_and_too_few_stars_are_invalid_without_exception(renderer, tracker):
+    rng = np.random.default_rng(9)
+    optics = renderer.bench.tracker
+    for img in (np.zeros((optics.height, optics.width), np.float32), camera_noise(np.zeros((768, 1024)), rng)):
+        sol = tracker.solve(img, optics)
+        assert not sol.valid and np.all(np.isnan(sol.q_SN))
+        sol = tracker.solve(img, optics, prior=[1.0, 0, 0, 0])
+        assert not sol.valid
+    three = _spots(optics, np.array([100.0, 500.0, 800.0]), np.array([100.0, 400.0, 600.0]), np.full(3, 1e5))
+    sol = tracker.solve(camera_noise(three, rng), optics)
+    assert not sol.valid and sol.stars_centroided == 3
+
+
+def test_too_few_matches_for_the_configured_minimum_is_invalid(renderer, epoch):
+    """The same frame is valid with the default minimum and invalid when more matches are required
+    than stars exist."""
+    optics = renderer.bench.tracker
+    rng = np.random.default_rng(12)
+    q = _random_q(rng, 1)[0]
+    img = camera_noise(renderer.render(q, epoch, screen=False).detector, rng)
+    strict = StarTracker(renderer.catalog, epoch=epoch, min_matches=2000)
+    sol = strict.solve(img, optics)
+    assert not sol.valid
+    with pytest.raises(ValueError, match="min_matches"):
+        StarTracker(renderer.catalog, min_matches=2)
+
+
+def test_random_dots_are_never_a_valid_solution(renderer, tracker):
+    rng = np.random.default_rng(1234)
+    optics = renderer.bench.tracker
+    for k in (12, 60, 250):
+        x = rng.uniform(5, optics.width - 5, k)
+        y = rng.uniform(5, optics.height - 5, k)
+        flux = optics.flux_mag0_e * 10 ** (-0.4 * rng.uniform(1.0, 8.0, k))
+        sol = tracker.solve(camera_noise(_spots(optics, x, y, flux), rng), optics)
+        assert not sol.valid
+        assert sol.stars_centroided >= 0.8 * k
+
+
+def test_covariance_matches_scatter_over_noisy_frames(renderer, tracker, epoch):
+    """One attitude, independent noise draws: the predicted sigmas match the error spread loosely."""
+    rng = np.random.default_rng(77)
+    optics = renderer.bench.tracker
+    q = _random_q(rng, 1)[0]
+    ideal = renderer.render(q, epoch, screen=False).detector
+    errs, sc, sr = [], [], []
+    for _ in range(12):
+        sol = tracker.solve(camera_noise(ideal, rng), optics, prior=q)
+        assert sol.valid
+        errs.append(attitude_error_S(sol.q_SN, q) / ARCSEC)
+        sc.append(sol.sigma_cross_arcsec)
+        sr.append(sol.sigma_roll_arcsec)
+    e = np.array(errs)
+    rms_cross = math.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))
+    rms_roll = math.sqrt(np.mean(e[:, 2] ** 2))
+    # Loose: 12 trials and a common render bias (blends) allow a factor of 3 either way.
+    assert 1 / 3 < rms_cross / np.mean(sc) < 3
+    assert 1 / 3 < rms_roll / np.mean(sr) < 3
+
+
+def test_image_shape_must_match_the_optics(renderer, tracker):
+    with pytest.raises(ValueError, match="does not match the optics"):
+        tracker.solve(np.zeros((10, 10)), renderer.bench.tracker)
+
+
+# ---------------------------------------------------------------------------------------- CLI
+def test_stand_solve_prints_the_attitude_of_a_stand_screen_png(tmp_path, capsys):
+    from stand.screen_command import main as screen_main
+    from stand.solve_command import main as solve_main
+
+    out = tmp_path / "frame"
+    assert screen_main(["screen", "--ra", "201.3", "--dec", "-11.2", "--roll", "-40", "--out", str(out)]) == 0
+    truth = json.loads((out / "truth.json").read_text())
+    capsys.readouterr()
+    assert solve_main(["solve", str(out / "detector.png"), "--fov-deg", "20x15"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["valid"] and res["stars_matched"] >= 50
+    assert angle_between(np.array(res["q_SN"]), np.array(truth["q_SN"])) < 10 * ARCSEC
+    assert res["ra_deg"] == pytest.approx(201.3, abs=5e-4)
+    assert res["dec_deg"] == pytest.approx(-11.2, abs=5e-4)
+    assert res["roll_deg"] == pytest.approx(-40.0, abs=5e-3)
+    assert res["q_SN"][0] >= 0
+
+
+def test_stand_solve_reads_an_8_bit_png(tmp_path, renderer, epoch, capsys):
+    from stand.solve_command import main as solve_main
+    from star_screen.outputs import write_png
+
+    q = np.array([0.3, -0.5, 0.7, 0.4])
+    q /= np.linalg.norm(q)
+    det = renderer.render(q, epoch, screen=False).detector
+    # 8 bits, full scale at 1/20 of the brightest pixel: bright stars clip, faint ones vanish.
+    img8 = np.clip(np.rint(det / (det.max() / 20.0) * 255.0), 0, 255).astype(np.uint8)
+    write_png(tmp_path / "det8.png", img8)
+    assert solve_main(["solve", str(tmp_path / "det8.png"), "--aberration", "off"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["valid"]
+    assert angle_between(np.array(res["q_SN"]), q) < 30 * ARCSEC
+
+
+def test_stand_solve_usage_errors(tmp_path, capsys):
+    from stand.solve_command import main as solve_main
+
+    assert solve_main(["solve", str(tmp_path / "missing.png")]) == 2
+    assert "stand: error: IMAGE" in capsys.readouterr().err
+    bad = tmp_path / "bad.png"
+    bad.write_text("not an image")
+    assert solve_main(["solve", str(bad)]) == 2
+    assert "could not be read" in capsys.readouterr().err
+    assert solve_main(["solve", str(bad), "--fov-deg", "wide"]) == 2
+    assert "--fov-deg" in capsys.readouterr().err
