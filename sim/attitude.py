@@ -83,17 +83,18 @@ def max_step_s(inertia, omega, max_angle_rad: float = MAX_ANGLE_PER_STEP_RAD) ->
     return math.inf if fastest == 0.0 else max_angle_rad / fastest
 
 
-def check_step(inertia, omega, step_s: float, name: str = "step_s") -> None:
+def check_step(inertia, omega, step_s: float, name: str = "step_s", max_angle_rad: float = MAX_ANGLE_PER_STEP_RAD,
+               method: str = "RK4") -> None:
     """Raise ``ValueError`` naming the limit when ``step_s`` is too large for rate ``omega``."""
     if not (isinstance(step_s, int | float) and math.isfinite(step_s) and step_s > 0):
         raise ValueError(f"{name} = {step_s!r}; the integration step must be a positive number of seconds.")
-    limit = max_step_s(inertia, omega)
+    limit = max_step_s(inertia, omega, max_angle_rad)
     if step_s > limit:
         w = float(np.linalg.norm(omega))
         raise ValueError(
             f"{name} = {step_s:g} s is too large for a body rate of {w:.6g} rad/s "
-            f"({math.degrees(w):.4g} deg/s): RK4 stays accurate only while the rotation and nutation "
-            f"phase per step are at most {MAX_ANGLE_PER_STEP_RAD:g} rad, i.e. {name} <= {limit:.3g} s "
+            f"({math.degrees(w):.4g} deg/s): {method} stays accurate only while the rotation and nutation "
+            f"phase per step are at most {max_angle_rad:g} rad, i.e. {name} <= {limit:.3g} s "
             "here. Use a smaller step."
         )
 

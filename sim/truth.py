@@ -23,9 +23,10 @@ from collections.abc import Callable
 import numpy as np
 
 from . import orbit as orbit_mod
-from .attitude import MAX_ANGLE_PER_STEP_RAD, RigidBody, check_step
+from .attitude import RigidBody, check_step
 from .constants import J2_EARTH, MU_EARTH, R_EARTH
 from .frames import EarthRotation
+from .integrators import max_angle_rad, stepper
 from .time import NS_PER_S
 
 #: Length of one precomputed chunk of orbit and field, s. Long enough to amortise the vectorised
@@ -153,14 +154,17 @@ class TruthModel:
     def __init__(self, *, inertia, q_BN, omega_BN_B, r_N, v_N, step_ns: int, gravity: str = "j2",
                  orbit_step_s: float = 10.0, field_itrs: Callable | None = None,  # (t_s, r_itrs) -> B_itrs
                  earth_rotation: EarthRotation | None = None, torques=("magnetic", "gravity_gradient"),
-                 forces: Callable | None = None):
+                 forces: Callable | None = None, integrator: str = "rk4"):
         if step_ns <= 0 or step_ns % 2:
             raise ValueError(f"step_ns = {step_ns}; the dynamics step must be a positive even number of ns.")
         self.body = RigidBody(inertia)
         self.step_ns = int(step_ns)
         self.h = step_ns / NS_PER_S
-        check_step(self.body.inertia, omega_BN_B, self.h, "dynamics.step_s")
-        self._limit_sq = (MAX_ANGLE_PER_STEP_RAD / self.h) ** 2
+        self.integrator = integrator
+        self._step = stepper(self.body, integrator)
+        self._max_angle = max_angle_rad(integrator)
+        check_step(self.body.inertia, omega_BN_B, self.h, "dynamics.step_s", self._max_angle, integrator)
+        self._limit_sq = (self._max_angle / self.h) ** 2
         self.q = tuple(float(x) for x in q_BN)
         self.w = tuple(float(x) for x in omega_BN_B)
         self.t_ns = 0
@@ -237,9 +241,9 @@ class TruthModel:
         self._stage_base = 2 * self.k
         torque = self._torque if (self.magnetic or self.gravity_gradient) else None
         # Stage times are passed relative to the step start so the stage lookup is exact.
-        q, w = self.body.rk4_step(self.q, self.w, self.h, torque, 0.0)
+        q, w = self._step(self.q, self.w, self.h, torque, 0.0)
         if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
-            check_step(self.body.inertia, w, self.h, "dynamics.step_s")
+            check_step(self.body.inertia, w, self.h, "dynamics.step_s", self._max_angle, self.integrator)
         self.q, self.w = q, w
         self.k += 1
         self.t_ns += self.step_ns

@@ -7,6 +7,7 @@ figures with where they come from. Speed is only ever measured here, never in a 
 from __future__ import annotations
 
 import importlib
+import inspect
 import json
 import tempfile
 import time
@@ -30,9 +31,13 @@ BASILISK_REALTIME = 2170.0
 REFERENCE_JSON = Path(__file__).resolve().parents[1] / "fixtures" / "reference" / "basilisk" / "detumble_basilisk.json"
 
 
-def run_bench(name: str, quick: bool = False) -> list[dict]:
+def run_bench(name: str, quick: bool = False, plot_path: str | None = None) -> list[dict]:
+    """Run one bench; ``plot_path`` goes to benches that draw a figure (e.g. the work-precision plot)."""
     module, _, func = BENCHES[name].partition(":")
-    return getattr(importlib.import_module(module), func)(quick=quick)
+    fn = getattr(importlib.import_module(module), func)
+    if plot_path is not None and "plot_path" in inspect.signature(fn).parameters:
+        return fn(quick=quick, plot_path=plot_path)
+    return fn(quick=quick)
 
 
 def print_rows(rows: list[dict]) -> None:

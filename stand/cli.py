@@ -102,7 +102,8 @@ def cmd_bench(args) -> int:
     if args.name not in BENCHES:
         return _fail(f"bench {args.name!r} is not known; available: {', '.join(BENCHES)}.")
     try:
-        rows = run_bench(args.name, quick=args.quick)
+        plot = str(Path(args.json).with_suffix(".png")) if args.json else None
+        rows = run_bench(args.name, quick=args.quick, plot_path=plot)
     except ScenarioError as exc:
         return _fail(str(exc))
     print_rows(rows)
@@ -134,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="measurements: " + ", ".join(BENCHES))
     b.add_argument("name", help=", ".join(BENCHES))
-    b.add_argument("--json", help="also write the rows to this JSON file")
+    b.add_argument("--json", help="also write the rows to this JSON file (and any figure beside it as .png)")
     b.add_argument("--quick", action="store_true", help="a shorter version (for smoke tests)")
     b.set_defaults(func=cmd_bench)
 

@@ -195,7 +195,7 @@ def build(sc: Scenario) -> Scene:
         r_N=r0, v_N=v0, step_ns=seconds_to_ns(sc.step_s), gravity=sc.orbit.gravity,
         orbit_step_s=sc.orbit.step_s,
         field_itrs=field_itrs if needs_field else None,
-        earth_rotation=rotation, torques=sc.torques, forces=forces,
+        earth_rotation=rotation, torques=sc.torques, forces=forces, integrator=sc.integrator,
     )
     scene = Scene(sc, truth, choices)
     try:
