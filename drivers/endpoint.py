@@ -1,5 +1,6 @@
-"""What every device endpoint shares, host driver or emulator: a bus it may own, an idempotent
-``close()``, and use as a context manager. Subclasses set ``self.bus``, ``self._owns_bus`` and
+"""What every device endpoint shares, host driver or emulator, CAN or serial: an idempotent
+``close()``, a ``closed`` flag, and use as a context manager. Subclasses fill one hook,
+``_release()``, which lets go of the bus or port if the endpoint owns it, and set
 ``self._closed = False`` in their constructor."""
 
 from __future__ import annotations
@@ -7,18 +8,18 @@ from __future__ import annotations
 from typing import Any
 
 
-class BusEndpoint:
-    bus: Any
-    _owns_bus: bool
+class Endpoint:
     _closed: bool
 
+    def _release(self) -> None:
+        """Give back what this endpoint owns (called once, by ``close``)."""
+
     def close(self) -> None:
-        """Stop using the bus (and shut it down if this endpoint owns it). Safe to call twice."""
+        """Stop using the bus or port (and shut it if this endpoint owns it). Safe to call twice."""
         if self._closed:
             return
         self._closed = True
-        if self._owns_bus:
-            self.bus.shutdown()
+        self._release()
 
     @property
     def closed(self) -> bool:
@@ -29,3 +30,14 @@ class BusEndpoint:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class BusEndpoint(Endpoint):
+    """A CAN endpoint: ``self.bus``, shut down on close when ``self._owns_bus``."""
+
+    bus: Any
+    _owns_bus: bool
+
+    def _release(self) -> None:
+        if self._owns_bus:
+            self.bus.shutdown()

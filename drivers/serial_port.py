@@ -21,6 +21,7 @@ import select
 import tty
 from typing import Any
 
+from drivers.endpoint import Endpoint
 from drivers.errors import ConnectError
 
 __all__ = ["FdPort", "SerialEndpoint", "open_port", "port_name", "pty_pair"]
@@ -141,28 +142,13 @@ def port_name(port: Any) -> str:
     return repr(port)
 
 
-class SerialEndpoint:
-    """Lifecycle shared by serial host drivers and emulators: ``self.port`` (owned when
-    ``self._owns_port``), idempotent :meth:`close`, context manager."""
+class SerialEndpoint(Endpoint):
+    """A serial endpoint (host driver or emulator): ``self.port``, closed on close when
+    ``self._owns_port``."""
 
     port: Any
     _owns_port: bool
-    _closed: bool
 
-    def close(self) -> None:
-        """Stop using the port (and close it if this endpoint opened it). Safe to call twice."""
-        if self._closed:
-            return
-        self._closed = True
+    def _release(self) -> None:
         if self._owns_port and self.port is not None:
             self.port.close()
-
-    @property
-    def closed(self) -> bool:
-        return self._closed
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
