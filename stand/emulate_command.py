@@ -1,6 +1,7 @@
 """``stand emulate DEVICE --port URL``: run one device emulator alone, so a flight computer or a
 terminal can be wired to it.
 
+    stand emulate magnetorquer --port INTERFACE:CHANNEL [--field-nT X,Y,Z] [--duration S] [--seed N]
     stand emulate star-tracker --port URL [--address N] [--duration S] [--baud B]
                   [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
                   [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
@@ -22,20 +23,26 @@ import json
 import math
 import signal
 import sys
+import threading
 
 import numpy as np
 
-DEVICES = ("star-tracker",)
+from star_screen.attitude import q_SN_from_radec_roll
+
+DEVICES = ("star-tracker", "magnetorquer")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "emulate",
-        help="run one device emulator on a serial port URL (star-tracker)",
+        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN)",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("device", help="device to emulate: " + ", ".join(DEVICES))
-    p.add_argument("--port", required=True, help="port URL or path: /dev/ttyUSB0, a pty or socat link, socket://...")
+    p.add_argument("--port", required=True, help="star tracker: a serial URL or path (/dev/ttyUSB0, a pty or socat "
+                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs)")
+    p.add_argument("--field-nT", default="20000,0,-40000",
+                   help="magnetorquer: the field its magnetometer sees, sensor axes, nT, as X,Y,Z")
     p.add_argument("--address", type=lambda s: int(s, 0), default=None, help="device address (default 0x21)")
     p.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
@@ -56,20 +63,6 @@ def register(subparsers) -> argparse.ArgumentParser:
 def _fail(msg: str) -> int:
     print(f"stand emulate: error: {msg}", file=sys.stderr)
     return 2
-
-
-def q_from_pointing(ra_deg: float, dec_deg: float, roll_deg: float) -> np.ndarray:
-    """q_TN with the tracker +z at (ra, dec); at roll 0 north is along -y and east along -x."""
-    from sim.rotations import quat_from_dcm
-
-    ra, dec, roll = np.radians([ra_deg, dec_deg, roll_deg])
-    z = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
-    east = np.array([-math.sin(ra), math.cos(ra), 0.0])  # well defined at the poles too (ra picks it)
-    north = np.cross(z, east)
-    x0, y0 = -east, -north  # image x right, y down: north up, east left
-    x = math.cos(roll) * x0 + math.sin(roll) * y0
-    y = -math.sin(roll) * x0 + math.cos(roll) * y0
-    return quat_from_dcm(np.stack([x, y, z]))
 
 
 class SpinSource:
@@ -94,11 +87,65 @@ class SpinSource:
         return TrackerTruth(q_TN=tuple(float(x) for x in q), omega_TN_T=tuple(float(x) for x in self.omega))
 
 
+def _stop_on_sigterm():
+    """SIGTERM stops like Ctrl-C; returns the previous handler (None off the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def _term(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, _term)
+
+
+def run_magnetorquer(args) -> int:
+    """The CAN magnetorquer board (with its magnetometer) on a python-can bus, in wall time."""
+    import time
+
+    from drivers.can_bus import open_bus
+    from drivers.errors import DriverError
+    from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
+
+    interface, _, channel = args.port.partition(":")
+    if not interface or not channel:
+        return _fail(f"--port {args.port!r} is not allowed for the magnetorquer; give INTERFACE:CHANNEL, "
+                     "e.g. socketcan:can0 or virtual:adcs.")
+    try:
+        field_T = tuple(float(x) * 1e-9 for x in args.field_nT.split(","))
+        if len(field_T) != 3 or not all(math.isfinite(x) for x in field_T):
+            raise ValueError
+    except ValueError:
+        return _fail(f"--field-nT {args.field_nT!r} is not allowed; give three numbers X,Y,Z in nT.")
+    try:
+        bus = open_bus(interface, channel)
+    except DriverError as exc:
+        return _fail(str(exc))
+    old = _stop_on_sigterm()
+    emu = MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed, owns_bus=True)
+    with emu:
+        print(f"stand emulate: magnetorquer board on CAN {interface}:{channel}"
+              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C"), flush=True)
+        t0 = time.monotonic()
+        try:
+            while args.duration is None or time.monotonic() - t0 < args.duration:
+                emu.service(time.monotonic() - t0)
+                time.sleep(0.001)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGTERM, old)
+        print(json.dumps({"device": args.device, "port": args.port, "counters": emu.counters}), flush=True)
+    return 0
+
+
 def run(args) -> int:
     if args.device not in DEVICES:
         return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         return _fail(f"--duration {args.duration!r} is not allowed; give a positive number of seconds.")
+    if args.device == "magnetorquer":
+        return run_magnetorquer(args)
     if not -90.0 <= args.dec <= 90.0:
         return _fail(f"--dec {args.dec!r} is not allowed; give a declination from -90 to 90 deg.")
     try:
@@ -123,15 +170,12 @@ def run(args) -> int:
     }
     try:
         config = EmulatorConfig(**{k: v for k, v in overrides.items() if v is not None})
-        source = SpinSource(q_from_pointing(args.ra, args.dec, args.roll), np.radians(rate))
+        source = SpinSource(q_SN_from_radec_roll(args.ra, args.dec, args.roll), np.radians(rate))
         emu = StarTrackerEmulator(args.port, source, config, rng=args.seed, baudrate=args.baud)
     except (ValueError, DriverError) as exc:
         return _fail(str(exc))
 
-    def _term(signum, frame):  # SIGTERM stops like Ctrl-C
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, _term)
+    old = _stop_on_sigterm()
     status = 0
     with emu:
         print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port}"
@@ -144,7 +188,8 @@ def run(args) -> int:
             print(f"stand emulate: {exc}", file=sys.stderr)
             status = 1
         finally:
-            signal.signal(signal.SIGTERM, old)
+            if old is not None:
+                signal.signal(signal.SIGTERM, old)
         print(json.dumps({"device": args.device, "port": args.port, "mode": emu.mode, "counters": emu.counters}),
               flush=True)
     return status
