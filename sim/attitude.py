@@ -174,7 +174,8 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
     (a shorter last step lands exactly on ``duration_s``). ``torque(t, q, omega) -> (3,)`` N m in
     body axes, re-evaluated at every stage. ``method`` is one of ``sim.integrators.METHODS``:
     "rk4" (default), "rkmk4", "dop853" (``rtol``/``atol``; ``step_s`` is then only the output
-    grid), "trapezoid" (warns with ``UnstableMethodWarning``), "implicit_midpoint".
+    grid), "rk8" (Cooper-Verner 8th order, fixed step), "trapezoid" (warns with
+    ``UnstableMethodWarning``), "implicit_midpoint".
 
     Step guard (fixed-step methods): the rotation and nutation phase per step must stay below
     ``sim.integrators.max_angle_rad(method)`` rad (override with ``max_angle_rad``, an explicit
@@ -247,7 +248,7 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
         qs.append(q)
         ws.append(w)
     if report is not None:
-        stages = {"rk4": 4, "rkmk4": 4, "trapezoid": 2, "implicit_midpoint": None}[method]
+        stages = {"rk4": 4, "rkmk4": 4, "rk8": 11, "trapezoid": 2, "implicit_midpoint": None}[method]
         report.update(method=method, substeps=n_sub, internal_step_s=h_int,
                       rhs_evals=None if stages is None else stages * n_sub * (len(times) - 1))
     qa = np.array(qs)

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from sim import attitude as att
+from sim import integrators as ig
 from sim.integrators import METHODS, UnstableMethodWarning
 from sim.rotations import angle_between, dcm
 from sim.torque_free import TorqueFreeBody
@@ -66,7 +67,7 @@ def test_fast_spin_at_1_ms_stays_accurate():
     assert _err_deg("rk4", 1e-3, 60.0, W_FAST) < 1e-4
 
 
-@pytest.mark.parametrize("method", ["rk4", "rkmk4", "trapezoid", "implicit_midpoint"])
+@pytest.mark.parametrize("method", ["rk4", "rkmk4", "rk8", "trapezoid", "implicit_midpoint"])
 def test_fast_spin_step_of_0_1_s_is_refused_naming_the_limit(method):
     with pytest.raises(ValueError, match=r"step_s <= .* s here") as err:
         att.propagate(I, Q0, W_FAST, 10.0, 0.1, method)
@@ -81,7 +82,7 @@ def test_fast_spin_step_of_0_1_s_is_subdivided_on_request_and_reports_n():
     assert angle_between(q[-1], TorqueFreeBody(I, Q0, W_FAST).attitude(2.0)) < 1e-3 * DEG
 
 
-@pytest.mark.parametrize("method", ["rk4", "rkmk4", "implicit_midpoint"])
+@pytest.mark.parametrize("method", ["rk4", "rkmk4", "rk8", "implicit_midpoint"])
 def test_constant_torque_spins_up_a_sphere_linearly(method):
     tau = np.array([0.0, 0.0, 1e-3])
     t, q, w = att.propagate([0.1, 0.1, 0.1], Q0, [0.0, 0.0, 0.0], 10.0, 0.01, method,
@@ -111,7 +112,8 @@ class _nothing:
         return False
 
 
-@pytest.mark.parametrize(("method", "bound"), [("rk4", 1e-7), ("rkmk4", 1e-7), ("implicit_midpoint", 1e-5)])
+@pytest.mark.parametrize(("method", "bound"), [("rk4", 1e-7), ("rkmk4", 1e-7), ("rk8", 1e-9),
+                                               ("implicit_midpoint", 1e-5)])
 def test_torque_free_conserves_inertial_momentum(method, bound):
     # Second-order implicit midpoint keeps |H| and T exactly but not the direction of H_N.
     t, q, w = att.propagate(I, Q0, W_SEP, 100.0, 0.01, method)
@@ -122,3 +124,110 @@ def test_torque_free_conserves_inertial_momentum(method, bound):
 def test_unknown_method_is_named():
     with pytest.raises(ValueError, match="allowed: rk4, rkmk4, dop853"):
         att.propagate(I, Q0, W_SEP, 1.0, 0.1, "euler")
+
+
+# -- rk8 (Cooper-Verner 8th order, 11 stages) ------------------------------------------------------
+
+def _trees(max_order):
+    """Rooted trees up to ``max_order`` nodes as canonical nested tuples of children."""
+    def grow(t):
+        out = [tuple(sorted(t + ((),)))]
+        for k, child in enumerate(t):
+            out += [tuple(sorted(t[:k] + (c,) + t[k + 1:])) for c in grow(child)]
+        return out
+    levels = [{()}]
+    for _ in range(max_order - 1):
+        levels.append({g for t in levels[-1] for g in grow(t)})
+    return [t for level in levels for t in level]
+
+
+def test_rk8_tableau_satisfies_every_order_condition_up_to_eight():
+    A = np.zeros((11, 11))
+    for i, row in enumerate(ig.RK8_A):
+        A[i, :len(row)] = row
+    b, c = np.array(ig.RK8_B), np.array(ig.RK8_C)
+    np.testing.assert_allclose(A.sum(axis=1), c, atol=1e-15)
+
+    def stage_weights(t):  # Phi_i(t): product over children of A Phi(child)
+        v = np.ones(11)
+        for child in t:
+            v = v * (A @ stage_weights(child))
+        return v
+
+    def size(t):
+        return 1 + sum(size(x) for x in t)
+
+    def density(t):
+        return size(t) * np.prod([density(x) for x in t])
+
+    trees = _trees(8)
+    assert len(trees) == 200  # 1 + 1 + 2 + 4 + 9 + 20 + 48 + 115
+    worst = max(abs(b @ stage_weights(t) - 1.0 / density(t)) for t in trees)
+    assert worst < 1e-13
+
+
+def _tableau_step(body, q, w, h, torque, t):
+    """A generic Runge-Kutta step driven by RK8_A/B/C (slow reference for the unrolled code)."""
+    y = np.array(list(q) + list(w))
+    ks = []
+    for i in range(11):
+        yi = y + h * sum((a * k for a, k in zip(ig.RK8_A[i], ks, strict=False) if a), np.zeros(7))
+        qi, wi = tuple(yi[:4]), tuple(yi[4:])
+        dq, dw = body.derivatives(qi, wi, torque(t + ig.RK8_C[i] * h, qi, wi))
+        ks.append(np.array(dq + dw))
+    yn = y + h * sum(bi * k for bi, k in zip(ig.RK8_B, ks, strict=True))
+    return yn[:4] / np.linalg.norm(yn[:4]), yn[4:]
+
+
+@pytest.mark.parametrize("inertia", [I, [[12.0, 1.5, -0.7], [1.5, 20.0, 2.0], [-0.7, 2.0, 29.0]]])
+def test_rk8_unrolled_step_equals_the_tableau(inertia):
+    # Diagonal inertia takes the principal-axis form, the full matrix the general one; a torque
+    # depending on t, q and omega checks the stage times and states passed to it.
+    body = att.RigidBody(inertia)
+
+    def torque(t, q, w):
+        return (0.3 * np.sin(t) + q[1], 0.2 * w[0] * w[2], -0.1 * t + q[3] * w[1])
+
+    q = tuple(np.array([0.9, 0.1, -0.3, 0.2]) / np.linalg.norm([0.9, 0.1, -0.3, 0.2]))
+    w = (0.2, -0.4, 0.35)
+    for h in (0.05, 0.5):
+        qa, wa = ig.stepper(body, "rk8")(q, w, h, torque, 1.7)
+        qb, wb = _tableau_step(body, q, w, h, torque, 1.7)
+        np.testing.assert_allclose(qa, qb, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(wa, wb, rtol=0, atol=1e-14)
+        qc, wc = ig.rk8_step(body, q, w, h, torque, 1.7)
+        assert qc == qa and wc == wa
+
+
+def test_rk8_converges_at_order_eight():
+    # 60 s keeps round-off (~1e-11 deg) far below the errors (4e-6 and 1.4e-8 deg); over 600 s the
+    # near-separatrix error grows faster than linearly and the apparent order is ~8.8.
+    e1, e2 = _err_deg("rk8", 0.8, 60.0), _err_deg("rk8", 0.4, 60.0)
+    assert 7.3 <= np.log2(e1 / e2) <= 8.7
+
+
+def test_rk8_near_separatrix_agrees_with_the_closed_form():
+    # Measured 2.6e-6 deg at 0.5 s; the 0.25 s error must follow h^8 from it (within 2x), above the
+    # ~2e-9 deg floor where round-off and the closed form's own error (5e-10 deg) take over.
+    e_half = _err_deg("rk8", 0.5, 600.0)
+    e_quarter = _err_deg("rk8", 0.25, 600.0)
+    assert e_half <= 5e-6
+    assert e_quarter <= 2.0 * e_half / 2 ** 8 + 2e-9
+    assert e_quarter <= 1.6e-8  # the RKF78 anchor of BENCHMARKS.md
+
+
+def test_rk8_step_guard_refuses_more_than_half_a_radian_per_step():
+    assert ig.max_angle_rad("rk8") == 0.5
+    # |omega| = 0.5002 rad/s and a nutation bound of the same size: the limit is 0.9996 s.
+    with pytest.raises(ValueError, match=r"method 'rk8' .* at most 0.5 rad, i.e. step_s <= 1 s here"):
+        att.propagate(I, Q0, W_SEP, 600.0, 1.2, "rk8")
+    rep = {}
+    t, q, w = att.propagate(I, Q0, W_SEP, 12.0, 1.2, "rk8", subdivide=True, report=rep)
+    assert rep["substeps"] == 2 and rep["rhs_evals"] == 11 * 2 * 10
+    t, q, w = att.propagate(I, Q0, W_SEP, 10.0, 0.99, "rk8")  # just inside the limit
+    assert np.all(np.isfinite(q))
+
+
+def test_rk8_non_finite_torque_is_reported():
+    with pytest.raises(FloatingPointError, match="non-finite state"):
+        att.propagate(I, Q0, W_SEP, 1.0, 0.5, "rk8", torque=lambda t, q, w: (np.nan, 0.0, 0.0))
