@@ -85,15 +85,16 @@ def plan(sc: Scenario) -> list[Choice]:
                else "no sun sensor, power model or radiation pressure in the scene"),
         Choice("atmosphere", o.drag is not None, "exponential density for drag" if o.drag is not None
                else "no drag requested (no [orbit.drag] table)"),
-        Choice("star_screen", False, "trackers use truth plus noise: " + ", ".join(trackers) if trackers
-               else "no star tracker in the scene"),
+        _star_screen_choice(sc),
     ]
     for d in sc.devices:
         if d.kind == "magnetorquer":
             why = (f"magnetorquer board, {d.link} on CAN {d.interface}:{d.channel}, magnetometer at "
                    f"{d.sample_rate_hz:g} Hz")
         else:
-            why = (f"star tracker, {d.link} on a serial {d.port} pair, {d.source} plus noise, a solution every "
+            what = ("solved from its rendered detector image" if d.source == "image"
+                    else f"{d.source} plus noise")
+            why = (f"star tracker, {d.link} on a serial {d.port} pair, {what}, a solution every "
                    f"{d.emulator['output_interval_s']:g} s")
         choices.append(Choice(f"device.{d.name}", True, why))
     ctl = sc.controller
@@ -101,6 +102,26 @@ def plan(sc: Scenario) -> list[Choice]:
                           f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
                           else "no controller in the scenario: open loop"))
     return choices
+
+
+def _star_screen_choice(sc: Scenario) -> Choice:
+    trackers = [d for d in sc.devices if d.kind == "star_tracker"]
+    image = [d for d in trackers if d.source == "image"]
+    truth = [d.name for d in trackers if d.source != "image"]
+    if not image:
+        return Choice("star_screen", False, "trackers use truth plus noise: " + ", ".join(truth) if truth
+                      else "no star tracker in the scene")
+    parts = []
+    for d in image:
+        o, cam = d.optics, d.camera
+        fx, fy = o.fov_deg
+        parts.append(f"renders the detector image of {d.name} ({fx:g} x {fy:g} deg on {o.width} x {o.height} px, "
+                     f"stars to Hp {o.mag_limit:g}, PSF sigma {o.psf_sigma_px:g} px, aberration, rate smear), "
+                     f"adds camera noise (read {cam['read_noise_e']:g} e-, background {cam['background_e']:g} e-) "
+                     "and solves it (pattern database built at compose time)")
+    if truth:
+        parts.append("truth plus noise for " + ", ".join(truth))
+    return Choice("star_screen", True, "; ".join(parts))
 
 
 def _eop_reason(sc: Scenario, needs_field: bool) -> str:
@@ -202,7 +223,8 @@ def build(sc: Scenario) -> Scene:
         rng = np.random.SeedSequence(sc.seed)
         for d, child in zip(sc.devices, rng.spawn(len(sc.devices)), strict=True):
             if d.kind == "star_tracker":
-                scene.trackers[d.name] = build_tracker(d, truth, tracks, np.random.default_rng(child))
+                scene.trackers[d.name] = build_tracker(d, truth, tracks, np.random.default_rng(child),
+                                                       epoch=sc.epoch)
                 continue
             dcm_SB = dcm(d.q_SB)
             q_SB = tuple(float(x) for x in d.q_SB)

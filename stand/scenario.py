@@ -199,7 +199,9 @@ class MagnetorquerSpec:
 
 @dataclass(frozen=True)
 class StarTrackerSpec:
-    """A star tracker on a serial line, emulated from truth plus noise (drivers.star_tracker)."""
+    """A star tracker on a serial line (drivers.star_tracker), fed either by truth plus noise
+    (``source = "truth"``) or by image-based solutions (``source = "image"``: the star screen renders
+    its detector image, camera noise is added and ``star_screen.tracking`` solves it)."""
 
     name: str
     link: str
@@ -209,6 +211,8 @@ class StarTrackerSpec:
     source: str
     emulator: dict  # keyword arguments of drivers.star_tracker.emulator.EmulatorConfig
     kind: str = "star_tracker"
+    optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
+    camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
 
 
 @dataclass(frozen=True)
@@ -455,6 +459,20 @@ TRACKER_SETTINGS = {
     "stable_count": (5, 1, 1000, True),
     "track_loss_count": (3, 1, 1000, True),
 }
+#: Settings of the truth source only: with source = "image" the image is the noise.
+TRUTH_ONLY_SETTINGS = ("noise_cross_arcsec", "noise_roll_arcsec")
+TRACKER_SOURCES = ("truth", "image")
+#: Image-source settings: key -> (default, lo, hi, integer). Pairs are [x, y] (image right, down).
+TRACKER_IMAGE_SETTINGS = {
+    "mag_limit": (8.0, 4.0, 9.0, False),  # stars drawn and used, Hipparcos Hp (the catalog fixture reaches 9)
+    "psf_sigma_px": (1.0, 0.3, 5.0, False),  # Gaussian spot sigma on the detector
+    "read_noise_e": (10.0, 0.0, 1000.0, False),  # rms per pixel
+    "background_e": (20.0, 0.0, 1e6, False),  # sky, stray light and dark current per pixel and exposure
+}
+TRACKER_IMAGE_PAIRS = {
+    "fov_deg": ((20.0, 15.0), 5.0, 60.0, False),  # full field along image x and y
+    "resolution_px": ((1024, 768), 64, 4096, True),  # detector columns and rows
+}
 
 
 def _whole_steps(t: _Table, key: str, value: float, step_s: float) -> None:
@@ -463,9 +481,55 @@ def _whole_steps(t: _Table, key: str, value: float, step_s: float) -> None:
         raise t.error(key, value, f"a whole number of dynamics steps ({step_s:g} s), so exposures fall on ticks")
 
 
+def _pair(t: _Table, key: str, default, lo, hi, integer: bool) -> tuple:
+    value = t.raw(key, list(default))
+    kind = "whole numbers" if integer else "numbers"
+    ok = isinstance(value, list) and len(value) == 2 and all(
+        not isinstance(v, bool) and isinstance(v, int if integer else int | float)
+        and math.isfinite(v) and lo <= v <= hi for v in value)
+    if not ok:
+        raise t.error(key, value, f"a list of 2 {kind} [x, y], each from {lo:g} to {hi:g}")
+    return tuple(int(v) if integer else float(v) for v in value)
+
+
+def _tracker_image(t: _Table, name: str) -> tuple[Any, dict]:
+    """Optics (a star_screen TrackerOptics) and camera noise of an image-source tracker."""
+    from star_screen.geometry import TrackerOptics
+
+    pairs = {key: _pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}
+    values = {key: t.number(key, d, lo=lo, hi=hi, integer=integer)
+              for key, (d, lo, hi, integer) in TRACKER_IMAGE_SETTINGS.items()}
+    (fx_deg, fy_deg), (width, height) = pairs["fov_deg"], pairs["resolution_px"]
+    try:
+        optics = TrackerOptics.from_fov(fx_deg, fy_deg, width, height, psf_sigma_px=float(values["psf_sigma_px"]),
+                                        mag_limit=float(values["mag_limit"]), name=name)
+    except ValueError as exc:  # pragma: no cover - the ranges above keep the optics valid
+        raise t.error("fov_deg", list(pairs["fov_deg"]), str(exc).rstrip(".")) from None
+    aspect = (width / height) / (math.tan(math.radians(fx_deg) / 2) / math.tan(math.radians(fy_deg) / 2))
+    if not 0.5 <= aspect <= 2.0:
+        raise t.error("fov_deg", list(pairs["fov_deg"]),
+                      f"a field whose aspect matches resolution_px {list(pairs['resolution_px'])} within a factor "
+                      f"of 2 (pixels {aspect:.2f} times as tall as wide here)")
+    return optics, {"read_noise_e": float(values["read_noise_e"]), "background_e": float(values["background_e"])}
+
+
 def _star_tracker(t: _Table, name: str, link: str, q_SB: np.ndarray, step_s: float) -> StarTrackerSpec:
+    source = t.choice("source", TRACKER_SOURCES, "truth")
+    image_keys = (*TRACKER_IMAGE_PAIRS, *TRACKER_IMAGE_SETTINGS)
+    if source == "image":
+        for key in TRUTH_ONLY_SETTINGS:
+            if t.has(key):
+                raise t.error(key, t.raw(key), "no such setting with source = 'image': the rendered image and "
+                              "its camera noise (read_noise_e, background_e) are the measurement noise")
+    else:
+        for key in image_keys:
+            if t.has(key):
+                raise t.error(key, t.raw(key), f"a setting of image-source trackers only; this tracker has "
+                              f"source = {source!r} (set source = 'image' to render and solve its images)")
     settings = {}
     for key, (default, lo, hi, integer) in TRACKER_SETTINGS.items():
+        if source == "image" and key in TRUTH_ONLY_SETTINGS:
+            continue
         v = t.number(key, default, lo=lo, hi=hi, integer=integer)
         settings[key] = int(v) if integer else float(v)
     for key in ("output_interval_s", "boot_time_s"):
@@ -473,10 +537,15 @@ def _star_tracker(t: _Table, name: str, link: str, q_SB: np.ndarray, step_s: flo
     address = t.raw("address", None)
     if address is not None and (isinstance(address, bool) or not isinstance(address, int) or not 0 <= address <= 255):
         raise t.error("address", address, "a whole number from 0 to 255")
+    optics = camera = None
+    if source == "image":
+        optics, camera = _tracker_image(t, name)
+        # The solution is the image's: no added noise, and the stars matched are the solver's own.
+        settings.update(noise_cross_arcsec=0.0, noise_roll_arcsec=0.0, match_probability=1.0)
     # In a run the flight-software side is in process; `stand emulate star-tracker --port URL` serves
     # a real flight computer instead.
     spec = StarTrackerSpec(name=name, link=link, port=t.choice("port", ("pty",), "pty"), address=address, q_SB=q_SB,
-                           source=t.choice("source", ("truth",), "truth"), emulator=settings)
+                           source=source, emulator=settings, optics=optics, camera=camera)
     t.check_unknown()
     return spec
 

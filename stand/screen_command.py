@@ -11,6 +11,9 @@ Pointing: the boresight (+z of the tracker frame) points to (ra, dec); roll 0 pu
 up in the image (-y) and east to the left; positive roll turns the sky counter-clockwise on the
 image (see ``star_screen.attitude``). Without a scenario the default tracker is used: 20 x 15 deg
 on 1024 x 768 pixels, limiting magnitude Hp 8, behind a 1.1 m collimator and a 1920 x 1080 screen.
+With ``--scenario S --tracker NAME`` the optics of that image-source tracker (``source = "image"``:
+fov_deg, resolution_px, mag_limit, psf_sigma_px) and the scenario epoch are used instead (an explicit
+``--epoch`` still wins); ``--tracker`` may be left out when the scenario has one image-source tracker.
 ``--aberration off`` draws catalog places (proper motion only, no parallax or aberration).
 Exit codes: 0 written, 2 usage error (message names the option, the value and what is allowed).
 """
@@ -38,7 +41,8 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="roll about the boresight, deg (0: north up, east left; + turns the sky CCW)",
     )
     p.add_argument("--out", required=True, help="output directory (created if missing)")
-    p.add_argument("--epoch", default=DEFAULT_EPOCH, help=f"UTC epoch, ISO 8601 (default {DEFAULT_EPOCH})")
+    p.add_argument("--epoch", default=None,
+                   help=f"UTC epoch, ISO 8601 (default: the scenario's, else {DEFAULT_EPOCH})")
     p.add_argument(
         "--aberration",
         choices=("on", "off"),
@@ -46,8 +50,9 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="apparent places (on, default) or catalog places with proper motion only (off)",
     )
     p.add_argument("--screen", default="1920x1080", help="screen resolution WxH (default 1920x1080)")
-    p.add_argument("--scenario", default=None, help="scenario file (not yet supported)")
-    p.add_argument("--tracker", default=None, help="tracker name in the scenario (not yet supported)")
+    p.add_argument("--scenario", default=None, help="scenario file or name: use its tracker optics and epoch")
+    p.add_argument("--tracker", default=None,
+                   help="image-source star tracker of the scenario (default: its only one)")
     p.set_defaults(func=run)
     return p
 
@@ -57,11 +62,35 @@ def _fail(msg: str) -> int:
     return 2
 
 
+def _scenario_tracker(scenario: str, tracker: str | None):
+    """(optics, epoch, name) of an image-source tracker of a scenario, or an error message."""
+    from stand.errors import ScenarioError
+    from stand.scenario import load
+
+    try:
+        sc = load(scenario)
+    except ScenarioError as exc:
+        return f"--scenario {scenario!r}: {exc}"
+    trackers = [d for d in sc.devices if d.kind == "star_tracker"]
+    listed = ", ".join(f"{d.name} (source = {d.source!r})" for d in trackers) or "none"
+    if tracker is None:
+        image = [d for d in trackers if d.optics is not None]
+        if len(image) != 1:
+            return (f"--tracker is required: scenario {sc.source} has {len(image) or 'no'} image-source star "
+                    f"trackers; its star trackers: {listed}.")
+        return image[0].optics, sc.epoch, image[0].name
+    spec = next((d for d in trackers if d.name == tracker), None)
+    if spec is None:
+        return f"--tracker {tracker!r} is not a star tracker of scenario {sc.source}; available: {listed}."
+    if spec.optics is None:
+        return (f"--tracker {tracker!r} has source = {spec.source!r} in scenario {sc.source} and so no optics; "
+                f"choose a tracker with source = 'image' (fov_deg, resolution_px, ...); star trackers: {listed}.")
+    return spec.optics, sc.epoch, spec.name
+
+
 def run(args) -> int:
-    if args.scenario is not None or args.tracker is not None:
-        return _fail(
-            "--scenario and --tracker are not yet supported; use the default tracker (omit both options)."
-        )
+    if args.tracker is not None and args.scenario is None:
+        return _fail(f"--tracker {args.tracker!r} needs --scenario: the tracker's optics are read from a scenario.")
     try:
         w_txt, h_txt = str(args.screen).lower().split("x")
         width, height = int(w_txt), int(h_txt)
@@ -75,16 +104,24 @@ def run(args) -> int:
     from star_screen.outputs import write_frame
     from star_screen.render import Renderer
 
+    optics, epoch, which = None, None, "the default tracker"
+    if args.scenario is not None:
+        found = _scenario_tracker(args.scenario, args.tracker)
+        if isinstance(found, str):
+            return _fail(found)
+        optics, epoch, name = found
+        which = f"tracker {name}"
     try:
-        epoch = Epoch.from_iso(args.epoch)
+        if args.epoch is not None or epoch is None:
+            epoch = Epoch.from_iso(args.epoch if args.epoch is not None else DEFAULT_EPOCH)
         q_SN = q_SN_from_radec_roll(args.ra, args.dec, args.roll)
-        bench = default_bench(width, height)
+        bench = default_bench(width, height, **({"tracker": optics} if optics is not None else {}))
     except ValueError as exc:
         return _fail(str(exc))
     problems = bench.check_fits()
     if problems:
         return _fail(
-            f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems)
+            f"--screen {args.screen}: the field of {which} does not fit: " + "; ".join(problems)
         )
     renderer = Renderer(bench, aberration=(args.aberration == "on"))
     frame = renderer.render(q_SN, epoch, time_tag_ns=0)

@@ -48,7 +48,8 @@ def test_aberration_off_moves_stars_by_arcseconds(tmp_path):
     "argv, word",
     [
         (["--ra", "0", "--dec", "95"], "dec"),
-        (["--ra", "0", "--dec", "0", "--scenario", "x.toml"], "not yet supported"),
+        (["--ra", "0", "--dec", "0", "--scenario", "x.toml"], "--scenario 'x.toml'"),
+        (["--ra", "0", "--dec", "0", "--tracker", "st1"], "needs --scenario"),
         (["--ra", "0", "--dec", "0", "--screen", "big"], "--screen"),
         (["--ra", "0", "--dec", "0", "--epoch", "yesterday"], "ISO 8601"),
     ],
@@ -57,6 +58,52 @@ def test_usage_errors_exit_2_with_a_message(tmp_path, capsys, argv, word):
     rc = screen_command.main(["screen", *argv, "--out", str(tmp_path / "x")])
     assert rc == 2
     assert word in capsys.readouterr().err
+
+
+def _image_scenario(tmp_path, fov="[16.0, 12.0]", resolution="[640, 480]"):
+    """The image-source fixture scenario with other optics, so the output shows whose optics were used."""
+    from stand.scenario import SCENARIO_DIR
+
+    text = (SCENARIO_DIR / "detumble_star_tracker_image.toml").read_text()
+    text = text.replace("fov_deg = [20.0, 15.0]", f"fov_deg = {fov}")
+    text = text.replace("resolution_px = [1024, 768]", f"resolution_px = {resolution}")
+    path = tmp_path / "image.toml"
+    path.write_text(text)
+    return path
+
+
+def test_screen_uses_the_scenario_tracker_optics_and_epoch(tmp_path):
+    cv2 = pytest.importorskip("cv2")
+    out = tmp_path / "frame"
+    sc = _image_scenario(tmp_path)
+    rc = screen_command.main(["screen", "--scenario", str(sc), "--tracker", "st1", "--ra", "83.8", "--dec", "-5.4",
+                              "--out", str(out)])
+    assert rc == 0
+    det = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
+    assert det.shape == (480, 640) and det.max() > 0
+    truth = json.loads((out / "truth.json").read_text())
+    assert truth["tracker"]["name"] == "st1" and (truth["tracker"]["width"], truth["tracker"]["height"]) == (640, 480)
+    assert np.allclose(truth["tracker"]["fov_deg"], [16, 12])
+    assert truth["epoch_utc"].startswith("2026-03-20T12:00:00")
+    assert all(0 <= s["detector_xy"][0] < 640 + 4 for s in truth["stars"])
+
+
+@pytest.mark.parametrize(
+    "scenario, tracker, words",
+    [
+        ("image", "st9", ["--tracker 'st9' is not a star tracker", "available: st1 (source = 'image')"]),
+        ("detumble_star_tracker", "st1", ["--tracker 'st1' has source = 'truth'", "no optics", "source = 'image'"]),
+        ("detumble", None, ["--tracker is required", "no image-source star trackers"]),
+    ],
+)
+def test_scenario_tracker_errors_name_the_tracker(tmp_path, capsys, scenario, tracker, words):
+    sc = str(_image_scenario(tmp_path)) if scenario == "image" else scenario
+    argv = ["screen", "--ra", "0", "--dec", "0", "--out", str(tmp_path / "x"), "--scenario", sc]
+    rc = screen_command.main(argv + (["--tracker", tracker] if tracker else []))
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert all(w in err for w in words), err
+    assert not (tmp_path / "x").exists()
 
 
 def test_bench_rows_have_the_agreed_keys(monkeypatch):
