@@ -8,7 +8,12 @@ noise (shot noise on signal + 20 e- background, 10 e- read noise, seeded), then:
 * extraction time per megapixel;
 * lost-in-space solve (no prior): success (valid and within 1 arcmin), false solves (valid but
   more than 1 arcmin off: must be 0), cross-boresight and roll error median and p95, time;
-* tracking from the truth turned by 0.1 deg about a random axis: success and time;
+* tracking from the truth turned by 0.1 deg about a random axis: success, agreement with the
+  lost-in-space attitude of the same frame, and time. The tracking time is what a tracker does per
+  frame in tracking mode *after* extraction (``StarTracker.solve_stars`` with the prior: match the
+  extracted stars to the catalog predicted by the prior, estimate, covariance); extraction is timed
+  on its own (per megapixel, as in the acceptance). The whole tracking frame (extraction of the
+  0.79 Mpx frame + tracking) is reported beside it, without a limit;
 * random-dot frames (no real sky): any valid solution is a false solve;
 * covariance: RMS error over the predicted sigma (1 when the covariance is honest).
 
@@ -76,6 +81,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
     sig = np.full((n, 2), np.nan)
     t_lis, t_ext, t_trk, wall_lis = [], [], [], []
     trk_ok = np.zeros(n, bool)
+    trk_vs_lis = np.full(n, np.nan)
     mpx = optics.width * optics.height / 1e6
     for i, q in enumerate(qs):
         frame = renderer.render(q, epoch, screen=False, copy=False)
@@ -102,7 +108,10 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         t_trk.append(time.process_time() - c3)
         if tsol.valid and tsol.mode == "tracking":
             trk_ok[i] = np.degrees(np.linalg.norm(attitude_error_S(tsol.q_SN, q))) * 3600 <= FALSE_LIMIT_ARCSEC
+            if ok[i]:
+                trk_vs_lis[i] = np.linalg.norm(attitude_error_S(tsol.q_SN, sol.q_SN)) / ARCSEC
     false_solves = int(np.count_nonzero(valid & ~ok))
+    t_frame = np.asarray(t_ext) + np.asarray(t_trk)
     # Random dots: as many spots as a sky frame, random positions and magnitudes 2..8.
     dots_valid = 0
     for _ in range(n_dots):
@@ -146,8 +155,16 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
              "tetra3rs 0.44, cedar-solve 3.3", f"wall p95 {ms(wall_lis, 95):.2f} ms (shared machine)"),
         _row("tracker.tracking.success_rate", round(100.0 * trk_ok.mean(), 2), "%", None, None, None,
              "prior 0.1 deg off; stays in tracking mode and within 1 arcmin"),
+        _row("tracker.tracking.agreement_with_lis_p99", round(float(np.nanpercentile(trk_vs_lis, 99)), 3)
+             if np.isfinite(trk_vs_lis).any() else math.nan, "arcsec", None, None, None,
+             f"angle between the tracking and lost-in-space attitudes of the same frame; max "
+             f"{np.nanmax(trk_vs_lis) if np.isfinite(trk_vs_lis).any() else math.nan:.3f} arcsec"),
         _row("tracker.tracking.time_median", round(ms(t_trk, 50), 3), "ms", "<= 1", ms(t_trk, 50) <= 1.0,
-             "tetra3rs 0.20", f"p95 {ms(t_trk, 95):.2f} ms"),
+             "tetra3rs 0.20", "CPU time per frame in tracking mode, extraction excluded (timed below)"),
+        _row("tracker.tracking.time_p95", round(ms(t_trk, 95), 3), "ms", "<= 1", ms(t_trk, 95) <= 1.0,
+             None, f"extraction excluded; max {ms(t_trk, 100):.2f} ms"),
+        _row("tracker.tracking.frame_time_median", round(ms(t_frame, 50), 3), "ms", None, None, None,
+             f"extraction of the {mpx:.2f} Mpx frame + tracking, CPU time; p95 {ms(t_frame, 95):.2f} ms"),
         _row("tracker.extract.per_mpx_median", round(ms(t_ext, 50) / mpx, 3), "ms/Mpx", "<= 10",
              ms(t_ext, 50) / mpx <= 10.0, "tetra3rs 5.6, cedar-solve 30-45",
              f"p95 {ms(t_ext, 95) / mpx:.2f} ms/Mpx"),

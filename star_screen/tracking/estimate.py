@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AttitudeEstimate", "estimate_attitude", "attitude_error_S", "wahba_dcm"]
+__all__ = ["AttitudeEstimate", "estimate_attitude", "estimate_attitude_robust", "attitude_error_S", "wahba_dcm"]
 
 
 @dataclass(frozen=True)
@@ -38,9 +38,11 @@ class AttitudeEstimate:
     residual_rad: np.ndarray
 
 
-def wahba_dcm(b_S, r_N, a) -> np.ndarray:
-    """``dcm_SN`` minimising ``sum a_i |b_i - dcm r_i|^2`` (SVD method; no covariance, no checks)."""
-    B = (b_S * a[:, None]).T @ r_N
+def wahba_dcm(b_S, r_N, a, ba=None) -> np.ndarray:
+    """``dcm_SN`` minimising ``sum a_i |b_i - dcm r_i|^2`` (SVD method; no covariance, no checks).
+
+    ``ba``: ``b_S * a[:, None]`` when the caller already has it."""
+    B = (b_S * a[:, None] if ba is None else ba).T @ r_N
     U, _, Vt = np.linalg.svd(B)
     M = U @ Vt
     (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = M.tolist()
@@ -71,36 +73,87 @@ def _quat_from_orthonormal(C: np.ndarray) -> np.ndarray:
     return -v if v[0] < 0 else v
 
 
+def _inv_sym3(F: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric 3 x 3 matrix in closed form (adjugate over determinant), on Python floats;
+    all ``inf`` when it is singular (fewer than two distinct directions)."""
+    (a, b, c), (_, d, e), (_, _, f) = F.tolist()
+    A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * A + b * B + c * C
+    if not (abs(det) > 1e-300 and math.isfinite(det)) or abs(det) <= 1e-12 * max(a * d * f, 1e-300):
+        return np.full((3, 3), np.inf)
+    D, E, G = a * f - c * c, b * c - a * e, a * d - b * b
+    s = 1.0 / det
+    return np.array(((A * s, B * s, C * s), (B * s, D * s, E * s), (C * s, E * s, G * s)))
+
+
 def estimate_attitude(b_S, r_N, sigma_rad=None, *, scale_from_residuals: bool = True) -> AttitudeEstimate:
     """Weighted least-squares attitude from ``n >= 2`` pairs of unit vectors ``(n, 3)``.
 
     ``sigma_rad``: per-pair measurement sigma (rad), scalar or ``(n,)``; default 1 (equal weights).
     ``scale_from_residuals``: scale the covariance by the residual variance factor (needs n >= 3;
     with fewer pairs the given sigmas are taken as absolute).
+
+    One SVD of the 3 x 3 attitude profile matrix; the information matrix
+    ``F = sum_i a_i (I - b_i b_i^T)`` is inverted in closed form (it is symmetric 3 x 3).
     """
     b = np.asarray(b_S, dtype=float).reshape(-1, 3)
     r = np.asarray(r_N, dtype=float).reshape(-1, 3)
     n = len(b)
     if n < 2 or len(r) != n:
         raise ValueError(f"estimate_attitude needs at least 2 matched pairs of equal count; got {n} and {len(r)}.")
-    sig = np.broadcast_to(np.asarray(1.0 if sigma_rad is None else sigma_rad, dtype=float), (n,))
-    a = 1.0 / sig**2
-    C = wahba_dcm(b, r, a)
-    pred = r @ C.T
-    res = b - pred
-    res_ang = np.linalg.norm(res, axis=1)
-    F = a.sum() * np.eye(3) - (b * a[:, None]).T @ b
-    try:
-        P = np.linalg.inv(F)
-    except np.linalg.LinAlgError:
-        P = np.full((3, 3), np.inf)
+    if sigma_rad is None:
+        a = np.ones(n)
+    else:
+        sig = np.asarray(sigma_rad, dtype=float)
+        a = np.broadcast_to(1.0 / sig**2, (n,)) if sig.ndim == 0 else 1.0 / sig**2
+        if a.shape != (n,):
+            raise ValueError(f"sigma_rad has shape {sig.shape}; it must be a scalar or one sigma per pair ({n},).")
+    ba = b * a[:, None]
+    C = wahba_dcm(b, r, a, ba)
+    res = b - r @ C.T
+    return _finish(b, a, ba, C, np.einsum("ij,ij->i", res, res), scale_from_residuals)
+
+
+def _finish(b, a, ba, C, res2, scale_from_residuals: bool = True) -> AttitudeEstimate:
+    """Covariance, quaternion and sigmas of the SVD solution ``C`` (``a``: weights ``1 / sigma^2``,
+    ``ba``: ``b * a[:, None]``, ``res2``: squared residuals)."""
+    n = len(b)
+    F = ba.T @ b
+    F *= -1.0
+    F.flat[::4] += a.sum()
+    P = _inv_sym3(F)
     if scale_from_residuals and n >= 3:
-        s2 = float(np.sum(a * res_ang**2) / (2 * n - 3))
-        P = P * s2
+        P *= float(a @ res2) / (2 * n - 3)
     q = _quat_from_orthonormal(C)
     sc = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
     sr = math.sqrt(max(P[2, 2], 0.0))
-    return AttitudeEstimate(q, C, P, sc, sr, res_ang)
+    return AttitudeEstimate(q, C, P, sc, sr, np.sqrt(res2))
+
+
+def estimate_attitude_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.ndarray, gate: float):
+    """:func:`estimate_attitude` (``(n, 3)`` float arrays, ``(n,)`` sigmas, n >= 3) with gross
+    outliers left out: returns (estimate, kept indices into the pairs, or ``None`` when all are kept).
+
+    Normalised residuals ``z = |res| / sigma`` of a first fit are Rayleigh distributed with scale
+    ``s = median(z) / sqrt(2 ln 2)``; pairs with ``z > gate s`` are dropped and the rest refit."""
+    a = 1.0 / sigma_rad**2
+    ba = b_S * a[:, None]
+    C = wahba_dcm(b_S, r_N, a, ba)
+    res = b_S - r_N @ C.T
+    res2 = np.einsum("ij,ij->i", res, res)
+    z2 = res2 * a
+    h = len(z2) // 2
+    med = float(np.partition(z2, h)[h])  # the (upper) median of z^2
+    keep = None
+    if med > 0.0:
+        bad = z2 > (gate / 1.1774100225154747) ** 2 * med
+        if bad.any():
+            keep = np.flatnonzero(~bad)
+            b_S, r_N, a, ba = b_S[keep], r_N[keep], a[keep], ba[keep]
+            C = wahba_dcm(b_S, r_N, a, ba)
+            res = b_S - r_N @ C.T
+            res2 = np.einsum("ij,ij->i", res, res)
+    return _finish(b_S, a, ba, C, res2), keep
 
 
 def attitude_error_S(q_est_SN, q_true_SN) -> np.ndarray:

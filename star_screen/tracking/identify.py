@@ -27,6 +27,16 @@ Tracking: the catalog projected with the prior attitude; a vote over displacemen
 brightest image and catalog stars finds the common offset (so a prior up to ``track_radius_px``
 off still converges), nearest-neighbour matching of those, a first estimate, then one tight
 nearest-neighbour pass over all image stars; the chance-alignment bound uses all image stars.
+Capture range of the default 20 x 15 deg, 1024 x 768 tracker: 40 px cross-boresight (0.79 deg)
+with a roll that moves the field corners by less than about 3 px (0.27 deg).
+
+The tight pass of both modes is the same rule, so tracking and lost in space give the same
+attitude on the same frame: every catalog star predicted on the detector takes its nearest image
+star within the radius, and an image star that several catalog stars take is a blend and is left
+out (its centroid lies between them, and its small photometric sigma would weight that bias).
+The final estimate leaves out pairs whose residual exceeds ``OUTLIER_GATE`` robust sigmas.
+Matching sorts the image stars by x and sweeps (no k-d tree per frame); the cone of catalog stars
+around the boresight comes from a k-d tree over the places built once per places table.
 """
 
 from __future__ import annotations
@@ -42,7 +52,7 @@ from scipy.special import betainc
 
 from star_screen.catalog import StarPlaces
 from star_screen.geometry import TrackerOptics
-from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude, wahba_dcm
+from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust, wahba_dcm
 
 __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "verify", "false_match_probability"]
 
@@ -169,41 +179,48 @@ class Match:
 _NO_MATCH = Match(None, np.empty(0, np.int64), np.empty(0, np.int64), 0, 1.0, 0)
 
 
-def _match_nn(img_tree: cKDTree, n_img: int, cat_px: np.ndarray, radius: float):
-    """One-to-one nearest-neighbour pairs (image index, catalog index) within ``radius`` px."""
-    if len(cat_px) == 0 or n_img == 0:
-        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
-    d, j = img_tree.query(cat_px, k=1, distance_upper_bound=radius)
-    ok = np.isfinite(d)
-    ci = np.flatnonzero(ok)
-    ii = j[ok]
-    dd = d[ok]
-    # Several catalog stars near one image star (a blend): keep the closest.
-    o = np.lexsort((dd, ii))
-    ii, ci, dd = ii[o], ci[o], dd[o]
-    first = np.ones(len(ii), bool)
-    first[1:] = ii[1:] != ii[:-1]
-    return ii[first], ci[first], dd[first]
+class _SkyIndex:
+    """Cone queries over one places table: a k-d tree over the unit vectors stored in the tree's own
+    leaf order, so the stars of one cone lie in a few contiguous runs of memory (a frame's query
+    then touches a few hundred cache lines instead of one per star)."""
+
+    __slots__ = ("places", "perm", "u", "tree")
+
+    def __init__(self, places: StarPlaces):
+        self.places = places
+        self.perm = np.ascontiguousarray(cKDTree(places.u_N).indices, dtype=np.int64)
+        self.u = np.ascontiguousarray(places.u_N[self.perm])
+        self.tree = cKDTree(self.u)
+
+    def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the places within the cone (sorted: brightest first) and their unit vectors."""
+        chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
+        k = np.asarray(self.tree.query_ball_point(boresight, chord), dtype=np.int64)
+        rows = self.perm[k]
+        o = np.argsort(rows)
+        k = k[o]
+        return rows[o], self.u[k]
 
 
-_TREES: dict[int, tuple[StarPlaces, cKDTree]] = {}
+_INDEXES: dict[int, _SkyIndex] = {}
+
+
+def _sky_index(places: StarPlaces) -> _SkyIndex:
+    """The cone index of ``places`` (built once per places table, kept for the few most recent)."""
+    entry = _INDEXES.get(id(places.u_N))
+    if entry is None or entry.places.u_N is not places.u_N:
+        if len(_INDEXES) > 4:
+            _INDEXES.clear()
+        entry = _INDEXES[id(places.u_N)] = _SkyIndex(places)
+    return entry
 
 
 def _cone(C: np.ndarray, places: StarPlaces, cos_cull: float) -> np.ndarray:
     """Rows of the places within the cull cone around the boresight of ``C``, sorted (brightest first).
 
-    A k-d tree over the places (built once per places table, kept for the few most recent) answers
-    in a fraction of the cost of a product with every catalog star."""
-    entry = _TREES.get(id(places.u_N))
-    if entry is None or entry[0].u_N is not places.u_N:
-        if len(_TREES) > 4:
-            _TREES.clear()
-        entry = (places, cKDTree(places.u_N))
-        _TREES[id(places.u_N)] = entry
-    chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
-    rows = np.asarray(entry[1].query_ball_point(C[2], chord), dtype=np.int64)
-    rows.sort()
-    return rows
+    A k-d tree over the places (built once per places table) answers in a fraction of the cost
+    of a product with every catalog star."""
+    return _sky_index(places).cone(C[2], cos_cull)[0]
 
 
 def _project_field(C: np.ndarray, places: StarPlaces, optics: TrackerOptics, rows: np.ndarray, margin: float = 0.0):
@@ -238,11 +255,23 @@ def verify(
     rows, px = _project_field(C, places, optics, _cone(C, places, cos_cull))
     if n == 0 or len(rows) == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64), len(rows), 1.0
-    tree = cKDTree(img_xy[:n])
-    ii, ci, _ = _match_nn(tree, n, px, radius_px)
+    ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], px[:, 0], px[:, 1], radius_px)
     p = len(rows) * math.pi * radius_px**2 / (optics.width * optics.height)
     pf = min(1.0, false_match_probability(len(ii), n, p) * max(hypotheses, 1))
     return ii, rows[ci], rows, pf
+
+
+#: Pairs whose residual exceeds this many robust sigmas (from the median residual) are left out of
+#: the final estimate. The per-star sigmas come from a photometric model that knows nothing of blends
+#: with stars near the match radius, faint neighbours or a spot on a hot pixel, and a bright star's
+#: small sigma gives such a bias a large weight (one star moved the roll by 10 arcsec).
+OUTLIER_GATE = 8.0
+
+
+def _estimate_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.ndarray):
+    """Final estimate from matched pairs with pairs beyond ``OUTLIER_GATE`` robust sigmas left out:
+    (estimate, kept indices into the pairs or ``None`` when all are kept)."""
+    return estimate_attitude_robust(b_S, r_N, sigma_rad, OUTLIER_GATE)
 
 
 def _refine(C, img_xy, b_S, sigma_rad, places, optics, cone_rows, radius_px, passes: int = 1):
@@ -250,16 +279,17 @@ def _refine(C, img_xy, b_S, sigma_rad, places, optics, cone_rows, radius_px, pas
 
     ``cone_rows``: catalog rows near the field (the predicted stars of the verification pass, which
     still cover the field: a verified attitude moves by far less than the cull margin)."""
-    tree = cKDTree(img_xy)
     est = None
     ii = ci = np.empty(0, np.int64)
     for _ in range(passes):
         rows, px = _project_field(C, places, optics, cone_rows, margin=radius_px)
-        ii, cj, _ = _match_nn(tree, len(img_xy), px, radius_px)
+        ii, cj, _ = _match_radius(img_xy[:, 0], img_xy[:, 1], px[:, 0], px[:, 1], radius_px, True)
         if len(ii) < 3:
             return None, ii, np.empty(0, np.int64)
         ci = rows[cj]
-        est = estimate_attitude(b_S[ii], places.u_N[ci], sigma_rad[ii])
+        est, keep = _estimate_robust(b_S[ii], places.u_N[ci], sigma_rad[ii])
+        if keep is not None:
+            ii, ci = ii[keep], ci[keep]
         C = est.dcm_SN
     return est, ii, ci
 
@@ -369,6 +399,124 @@ def identify_lis(
     return Match(None, np.empty(0, np.int64), np.empty(0, np.int64), min(n_verify, len(img_xy)), 1.0, hyp)
 
 
+class _Field:
+    """Per-optics constants of the tracking path (cached by identity: hashing the frozen optics
+    costs more than the lookup it guards)."""
+
+    __slots__ = ("optics", "pinhole", "fx", "fy", "cx", "cy", "width", "height", "area", "cull_rad", "K")
+
+    def __init__(self, optics: TrackerOptics):
+        self.optics = optics
+        self.pinhole = optics.distortion.is_zero
+        self.fx, self.fy, self.cx, self.cy = float(optics.fx), float(optics.fy), float(optics.cx), float(optics.cy)
+        self.width, self.height = float(optics.width), float(optics.height)
+        self.area = self.width * self.height
+        self.cull_rad = math.acos(cull_cos(optics))
+        self.K = np.array(((self.fx, 0.0, self.cx), (0.0, self.fy, self.cy), (0.0, 0.0, 1.0)))
+
+    def project(self, u_N: np.ndarray, C: np.ndarray, margin: float, limit: int | None = None):
+        """Pixels ``(x, y)`` of directions ``u_N`` seen at ``C`` (dcm_SN) that land on the detector
+        grown by ``margin`` px, the kept indices into ``u_N`` (order kept), at most ``limit`` of them."""
+        if self.pinhole:
+            # One product with the camera matrix times the attitude: homogeneous pixels.
+            h = u_N @ (self.K @ C).T
+            z = h[:, 2]
+            front = z > 1e-9
+            iz = 1.0 / np.where(front, z, 1.0)
+            x = h[:, 0] * iz
+            y = h[:, 1] * iz
+        else:
+            px, front = self.optics.project(u_N @ C.T)
+            x, y = px[:, 0], px[:, 1]
+        ok = front & (x >= -margin) & (x < self.width + margin) & (y >= -margin) & (y < self.height + margin)
+        keep = np.flatnonzero(ok)
+        if limit is not None:
+            keep = keep[:limit]
+        return keep, x[keep], y[keep]
+
+
+_FIELDS: dict[int, _Field] = {}
+
+
+def _field(optics: TrackerOptics) -> _Field:
+    f = _FIELDS.get(id(optics))
+    if f is None or f.optics is not optics:
+        if len(_FIELDS) > 8:
+            _FIELDS.clear()
+        f = _FIELDS[id(optics)] = _Field(optics)
+    return f
+
+
+def _match_radius(img_x: np.ndarray, img_y: np.ndarray, cat_x: np.ndarray, cat_y: np.ndarray, radius: float,
+                  drop_blends: bool = False):
+    """One-to-one pairs (image index, catalog index, distance) within ``radius`` px, in catalog
+    order: each catalog star takes its nearest image star, and an image star claimed by several
+    keeps the closest (``drop_blends``: is left out).
+
+    The pairs of a k-d tree query over the image stars followed by the blend rule, for a
+    fraction of the cost at tracker sizes (no tree to build per frame): image stars sorted by x
+    once; each catalog star's candidates are the image stars within about ``radius`` in x (a
+    contiguous run of the sorted stars, rarely more than three), laid out as one (k, K) table and
+    reduced with one ``argmin`` per row."""
+    empty = np.empty(0, np.int64)
+    n = len(img_x)
+    if n == 0 or len(cat_x) == 0:
+        return empty, empty, np.empty(0)
+    # Image stars sorted into columns one radius wide (a radix sort of small integers); the
+    # candidates of a catalog star in column c are the image stars of columns c - 1 .. c + 1,
+    # one contiguous run of the sorted stars.
+    inv = 1.0 / radius
+    ncol = int(max(float(img_x.max()), float(cat_x.max()), 0.0) * inv) + 3
+    col = np.maximum((img_x * inv).astype(np.int64) + 1, 0)  # x >= -radius lands in column 0
+    order = np.argsort(col.astype(np.int16) if ncol < 32000 else col, kind="stable")
+    starts = np.zeros(ncol + 1, np.int64)
+    np.cumsum(np.bincount(col, minlength=ncol), out=starts[1:])
+    cc = np.minimum(np.maximum((cat_x * inv).astype(np.int64) + 1, 1), ncol - 2)
+    lo = starts[cc - 1]
+    hi = starts[cc + 2]
+    xs = img_x[order]
+    K = int((hi - lo).max())
+    if K == 0:
+        return empty, empty, np.empty(0)
+    if K == 1:
+        ok = np.flatnonzero(hi > lo)
+        j = lo[ok]
+        dx = xs[j] - cat_x[ok]
+        dy = img_y[order[j]] - cat_y[ok]
+        d2 = dx * dx + dy * dy
+    else:
+        j = lo[:, None] + np.arange(K)
+        valid = j < hi[:, None]
+        np.minimum(j, n - 1, out=j)
+        dx = xs[j] - cat_x[:, None]
+        dy = img_y[order[j]] - cat_y[:, None]
+        d2 = np.where(valid, dx * dx + dy * dy, np.inf)
+        best = np.argmin(d2, axis=1)
+        rows = np.arange(len(cat_x))
+        d2 = d2[rows, best]
+        j = j[rows, best]
+        ok = rows
+    near = np.flatnonzero(d2 < radius * radius)
+    ci = ok[near]
+    ii = order[j[near]]
+    d2 = d2[near]
+    claims = np.bincount(ii, minlength=n)[ii]
+    if drop_blends:
+        # Several catalog stars nearest to one image star: a blend, whose centroid lies between
+        # them by their flux ratio. Its centroid sigma (a bright spot) would give its bias a large
+        # weight, and which of the stars is nearer flips with a fraction of a pixel: leave it out.
+        single = np.flatnonzero(claims == 1)
+        return ii[single], ci[single], np.sqrt(d2[single])
+    if claims.max(initial=0) > 1:
+        # Several catalog stars near one image star (a blend): keep the closest.
+        o = np.lexsort((d2, ii))
+        first = np.ones(len(o), bool)
+        first[1:] = ii[o[1:]] != ii[o[:-1]]
+        keep = np.sort(o[first])
+        ii, ci, d2 = ii[keep], ci[keep], d2[keep]
+    return ii, ci, np.sqrt(d2)
+
+
 def identify_tracking(
     C_prior: np.ndarray,
     img_xy: np.ndarray,
@@ -389,61 +537,77 @@ def identify_tracking(
     """Identify extracted stars near the catalog predicted by a prior attitude ``C_prior`` (dcm_SN).
 
     Converges when the prior's cross-boresight error is below ``track_radius_px`` pixels and its roll
-    error moves the field corners by less than about ``vote_bin_px``.
+    error moves the field corners by less than about ``vote_bin_px`` (default tracker: 0.79 deg and
+    about 0.27 deg); the result is then the lost-in-space result of the same stars (same tight pass,
+    same outlier gate).
+
+    Per call: one cone query of a k-d tree over the places (built once per places table), one
+    projection of the cone's brightest stars with the prior (vote) and one of the cone with the
+    first estimate (tight match), a column-sorted nearest-neighbour match, one SVD for the first
+    estimate and one or two for the final (two when the outlier gate drops pairs).
     """
     if len(img_xy) < 3:
         return _NO_MATCH
-    cos_cull = cull_cos(optics)
-    cone = _cone(C_prior, places, math.cos(math.acos(cos_cull) + track_radius_px / optics.fx))
-    rows, px = _project_field(C_prior, places, optics, cone, margin=track_radius_px)
-    if len(rows) < 3:
+    fld = _field(optics)
+    cone, U = _sky_index(places).cone(C_prior[2], math.cos(fld.cull_rad + track_radius_px / fld.fx))
+    # The vote needs only the brightest predicted stars: project a brightest chunk of the cone first.
+    chunk = 3 * vote_catalog_stars
+    kv, cx, cy = fld.project(U[:chunk], C_prior, track_radius_px, vote_catalog_stars)
+    if len(kv) < vote_catalog_stars and len(U) > chunk:
+        kv, cx, cy = fld.project(U, C_prior, track_radius_px, vote_catalog_stars)
+    if len(kv) < 3:
         return _NO_MATCH
     # Vote for the common image offset between bright image and bright predicted stars.
     a = img_xy[:vote_image_stars]
-    c = px[:vote_catalog_stars]  # places are brightest first, so rows (and px) are too
-    D = a[:, None, :] - c[None, :, :]  # (na, nc, 2) displacement image - predicted
-    d = D.reshape(-1, 2)
-    span = int(2 * math.ceil(track_radius_px / vote_bin_px) + 4)
-    cells = np.floor(d / vote_bin_px).astype(np.int64) + span // 2
-    inside = np.all((cells >= 1) & (cells < span - 1), axis=1)
+    Dx = a[:, 0:1] - cx  # (na, nc) displacement image - predicted
+    Dy = a[:, 1:2] - cy
+    half = int(math.ceil(track_radius_px / vote_bin_px)) + 2
+    span = 2 * half
+    ix = np.floor(Dx.ravel() * (1.0 / vote_bin_px)).astype(np.int64) + half
+    iy = np.floor(Dy.ravel() * (1.0 / vote_bin_px)).astype(np.int64) + half
+    inside = (ix >= 1) & (ix < span - 1) & (iy >= 1) & (iy < span - 1)
     if not inside.any():
         return _NO_MATCH
-    flat = cells[inside, 0] * span + cells[inside, 1]
-    # Each displacement votes for its cell and the 8 around it, so an offset on a border is not split.
-    around = np.array([-span - 1, -span, -span + 1, -1, 0, 1, span - 1, span, span + 1])
-    box = np.bincount((flat[:, None] + around).ravel(), minlength=span * span)
-    bi, bj = divmod(int(np.argmax(box)), span)
-    centre = (np.array([bi, bj]) - span // 2 + 0.5) * vote_bin_px
-    dist = np.max(np.abs(D - centre), axis=2)  # (na, nc)
-    near = dist <= 1.5 * vote_bin_px
+    # Each displacement votes for its cell and the 8 around it (a 3 x 3 box sum of the histogram),
+    # so an offset on a border is not split.
+    h = np.bincount(ix[inside] * span + iy[inside], minlength=span * span).reshape(span, span)
+    h = h[:-2] + h[1:-1] + h[2:]
+    box = h[:, :-2] + h[:, 1:-1] + h[:, 2:]
+    bi, bj = divmod(int(np.argmax(box)), span - 2)
+    ox = (bi + 1 - half + 0.5) * vote_bin_px
+    oy = (bj + 1 - half + 0.5) * vote_bin_px
+    near = np.maximum(np.abs(Dx - ox), np.abs(Dy - oy)) <= 1.5 * vote_bin_px
     if not near.any():
         return _NO_MATCH
-    offset = D[near].mean(axis=0)
+    m = 1.0 / np.count_nonzero(near)
+    ox, oy = float(Dx[near].sum()) * m, float(Dy[near].sum()) * m
     # First pairs: each bright image star with the bright predicted star nearest to it after the
     # common offset, if within two bins and not claimed by another image star.
-    dist = np.hypot(D[..., 0] - offset[0], D[..., 1] - offset[1])
-    cj = np.argmin(dist, axis=1)
-    ii = np.flatnonzero(dist[np.arange(len(a)), cj] <= 2.0 * vote_bin_px)
+    ex, ey = Dx - ox, Dy - oy
+    dist2 = ex * ex + ey * ey
+    cj = np.argmin(dist2, axis=1)
+    ii = np.flatnonzero(dist2[np.arange(len(a)), cj] <= (2.0 * vote_bin_px) ** 2)
     cj = cj[ii]
-    uniq, cnt = np.unique(cj, return_counts=True)
-    single = np.isin(cj, uniq[cnt == 1])
+    single = np.bincount(cj, minlength=len(kv))[cj] == 1
     ii, cj = ii[single], cj[single]
     if len(ii) < 3:
         return _NO_MATCH
-    C1 = wahba_dcm(b_S[ii], places.u_N[rows[cj]], 1.0 / sigma_rad[ii] ** 2)
-    # One tight matching pass over the brightest ``max_stars`` image stars and the brightest predicted
-    # stars (1.5 n + 20 of them). The chance-alignment bound uses those n image and k catalog stars,
-    # so no separate verification pass is needed. (Cutting n to 150 saves only ~5 % of the time.)
+    bi_ = b_S[ii]
+    w = 1.0 / sigma_rad[ii] ** 2
+    C1 = wahba_dcm(bi_, U[kv[cj]], w)
+    # One tight matching pass, the rule of the lost-in-space refinement (:func:`_refine`): the
+    # brightest ``max_stars`` image stars against every catalog star predicted on the detector (grown
+    # by the match radius), so tracking and lost in space agree on the same frame. The chance-alignment
+    # bound uses those n image and k catalog stars, so no separate verification pass is needed.
     n_all = min(len(img_xy), max_stars)
-    tree = cKDTree(img_xy[:n_all])
-    rows1, px1 = _project_field(C1, places, optics, cone)
-    k_cat = int(1.5 * n_all) + 20
-    rows1, px1 = rows1[:k_cat], px1[:k_cat]
-    ii2, cj2, _ = _match_nn(tree, n_all, px1, refine_radius_px)
-    p = len(rows1) * math.pi * refine_radius_px**2 / (optics.width * optics.height)
+    k1, px, py = fld.project(U, C1, refine_radius_px)
+    ii2, cj2, _ = _match_radius(img_xy[:n_all, 0], img_xy[:n_all, 1], px, py, refine_radius_px, True)
+    p = len(k1) * math.pi * refine_radius_px**2 / fld.area
     pf = false_match_probability(len(ii2), n_all, p)
-    ci2 = rows1[cj2]
+    ci2 = cone[k1[cj2]]
     if len(ii2) < min_matches or pf > max_false_prob:
         return Match(None, ii2, ci2, n_all, pf, 1)
-    est2 = estimate_attitude(b_S[ii2], places.u_N[ci2], sigma_rad[ii2])
+    est2, keep = _estimate_robust(b_S[ii2], U[k1[cj2]], sigma_rad[ii2])
+    if keep is not None:
+        ii2, ci2 = ii2[keep], ci2[keep]
     return Match(est2, ii2, ci2, n_all, pf, 1)

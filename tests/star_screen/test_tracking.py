@@ -159,6 +159,55 @@ def test_tracking_from_a_perturbed_prior_converges(renderer, tracker, epoch):
     assert angle_between(sol.q_SN, q) < 15 * ARCSEC
 
 
+def test_tracking_within_the_capture_range_agrees_with_lost_in_space(renderer, tracker, epoch):
+    """Priors up to the documented capture range (``track_radius_px`` = 40 px cross-boresight, about
+    0.79 deg for the default tracker; roll moving the field corners by under ``vote_bin_px`` = 3 px,
+    about 0.27 deg) track to the lost-in-space attitude of the same frame within an arcsec."""
+    rng = np.random.default_rng(4242)
+    optics = renderer.bench.tracker
+    cross_deg = 0.75 * 40.0 / optics.fx * 180.0 / math.pi  # 30 px
+    priors = (([1, 0, 0], cross_deg), ([0, 1, 0], -cross_deg), ([1, -1, 0], cross_deg), ([0, 0, 1], 0.2))
+    for q in _random_q(rng, 4):
+        q = q * np.sign(q[0])
+        img = camera_noise(renderer.render(q, epoch, screen=False).detector, rng)
+        lis = tracker.solve(img, optics)
+        assert lis.valid and lis.mode == "lis"
+        for axis, angle_deg in priors + ((rng.normal(size=3), 0.5),):
+            prior = compose(quat_from_axis_angle(axis, math.radians(angle_deg)), q)
+            # and a roll on top of the cross-boresight offset
+            prior = compose(quat_from_axis_angle([0, 0, 1], math.radians(0.1)), prior)
+            sol = tracker.solve(img, optics, prior=prior)
+            assert sol.valid and sol.mode == "tracking", (axis, angle_deg)
+            assert angle_between(sol.q_SN, lis.q_SN) < 1.0 * ARCSEC, (axis, angle_deg)
+            assert sol.stars_matched == lis.stars_matched
+
+
+def test_radius_matching_agrees_with_brute_force():
+    """The sorted-sweep matcher gives the one-to-one nearest pairs of a brute-force search."""
+    from star_screen.tracking.identify import _match_radius
+
+    rng = np.random.default_rng(8)
+    for trial in range(30):
+        n, k, r = int(rng.integers(0, 80)), int(rng.integers(0, 120)), float(rng.uniform(0.5, 4.0))
+        img = rng.uniform(0, 60, (n, 2))
+        cat = np.vstack((img[: k // 2] + rng.normal(0, 0.5, (min(k // 2, n), 2)), rng.uniform(0, 60, (k, 2))))[:k]
+        for drop in (False, True):
+            ii, ci, dd = _match_radius(img[:, 0], img[:, 1], cat[:, 0], cat[:, 1], r, drop)
+            # brute force: nearest image star per catalog star, then the blend rule per image star
+            pairs = {}
+            for j in range(len(cat)):
+                if n == 0:
+                    break
+                d = np.hypot(*(img - cat[j]).T)
+                i = int(np.argmin(d))
+                if d[i] < r:
+                    pairs.setdefault(i, []).append((d[i], j))
+            want = sorted((i, min(v)[1]) for i, v in pairs.items() if not (drop and len(v) > 1))
+            got = sorted(zip(ii.tolist(), ci.tolist(), dd.tolist(), strict=True))
+            assert [g[:2] for g in got] == want, (trial, drop)
+            np.testing.assert_allclose([g[2] for g in got], [np.hypot(*(img[i] - cat[j])) for i, j in want])
+
+
 def test_empty_field_and_too_few_stars_are_invalid_without_exception(renderer, tracker):
     rng = np.random.default_rng(9)
     optics = renderer.bench.tracker
