@@ -96,12 +96,23 @@ def test_state_exactly_on_the_separatrix_is_refused():
         TorqueFreeBody([10.0, 20.0, 30.0], [1, 0, 0, 0], [0.03, 0.2, w3])
 
 
-def test_near_separatrix_still_agrees_with_dop853():
-    # D / I2 - 1 ~ 1e-9 (numerics.md case A5): k^2 within 1e-9 of 1.
+def test_closer_to_the_separatrix_than_the_functions_resolve_is_refused():
+    # numerics.md case A5, D / I2 - 1 ~ 1e-9: 1 - k^2 = 4.4e-11. Its energy was right at 40 s but off
+    # by 1e23 at 1e5 s before this refusal existed (found by the invariants property below).
     w3 = 0.03 * np.sqrt(100.0 / 300.0) * (1.0 + 1e-9)
+    with pytest.raises(ValueError, match="too close to the separatrix"):
+        TorqueFreeBody([10.0, 20.0, 30.0], [1.0, 0, 0, 0], [0.03, 0.2, w3])
+
+
+def test_near_separatrix_still_agrees_with_dop853():
+    # D / I2 - 1 ~ 1e-8: 1 - k^2 ~ 4e-10, just above the accepted limit.
+    w3 = 0.03 * np.sqrt(100.0 / 300.0) * (1.0 + 1e-8)
     q0, w0 = np.array([1.0, 0, 0, 0]), np.array([0.03, 0.2, w3])
     body = TorqueFreeBody([10.0, 20.0, 30.0], q0, w0)
-    assert 1.0 - body.k2 < 1e-8
+    assert 1e-10 < 1.0 - body.k2 < 1e-8
+    T0 = 0.5 * np.sum(np.array([10.0, 20.0, 30.0]) * w0 * w0)
+    _, w_late = body.state(np.array([1e5]))
+    assert abs(0.5 * np.sum(np.array([10.0, 20.0, 30.0]) * w_late[0] ** 2) - T0) < 1e-12 * T0
     q_ref, w_ref = _dop853([10.0, 20.0, 30.0], q0, w0, 40.0)
     q, w = body.state(40.0)
     assert angle_between(q, q_ref) < 1e-8 * DEG
@@ -118,7 +129,7 @@ def test_invariants_energy_momentum_and_unit_norm(moments, w0, t):
     I = np.diag(moments)
     try:
         body = TorqueFreeBody(I, [1, 0, 0, 0], w0)
-    except ValueError as err:  # exactly on the separatrix: a documented refusal
+    except ValueError as err:  # on, or closer than resolvable to, the separatrix: a documented refusal
         assert "separatrix" in str(err)
         return
     q, w = body.state(np.array([0.0, t]))
