@@ -137,15 +137,3 @@ def run(args) -> int:
     )
     return 0
 
-
-def main(argv=None) -> int:
-    """Stand-alone entry (``python -m stand.screen_command ...``) until the lead wires stand.cli."""
-    parser = argparse.ArgumentParser(prog="stand")
-    sub = parser.add_subparsers(dest="command", required=True)
-    register(sub)
-    args = parser.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -118,15 +118,3 @@ def run(args) -> int:
     print(json.dumps(out, indent=1))
     return 0 if sol.valid else 1
 
-
-def main(argv=None) -> int:
-    """Stand-alone entry (``python -m stand.solve_command IMAGE ...``)."""
-    parser = argparse.ArgumentParser(prog="stand")
-    sub = parser.add_subparsers(dest="command", required=True)
-    register(sub)
-    args = parser.parse_args(argv)
-    return args.func(args)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

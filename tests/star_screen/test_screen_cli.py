@@ -5,14 +5,14 @@ import json
 import numpy as np
 import pytest
 
-from stand import screen_command
+from stand.cli import main as cli_main
 from star_screen.attitude import q_SN_from_radec_roll
 
 
 def test_screen_writes_png_and_truth(tmp_path):
     cv2 = pytest.importorskip("cv2")
     out = tmp_path / "frame"
-    rc = screen_command.main(["screen", "--ra", "83.8", "--dec", "-5.4", "--roll", "15", "--out", str(out)])
+    rc = cli_main(["screen", "--ra", "83.8", "--dec", "-5.4", "--roll", "15", "--out", str(out)])
     assert rc == 0
     scr = cv2.imread(str(out / "screen.png"), cv2.IMREAD_UNCHANGED)
     det = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
@@ -35,8 +35,8 @@ def test_screen_writes_png_and_truth(tmp_path):
 def test_aberration_off_moves_stars_by_arcseconds(tmp_path):
     a, b = tmp_path / "on", tmp_path / "off"
     args = ["screen", "--ra", "200", "--dec", "-30", "--out"]
-    assert screen_command.main(args + [str(a)]) == 0
-    assert screen_command.main(args + [str(b), "--aberration", "off"]) == 0
+    assert cli_main(args + [str(a)]) == 0
+    assert cli_main(args + [str(b), "--aberration", "off"]) == 0
     ta = {s["hip"]: s["detector_xy"] for s in json.loads((a / "truth.json").read_text())["stars"]}
     tb = {s["hip"]: s["detector_xy"] for s in json.loads((b / "truth.json").read_text())["stars"]}
     common = sorted(set(ta) & set(tb))
@@ -55,7 +55,7 @@ def test_aberration_off_moves_stars_by_arcseconds(tmp_path):
     ],
 )
 def test_usage_errors_exit_2_with_a_message(tmp_path, capsys, argv, word):
-    rc = screen_command.main(["screen", *argv, "--out", str(tmp_path / "x")])
+    rc = cli_main(["screen", *argv, "--out", str(tmp_path / "x")])
     assert rc == 2
     assert word in capsys.readouterr().err
 
@@ -76,7 +76,7 @@ def test_screen_uses_the_scenario_tracker_optics_and_epoch(tmp_path):
     cv2 = pytest.importorskip("cv2")
     out = tmp_path / "frame"
     sc = _image_scenario(tmp_path)
-    rc = screen_command.main(["screen", "--scenario", str(sc), "--tracker", "st1", "--ra", "83.8", "--dec", "-5.4",
+    rc = cli_main(["screen", "--scenario", str(sc), "--tracker", "st1", "--ra", "83.8", "--dec", "-5.4",
                               "--out", str(out)])
     assert rc == 0
     det = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
@@ -99,7 +99,7 @@ def test_screen_uses_the_scenario_tracker_optics_and_epoch(tmp_path):
 def test_scenario_tracker_errors_name_the_tracker(tmp_path, capsys, scenario, tracker, words):
     sc = str(_image_scenario(tmp_path)) if scenario == "image" else scenario
     argv = ["screen", "--ra", "0", "--dec", "0", "--out", str(tmp_path / "x"), "--scenario", sc]
-    rc = screen_command.main(argv + (["--tracker", tracker] if tracker else []))
+    rc = cli_main(argv + (["--tracker", tracker] if tracker else []))
     assert rc == 2
     err = capsys.readouterr().err
     assert all(w in err for w in words), err

@@ -275,8 +275,8 @@ def test_image_shape_must_match_the_optics(renderer, tracker):
 
 # ---------------------------------------------------------------------------------------- CLI
 def test_stand_solve_prints_the_attitude_of_a_stand_screen_png(tmp_path, capsys):
-    from stand.screen_command import main as screen_main
-    from stand.solve_command import main as solve_main
+    from stand.cli import main as screen_main
+    from stand.cli import main as solve_main
 
     out = tmp_path / "frame"
     assert screen_main(["screen", "--ra", "201.3", "--dec", "-11.2", "--roll", "-40", "--out", str(out)]) == 0
@@ -293,7 +293,7 @@ def test_stand_solve_prints_the_attitude_of_a_stand_screen_png(tmp_path, capsys)
 
 
 def test_stand_solve_reads_an_8_bit_png(tmp_path, renderer, epoch, capsys):
-    from stand.solve_command import main as solve_main
+    from stand.cli import main as solve_main
     from star_screen.outputs import write_png
 
     q = np.array([0.3, -0.5, 0.7, 0.4])
@@ -309,7 +309,7 @@ def test_stand_solve_reads_an_8_bit_png(tmp_path, renderer, epoch, capsys):
 
 
 def test_stand_solve_usage_errors(tmp_path, capsys):
-    from stand.solve_command import main as solve_main
+    from stand.cli import main as solve_main
 
     assert solve_main(["solve", str(tmp_path / "missing.png")]) == 2
     assert "stand: error: IMAGE" in capsys.readouterr().err
