@@ -123,9 +123,13 @@ def open_port(
                     where=repr(port),
                 )
         return port, False
-    import serial
-
     url = os.fspath(port)
+    try:
+        import serial
+    except ImportError:
+        raise ConnectError(f"{name}: opening serial port {url!r} needs pyserial; install the serial extra: "
+                           "pip install 'adcs-stand[serial]'.", where=url, reason="pyserial missing") from None
+
     try:
         ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=2.0)
     except (serial.SerialException, ValueError, OSError) as exc:
