@@ -319,3 +319,15 @@ def test_stand_solve_usage_errors(tmp_path, capsys):
     assert "could not be read" in capsys.readouterr().err
     assert solve_main(["solve", str(bad), "--fov-deg", "wide"]) == 2
     assert "--fov-deg" in capsys.readouterr().err
+
+
+def test_camera_noise_has_the_variance_of_shot_plus_read_noise():
+    rng = np.random.default_rng(7)
+    ideal = np.zeros((400, 500))
+    ideal[:, 250:] = 400.0  # half the frame lit at 400 e-
+    img = camera_noise(ideal, rng, background_e=20.0, read_noise_e=10.0)
+    dark, lit = img[:, :250], img[:, 250:]
+    assert dark.mean() == pytest.approx(20.0, abs=0.1)
+    assert dark.var() == pytest.approx(20.0 + 100.0, rel=0.02)
+    assert lit.mean() == pytest.approx(420.0, abs=0.2)
+    assert lit.var() == pytest.approx(400.0 + 20.0 + 100.0, rel=0.02)  # Poisson(signal) + background + read
