@@ -9,6 +9,14 @@ about 20 us per message, and the stand's loop exchanges several frames every 0.1
 thousands of times real time. Anything the fast path does not cover (big-endian, multiplexed,
 float or container messages) goes through cantools.
 
+The fast path itself is specialised per message when the DBC is loaded (:func:`_compile_message`):
+straight-line Python source with the message's shifts, masks, scales and ranges as literals, so a
+frame costs one function call instead of a loop over signal descriptors (about 1 us instead of 3-4
+per 8-byte frame, on the stand's per-tick path). The generated encoder only takes the common case
+(numbers within range); anything else (enum names, numpy scalars, missing or unknown signals,
+out-of-range values) goes to the descriptor loop :meth:`DbcCodec._encode_general`, which is the
+reference and raises the errors.
+
 Conventions (the same as cantools with ``decode_choices=False``, ``scaling=True``):
 
 - physical value = raw * scale + offset; raw = round((physical - offset) / scale), rounding half
@@ -97,7 +105,8 @@ class _Signal:
 
 
 class _Message:
-    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message")
+    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message",
+                 "encode_fast", "decode_fast")
 
     def __init__(self, msg: Any, fast: bool) -> None:
         self.name: str = msg.name
@@ -107,12 +116,87 @@ class _Message:
         self.fast = fast
         self.signals: tuple[_Signal, ...] = tuple(_Signal(s) for s in msg.signals) if fast else ()
         self.signal_names: frozenset[str] = frozenset(s.name for s in msg.signals)
+        # values -> payload, or None to take the descriptor loop; payload -> {signal: value}.
+        self.encode_fast, self.decode_fast = _compile_message(self) if fast else (None, None)
+
+
+def _is_literal(x: Any) -> bool:
+    """True for the numbers whose ``repr`` reads back as the same value and type."""
+    return type(x) is int or (type(x) is float and math.isfinite(x))
 
 
 def _fast_path_supported(msg: Any) -> bool:
     if msg.is_multiplexed() or getattr(msg, "is_container", False):
         return False
-    return all(s.byte_order == "little_endian" and not s.is_float and s.length > 0 for s in msg.signals)
+    return all(s.byte_order == "little_endian" and not s.is_float and s.length > 0
+               and _is_literal(s.conversion.scale) and _is_literal(s.conversion.offset) for s in msg.signals)
+
+
+def _raw_range_implied(sig: _Signal) -> bool:
+    """True when every value within ``[lo, hi]`` gives a raw value the bits can hold.
+
+    physical -> raw (a subtraction, a division by a constant, a rounding) is monotonic in
+    floating point, so checking the two ends is enough; the encoder then skips the raw check.
+    """
+    try:
+        ends = (DbcCodec._raw_of(sig, sig.lo), DbcCodec._raw_of(sig, sig.hi))
+    except (ValueError, OverflowError):
+        return False
+    return all(sig.raw_lo <= raw <= sig.raw_hi for raw in ends)
+
+
+#: Raw values below this are exact quotients in float64 (what the integer-scale shortcut relies on).
+_EXACT_QUOTIENT = 1 << 53
+
+
+def _compile_message(entry: _Message) -> tuple[Any, Any]:
+    """Generate the straight-line encoder and decoder of one fast-path message.
+
+    The arithmetic is exactly that of :meth:`DbcCodec._encode_general` and of cantools (the same
+    operations in the same order on the same constants, written as literals), so the bytes and
+    values are bit-identical; only the loop and the attribute look-ups are gone.
+    """
+    enc = [
+        "def encode(values):",
+        f"    if len(values) != {len(entry.signals)}:",
+        "        return None",
+        "    try:",
+        *(f"        v{i} = values[{sig.name!r}]" for i, sig in enumerate(entry.signals)),
+        "    except KeyError:",
+        "        return None",
+    ]
+    dec = ["def decode(data):", "    word = int.from_bytes(data, 'little')"]
+    fields, out = [], []
+    for i, sig in enumerate(entry.signals):
+        v, r = f"v{i}", f"r{i}"
+        # Plain numbers within [min|max] only (this also refuses NaN); the loop handles the rest.
+        enc += [f"    t = type({v})",
+                f"    if t is not float and t is not int and t is not bool or not {sig.lo!r} <= {v} <= {sig.hi!r}:",
+                "        return None"]
+        if sig.kind == _IDENTITY:
+            enc.append(f"    {r} = round({v})")
+        elif sig.kind == _LINEAR or sig.mask < _EXACT_QUOTIENT:
+            # For an integer scale, cantools divides only when the value is not an exact multiple;
+            # an exact multiple below 2**53 divides exactly anyway, so one division is the same.
+            shifted = v if sig.offset == 0 and type(sig.offset) is int else f"({v} - {sig.offset!r})"
+            enc.append(f"    {r} = round({shifted} / {sig.scale!r})")
+        else:  # cantools' integer-scale path: avoid a division when the value is exact
+            enc += [f"    {r} = {v} - {sig.offset!r}",
+                    f"    q, m = divmod({r}, {sig.scale!r})",
+                    f"    {r} = round(q if m == 0 else {r} / {sig.scale!r})"]
+        if not _raw_range_implied(sig):
+            enc += [f"    if not {sig.raw_lo} <= {r} <= {sig.raw_hi}:", "        return None"]
+        fields.append(f"({r} & {sig.mask:#x}) << {sig.start}")
+        dec.append(f"    {r} = (word >> {sig.start}) & {sig.mask:#x}")
+        if sig.sign_bit:
+            dec.append(f"    {r} = ({r} ^ {sig.sign_bit:#x}) - {sig.sign_bit:#x}")
+        value = r if sig.kind == _IDENTITY else f"{r} * {sig.scale!r} + {sig.offset!r}"
+        out.append(f"{sig.name!r}: {value}")
+    enc.append(f"    return ({' | '.join(fields) or '0'}).to_bytes({entry.length}, 'little')")
+    dec.append(f"    return {{{', '.join(out)}}}")
+    namespace: dict[str, Any] = {}
+    exec(compile("\n".join(enc + [""] + dec), f"<dbc {entry.name}>", "exec"), namespace)  # noqa: S102
+    return namespace["encode"], namespace["decode"]
 
 
 class DbcCodec:
@@ -207,6 +291,13 @@ class DbcCodec:
             )
         if not entry.fast:
             return entry.frame_id, self._encode_cantools(entry, values)
+        payload = entry.encode_fast(values)
+        if payload is None:
+            payload = self._encode_general(entry, values)
+        return entry.frame_id, payload
+
+    def _encode_general(self, entry: _Message, values: Mapping[str, Any]) -> bytes:
+        """The fast path as a loop over signal descriptors: every case, and every error."""
         word = 0
         for sig in entry.signals:
             try:
@@ -237,7 +328,7 @@ class DbcCodec:
             word |= (raw & sig.mask) << sig.start
         if len(values) != len(entry.signals):
             raise self._unknown_signals(entry, values)
-        return entry.frame_id, word.to_bytes(entry.length, "little")
+        return word.to_bytes(entry.length, "little")
 
     @classmethod
     def _in_choices(cls, sig: _Signal, value: float) -> bool:
@@ -335,14 +426,7 @@ class DbcCodec:
             )
         if not entry.fast:
             return entry.name, self._decode_cantools(entry, data)
-        word = int.from_bytes(data, "little")
-        out: dict[str, int | float] = {}
-        for sig in entry.signals:
-            raw = (word >> sig.start) & sig.mask
-            if sig.sign_bit:
-                raw = (raw ^ sig.sign_bit) - sig.sign_bit
-            out[sig.name] = raw if sig.kind == _IDENTITY else raw * sig.scale + sig.offset
-        return entry.name, out
+        return entry.name, entry.decode_fast(data)
 
     def _decode_cantools(self, entry: _Message, data: bytes | bytearray) -> dict[str, int | float]:
         try:

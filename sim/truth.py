@@ -192,6 +192,8 @@ class TruthModel:
         self.dipole_B = (0.0, 0.0, 0.0)
         self._I = self.body._I
         self._stage_base = 0
+        self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
+        self._b_B = (-1, None, None)  # (k, q, b_B): the magnetometer and the recorder both ask
 
     # --- truth at the current time ------------------------------------------------------------
     @property
@@ -211,19 +213,23 @@ class TruthModel:
         return self.track.field(2 * self.k)
 
     def b_B(self):
-        return rotate_to_body(self.q, self.track.field(2 * self.k))
+        k, q, b = self._b_B
+        if k != self.k or q is not self.q:
+            b = rotate_to_body(self.q, self.track.field(2 * self.k))
+            self._b_B = (self.k, self.q, b)
+        return b
 
     # --- dynamics --------------------------------------------------------------------------------
     def _torque(self, t, q, w):
         """Torque at RK4 stage time ``t`` (s within the step: 0, h/2 or h) for stage state (q, w)."""
-        idx = self._stage_base + (0 if t == 0.0 else (1 if t < self.h else 2))
+        field, position = self._stage_points[0 if t == 0.0 else (1 if t < self.h else 2)]
         tx = ty = tz = 0.0
         if self.magnetic:
-            bx, by, bz = rotate_to_body(q, self.track.field(idx))
+            bx, by, bz = rotate_to_body(q, field)
             mx, my, mz = self.dipole_B
             tx, ty, tz = my * bz - mz * by, mz * bx - mx * bz, mx * by - my * bx
         if self.gravity_gradient:
-            rx, ry, rz = rotate_to_body(q, self.track.position(idx))
+            rx, ry, rz = rotate_to_body(q, position)
             i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._I
             ix = i00 * rx + i01 * ry + i02 * rz
             iy = i10 * rx + i11 * ry + i12 * rz
@@ -238,7 +244,14 @@ class TruthModel:
     def step(self, dipole_B=(0.0, 0.0, 0.0)) -> None:
         """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant."""
         self.dipole_B = dipole_B
-        self._stage_base = 2 * self.k
+        self._stage_base = base = 2 * self.k
+        # The four stages sample the half-step grid at base, base + 1 (twice) and base + 2; each
+        # point is looked up once per step, field before position as the stages did (the track
+        # fills its chunks in the same order), only what the listed torques use.
+        track = self.track
+        mag, gg = self.magnetic, self.gravity_gradient
+        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
+                                   for i in (base, base + 1, base + 2))
         torque = self._torque if (self.magnetic or self.gravity_gradient) else None
         # Stage times are passed relative to the step start so the stage lookup is exact.
         q, w = self._step(self.q, self.w, self.h, torque, 0.0)

@@ -52,18 +52,22 @@ class BDot:
             self.samples_skipped += 1
             self._prev = None
             return
-        bx, by, bz = sample.b_T
-        C = self.dcm_BS
-        b = (C[0][0] * bx + C[0][1] * by + C[0][2] * bz,
-             C[1][0] * bx + C[1][1] * by + C[1][2] * bz,
-             C[2][0] * bx + C[2][1] * by + C[2][2] * bz)
+        # Component by component on floats: this runs every control tick, and indexing or a
+        # generator over three components costs more than the arithmetic.
+        sx, sy, sz = sample.b_T
+        (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = self.dcm_BS
+        bx = c00 * sx + c01 * sy + c02 * sz
+        by = c10 * sx + c11 * sy + c12 * sz
+        bz = c20 * sx + c21 * sy + c22 * sz
         self.samples_used += 1
-        prev, self._prev = self._prev, (t_s, b)
+        prev, self._prev = self._prev, (t_s, (bx, by, bz))
         if prev is None or t_s <= prev[0]:
             return
-        k = -self.gain / (t_s - prev[0])
+        t_prev, (px, py, pz) = prev
+        k = -self.gain / (t_s - t_prev)
         lim = self.max_dipole
-        m = tuple(max(-lim, min(lim, k * (b[i] - prev[1][i]))) for i in range(3))
+        m = (max(-lim, min(lim, k * (bx - px))), max(-lim, min(lim, k * (by - py))),
+             max(-lim, min(lim, k * (bz - pz))))
         self.board.command_dipole(m, self.duration_s)
         self.last_command = m
 

@@ -110,8 +110,10 @@ class Progress:
         self._start = time.monotonic()
 
     def update(self, t_s: float, force: bool = False) -> None:
+        if not self.enabled:
+            return
         now = time.monotonic()
-        if not self.enabled or (now < self._next and not force):
+        if now < self._next and not force:
             return
         self._next = now + 0.5
         frac = min(1.0, t_s / self.total) if self.total else 1.0
@@ -147,47 +149,56 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     watch_every = ticks_per(1.0, sc.step_s)
     status, error = "completed", None
     events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
+    # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals
+    # once here, and the dipoles travel as tuples of floats (no arrays, no float() per tick).
+    wait = pacer.wait if pacer.factor is not None else None
+    step = truth.step
+    ctl_update = controller.update if controller is not None else None
+    show = bar.update if progress else None
+    record = recorder.record
     wall0 = clock()
     pacer.begin()
     k = 0
-    dipole = (0.0, 0.0, 0.0)
     try:
         while True:
             t = truth.t_ns / 1e9
-            pacer.wait(t)
+            if wait is not None:
+                wait(t)
             for emu in emulators:
                 emu.publish(t)
             for link in trackers:
                 link.step(t)
-            if controller is not None and k % ctl_every == 0 and k < n_steps:
-                controller.update(t)
-            dipole = (0.0, 0.0, 0.0)
+            if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
+                ctl_update(t)
+            dx = dy = dz = 0.0
+            held = []
             for emu in emulators:
                 emu.receive(t)
-                m = emu.dipole_at(t)
-                dipole = (dipole[0] + float(m[0]), dipole[1] + float(m[1]), dipole[2] + float(m[2]))
+                m = emu.dipole_xyz_at(t)
+                held.append(m)
+                dx, dy, dz = dx + m[0], dy + m[1], dz + m[2]
             if k % rec_every == 0 or k == n_steps:
                 row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
                 if has_field:
-                    row += tuple(truth.b_B())
-                for host, emu in zip(hosts, emulators, strict=True):
+                    row += truth.b_B()
+                for host, m in zip(hosts, held, strict=True):
                     host.poll()  # log every sample that crossed the bus, not only those the ADCS took
                     s = host.latest_sample
-                    row += (*(s.b_T if s else NAN3), float(s.coil_active) if s else math.nan,
-                            *emu.dipole_at(t))
+                    row += (*s.b_T, float(s.coil_active), *m) if s else (*NAN3, math.nan, *m)
                 if record_cmd:
                     row += tuple(controller.last_command)
                 for link in trackers:
                     row += link.last or NO_SOLUTION
-                recorder.record(row)
-                bar.update(t)
+                record(row)
+                if show is not None:
+                    show(t)
             if k % watch_every == 0:
                 for w in watches:
                     w.host.poll()
                     w.check(t)
             if k >= n_steps:
                 break
-            truth.step(dipole)
+            step((dx, dy, dz))
             k += 1
     except KeyboardInterrupt:
         status, error = "stopped", f"stopped by the operator at t = {truth.t_s:.3f} s"

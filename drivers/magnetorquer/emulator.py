@@ -138,6 +138,7 @@ class EmulatorConfig:
 
 _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False
+_OFF = (0.0, 0.0, 0.0)
 _EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
@@ -219,8 +220,13 @@ class MagnetorquerEmulator(BusEndpoint):
         self._mode_seq_ack = 0
 
         self.mode: str = config.initial_mode
-        self._dipole = _ZERO3  # driven dipole (saturated, quantised), read-only array
-        self._coil_field = (0.0, 0.0, 0.0)  # coupling @ dipole: what the coils add at the magnetometer
+        # The driven dipole (saturated, quantised) is kept as floats: the stand reads it every tick
+        # (dipole_xyz_at). Its read-only array (dipole_at) and the field the coils add at the
+        # magnetometer (coupling @ dipole) are computed when first asked for, as most commands are
+        # never sampled while driven (the watchdog switches the coils off before the next sample).
+        self._dipole_xyz = _OFF
+        self._dipole_array: np.ndarray | None = _ZERO3
+        self._coil_field: tuple[float, float, float] | None = _OFF
         self._driven = False  # a command with a duration is running
         self._on_until_s = -math.inf
         self._any_nonzero = False
@@ -247,8 +253,14 @@ class MagnetorquerEmulator(BusEndpoint):
         duration has expired. Answers from the current command (no history is kept).
         """
         if self._driven and t_s < self._on_until_s:
-            return self._dipole
+            return self._driven_array()
         return _ZERO3
+
+    def dipole_xyz_at(self, t_s: float) -> tuple[float, float, float]:
+        """:meth:`dipole_at` as a tuple of floats (no array: the stand's loop reads it every tick)."""
+        if self._driven and t_s < self._on_until_s:
+            return self._dipole_xyz
+        return _OFF
 
     def coil_active(self, t_s: float) -> bool:
         """True when at least one coil is driven (non-zero dipole) at ``t_s``."""
@@ -261,11 +273,30 @@ class MagnetorquerEmulator(BusEndpoint):
         self.receive(t_s)
         self.publish(t_s)
 
+    def _coils_off(self) -> None:
+        self._driven = False
+        self._dipole_xyz = _OFF
+        self._dipole_array = _ZERO3
+        self._coil_field = _OFF
+        self._any_nonzero = False
+
+    def _driven_array(self) -> np.ndarray:
+        """The current command's dipole as a read-only array, built once per command when first needed."""
+        if self._dipole_array is None:
+            dipole = np.array(self._dipole_xyz)
+            dipole.flags.writeable = False
+            self._dipole_array = dipole
+        return self._dipole_array
+
+    def _coil_field_now(self) -> tuple[float, float, float]:
+        """``coupling @ dipole`` (T, sensor axes), computed once per command when first needed."""
+        if self._coil_field is None:
+            self._coil_field = tuple((self._coupling @ self._driven_array()).tolist())
+        return self._coil_field
+
     def _watchdog(self, t_s: float) -> None:
         if self._driven and t_s >= self._on_until_s:
-            self._driven = False
-            self._dipole = _ZERO3
-            self._any_nonzero = False
+            self._coils_off()
             self.counters["watchdog_expiries"] += 1
             self._board["watchdog_expiries"] += 1
 
@@ -321,28 +352,23 @@ class MagnetorquerEmulator(BusEndpoint):
             return
         self._accepted()
         if cmd.duration_s <= 0.0:
-            self._driven = False
-            self._dipole = _ZERO3
-            self._any_nonzero = False
+            self._coils_off()
             return
         cfg = self.config
         lsb = cfg.dipole_lsb_A_m2
         levels = self._dipole_levels
-        saturated = False
-        driven = []
-        for m in cmd.dipole_A_m2:
-            if abs(m) > cfg.max_dipole_A_m2:
-                saturated = True
-            n = round(m / lsb)
-            n = levels if n > levels else -levels if n < -levels else n
-            driven.append(n * lsb)
-        if saturated:
+        mx, my, mz = cmd.dipole_A_m2
+        rating = cfg.max_dipole_A_m2
+        if abs(mx) > rating or abs(my) > rating or abs(mz) > rating:
             self.counters["saturations"] += 1
             self._board["saturations"] += 1
-        dipole = np.array(driven)
-        dipole.flags.writeable = False
-        self._dipole = dipole
-        self._coil_field = tuple((self._coupling @ dipole).tolist())
+        # PWM steps clipped to the rating's step count, written out per axis: a generator over
+        # three components costs more than the arithmetic, and this runs once per command.
+        driven = (min(max(round(mx / lsb), -levels), levels) * lsb,
+                  min(max(round(my / lsb), -levels), levels) * lsb,
+                  min(max(round(mz / lsb), -levels), levels) * lsb)
+        self._dipole_xyz = driven
+        self._dipole_array = self._coil_field = None  # built from driven when first asked for
         self._any_nonzero = any(driven)
         self._driven = True
         # The watchdog deadline gets the same tolerance as the publication schedule, so coils
@@ -352,9 +378,7 @@ class MagnetorquerEmulator(BusEndpoint):
     def _apply_mode(self, cmd: ModeCommand) -> None:
         if cmd.mode != self.mode:
             self.mode = cmd.mode
-            self._driven = False
-            self._dipole = _ZERO3
-            self._any_nonzero = False
+            self._coils_off()
         self._mode_seq_ack = cmd.seq
         if cmd.reset_counters:
             for key in self._board:
@@ -420,29 +444,25 @@ class MagnetorquerEmulator(BusEndpoint):
         active = self.coil_active(t_s)
         lsb = self._mag_lsb
         n_lo, n_hi = self._n_lo, self._n_hi
-        valid = True
-        out = []
         try:
             tx, ty, tz = truth
-            b = [float(tx) + bias_x + nx, float(ty) + bias_y + ny, float(tz) + bias_z + nz]
+            bx, by, bz = float(tx) + bias_x + nx, float(ty) + bias_y + ny, float(tz) + bias_z + nz
             if active:
-                cx, cy, cz = self._coil_field
-                b = [b[0] + cx, b[1] + cy, b[2] + cz]
-            for x in b:
-                n = round(x / lsb)
-                if n > n_hi or n < n_lo:
-                    n = n_hi if n > n_hi else n_lo
-                    valid = False
-                out.append(n * lsb)
+                cx, cy, cz = self._coil_field_now()
+                bx, by, bz = bx + cx, by + cy, bz + cz
+            # Counts of the quantiser, written out per axis (this runs once per sample).
+            kx, ky, kz = round(bx / lsb), round(by / lsb), round(bz / lsb)
         except (ValueError, TypeError, OverflowError):  # wrong length, not numbers, NaN, infinity
             raise ValueError(
                 f"field_source({t_s!r}) must return 3 finite floats (T, sensor axes); got {truth!r}."
             ) from None
-        if not valid:
+        valid = n_lo <= kx <= n_hi and n_lo <= ky <= n_hi and n_lo <= kz <= n_hi
+        if not valid:  # the sensor saturates at the DBC's range
+            kx, ky, kz = (min(max(k, n_lo), n_hi) for k in (kx, ky, kz))
             self.counters["mag_saturations"] += 1
         seq = self._sample_seq
         self._sample_seq = (seq + 1) & 0xFF
-        return MagSample((out[0], out[1], out[2]), active, valid, seq)
+        return MagSample((kx * lsb, ky * lsb, kz * lsb), active, valid, seq)
 
     def status(self, t_s: float) -> Status:
         """The MTQ_STATUS the board reports at ``t_s``."""
