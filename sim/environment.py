@@ -12,6 +12,11 @@ import numpy as np
 
 from .constants import R_EARTH, R_IGRF
 
+# DESIGN.md names the Sun and Moon here; they live in sim.ephemeris with their track.
+from .ephemeris import moon_position_gcrs, sun_position_gcrs
+
+__all__ = ["dipole_field_itrs", "magnetic_field_itrs", "moon_position_gcrs", "shadow_fraction", "sun_position_gcrs"]
+
 #: Degree-1 IGRF Gauss coefficients (nT) of BENCHMARKS.md's comparison case.
 DIPOLE_G10_NT = -30926.0
 DIPOLE_G11_NT = -2318.0
