@@ -61,6 +61,7 @@ class TrackerLink:
     flags: dict = field(default_factory=lambda: dict.fromkeys(FLAG_BITS, 0))
     errors: list = field(default_factory=list)  # (t_s, cross, roll) of valid solutions
     last: tuple | None = None  # the newest solution as a telemetry row fragment
+    last_solution: object | None = None  # the newest decoded SOLUTION message, as the host got it
     image: object | None = None  # the ImageSolver of an image-source tracker
 
     def sim_time_of(self, time_us: int) -> float:
@@ -101,6 +102,7 @@ class TrackerLink:
         sol = host.take_solution()
         if sol is None:
             return
+        self.last_solution = sol
         self.solutions += 1
         for flag in FLAG_BITS:
             self.flags[flag] += bool(getattr(sol, flag))
@@ -181,8 +183,9 @@ class ImageSolver:
         axis, angle = axis_angle(compose(q1, conjugate(q0)))  # rotation of the tracker axes from t0 to t1
         return compose(quat_from_axis_angle(axis, float(angle) * (t_s - t1) / (t1 - t0)), q1)
 
-    def solve(self, t_s: float, q_TN, omega_TN_T, v_N) -> tuple[tuple, int]:
-        """(q_TN solved, stars matched) of the exposure at ``t_s``; ((1, 0, 0, 0), 0) when the solve fails."""
+    def solve(self, t_s: float, q_TN, omega_TN_T, v_N) -> dict:
+        """TrackerTruth fields measured from the exposure at ``t_s``: the solved q_TN, stars centroided
+        and matched, 1-sigma errors (rad); an identity attitude and 0 stars matched when the solve fails."""
         from star_screen.tracking.noise import camera_noise
 
         w0 = time.perf_counter()
@@ -194,13 +197,16 @@ class ImageSolver:
                                  observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))
         self.counts["frames"] += 1
         self.frame_ms.append((time.perf_counter() - w0) * 1e3)
+        seen = {"stars_in_field": int(sol.stars_centroided)}
         if not sol.valid:
             self.counts["failed"] += 1
             self._last = self._before = None
-            return (1.0, 0.0, 0.0, 0.0), 0
+            return {"q_TN": (1.0, 0.0, 0.0, 0.0), "stars_matched": 0, **seen}
         self.counts[sol.mode] += 1
         self._before, self._last = self._last, (t_s, sol.q_SN)
-        return tuple(float(x) for x in sol.q_SN), int(sol.stars_matched)
+        return {"q_TN": tuple(float(x) for x in sol.q_SN), "stars_matched": int(sol.stars_matched),
+                "sigma_cross_rad": float(sol.sigma_cross_arcsec) * ARCSEC,
+                "sigma_roll_rad": float(sol.sigma_roll_arcsec) * ARCSEC, **seen}
 
     def summary(self) -> dict:
         ms = np.asarray(self.frame_ms)
@@ -271,7 +277,7 @@ def build_tracker(spec, truth, tracks: dict, rng: np.random.Generator, epoch=Non
 
         def measure(t_s: float) -> TrackerTruth:
             out = fields(t_s)
-            out["q_TN"], out["stars_in_field"] = solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N)
+            out.update(solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N))
             return TrackerTruth(**out)
     else:
         def measure(t_s: float) -> TrackerTruth:

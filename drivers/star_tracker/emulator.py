@@ -93,6 +93,9 @@ class TrackerTruth:
         sun_radius_rad, moon_radius_rad, earth_radius_rad: angular radius of each disk (the Earth's
             with its atmosphere), rad.
         stars_in_field: stars bright enough to be centroided, if the stand knows it (else drawn).
+        stars_matched, sigma_cross_rad, sigma_roll_rad: set by a source that measured the attitude
+            itself (the stand's image-based solver): then the emulator reports these instead of
+            drawing matches and quoting its configured noise.
     """
 
     q_TN: Sequence[float]
@@ -104,6 +107,9 @@ class TrackerTruth:
     moon_radius_rad: float = 4.5e-3
     earth_radius_rad: float = 1.15
     stars_in_field: int | None = None
+    stars_matched: int | None = None
+    sigma_cross_rad: float | None = None
+    sigma_roll_rad: float | None = None
 
 
 MeasurementSource = Callable[[float], TrackerTruth]
@@ -375,7 +381,12 @@ class StarTrackerEmulator(SerialEndpoint):
         rng = self.rng
         n_stars = truth.stars_in_field if truth.stars_in_field is not None else int(rng.poisson(cfg.mean_stars))
         n_stars = min(max(int(n_stars), 0), 255)
-        matched = 0 if sun else int(rng.binomial(n_stars, cfg.match_probability))
+        if sun:
+            matched = 0  # the Sun blinds the detector
+        elif truth.stars_matched is not None:
+            matched = min(max(int(truth.stars_matched), 0), n_stars)
+        else:
+            matched = int(rng.binomial(n_stars, cfg.match_probability))
         good = not (sun or moon or earth or rate_high) and matched >= p["min_stars_matched"]
         if good:
             self.stable_count += 1
@@ -403,8 +414,10 @@ class StarTrackerEmulator(SerialEndpoint):
         return Solution(
             time_us=self.device_time_us(t_e),
             q_TN=qm,
-            sigma_cross_rad=sc if cfg.reported_sigma else 0.0,
-            sigma_roll_rad=sr if cfg.reported_sigma else 0.0,
+            sigma_cross_rad=truth.sigma_cross_rad if truth.sigma_cross_rad is not None
+            else (sc if cfg.reported_sigma else 0.0),
+            sigma_roll_rad=truth.sigma_roll_rad if truth.sigma_roll_rad is not None
+            else (sr if cfg.reported_sigma else 0.0),
             stars_centroided=n_stars,
             stars_matched=matched,
             mode=self.mode,

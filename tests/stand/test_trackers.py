@@ -15,6 +15,7 @@ from stand.errors import ScenarioError
 from stand.loop import run
 from stand.report import write_summary
 from stand.scenario import SCENARIO_DIR
+from stand.trackers import ARCSEC as ARCSEC_RAD
 
 IMAGE_SCENARIO = SCENARIO_DIR / "detumble_star_tracker_image.toml"
 _channels = itertools.count()
@@ -101,7 +102,11 @@ def test_image_source_solutions_cross_the_serial_line_within_the_image_accuracy(
         result = run(scene, tmp_path / "out")
         summary = write_summary(scene, result, tmp_path / "out")
         host = link.host.counters
+        last = link.last_solution
     assert result.status == "completed"
+    # The solver's own measurement reaches the flight computer: its sigmas and star counts.
+    assert 0.0 < last.sigma_cross_rad < 3.0 * ARCSEC_RAD and last.sigma_roll_rad > last.sigma_cross_rad
+    assert last.stars_centroided >= last.stars_matched >= 8
     st = result.counters["st1"]
     # One exposure a second from t = 1 s (boot), each rendered and solved, each published as a
     # SOLUTION frame that the host decoded; no frame was rejected on either side.
