@@ -24,6 +24,7 @@ from sim.truth import TruthModel, rotate_to_body
 
 from .controllers import BDot, load_plugin
 from .scenario import Scenario
+from .sun_sensors import SunSensorLink
 from .trackers import build_tracker
 
 
@@ -51,9 +52,13 @@ def plan(sc: Scenario) -> list[Choice]:
     needs_rotation = bool(rotation_why)
     needs_eop = needs_rotation and env.earth_rotation == "iau2006" and env.eop == "iers"
     trackers = [d.name for d in sc.devices if d.kind == "star_tracker"]
+    sun_sensors = [d.name for d in sc.devices if d.kind == "sun_sensor"]
     exclusion = f"exclusion of {', '.join(trackers)}" if trackers else ""
     sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp),
-                                (exclusion, bool(trackers))) if on]
+                                (exclusion, bool(trackers)), ("sun sensor " + ", ".join(sun_sensors),
+                                                              bool(sun_sensors))) if on]
+    shadow_why = [w for w, on in (("radiation pressure", o.srp is not None),
+                                   ("sun sensor " + ", ".join(sun_sensors), bool(sun_sensors))) if on]
     moon_why = [w for w, on in (("third-body Moon", "moon" in o.third_bodies), (exclusion, bool(trackers))) if on]
     gg = "gravity_gradient" in sc.torques
     gravity = {"point": "point-mass", "j2": "J2", "jgm3": f"JGM-3 to degree and order {o.gravity_degree}"}[o.gravity]
@@ -81,14 +86,16 @@ def plan(sc: Scenario) -> list[Choice]:
                else "no sun sensor, star tracker, radiation pressure or third-body Sun in the scene"),
         Choice("moon", bool(moon_why), "ephemeris track for " + ", ".join(moon_why) if moon_why
                else "no star tracker, sensor or force that cares about the Moon in the scene"),
-        Choice("eclipse", o.srp is not None, "conical shadow for radiation pressure" if o.srp is not None
+        Choice("eclipse", bool(shadow_why), "conical shadow for " + ", ".join(shadow_why) if shadow_why
                else "no sun sensor, power model or radiation pressure in the scene"),
         Choice("atmosphere", o.drag is not None, "exponential density for drag" if o.drag is not None
                else "no drag requested (no [orbit.drag] table)"),
         _star_screen_choice(sc),
     ]
     for d in sc.devices:
-        if d.kind == "magnetorquer":
+        if d.kind == "sun_sensor":
+            why = f"{d.type} sun sensor sampled from the truth at {d.rate_hz:g} Hz, eclipse-aware (no bus)"
+        elif d.kind == "magnetorquer":
             why = (f"magnetorquer board, {d.link} on CAN {d.interface}:{d.channel}, magnetometer at "
                    f"{d.sample_rate_hz:g} Hz")
         else:
@@ -152,6 +159,7 @@ class Scene:
     hosts: dict = field(default_factory=dict)
     buses: list = field(default_factory=list)
     trackers: dict = field(default_factory=dict)
+    sun_sensors: dict = field(default_factory=dict)
     controller: object | None = None
     closed: bool = False
 
@@ -222,6 +230,9 @@ def build(sc: Scenario) -> Scene:
     try:
         rng = np.random.SeedSequence(sc.seed)
         for d, child in zip(sc.devices, rng.spawn(len(sc.devices)), strict=True):
+            if d.kind == "sun_sensor":
+                scene.sun_sensors[d.name] = SunSensorLink(d, truth, tracks["sun"], np.random.default_rng(child))
+                continue
             if d.kind == "star_tracker":
                 scene.trackers[d.name] = build_tracker(d, truth, tracks, np.random.default_rng(child),
                                                        epoch=sc.epoch)

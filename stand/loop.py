@@ -75,6 +75,8 @@ def columns(scene: Scene) -> list[tuple[str, int, str]]:
                  (f"{name}.dipole_B", 3, "A m^2")]
     if scene.controller is not None and hasattr(scene.controller, "last_command"):
         cols.append(("dipole_cmd_B", 3, "A m^2"))
+    for link in scene.sun_sensors.values():
+        cols += link.columns()
     for name in scene.trackers:
         # The newest solution the host received (repeated until the next): exposure time in sim
         # time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon,
@@ -138,6 +140,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     bar = Progress(n_steps * sc.step_s, progress)
     emulators = list(scene.emulators.values())
     trackers = list(scene.trackers.values())
+    sun_sensors = [(link, ticks_per(link.spec.rate_hz, sc.step_s)) for link in scene.sun_sensors.values()]
     hosts = list(scene.hosts.values())
     controller = scene.controller
     ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if controller is not None else 0
@@ -168,6 +171,9 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                 emu.publish(t)
             for link in trackers:
                 link.step(t)
+            for sensor, every in sun_sensors:
+                if k % every == 0:
+                    sensor.step(t)
             if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
                 ctl_update(t)
             dx = dy = dz = 0.0
@@ -187,6 +193,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                     row += (*s.b_T, float(s.coil_active), *m) if s else (*NAN3, math.nan, *m)
                 if record_cmd:
                     row += tuple(controller.last_command)
+                for sensor, _ in sun_sensors:
+                    row += sensor.last
                 for link in trackers:
                     row += link.last or NO_SOLUTION
                 record(row)
@@ -214,6 +222,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
             counters[w.name]["silences"] = w.silences
         for name, link in scene.trackers.items():
             counters[name] = link.summary()
+        for name, sensor in scene.sun_sensors.items():
+            counters[name] = sensor.summary()
         if error:
             events.log(status, error)
         events.log("end", status, ticks=k, wall_time_s=wall)

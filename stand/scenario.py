@@ -7,12 +7,17 @@ minute nine. Units are converted to SI on the way in; nothing past this module s
 Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented example)::
 
     [scenario]     name, description, epoch (UTC ISO 8601), duration_s, seed
-    [dynamics]     step_s, integrator, torques = ["magnetic", "gravity_gradient"]
+    [dynamics]     step_s, integrator = "rk4" | "rkmk4" | "implicit_midpoint", torques
     [orbit]        altitude_km | a_km | p_km, e, i_deg, raan_deg, argp_deg, nu_deg | mean_anomaly_deg,
-                   gravity = "point" | "j2", step_s
+                   gravity = "point" | "j2" | "jgm3", gravity_degree, third_bodies, [orbit.drag], [orbit.srp],
+                   step_s
     [spacecraft]   mass_kg, inertia_kg_m2 (3 principal moments or 3x3), q_BN, omega_BN_B_deg_s
-    [environment]  magnetic_field = "dipole", earth_rotation = "uniform" | "iau2006", era0_deg
-    [[devices]]    name, kind = "magnetorquer", link = "emulated", interface, channel, q_SB, ...
+    [environment]  magnetic_field = "igrf" | "dipole", igrf_degree, earth_rotation = "iau2006" | "uniform",
+                   era0_deg, eop = "iers" | "none"
+    [[devices]]    name, kind = "magnetorquer" | "star_tracker" | "sun_sensor", q_SB, and per kind:
+                   magnetorquer: interface, channel, sample_rate_hz, max_dipole_A_m2, mag_noise_nT, ...
+                   star_tracker: port, source = "truth" | "image", noise_cross_arcsec, fov_deg, ...
+                   sun_sensor: type = "coarse" | "fine", rate_hz, noise_mA | noise_deg, fov_half_deg
     [controller]   kind = "bdot" | "none" | "plugin", rate_hz, ...
     [[criteria]]   name, metric, max | min, at_s
     [recording]    rate_hz
@@ -39,7 +44,7 @@ SCENARIO_DIR = FIXTURES / "scenarios"
 DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
 
 TORQUES = ("magnetic", "gravity_gradient")
-DEVICE_KINDS = ("magnetorquer", "star_tracker")
+DEVICE_KINDS = ("magnetorquer", "star_tracker", "sun_sensor")
 CONTROLLER_KINDS = ("bdot", "none", "plugin")
 METRICS = {
     "final_rate_deg_s": "body rate |omega| at the end of the run (deg/s)",
@@ -216,6 +221,21 @@ class StarTrackerSpec:
 
 
 @dataclass(frozen=True)
+class SunSensorSpec:
+    """Coarse (cosine heads) or fine (two-axis) sun sensor, sampled by the stand from the truth
+    through ``sim.sensors`` (no bus: ``link = "model"``); eclipse-aware through the shadow model."""
+
+    name: str
+    type: str  # "coarse" | "fine"
+    q_SB: np.ndarray
+    rate_hz: float
+    noise: float  # coarse: head current noise (A); fine: angle noise (rad)
+    fov_half_deg: float
+    link: str = "model"
+    kind: str = "sun_sensor"
+
+
+@dataclass(frozen=True)
 class ControllerSpec:
     kind: str
     rate_hz: float
@@ -245,7 +265,7 @@ class Scenario:
     orbit: OrbitSpec
     spacecraft: SpacecraftSpec
     environment: EnvironmentSpec
-    devices: tuple[MagnetorquerSpec | StarTrackerSpec, ...]
+    devices: tuple[MagnetorquerSpec | StarTrackerSpec | SunSensorSpec, ...]
     controller: ControllerSpec
     criteria: tuple[Criterion, ...]
     record_rate_hz: float
@@ -550,13 +570,32 @@ def _star_tracker(t: _Table, name: str, link: str, q_SB: np.ndarray, step_s: flo
     return spec
 
 
-def _device(t: _Table, step_s: float) -> MagnetorquerSpec | StarTrackerSpec:
+def _sun_sensor(t: _Table, name: str, q_SB: np.ndarray, step_s: float) -> SunSensorSpec:
+    kind = t.choice("type", ("coarse", "fine"))
+    if kind == "coarse":
+        noise = t.number("noise_mA", 0.0, lo=0.0, hi=10.0) * 1e-3
+    else:
+        noise = math.radians(t.number("noise_deg", 0.0, lo=0.0, hi=10.0))
+    # Coarse heads default to the bare cosine law (a 90 deg half-field); a fine sensor to 60 deg.
+    fov = t.number("fov_half_deg", 90.0, lo=1.0, hi=90.0) if kind == "coarse" else \
+        t.number("fov_half_deg", 60.0, lo=1.0, hi=89.0)
+    spec = SunSensorSpec(name=name, type=kind, q_SB=q_SB, rate_hz=_rate(t, "rate_hz", step_s, 1.0 / step_s),
+                         noise=noise, fov_half_deg=fov)
+    t.check_unknown()
+    return spec
+
+
+def _device(t: _Table, step_s: float) -> MagnetorquerSpec | StarTrackerSpec | SunSensorSpec:
     kind = t.choice("kind", DEVICE_KINDS)
     name = t.text("name")
-    link = t.choice("link", ("emulated",), "emulated")
+    # A sun sensor is a model the stand samples (no device protocol yet); the others are emulated.
+    link = t.choice("link", ("model",) if kind == "sun_sensor" else ("emulated",),
+                    "model" if kind == "sun_sensor" else "emulated")
     q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0])
     if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
+    if kind == "sun_sensor":
+        return _sun_sensor(t, name, q_SB, step_s)
     if kind == "star_tracker":
         return _star_tracker(t, name, link, q_SB, step_s)
     max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=100.0)

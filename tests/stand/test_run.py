@@ -256,3 +256,27 @@ def test_implicit_midpoint_at_a_step_beyond_its_limit_is_refused(scenario_dict, 
     scenario_dict["dynamics"]["integrator"] = "implicit_midpoint"
     with pytest.raises(ScenarioError, match="implicit_midpoint stays accurate only"):
         scenario.load(write_scenario(scenario_dict))
+
+
+def test_sun_sensors_see_the_sun_and_go_dark_in_eclipse(tmp_path):
+    import dataclasses
+
+    sc = scenario.load(scenario.SCENARIO_DIR / "detumble_igrf.toml")
+    sc = dataclasses.replace(sc, duration_s=3000.0, criteria=())
+    with build(sc) as scene:
+        built = {c.model for c in scene.choices if c.built}
+        assert {"sun", "eclipse", "device.css", "device.fss"} <= built
+        run(scene, tmp_path / "out")
+    tel = telemetry.load(tmp_path / "out")
+    nu, currents = tel["css.sun_fraction"], tel["css.currents"]
+    sampled = np.isfinite(nu)
+    umbra, lit = sampled & (nu == 0.0), sampled & (nu == 1.0)
+    # The equinox orbit holds the Sun in its plane: it enters the Earth's shadow within 3000 s.
+    assert umbra.sum() > 100 and lit.sum() > 100
+    assert np.all(currents[umbra] < 6 * 0.005e-3)  # noise only, no light
+    # Six faces of a cube: the lit cosines sum to at least one full head (1 mA) in full sun.
+    assert np.all(currents[lit].sum(axis=1) > 1e-3 - 6 * 0.005e-3 * np.sqrt(6))
+    fss_valid, angles = tel["fss.valid"], tel["fss.angles"]
+    assert not np.any(fss_valid[umbra] == 1.0)
+    ok = fss_valid == 1.0
+    assert ok.sum() > 10 and np.all(np.abs(angles[ok]) <= np.radians(60.0) + 1e-9)
