@@ -1,7 +1,8 @@
 """External torques on the body (N m, body components).
 
-Both functions broadcast over leading axes and are plain numpy; the stand's per-stage hot path
-inlines the same two lines on floats (see ``stand.dynamics``) and the tests prove they agree.
+Both functions broadcast over leading axes and are plain numpy; the per-stage hot path in
+``sim.truth.TruthModel._torque`` writes the same two formulas on floats, and
+``tests/sim/test_environment.py`` proves they agree.
 """
 
 from __future__ import annotations

@@ -191,9 +191,8 @@ class TruthModel:
         self.has_field = field_N is not None
         self.dipole_B = (0.0, 0.0, 0.0)
         self._I = self.body._I
-        self._stage_base = 0
         self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
-        self._b_B = (-1, None, None)  # (k, q, b_B): the magnetometer and the recorder both ask
+        self._b_B = (-1, None)  # (k, b_B): the magnetometer and the recorder both ask each step
 
     # --- truth at the current time ------------------------------------------------------------
     @property
@@ -213,10 +212,10 @@ class TruthModel:
         return self.track.field(2 * self.k)
 
     def b_B(self):
-        k, q, b = self._b_B
-        if k != self.k or q is not self.q:
+        k, b = self._b_B
+        if k != self.k:  # q only changes in step(), which advances k
             b = rotate_to_body(self.q, self.track.field(2 * self.k))
-            self._b_B = (self.k, self.q, b)
+            self._b_B = (self.k, b)
         return b
 
     # --- dynamics --------------------------------------------------------------------------------
@@ -244,7 +243,7 @@ class TruthModel:
     def step(self, dipole_B=(0.0, 0.0, 0.0)) -> None:
         """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant."""
         self.dipole_B = dipole_B
-        self._stage_base = base = 2 * self.k
+        base = 2 * self.k
         # The four stages sample the half-step grid at base, base + 1 (twice) and base + 2; each
         # point is looked up once per step, field before position as the stages did (the track
         # fills its chunks in the same order), only what the listed torques use.

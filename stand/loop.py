@@ -77,17 +77,9 @@ def columns(scene: Scene) -> list[tuple[str, int, str]]:
         cols.append(("dipole_cmd_B", 3, "A m^2"))
     for link in scene.sun_sensors.values():
         cols += link.columns()
-    for name in scene.trackers:
-        # The newest solution the host received (repeated until the next): exposure time in sim
-        # time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon,
-        # 4 Earth, 8 rate), and its error against the truth at that exposure.
-        cols += [(f"{name}.t_exposure_s", 1, "s"), (f"{name}.q_TN", 4, "1"), (f"{name}.valid", 1, "1"),
-                 (f"{name}.mode", 1, "1"), (f"{name}.flags", 1, "1"), (f"{name}.err_cross", 1, "arcsec"),
-                 (f"{name}.err_roll", 1, "arcsec")]
+    for link in scene.trackers.values():
+        cols += link.columns()
     return cols
-
-
-NO_SOLUTION = (math.nan,) * 10
 
 
 @dataclass
@@ -196,7 +188,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                 for sensor, _ in sun_sensors:
                     row += sensor.last
                 for link in trackers:
-                    row += link.last or NO_SOLUTION
+                    row += link.last
                 record(row)
                 if show is not None:
                     show(t)

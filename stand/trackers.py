@@ -39,6 +39,8 @@ R_MOON = 1.7374e6
 ATMOSPHERE_M = 100e3
 FLAG_BITS = {"sun_in_field": 1, "moon_in_field": 2, "earth_in_field": 4, "rate_too_high": 8}
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
+#: The telemetry fragment before the first solution arrives (widths of TrackerLink.columns()).
+NO_SOLUTION = (math.nan,) * 10
 
 
 def attitude_error_arcsec(q_true, q_meas) -> tuple[float, float]:
@@ -60,7 +62,7 @@ class TrackerLink:
     valid: int = 0
     flags: dict = field(default_factory=lambda: dict.fromkeys(FLAG_BITS, 0))
     errors: list = field(default_factory=list)  # (t_s, cross, roll) of valid solutions
-    last: tuple | None = None  # the newest solution as a telemetry row fragment
+    last: tuple = NO_SOLUTION  # the newest solution as a telemetry row fragment (see columns())
     last_solution: object | None = None  # the newest decoded SOLUTION message, as the host got it
     image: object | None = None  # the ImageSolver of an image-source tracker
 
@@ -120,6 +122,15 @@ class TrackerLink:
         if len(self.truth_at) > 256:
             for k in sorted(self.truth_at)[:-64]:
                 del self.truth_at[k]
+
+    def columns(self) -> list[tuple[str, int, str]]:
+        """Telemetry of the newest solution the host received (repeated until the next): exposure
+        time in sim time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun,
+        2 Moon, 4 Earth, 8 rate), and its error against the truth at that exposure."""
+        n = self.name
+        return [(f"{n}.t_exposure_s", 1, "s"), (f"{n}.q_TN", 4, "1"), (f"{n}.valid", 1, "1"),
+                (f"{n}.mode", 1, "1"), (f"{n}.flags", 1, "1"), (f"{n}.err_cross", 1, "arcsec"),
+                (f"{n}.err_roll", 1, "arcsec")]
 
     def summary(self) -> dict:
         err = np.array([e[1:] for e in self.errors if math.isfinite(e[1])]).reshape(-1, 2)

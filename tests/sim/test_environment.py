@@ -91,3 +91,22 @@ def test_local_frames_are_right_handed_and_point_where_named():
         assert np.linalg.det(C) == pytest.approx(1.0)
     E = frames.dcm_esd_itrs([7e6, 0, 0])
     np.testing.assert_allclose(E, [[0, 1, 0], [0, 0, -1], [-1, 0, 0]], atol=1e-15)
+
+
+def test_truth_model_stage_torque_equals_the_torque_functions():
+    from sim.attitude import check_inertia
+    from sim.truth import TruthModel
+
+    inertia = check_inertia([[0.02, 0.001, 0.0], [0.001, 0.025, 0.0], [0.0, 0.0, 0.015]])
+    rot = frames.EarthRotation(Epoch.from_iso("2026-03-20T12:00:00Z"), "uniform")
+    truth = TruthModel(inertia=inertia, q_BN=[1.0, 0.0, 0.0, 0.0], omega_BN_B=[0.01, 0.02, 0.03],
+                       r_N=[7e6, 1e5, -2e5], v_N=[0.0, 7.5e3, 1.0e3], step_ns=100_000_000,
+                       field_itrs=lambda t, r: env.dipole_field_itrs(r), earth_rotation=rot)
+    truth.step((0.1, -0.05, 0.2))  # fills the stage points of step 0
+    q = np.array([0.8, 0.2, -0.4, 0.4])
+    q /= np.linalg.norm(q)
+    got = truth._torque(0.0, tuple(q), (0.0, 0.0, 0.0))
+    field_N, r_N = truth._stage_points[0]
+    expected = (torques.magnetic_torque([0.1, -0.05, 0.2], dcm(q) @ field_N)
+                + torques.gravity_gradient_torque(inertia, dcm(q) @ r_N))
+    np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-20)
