@@ -18,7 +18,7 @@ from pathlib import Path
 from .errors import ScenarioError
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
-EXTRA_COMMANDS = ("stand.screen_command", "stand.display", "stand.emulate_command", "stand.solve_command")
+EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve")
 
 
 def _fail(message: str) -> int:
@@ -97,7 +97,7 @@ def cmd_check(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import BENCHES, print_rows, run_bench
+    from .benches import BENCHES, print_rows, run_bench
 
     if args.name not in BENCHES:
         return _fail(f"bench {args.name!r} is not known; available: {', '.join(BENCHES)}.")
@@ -131,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--json", action="store_true", help="print JSON")
     c.set_defaults(func=cmd_check)
 
-    from .bench import BENCHES
+    from .benches import BENCHES
 
     b = sub.add_parser("bench", help="measurements: " + ", ".join(BENCHES))
     b.add_argument("name", help=", ".join(BENCHES))

@@ -22,10 +22,10 @@ from sim.rotations import dcm
 from sim.time import NS_PER_S, seconds_to_ns
 from sim.truth import TruthModel, rotate_to_body
 
-from .controllers import BDot, load_plugin
+from .adcs import BDot, load_plugin
+from .devices.star_tracker import build_tracker
+from .devices.sun_sensor import SunSensorLink
 from .scenario import Scenario
-from .sun_sensors import SunSensorLink
-from .trackers import build_tracker
 
 
 @dataclass(frozen=True)

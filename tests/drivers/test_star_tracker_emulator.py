@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from star_tracker_helpers import Truth, pipe_pair
 
 from drivers.star_tracker.codec import (
     Ack,
@@ -31,6 +30,8 @@ from drivers.star_tracker.codec import (
 from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator, TrackerTruth
 from drivers.star_tracker.slip import SlipDecoder
 from sim.rotations import dcm, quat_from_axis_angle
+
+from .star_tracker_helpers import Truth, pipe_pair
 
 CODEC = StarTrackerCodec()
 ADDR = CODEC.default_address

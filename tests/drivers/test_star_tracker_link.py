@@ -12,13 +12,14 @@ import time
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from star_tracker_helpers import FAST, PtyRig, pipe_pair
 
 from drivers.errors import ConnectError, DeviceTimeoutError, EncodeError
 from drivers.star_tracker.codec import NackError, RequestTelemetry, Solution, StarTrackerCodec
 from drivers.star_tracker.emulator import EmulatorConfig
 from drivers.star_tracker.host import StarTrackerHost
 from drivers.star_tracker.slip import escape
+
+from .star_tracker_helpers import FAST, PtyRig, pipe_pair
 
 CODEC = StarTrackerCodec()
 

@@ -5,7 +5,7 @@ import pytest
 
 from sim.time import Epoch
 from stand.cli import main
-from stand.display import DisplayNode, StateSender
+from stand.commands.display import DisplayNode, StateSender
 from star_screen.attitude import q_SN_from_radec_roll
 from star_screen.catalog import Catalog
 from star_screen.geometry import default_bench
@@ -157,7 +157,7 @@ def test_cli_display_node_window_on_dummy_video(monkeypatch, capsys):
 
 
 def test_bench_reports_the_display_node_round_trip():
-    from stand.bench_render import display_node_rows
+    from stand.benches.render import display_node_rows
 
     rows = display_node_rows(3)
     assert [r["name"] for r in rows] == ["display node round trip 1920x1080 median",

@@ -11,11 +11,11 @@ import pytest
 
 from stand import scenario, telemetry
 from stand.compose import build, plan
+from stand.devices.star_tracker import ARCSEC as ARCSEC_RAD
 from stand.errors import ScenarioError
 from stand.loop import run
 from stand.report import write_summary
 from stand.scenario import SCENARIO_DIR
-from stand.trackers import ARCSEC as ARCSEC_RAD
 
 IMAGE_SCENARIO = SCENARIO_DIR / "detumble_star_tracker_image.toml"
 _channels = itertools.count()

@@ -1,8 +1,9 @@
 import pytest
-from star_screen_helpers import EPOCH_ISO
 
 from sim.time import Epoch
 from star_screen.catalog import Catalog
+
+from .star_screen_helpers import EPOCH_ISO
 
 
 @pytest.fixture(scope="session")

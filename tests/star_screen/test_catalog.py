@@ -6,11 +6,12 @@ import pathlib
 import erfa
 import numpy as np
 import pytest
-from star_screen_helpers import MAS, separation
 
 from sim.ephemeris import aberrate, earth_pv_bcrs
 from sim.time import Epoch
 from star_screen.catalog import DEFAULT_CATALOG_PATH, radec_to_unit, unit_to_radec
+
+from .star_screen_helpers import MAS, separation
 
 REF = pathlib.Path(__file__).parents[2] / "fixtures" / "reference" / "star_screen" / "apparent_places.json"
 

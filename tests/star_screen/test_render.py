@@ -5,13 +5,14 @@ import math
 
 import numpy as np
 import pytest
-from star_screen_helpers import ARCSEC, separation, synthetic_catalog
 
 from star_screen.attitude import q_SN_from_radec_roll, radec_roll_from_q_SN
 from star_screen.catalog import unit_to_radec
 from star_screen.geometry import default_bench
 from star_screen.metrics import emitted_centroids, isolated, reference_tan_pixels
 from star_screen.render import Renderer
+
+from .star_screen_helpers import ARCSEC, separation, synthetic_catalog
 
 #: Acceptance tolerances (screen px, mag) for stars with peak >= 8/255 of full-scale luminance.
 CENTROID_RMS_PX = 0.01

@@ -107,7 +107,7 @@ def test_scenario_tracker_errors_name_the_tracker(tmp_path, capsys, scenario, tr
 
 
 def test_bench_rows_have_the_agreed_keys(monkeypatch):
-    from stand import bench_render
+    from stand.benches import render as bench_render
 
     geo_rows, speed_rows = bench_render.geometry_rows, bench_render.speed_rows
     monkeypatch.setattr(bench_render, "geometry_rows", lambda n: geo_rows(2))

@@ -9,7 +9,6 @@ import math
 
 import numpy as np
 import pytest
-from star_screen_helpers import ARCSEC
 
 from sim.rotations import angle_between, compose, dcm, quat_from_axis_angle
 from star_screen.geometry import default_bench
@@ -19,6 +18,8 @@ from star_screen.tracking.estimate import attitude_error_S, estimate_attitude
 from star_screen.tracking.extract import extract_stars
 from star_screen.tracking.identify import false_match_probability
 from star_screen.tracking.noise import camera_noise
+
+from .star_screen_helpers import ARCSEC
 
 
 @pytest.fixture(scope="module")

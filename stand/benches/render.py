@@ -177,9 +177,8 @@ def display_node_rows(n_frames: int) -> list[dict]:
 
     Sender and node run in one thread (send, then ``serve(max_frames=1)``), so the time is the
     node's own work: UDP send and receive, decode, render at 1920 x 1080, push to the output."""
+    from stand.commands.display import DisplayNode, StateSender
     from star_screen.outputs import FrameQueue
-
-    from .display import DisplayNode, StateSender
 
     epoch = Epoch.from_iso(EPOCH)
     qs = _attitudes(n_frames + 5, seed=11)[: n_frames + 5]

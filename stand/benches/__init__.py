@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 
 BENCHES = {
-    "loop": "stand.bench:bench_loop",
-    "render": "stand.bench_render:bench_render",
-    "env": "stand.bench_env:bench_env",
-    "accuracy": "stand.bench_accuracy:bench_accuracy",
-    "pacing": "stand.bench:bench_pacing",
-    "tracker": "stand.bench_tracker:bench_tracker",
-    "tracker-link": "stand.bench_tracker_link:bench_tracker_link",
+    "loop": "stand.benches:bench_loop",
+    "render": "stand.benches.render:bench_render",
+    "env": "stand.benches.env:bench_env",
+    "accuracy": "stand.benches.accuracy:bench_accuracy",
+    "pacing": "stand.benches:bench_pacing",
+    "tracker": "stand.benches.tracker:bench_tracker",
+    "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
 }
 
 #: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
@@ -60,8 +60,8 @@ def print_rows(rows: list[dict]) -> None:
 def _timed_run(sc, out: Path, devices: bool):
     import dataclasses
 
-    from .compose import build
-    from .loop import run
+    from stand.compose import build
+    from stand.loop import run
 
     if not devices:
         sc = dataclasses.replace(sc, devices=(), controller=dataclasses.replace(sc.controller, kind="none"))
@@ -69,7 +69,7 @@ def _timed_run(sc, out: Path, devices: bool):
         t0 = time.perf_counter()
         result = run(scene, out, progress=False)
         wall = time.perf_counter() - t0
-    from .telemetry import load
+    from stand.telemetry import load
 
     return result, wall, load(out)
 
@@ -77,7 +77,7 @@ def _timed_run(sc, out: Path, devices: bool):
 def bench_loop(quick: bool = False) -> list[dict]:
     """The default scenario afap: wall time against real time, with every measurement and command
     through the CAN codec on python-can's virtual bus, and the same dynamics without devices."""
-    from .scenario import DEFAULT_SCENARIO, load
+    from stand.scenario import DEFAULT_SCENARIO, load
 
     sc = load(DEFAULT_SCENARIO)
     if quick:
@@ -122,9 +122,9 @@ def bench_pacing(quick: bool = False) -> list[dict]:
     """
     import dataclasses
 
-    from .compose import build
-    from .loop import run
-    from .scenario import DEFAULT_SCENARIO, load
+    from stand.compose import build
+    from stand.loop import run
+    from stand.scenario import DEFAULT_SCENARIO, load
 
     duration = 5.0 if quick else 30.0
     sc = dataclasses.replace(load(DEFAULT_SCENARIO), duration_s=duration)
