@@ -14,8 +14,8 @@ Errors come from one tree, documented in :mod:`drivers.errors`.
 
 from __future__ import annotations
 
-from pathlib import Path
 
+import fixtures
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
 
 __all__ = [
@@ -28,20 +28,7 @@ __all__ = [
     "fixture_path",
 ]
 
-#: ``<repo>/fixtures``, located relative to this package (works from a source checkout and an
-#: editable install).
-FIXTURES_DIR = Path(__file__).resolve().parents[1] / "fixtures"
-
-
-def fixture_path(relative: str | Path) -> Path:
-    """The path of a fixture file, e.g. ``fixture_path("devices/magnetorquer.dbc")``.
-
-    Raises FileNotFoundError naming the full path looked at when the file does not exist.
-    """
-    path = FIXTURES_DIR / relative
-    if not path.is_file():
-        raise FileNotFoundError(
-            f"Fixture {str(relative)!r} not found: looked at {path} (fixtures are located relative to "
-            f"the drivers package, at {FIXTURES_DIR})."
-        )
-    return path
+#: Where the ICDs live (the ``fixtures`` data package: a source checkout or site-packages).
+FIXTURES_DIR = fixtures.ROOT
+#: ``fixture_path("devices/magnetorquer.dbc")``: the one data locator, shared with every layer.
+fixture_path = fixtures.path

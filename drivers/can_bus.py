@@ -36,7 +36,7 @@ def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
     except ImportError as exc:  # pragma: no cover - python-can is a core dependency
         raise ConnectError(
             f"Cannot open CAN bus ({where}): python-can is not installed ({exc}). "
-            "Install the 'can' extra: pip install 'adcs-stand[can]'.",
+            "It is part of the base install (pip install adcs-stand).",
             where=where,
             reason=str(exc),
         ) from exc

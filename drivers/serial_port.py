@@ -127,8 +127,8 @@ def open_port(
     try:
         import serial
     except ImportError:
-        raise ConnectError(f"{name}: opening serial port {url!r} needs pyserial; install the serial extra: "
-                           "pip install 'adcs-stand[serial]'.", where=url, reason="pyserial missing") from None
+        raise ConnectError(f"{name}: opening serial port {url!r} needs pyserial, which is part of "
+                           "the base install (pip install adcs-stand).", where=url, reason="pyserial missing") from None
 
     try:
         ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=2.0)

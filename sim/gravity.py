@@ -21,13 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
+import fixtures
+
 from . import harmonics
 from .constants import AU, J2_EARTH, MU_EARTH, OMEGA_EARTH, R_EARTH
 
 __all__ = ["GravityField", "load_field", "accel_j2_rsw", "accel_third_body", "accel_drag_exponential",
            "accel_srp_cannonball", "GM_SUN", "GM_MOON", "P_SUN_1AU"]
 
-GRAVITY_DIR = Path(__file__).resolve().parents[1] / "fixtures" / "gravity"
+GRAVITY_DIR = fixtures.ROOT / "gravity"
 #: Models available offline: name -> coefficient file in ``fixtures/gravity/`` (checksum beside it).
 MODELS = {"jgm3": "JGM3_deg20.gfc"}
 #: Sun and Moon gravitational parameters, m^3/s^2 (DE421 / IERS Conventions 2010 values).

@@ -22,10 +22,11 @@ from __future__ import annotations
 import hashlib
 import warnings
 from functools import lru_cache
-from pathlib import Path
 
 import erfa
 import numpy as np
+
+import fixtures
 
 from . import harmonics
 from .constants import R_IGRF
@@ -33,7 +34,7 @@ from .time import _DUBIOUS, Epoch
 
 __all__ = ["IGRF_FILE", "YEAR_MIN", "YEAR_MAX", "MAX_DEGREE", "decimal_year", "coefficients", "field_itrs"]
 
-IGRF_FILE = Path(__file__).resolve().parents[1] / "fixtures" / "igrf" / "IGRF14.shc"
+IGRF_FILE = fixtures.ROOT / "igrf" / "IGRF14.shc"
 _SHA256 = "717f6dce821a8f2bfcc6a77f79cc227ba91f61aeb458d5433e8c72450d48f8e0"
 YEAR_MIN = 1900.0
 YEAR_MAX = 2030.0

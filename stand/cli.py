@@ -1,8 +1,9 @@
 """The ``stand`` command line.
 
-Exit codes (DESIGN.md): 0 when the scenario's pass criteria hold, 1 when they fail (or a run
-was aborted by a device or numerical error), 2 for a usage or scenario error. User mistakes get
-one sentence naming the field, the value and what is allowed; never a bare traceback.
+Exit codes (``stand --help``, ``docs/public_surface.md``): 0 the run passed its criteria, 1 a criterion failed,
+2 a usage or scenario error, 3 the run was aborted (a device fault, a plug-in exception, a full disk),
+130 stopped by the operator (Ctrl-C or SIGTERM). User mistakes get one sentence naming the field, the value and
+what is allowed; never a bare traceback.
 """
 
 from __future__ import annotations
@@ -11,72 +12,145 @@ import argparse
 import dataclasses
 import importlib
 import json
+import signal
 import sys
 import time
 from pathlib import Path
 
-from .errors import ScenarioError
+from .errors import ScenarioError, fail
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve")
+EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
+EXIT_CODES = """exit codes:
+  0    the run passed its criteria (other commands: success)
+  1    a criterion failed
+  2    a usage or scenario error (one sentence names the field, the value and what is allowed)
+  3    the run was aborted: a device fault, a plug-in exception, a full disk (summary and log kept)
+  130  stopped by the operator (Ctrl-C or SIGTERM; summary and log kept)"""
 
 
-def _fail(message: str) -> int:
-    print(f"stand: error: {message}", file=sys.stderr)
-    return 2
-
-
-def _load_scenario(arg: str | None, seed: int | None = None):
+def _load_scenario(arg: str | None, seed: int | None = None, overrides: list[str] | None = None):
     from . import scenario as scenario_mod
 
-    sc = scenario_mod.load(arg or scenario_mod.DEFAULT_SCENARIO)
+    sc = scenario_mod.load(arg or scenario_mod.DEFAULT_SCENARIO, overrides)
     if seed is not None:
-        if seed < 0:
-            raise ScenarioError("--seed", seed, "a whole number >= 0")
+        if not 0 <= seed < 2**63:
+            raise ScenarioError("--seed", seed, "a whole number from 0 to 2**63 - 1")
         sc = dataclasses.replace(sc, seed=seed)
     return sc
+
+
+class _Signals:
+    """SIGTERM stops a run as Ctrl-C does; while the summary is written, further signals are noted, not acted
+    on, so the report is whole."""
+
+    def __init__(self):
+        self.old = {}
+        self.deferred = False
+
+    def __enter__(self):
+        from .loop import Stopped
+
+        def term(signum, frame):
+            raise Stopped(signal.Signals(signum).name)
+
+        self.old[signal.SIGTERM] = signal.signal(signal.SIGTERM, term)
+        return self
+
+    def defer(self):
+        def note(signum, frame):
+            self.deferred = True
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.old.setdefault(sig, signal.getsignal(sig))
+            signal.signal(sig, note)
+
+    def __exit__(self, *exc):
+        for sig, handler in self.old.items():
+            signal.signal(sig, handler)
+
+
+def _speed(args, sc) -> float | None:
+    from .pacing import parse_speed
+
+    wall = sc.wall_time_links
+    if args.speed is None:
+        return 1.0 if wall else None
+    speed = parse_speed(args.speed)
+    if speed is None and wall:
+        raise ScenarioError("--speed", args.speed, f"realtime or a factor: devices {', '.join(wall)} run on "
+                            "hardware or served links in wall time, and a run as fast as possible would outrun them")
+    return speed
 
 
 def cmd_run(args) -> int:
     from drivers.errors import DriverError
 
+    from .adcs import PluginError
     from .compose import build
-    from .loop import run
-    from .pacing import parse_speed
-    from .report import write_summary
+    from .loop import Stopped, run
+    from .report import limit_text, write_summary
 
+    out = None
     try:
-        speed = parse_speed(args.speed)
-        sc = _load_scenario(args.scenario, args.seed)
-        if args.duration is not None and not (0 < args.duration <= sc.duration_s * 100):
-            raise ScenarioError("--duration", args.duration, "a positive number of seconds")
-        out = Path(args.out) if args.out else Path("runs") / f"{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-        if out.exists() and any(out.iterdir()):
-            raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
-        out.mkdir(parents=True, exist_ok=True)
-        scene = build(sc)
-    except (ScenarioError, DriverError, ValueError) as exc:
-        return _fail(str(exc))
-    with scene:
-        result = run(scene, out, speed=speed, duration_s=args.duration,
-                     progress=args.progress if args.progress is not None else sys.stderr.isatty())
-    summary = write_summary(scene, result, out)
+        with _Signals() as signals:
+            try:
+                sc = _load_scenario(args.scenario, args.seed, args.set)
+                speed = _speed(args, sc)
+                if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
+                    raise ScenarioError("--duration", args.duration, f"seconds from the step ({sc.step_s:g} s) to "
+                                        f"100 times the scenario's duration ({sc.duration_s * 100:g} s)")
+                out = Path(args.out) if args.out else Path("runs") / f"{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+                if out.exists() and (not out.is_dir() or any(out.iterdir())):
+                    raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
+                from . import scenario as scenario_mod
+
+                base = scenario_mod.find(args.scenario).parent if args.scenario else None
+                scene = build(sc, speed, base)
+            except (ScenarioError, PluginError, DriverError, ValueError) as exc:
+                return fail(str(exc))
+            except (KeyboardInterrupt, Stopped):
+                print("stand: stopped by the operator before the run started; nothing was written", file=sys.stderr)
+                return EXIT_STOPPED
+            with scene:
+                out.mkdir(parents=True, exist_ok=True)
+                result = run(scene, out, speed=speed, duration_s=args.duration,
+                             progress=args.progress if args.progress is not None else sys.stderr.isatty())
+                signals.defer()
+            summary = write_summary(scene, result, out)
+    except OSError as exc:
+        print(f"stand: error: the run's results could not be written in {out}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_ABORTED
     for c in summary["criteria"]:
-        print(f"{'PASS' if c['pass'] else 'FAIL'}  {c['name']}: {c['value']:.4g} (limit {c['limit']})")
+        print(f"{'PASS' if c['pass'] else 'FAIL'}  {c['name']}: {limit_text(c)}")
+    t = result.timing
+    if t.get("paced"):
+        print(f"paced at x{t['speed_factor']:g} real time: {t['overruns']} overruns (ticks more than a period late), "
+              f"lateness p99 {t.get('lateness_ms_p99', 0):.3f} ms, worst {t.get('lateness_ms_max', 0):.3f} ms")
     if result.error:
         print(f"stand: run {result.status}: {result.error}", file=sys.stderr)
-    print(f"{'PASS' if summary['pass'] else 'FAIL'}: {sc.name}, {result.sim_duration_s:g} s simulated in "
-          f"{result.wall_time_s:.2f} s (x{summary['realtime_factor']} real time); results in {out}")
-    return 0 if summary["pass"] else 1
+    verdict = "PASS" if summary["pass"] else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(result.status, "FAIL")
+    print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
+          f"(x{summary['realtime_factor']} real time); results in {out}")
+    if result.status == "aborted":
+        return EXIT_ABORTED
+    if result.status == "stopped":
+        return EXIT_STOPPED
+    return EXIT_PASS if summary["pass"] else EXIT_FAIL
 
 
 def cmd_check(args) -> int:
+    from .adcs import PluginError, check_controller
     from .compose import plan
 
     try:
-        sc = _load_scenario(args.scenario)
-    except ScenarioError as exc:
-        return _fail(str(exc))
+        sc = _load_scenario(args.scenario, overrides=args.set)
+        from . import scenario as scenario_mod
+
+        check_controller(sc, scenario_mod.find(args.scenario).parent)
+    except (ScenarioError, PluginError) as exc:
+        return fail(str(exc))
     choices = plan(sc)
     if args.json:
         print(json.dumps({"scenario": sc.name, "valid": True,
@@ -96,16 +170,27 @@ def cmd_check(args) -> int:
     return 0
 
 
+def cmd_scenarios(args) -> int:
+    from .scenario import SCENARIO_DIR, shipped
+
+    rows = shipped()
+    w = max(map(len, rows), default=8)
+    print(f"shipped scenarios ({SCENARIO_DIR}); run one with `stand run NAME`:")
+    for name, desc in rows.items():
+        print(f"  {name:<{w}}  {desc}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from .benches import BENCHES, print_rows, run_bench
 
     if args.name not in BENCHES:
-        return _fail(f"bench {args.name!r} is not known; available: {', '.join(BENCHES)}.")
+        return fail(f"bench {args.name!r} is not known; available: {', '.join(BENCHES)}.")
     try:
         plot = str(Path(args.json).with_suffix(".png")) if args.json else None
         rows = run_bench(args.name, quick=args.quick, plot_path=plot)
     except ScenarioError as exc:
-        return _fail(str(exc))
+        return fail(str(exc))
     print_rows(rows)
     if args.json:
         Path(args.json).write_text(json.dumps({"bench": args.name, "rows": rows}, indent=2, default=float) + "\n")
@@ -113,13 +198,18 @@ def cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="stand", description="Hardware-in-the-loop test stand for spacecraft ADCS.")
+    p = argparse.ArgumentParser(prog="stand", description="Hardware-in-the-loop test stand for spacecraft ADCS.",
+                                epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     r = sub.add_parser("run", help="run a scenario (default: the detumble on emulated CAN devices)")
-    r.add_argument("scenario", nargs="?", help="scenario file or name in fixtures/scenarios (default: detumble)")
+    r.add_argument("scenario", nargs="?",
+                   help="scenario file, or a shipped name (`stand scenarios`; default: detumble)")
     r.add_argument("--out", help="output directory (default: runs/NAME-TIME)")
-    r.add_argument("--speed", default="afap", help="afap (default), realtime, or a factor such as 10")
+    r.add_argument("--speed", default=None, help="afap, realtime, or a factor such as 10 (default: afap; realtime "
+                   "when a device is on a hardware or served link)")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scenario value, e.g. --set devices.mtq.channel=can1 (repeatable)")
     r.add_argument("--duration", type=float, help="simulated seconds (default: the scenario's)")
     r.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -129,7 +219,11 @@ def build_parser() -> argparse.ArgumentParser:
     c = sub.add_parser("check", help="validate a scenario; list the models built and left out, and why")
     c.add_argument("scenario")
     c.add_argument("--json", action="store_true", help="print JSON")
+    c.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a scenario value")
     c.set_defaults(func=cmd_check)
+
+    s = sub.add_parser("scenarios", help="list the shipped scenarios with their descriptions")
+    s.set_defaults(func=cmd_scenarios)
 
     from .benches import BENCHES
 
@@ -157,7 +251,7 @@ def main(argv=None) -> int:
         return args.func(args)
     except KeyboardInterrupt:
         print("stand: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_STOPPED
 
 
 if __name__ == "__main__":

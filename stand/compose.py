@@ -18,13 +18,12 @@ from sim.ephemeris import EphemerisTrack
 from sim.forces import OrbitForces
 from sim.frames import EarthRotation
 from sim.orbit import elements_to_state
-from sim.rotations import dcm
 from sim.time import NS_PER_S, seconds_to_ns
-from sim.truth import TruthModel, rotate_to_body
+from sim.truth import TruthModel
 
-from .adcs import BDot, load_plugin
-from .devices.star_tracker import build_tracker
-from .devices.sun_sensor import SunSensorLink
+from . import devices
+from .adcs import build_controller
+from .devices import BuildContext
 from .scenario import Scenario
 
 
@@ -35,31 +34,31 @@ class Choice:
     reason: str
 
 
+def device_needs(sc: Scenario) -> dict[str, list[str]]:
+    """Truth model -> the reasons devices give for it (``stand.devices.TRUTH_MODELS``)."""
+    needs: dict[str, list[str]] = {m: [] for m in devices.TRUTH_MODELS}
+    for d in sc.devices:
+        for model, why in devices.get(d.kind).needs(d).items():
+            needs[model].append(why)
+    return needs
+
+
 def plan(sc: Scenario) -> list[Choice]:
     """Every model the stand knows, built or left out, with the reason."""
-    mtq = [d for d in sc.devices if d.kind == "magnetorquer"]
     o, env = sc.orbit, sc.environment
-    needs_field = bool(mtq) or "magnetic" in sc.torques
-    field_why = []
-    if mtq:
-        field_why.append("magnetometer of " + ", ".join(d.name for d in mtq))
-    if "magnetic" in sc.torques:
-        field_why.append("magnetic torque")
-    if env.magnetic_field == "igrf":
+    dev = device_needs(sc)
+    field_why = dev["magnetic_field"] + (["magnetic torque"] if "magnetic" in sc.torques else [])
+    needs_field = bool(field_why)
+    if needs_field and env.magnetic_field == "igrf":
         field_why.append(f"degree {env.igrf_degree}")
     rotation_why = [why for why, on in (("the field model", needs_field), ("harmonic gravity", o.gravity == "jgm3"),
                                         ("drag", o.drag is not None)) if on]
     needs_rotation = bool(rotation_why)
     needs_eop = needs_rotation and env.earth_rotation == "iau2006" and env.eop == "iers"
-    trackers = [d.name for d in sc.devices if d.kind == "star_tracker"]
-    sun_sensors = [d.name for d in sc.devices if d.kind == "sun_sensor"]
-    exclusion = f"exclusion of {', '.join(trackers)}" if trackers else ""
-    sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp),
-                                (exclusion, bool(trackers)), ("sun sensor " + ", ".join(sun_sensors),
-                                                              bool(sun_sensors))) if on]
-    shadow_why = [w for w, on in (("radiation pressure", o.srp is not None),
-                                   ("sun sensor " + ", ".join(sun_sensors), bool(sun_sensors))) if on]
-    moon_why = [w for w, on in (("third-body Moon", "moon" in o.third_bodies), (exclusion, bool(trackers))) if on]
+    sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp))
+               if on] + dev["sun"]
+    shadow_why = (["radiation pressure"] if o.srp is not None else []) + dev["eclipse"]
+    moon_why = (["third-body Moon"] if "moon" in o.third_bodies else []) + dev["moon"]
     gg = "gravity_gradient" in sc.torques
     gravity = {"point": "point-mass", "j2": "J2", "jgm3": f"JGM-3 to degree and order {o.gravity_degree}"}[o.gravity]
 
@@ -90,45 +89,23 @@ def plan(sc: Scenario) -> list[Choice]:
                else "no sun sensor, power model or radiation pressure in the scene"),
         Choice("atmosphere", o.drag is not None, "exponential density for drag" if o.drag is not None
                else "no drag requested (no [orbit.drag] table)"),
-        _star_screen_choice(sc),
+        _star_screen_choice(sc, dev["star_screen"]),
     ]
     for d in sc.devices:
-        if d.kind == "sun_sensor":
-            why = f"{d.type} sun sensor sampled from the truth at {d.rate_hz:g} Hz, eclipse-aware (no bus)"
-        elif d.kind == "magnetorquer":
-            why = (f"magnetorquer board, {d.link} on CAN {d.interface}:{d.channel}, magnetometer at "
-                   f"{d.sample_rate_hz:g} Hz")
-        else:
-            what = ("solved from its rendered detector image" if d.source == "image"
-                    else f"{d.source} plus noise")
-            why = (f"star tracker, {d.link} on a serial {d.port} pair, {what}, a solution every "
-                   f"{d.emulator['output_interval_s']:g} s")
-        choices.append(Choice(f"device.{d.name}", True, why))
+        choices.append(Choice(f"device.{d.name}", True, devices.get(d.kind).describe(d)))
     ctl = sc.controller
-    choices.append(Choice(f"controller.{ctl.kind}", ctl.kind != "none",
-                          f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
-                          else "no controller in the scenario: open loop"))
+    ctl_why = {"none": "no controller in the scenario: open loop",
+               "external": "a flight computer outside closes the loop through the served devices ("
+                           + ", ".join(d.name for d in sc.devices if d.link == "served") + "); the run is paced"}
+    choices.append(Choice(f"controller.{ctl.kind}", ctl.kind not in ("none", "external"),
+                          ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
     return choices
 
 
-def _star_screen_choice(sc: Scenario) -> Choice:
-    trackers = [d for d in sc.devices if d.kind == "star_tracker"]
-    image = [d for d in trackers if d.source == "image"]
-    truth = [d.name for d in trackers if d.source != "image"]
-    if not image:
-        return Choice("star_screen", False, "trackers use truth plus noise: " + ", ".join(truth) if truth
-                      else "no star tracker in the scene")
-    parts = []
-    for d in image:
-        o, cam = d.optics, d.camera
-        fx, fy = o.fov_deg
-        parts.append(f"renders the detector image of {d.name} ({fx:g} x {fy:g} deg on {o.width} x {o.height} px, "
-                     f"stars to Hp {o.mag_limit:g}, PSF sigma {o.psf_sigma_px:g} px, aberration, rate smear), "
-                     f"adds camera noise (read {cam['read_noise_e']:g} e-, background {cam['background_e']:g} e-) "
-                     "and solves it (pattern database built at compose time)")
-    if truth:
-        parts.append("truth plus noise for " + ", ".join(truth))
-    return Choice("star_screen", True, "; ".join(parts))
+def _star_screen_choice(sc: Scenario, why: list[str]) -> Choice:
+    if why:
+        return Choice("star_screen", True, "; ".join(why))
+    return Choice("star_screen", False, "no device looks at rendered stars (an image-source star tracker does)")
 
 
 def _eop_reason(sc: Scenario, needs_field: bool) -> str:
@@ -150,31 +127,36 @@ def _eop_reason(sc: Scenario, needs_field: bool) -> str:
 
 @dataclass
 class Scene:
-    """The live objects of one run. Close it to release the buses (idempotent)."""
+    """The live objects of one run. Close it to release the buses and ports (idempotent)."""
 
     scenario: Scenario
     truth: TruthModel
     choices: list[Choice]
-    emulators: dict = field(default_factory=dict)
-    hosts: dict = field(default_factory=dict)
-    buses: list = field(default_factory=list)
-    trackers: dict = field(default_factory=dict)
-    sun_sensors: dict = field(default_factory=dict)
+    devices: dict = field(default_factory=dict)  # name -> stand.devices.Device
     controller: object | None = None
     closed: bool = False
+
+    @property
+    def hosts(self) -> dict:
+        """Device name -> host driver, as the flight code sees them (None for a served device)."""
+        return {name: d.host for name, d in self.devices.items()}
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
+        errors = []
         if self.controller is not None and hasattr(self.controller, "close"):
-            self.controller.close()
-        for link in self.trackers.values():
-            link.close()
-        for h in self.hosts.values():
-            h.close()
-        for b in self.buses:
-            b.shutdown()
+            try:
+                self.controller.close()
+            except Exception as exc:  # a plug-in's close must not keep the buses open
+                errors.append(f"controller: {exc}")
+        for d in self.devices.values():
+            try:
+                d.close()
+            except Exception as exc:  # a peer that hung up makes shutdown raise; the others still close
+                errors.append(f"{d.name}: {exc}")
+        self.close_errors = errors
 
     def __enter__(self):
         return self
@@ -190,12 +172,10 @@ def initial_state(sc: Scenario):
     return np.asarray(r, dtype=float), np.asarray(v, dtype=float)
 
 
-def build(sc: Scenario) -> Scene:
-    """Create the truth model, the device emulators and host drivers, and the controller."""
-    from drivers.can_bus import open_bus
-    from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
-    from drivers.magnetorquer.host import MagnetorquerBoard
-
+def build(sc: Scenario, speed: float | None = None, base: Path | None = None) -> Scene:
+    """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
+    (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
+    relative to (the scenario's)."""
     choices = plan(sc)
     built = {c.model for c in choices if c.built}
     r0, v0 = initial_state(sc)
@@ -228,45 +208,11 @@ def build(sc: Scenario) -> Scene:
     )
     scene = Scene(sc, truth, choices)
     try:
-        rng = np.random.SeedSequence(sc.seed)
-        for d, child in zip(sc.devices, rng.spawn(len(sc.devices)), strict=True):
-            if d.kind == "sun_sensor":
-                scene.sun_sensors[d.name] = SunSensorLink(d, truth, tracks["sun"], np.random.default_rng(child))
-                continue
-            if d.kind == "star_tracker":
-                scene.trackers[d.name] = build_tracker(d, truth, tracks, np.random.default_rng(child),
-                                                       epoch=sc.epoch)
-                continue
-            dcm_SB = dcm(d.q_SB)
-            q_SB = tuple(float(x) for x in d.q_SB)
-
-            def field_S(_t_s, q_SB=q_SB):
-                # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
-                return rotate_to_body(q_SB, truth.b_B())
-
-            config = EmulatorConfig(
-                max_dipole_A_m2=d.max_dipole_A_m2, dipole_lsb_A_m2=d.dipole_lsb_A_m2,
-                mag_noise_T=d.mag_noise_T, mag_bias_T=tuple(d.mag_bias_T),
-                coil_coupling_T_per_A_m2=np.diag(d.coil_coupling_T_per_A_m2) @ dcm_SB.T,
-                sample_period_s=1.0 / d.sample_rate_hz,
-            )
-            emu_bus = open_bus(d.interface, d.channel)
-            scene.buses.append(emu_bus)
-            host_bus = open_bus(d.interface, d.channel)
-            scene.buses.append(host_bus)
-            scene.emulators[d.name] = MagnetorquerEmulator(emu_bus, field_S, config, np.random.default_rng(child))
-            scene.hosts[d.name] = MagnetorquerBoard(host_bus, name=d.name)
-        ctl = sc.controller
-        period = 1.0 / ctl.rate_hz
-        if ctl.kind == "bdot":
-            d = next(d for d in sc.devices if d.kind == "magnetorquer")
-            p = ctl.params
-            scene.controller = BDot(scene.hosts[d.name], period, p["gain_A_m2_s_per_T"], p["max_dipole_A_m2"],
-                                    q_SB=d.q_SB, skip_coil_active=p["skip_coil_active"],
-                                    duty_cycle=p.get("duty_cycle", 1.0))
-        elif ctl.kind == "plugin":
-            cls = load_plugin(ctl.params["module"])
-            scene.controller = cls(scene.hosts, period, **ctl.params["options"])
+        seeds = np.random.SeedSequence(sc.seed).spawn(len(sc.devices))
+        for d, seed in zip(sc.devices, seeds, strict=True):
+            ctx = BuildContext(truth, tracks, sc.epoch, np.random.default_rng(seed), sc.step_s, speed)
+            scene.devices[d.name] = devices.get(d.kind).build(d, ctx)
+        scene.controller = build_controller(sc, scene.devices, base)
     except BaseException:
         scene.close()
         raise

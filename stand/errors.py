@@ -7,6 +7,23 @@ command line prints as is (exit code 2). Device failures come from ``drivers.err
 
 from __future__ import annotations
 
+import sys
+
+#: Longest rendering of a value in an error message: a 60 MB value must not become a 60 MB sentence.
+MAX_VALUE_CHARS = 200
+
+
+def fail(message: str, prog: str = "stand") -> int:
+    """Print one error sentence for the user and return the usage-error exit code (2)."""
+    print(f"{prog}: error: {message}", file=sys.stderr)
+    return 2
+
+
+def shown(value) -> str:
+    """``repr(value)``, cut to MAX_VALUE_CHARS."""
+    text = repr(value)
+    return text if len(text) <= MAX_VALUE_CHARS else f"{text[:MAX_VALUE_CHARS - 30]}... ({len(text)} characters)"
+
 
 class ScenarioError(ValueError):
     """A scenario value is missing, of the wrong type or out of range."""
@@ -17,8 +34,8 @@ class ScenarioError(ValueError):
         self.allowed = allowed
         self.source = source
         where = f" in {source}" if source else ""
-        shown = "missing" if value is _MISSING else f"{value!r}"
-        super().__init__(f"{field} = {shown}{where} is not allowed: {allowed}.")
+        text = "missing" if value is _MISSING else shown(value)
+        super().__init__(f"{field} = {text}{where} is not allowed: {allowed}.")
 
 
 class _Missing:

@@ -1,26 +1,25 @@
-"""The multi-rate loop: one tick per dynamics step.
+"""The multi-rate loop: one tick per dynamics step, the same for every device kind and link.
 
-Order inside a tick at sim time t (DESIGN.md, data flow):
+Order inside a tick at sim time t:
 
 1. wait for the tick's wall-clock deadline (paced runs only);
-2. each device emulator publishes what is due at t (magnetometer samples of the truth at t,
-   status, heartbeat) through the real codec onto its bus;
+2. each device publishes what is due at t (``Device.publish``): an emulator samples the truth and sends
+   through the real codec; a hardware link's host reads what the real device sent;
 3. the controller, when due, reads its host drivers and sends commands back through the codec;
-4. the emulators take in those commands, which become the actuator output held (zero-order
-   hold) over the step;
-5. a telemetry row is recorded when due;
-6. the truth model advances one step, torques re-evaluated inside every RK4 stage.
+4. each device takes in what arrived (``Device.receive``); actuators' outputs (the dipole) are held
+   (zero-order hold) over the step;
+5. a telemetry row is recorded when due; the device watch looks for silent devices once a second;
+6. the truth model advances one step, torques re-evaluated inside every integrator stage.
 
-A failure mid-run (a device that stops answering, a step the dynamics outgrew) ends the run
-cleanly: the event is logged, the telemetry written so far stays readable, and the summary says
-what happened.
+A failure mid-run (a device fault, a plug-in exception, a full disk, the operator) ends the run cleanly: the
+event is logged, the telemetry written so far stays readable, and the summary says what happened.
 """
 
 from __future__ import annotations
 
-import math
 import sys
 import time
+import traceback
 from dataclasses import dataclass, field
 
 from drivers.errors import DriverError
@@ -28,41 +27,43 @@ from sim.time import seconds_to_ns
 
 from .compose import Scene, ticks_per
 from .pacing import Pacer
-from .telemetry import EventLog, Recorder
+from .telemetry import EventLog, Recorder, TelemetryError
 
-NAN3 = (math.nan, math.nan, math.nan)
-#: A device whose magnetometer has sent nothing for this many sample periods is reported silent.
-SILENT_PERIODS = 5
+#: Lines of a plug-in's traceback kept in the event log.
+TRACEBACK_LINES = 40
+
+
+class Stopped(Exception):
+    """The operator stopped the run (SIGTERM; Ctrl-C arrives as KeyboardInterrupt)."""
 
 
 class DeviceWatch:
-    """Notices a device that stops answering (and comes back), once per change, for the event log.
+    """Notices a device whose measurements stop reaching the stand (and come back), once per change, for the
+    event log, whatever its kind: it reads ``Device.activity()`` once per second of sim time. The run goes on
+    either way (the controller holds, the actuators' own watchdogs switch them off)."""
 
-    It reads the host driver's sample counter once per second of sim time; the run goes on either
-    way (the controller holds, the board's watchdog switches the coils off).
-    """
-
-    def __init__(self, name: str, host, period_s: float, events: EventLog):
-        self.name, self.host, self.events = name, host, events
-        self.limit_s = SILENT_PERIODS * period_s
+    def __init__(self, device, events: EventLog):
+        self.device, self.events = device, events
+        self.name = device.name
+        self.limit_s = device.silent_after_s
         self.count = 0
         self.last_change_s = 0.0
         self.silent = False
         self.silences = 0
 
     def check(self, t_s: float) -> None:
-        n = self.host.counters.get("samples", 0)
+        n = self.device.activity()
         if n != self.count:
             self.count, self.last_change_s = n, t_s
             if self.silent:
                 self.silent = False
-                self.events.log("device_recovered", f"{self.name}: samples again at t = {t_s:.3f} s", t_s=t_s)
+                self.events.log("device_recovered", f"{self.name}: heard from again at t = {t_s:.3f} s",
+                                t_s=t_s, device=self.name)
         elif not self.silent and t_s - self.last_change_s > self.limit_s:
             self.silent = True
             self.silences += 1
-            self.events.log("device_silent", f"{self.name}: no magnetometer sample since t = "
-                            f"{self.last_change_s:.3f} s (expected every {self.limit_s / SILENT_PERIODS:g} s)",
-                            t_s=t_s)
+            self.events.log("device_silent", f"{self.name}: nothing received since t = {self.last_change_s:.3f} s "
+                            f"(silent after {self.limit_s:g} s)", t_s=t_s, device=self.name)
 
 
 def columns(scene: Scene) -> list[tuple[str, int, str]]:
@@ -70,15 +71,15 @@ def columns(scene: Scene) -> list[tuple[str, int, str]]:
             ("v_BN_N", 3, "m/s")]
     if scene.truth.has_field:
         cols.append(("b_true_B", 3, "T"))
-    for name in scene.emulators:
-        cols += [(f"{name}.mag_S", 3, "T"), (f"{name}.mag_coil_active", 1, "1"),
-                 (f"{name}.dipole_B", 3, "A m^2")]
-    if scene.controller is not None and hasattr(scene.controller, "last_command"):
-        cols.append(("dipole_cmd_B", 3, "A m^2"))
-    for link in scene.sun_sensors.values():
-        cols += link.columns()
-    for link in scene.trackers.values():
-        cols += link.columns()
+    for d in scene.devices.values():
+        cols += d.columns()
+    if hasattr(scene.controller, "telemetry_columns"):
+        cols += list(scene.controller.telemetry_columns())
+    names = [c[0] for c in cols]
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise ValueError(f"telemetry columns {dup} are recorded twice: a plug-in's telemetry_columns() must not "
+                         "reuse the names of the stand's columns.")
     return cols
 
 
@@ -121,7 +122,11 @@ class Progress:
 
 def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float | None = None,
         progress: bool = False, clock=time.monotonic, sleep=time.sleep) -> RunResult:
-    """Run the scene, recording into ``out_dir``. Returns how it went; never leaves a bus open."""
+    """Run the scene, recording into ``out_dir``. Returns how it went; never leaves a bus open.
+
+    Whatever ends the run (the end, a device fault, a plug-in exception, a full disk, the operator), the
+    telemetry written so far stays readable and the event log says what happened.
+    """
     sc = scene.scenario
     truth = scene.truth
     duration = sc.duration_s if duration_s is None else duration_s
@@ -130,22 +135,24 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     recorder = Recorder(out_dir, columns(scene))
     pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
     bar = Progress(n_steps * sc.step_s, progress)
-    emulators = list(scene.emulators.values())
-    trackers = list(scene.trackers.values())
-    sun_sensors = [(link, ticks_per(link.spec.rate_hz, sc.step_s)) for link in scene.sun_sensors.values()]
-    hosts = list(scene.hosts.values())
+    devs = list(scene.devices.values())
+    publishers = [(d.publish, d.every_ticks) for d in devs]
+    receivers = [d.receive for d in devs]
+    givers = [d.dipole_B for d in devs if d.gives_dipole]
+    rows = [d.row for d in devs]
     controller = scene.controller
     ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if controller is not None else 0
     rec_every = ticks_per(sc.record_rate_hz, sc.step_s)
     has_field = truth.has_field
-    record_cmd = controller is not None and hasattr(controller, "last_command")
-    watches = [DeviceWatch(d.name, scene.hosts[d.name], 1.0 / d.sample_rate_hz, events)
-               for d in sc.devices if d.name in scene.hosts]  # CAN boards
+    ctl_row = getattr(controller, "telemetry", None)
+    watches = [DeviceWatch(d, events) for d in devs if d.silent_after_s is not None]
     watch_every = ticks_per(1.0, sc.step_s)
     status, error = "completed", None
     events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
-    # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals
-    # once here, and the dipoles travel as tuples of floats (no arrays, no float() per tick).
+    for d in devs:
+        d.start(events)
+    # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals once here, and
+    # the dipoles travel as tuples of floats (no arrays, no float() per tick).
     wait = pacer.wait if pacer.factor is not None else None
     step = truth.step
     ctl_update = controller.update if controller is not None else None
@@ -159,63 +166,62 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
             t = truth.t_ns / 1e9
             if wait is not None:
                 wait(t)
-            for emu in emulators:
-                emu.publish(t)
-            for link in trackers:
-                link.step(t)
-            for sensor, every in sun_sensors:
-                if k % every == 0:
-                    sensor.step(t)
+            for publish, every in publishers:
+                if every == 1 or k % every == 0:
+                    publish(t)
             if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
                 ctl_update(t)
             dx = dy = dz = 0.0
-            held = []
-            for emu in emulators:
-                emu.receive(t)
-                m = emu.dipole_xyz_at(t)
-                held.append(m)
+            for receive in receivers:
+                receive(t)
+            for dipole in givers:
+                m = dipole()
                 dx, dy, dz = dx + m[0], dy + m[1], dz + m[2]
             if k % rec_every == 0 or k == n_steps:
                 row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
                 if has_field:
                     row += truth.b_B()
-                for host, m in zip(hosts, held, strict=True):
-                    host.poll()  # log every sample that crossed the bus, not only those the ADCS took
-                    s = host.latest_sample
-                    row += (*s.b_T, float(s.coil_active), *m) if s else (*NAN3, math.nan, *m)
-                if record_cmd:
-                    row += tuple(controller.last_command)
-                for sensor, _ in sun_sensors:
-                    row += sensor.last
-                for link in trackers:
-                    row += link.last
+                for device_row in rows:
+                    row += device_row()
+                if ctl_row is not None:
+                    row += tuple(ctl_row())
                 record(row)
                 if show is not None:
                     show(t)
             if k % watch_every == 0:
                 for w in watches:
-                    w.host.poll()
                     w.check(t)
             if k >= n_steps:
                 break
             step((dx, dy, dz))
             k += 1
     except KeyboardInterrupt:
-        status, error = "stopped", f"stopped by the operator at t = {truth.t_s:.3f} s"
-    except (DriverError, ValueError, FloatingPointError) as exc:
+        status, error = "stopped", f"stopped by the operator (Ctrl-C) at t = {truth.t_s:.3f} s"
+    except Stopped as exc:
+        status, error = "stopped", f"stopped by the operator ({exc}) at t = {truth.t_s:.3f} s"
+    except TelemetryError as exc:
         status, error = "aborted", f"at t = {truth.t_s:.3f} s: {exc}"
+    except (DriverError, ValueError, FloatingPointError, OSError) as exc:
+        status, error = "aborted", f"at t = {truth.t_s:.3f} s: {exc}"
+    except Exception as exc:  # the controller (a plug-in) raised: the run ends, its record stays
+        status, error = "aborted", f"at t = {truth.t_s:.3f} s the controller raised {type(exc).__name__}: {exc}"
+        events.log("controller_exception", error, t_s=truth.t_s,
+                   traceback=traceback.format_exc().splitlines()[-TRACEBACK_LINES:])
     finally:
         wall = clock() - wall0
-        recorder.close()
+        try:
+            recorder.close()
+        except TelemetryError as exc:
+            status, error = "aborted", error or str(exc)
         bar.update(truth.t_s, force=True)
-        counters = {name: dict(h.counters) for name, h in scene.hosts.items()}
-        counters.update({f"{name}.emulator": dict(e.counters) for name, e in scene.emulators.items()})
+        counters = {}
+        for d in devs:
+            try:
+                counters[d.name] = d.summary()
+            except Exception as exc:  # a summary must not hide how the run ended
+                counters[d.name] = {"summary_error": str(exc)}
         for w in watches:
             counters[w.name]["silences"] = w.silences
-        for name, link in scene.trackers.items():
-            counters[name] = link.summary()
-        for name, sensor in scene.sun_sensors.items():
-            counters[name] = sensor.summary()
         if error:
             events.log(status, error)
         events.log("end", status, ticks=k, wall_time_s=wall)

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 
+from . import devices
 from .compose import Scene
 from .loop import RunResult
-from .scenario import METRICS, Criterion
+from .scenario import METRIC_UNITS, Criterion, all_metrics
 from .telemetry import load
 
 
@@ -22,7 +24,7 @@ def _rate_deg_s(tel) -> np.ndarray:
     return np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
 
 
-def metric_value(c: Criterion, tel, result: RunResult) -> float:
+def metric_value(c: Criterion, tel, result: RunResult, scene_devices=()) -> float:
     t = tel["t_s"]
     if c.metric == "final_rate_deg_s":
         return float(_rate_deg_s(tel)[-1]) if len(t) else math.nan
@@ -34,19 +36,14 @@ def metric_value(c: Criterion, tel, result: RunResult) -> float:
         return float(_rate_deg_s(tel)[sel].max()) if np.any(sel) else math.nan
     if c.metric == "frames_rejected":
         return float(_rejected(result.counters))
-    if c.metric.startswith("tracker_"):
-        sol = _tracker_solutions(tel)
-        if sol is None:
-            return math.nan
-        if c.metric == "tracker_availability_after":
-            sel = sol["t"] >= c.at_s - 1e-9
-            return float(sol["valid"][sel].mean()) if np.any(sel) else math.nan
-        err = sol["cross" if "cross" in c.metric else "roll"][sol["valid"] == 1.0]
-        err = err[np.isfinite(err)]
-        return float(np.percentile(err, 95)) if len(err) else math.nan
     if c.metric == "overruns":
         return float(result.timing.get("overruns", 0))
-    raise ValueError(f"unknown metric {c.metric!r}; known: {', '.join(METRICS)}")
+    for d in scene_devices:
+        kind = devices.get(d.kind)
+        if c.metric in kind.metrics:
+            names = [x.name for x in scene_devices if x.kind == d.kind]
+            return kind.metric(c.metric, c.at_s, tel, names)
+    raise ValueError(f"unknown metric {c.metric!r}; known: {', '.join(all_metrics())}")
 
 
 def _rejected(counters: dict) -> int:
@@ -60,27 +57,14 @@ def _rejected(counters: dict) -> int:
     return total
 
 
-def _tracker_solutions(tel) -> dict | None:
-    """The first star tracker's solutions, one per exposure (telemetry repeats the newest)."""
-    names = sorted(k[: -len(".t_exposure_s")] for k in tel if k.endswith(".t_exposure_s"))
-    if not names:
-        return None
-    n = names[0]
-    t = tel[f"{n}.t_exposure_s"]
-    ok = np.isfinite(t)
-    _, first = np.unique(t[ok], return_index=True)
-    idx = np.flatnonzero(ok)[first]
-    return {"t": t[idx], "valid": tel[f"{n}.valid"][idx], "cross": tel[f"{n}.err_cross"][idx],
-            "roll": tel[f"{n}.err_roll"][idx]}
-
-
-def evaluate(criteria, tel, result: RunResult) -> list[dict]:
+def evaluate(criteria, tel, result: RunResult, scene_devices=()) -> list[dict]:
     out = []
     for c in criteria:
-        v = metric_value(c, tel, result)
+        v = metric_value(c, tel, result, scene_devices)
         ok = math.isfinite(v) and (c.max is None or v <= c.max) and (c.min is None or v >= c.min)
         limit = {"max": c.max} if c.min is None else {"min": c.min} if c.max is None else {"min": c.min, "max": c.max}
-        out.append({"name": c.name, "metric": c.metric, "value": v, "limit": limit, "pass": bool(ok),
+        out.append({"name": c.name, "metric": c.metric, "value": v, "unit": METRIC_UNITS.get(c.metric, ""),
+                    "limit": limit, "pass": bool(ok),
                     **({"at_s": c.at_s} if c.at_s is not None else {})})
     return out
 
@@ -89,8 +73,9 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
     out_dir = Path(out_dir)
     sc = scene.scenario
     tel = load(out_dir)
-    criteria = evaluate(sc.criteria, tel, result)
-    passed = result.status == "completed" and all(c["pass"] for c in criteria)
+    criteria = evaluate(sc.criteria, tel, result, sc.devices)
+    # Nothing simulated proves nothing: such a run never passes.
+    passed = result.status == "completed" and result.sim_duration_s > 0 and all(c["pass"] for c in criteria)
     rate = _rate_deg_s(tel)
     checkpoints = {}
     for ts in (0.0, 600.0, 1800.0, 3600.0, sc.duration_s):
@@ -116,10 +101,42 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
         "device_counters": result.counters,
         "telemetry_rows": int(len(tel["t_s"])),
     }
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, default=float) + "\n")
-    plots = write_plots(tel, out_dir)
-    write_markdown(summary, plots, out_dir)
+    write_json_atomic(out_dir / "summary.json", summary)
+    try:
+        plots = write_plots(tel, out_dir)
+        for d in sc.devices:
+            plots += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
+        write_markdown(summary, plots, out_dir)
+    except OSError as exc:  # a full disk: the summary above is what matters, and it is whole
+        summary["report_error"] = f"plots or report.md not written: {exc.strerror or exc}"
+        write_json_atomic(out_dir / "summary.json", summary)
     return summary
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON through a temporary file and a rename, so the file is either the old one or whole."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def limit_text(c: dict) -> str:
+    """``0.197 deg/s <= 0.5 deg/s``: a criterion's value against its limits, with units."""
+    unit = f" {c['unit']}" if c.get("unit") else ""
+    v = f"{c['value']:.4g}{unit}"
+    lim = c["limit"]
+    parts = []
+    if "min" in lim:
+        parts.append(f"{v} >= {lim['min']:g}{unit}")
+    if "max" in lim:
+        parts.append(f"{v} <= {lim['max']:g}{unit}")
+    at = f" at t = {c['at_s']:g} s" if "at_s" in c and c["metric"].endswith("_at") else \
+        f" after t = {c['at_s']:g} s" if "at_s" in c else ""
+    return " and ".join(parts) + at
 
 
 def write_plots(tel, out_dir: Path) -> list[str]:
@@ -183,10 +200,10 @@ def write_markdown(summary: dict, plots: list[str], out_dir: Path) -> None:
     if summary["error"]:
         lines += [f"Error: {summary['error']}", ""]
     lines += [f"Simulated {summary['sim_duration_s']:g} s in {summary['wall_time_s']:g} s of wall time "
-              f"({summary['realtime_factor']} x real time).", "", "| criterion | value | limit | pass |",
-              "|---|---|---|---|"]
+              f"({summary['realtime_factor']} x real time).", "", "| criterion | value against limit | pass |",
+              "|---|---|---|"]
     for c in summary["criteria"]:
-        lines.append(f"| {c['name']} | {c['value']:.4g} | {c['limit']} | {'yes' if c['pass'] else 'NO'} |")
+        lines.append(f"| {c['name']} | {limit_text(c)} | {'yes' if c['pass'] else 'NO'} |")
     lines += ["", "## Models", ""]
     lines += [f"- built `{m['model']}`: {m['reason']}" for m in summary["models"]["built"]]
     lines += [f"- left out `{m['model']}`: {m['reason']}" for m in summary["models"]["left_out"]]

@@ -25,7 +25,9 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
 
 from __future__ import annotations
 
+import difflib
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,32 +35,53 @@ from typing import Any
 
 import numpy as np
 
+import fixtures
 from sim.attitude import check_inertia
 from sim.constants import R_EARTH
 from sim.time import Epoch
 
+from .devices import DeviceSpec
 from .errors import MISSING, ScenarioError
 
-FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+FIXTURES = fixtures.ROOT
 SCENARIO_DIR = FIXTURES / "scenarios"
 DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
 
 TORQUES = ("magnetic", "gravity_gradient")
-DEVICE_KINDS = ("magnetorquer", "star_tracker", "sun_sensor")
-CONTROLLER_KINDS = ("bdot", "none", "plugin")
+CONTROLLER_KINDS = ("bdot", "none", "plugin", "external")
+#: The Earth's Hill sphere radius, km: the largest orbit the Earth alone governs.
+HILL_KM = 1.5e6
+#: Largest principal moment of inertia a scenario may give (a space station is about 1e8 kg m^2).
+MAX_INERTIA_KG_M2 = 1e10
+#: A scenario file larger than this is refused before it is parsed (the shipped ones are under 5 KiB).
+MAX_FILE_BYTES = 1 << 20
+#: Run names become folder names under the output folder: a plain name, no path.
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+#: Metrics of the run itself; device kinds add theirs (stand.devices.DeviceKind.metrics).
 METRICS = {
     "final_rate_deg_s": "body rate |omega| at the end of the run (deg/s)",
     "rate_deg_s_at": "body rate |omega| at time at_s (deg/s)",
     "max_rate_deg_s_after": "largest body rate |omega| after time at_s (deg/s)",
     "frames_rejected": "device frames rejected by any codec (count)",
     "overruns": "ticks that ran past their real-time deadline (count, paced runs only)",
-    "tracker_availability_after": "fraction of star-tracker solutions after time at_s that are valid",
-    "tracker_error_cross_arcsec_p95": "95th percentile of the valid solutions' cross-boresight error (arcsec)",
-    "tracker_error_roll_arcsec_p95": "95th percentile of the valid solutions' roll error (arcsec)",
 }
+#: Units of the metrics, for the console and the report.
+METRIC_UNITS = {"final_rate_deg_s": "deg/s", "rate_deg_s_at": "deg/s", "max_rate_deg_s_after": "deg/s",
+                "frames_rejected": "frames", "overruns": "ticks", "tracker_availability_after": "",
+                "tracker_error_cross_arcsec_p95": "arcsec", "tracker_error_roll_arcsec_p95": "arcsec"}
 
 
-class _Table:
+def all_metrics() -> dict[str, str]:
+    """The run's metrics and those of every device kind."""
+    from stand import devices
+
+    out = dict(METRICS)
+    for name in devices.kind_names():
+        out.update(devices.get(name).metrics)
+    return out
+
+
+class Table:
     """A TOML table that remembers its dotted path, hands out validated values and notices typos."""
 
     def __init__(self, data: Any, path: str, source: str | None):
@@ -112,23 +135,33 @@ class _Table:
             raise self.error(key, value, "a non-empty string is expected")
         return value
 
-    def vector(self, key: str, n: int, default=MISSING) -> np.ndarray:
+    def vector(self, key: str, n: int, default=MISSING, *, lo=None, hi=None) -> np.ndarray:
         value = self.raw(key, default)
         try:
             arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             arr = None
-        if value is MISSING or arr is None or arr.shape != (n,) or not np.all(np.isfinite(arr)):
-            raise self.error(key, value, f"a list of {n} finite numbers is expected")
+        rng = _range_text(lo, hi, False, False)
+        if (value is MISSING or arr is None or arr.shape != (n,) or not np.all(np.isfinite(arr))
+                or any(isinstance(v, bool) for v in value)):
+            raise self.error(key, value, f"a list of {n} finite numbers{rng} is expected")
+        if (lo is not None and np.any(arr < lo)) or (hi is not None and np.any(arr > hi)):
+            raise self.error(key, value, f"a list of {n} numbers, each{rng}")
         return arr
 
-    def table(self, key: str, required: bool = True) -> _Table:
+    def flag(self, key: str, default=MISSING) -> bool:
+        value = self.raw(key, default)
+        if not isinstance(value, bool):
+            raise self.error(key, value, "true or false")
+        return value
+
+    def table(self, key: str, required: bool = True) -> Table:
         value = self.raw(key, MISSING)
         if value is MISSING:
             if required:
                 raise ScenarioError(self._name(key), value, "this table is required", self.source)
             value = {}
-        return _Table(value, self._name(key), self.source)
+        return Table(value, self._name(key), self.source)
 
     def check_unknown(self, allowed_extra: tuple[str, ...] = ()) -> None:
         unknown = sorted(set(self.data) - self.used - set(allowed_extra))
@@ -185,57 +218,6 @@ class EnvironmentSpec:
 
 
 @dataclass(frozen=True)
-class MagnetorquerSpec:
-    """A magnetorquer board with an on-board magnetometer on a CAN bus."""
-
-    name: str
-    link: str
-    interface: str
-    channel: str
-    q_SB: np.ndarray
-    sample_rate_hz: float
-    max_dipole_A_m2: float
-    dipole_lsb_A_m2: float
-    mag_noise_T: float
-    mag_bias_T: np.ndarray
-    coil_coupling_T_per_A_m2: np.ndarray
-    kind: str = "magnetorquer"
-
-
-@dataclass(frozen=True)
-class StarTrackerSpec:
-    """A star tracker on a serial line (drivers.star_tracker), fed either by truth plus noise
-    (``source = "truth"``) or by image-based solutions (``source = "image"``: the star screen renders
-    its detector image, camera noise is added and ``star_screen.tracking`` solves it)."""
-
-    name: str
-    link: str
-    port: str  # "pty": an in-process pty pair
-    address: int | None
-    q_SB: np.ndarray  # tracker frame (boresight +z) relative to body
-    source: str
-    emulator: dict  # keyword arguments of drivers.star_tracker.emulator.EmulatorConfig
-    kind: str = "star_tracker"
-    optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
-    camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
-
-
-@dataclass(frozen=True)
-class SunSensorSpec:
-    """Coarse (cosine heads) or fine (two-axis) sun sensor, sampled by the stand from the truth
-    through ``sim.sensors`` (no bus: ``link = "model"``); eclipse-aware through the shadow model."""
-
-    name: str
-    type: str  # "coarse" | "fine"
-    q_SB: np.ndarray
-    rate_hz: float
-    noise: float  # coarse: head current noise (A); fine: angle noise (rad)
-    fov_half_deg: float
-    link: str = "model"
-    kind: str = "sun_sensor"
-
-
-@dataclass(frozen=True)
 class ControllerSpec:
     kind: str
     rate_hz: float
@@ -265,37 +247,114 @@ class Scenario:
     orbit: OrbitSpec
     spacecraft: SpacecraftSpec
     environment: EnvironmentSpec
-    devices: tuple[MagnetorquerSpec | StarTrackerSpec | SunSensorSpec, ...]
+    devices: tuple[DeviceSpec, ...]
     controller: ControllerSpec
     criteria: tuple[Criterion, ...]
     record_rate_hz: float
 
-    def device(self, kind: str) -> MagnetorquerSpec | StarTrackerSpec | None:
+    def device(self, kind: str) -> DeviceSpec | None:
         return next((d for d in self.devices if d.kind == kind), None)
 
+    @property
+    def wall_time_links(self) -> list[str]:
+        """Devices whose other end runs in wall time (hardware and served links): the run must be paced."""
+        from stand.devices import WALL_TIME_LINKS
 
-def load(path: str | Path) -> Scenario:
-    """Read and validate a scenario file; raises ``ScenarioError`` naming the first bad field."""
-    path = Path(path)
-    if not path.exists() and not path.suffix:
-        candidate = SCENARIO_DIR / f"{path}.toml"
-        if candidate.exists():
-            path = candidate
+        return [d.name for d in self.devices if d.link in WALL_TIME_LINKS]
+
+
+def shipped() -> dict[str, str]:
+    """The scenarios shipped in ``fixtures/scenarios``: name -> one-line description."""
+    out = {}
+    for f in sorted(SCENARIO_DIR.glob("*.toml")):
+        try:
+            desc = tomllib.loads(f.read_text(encoding="utf-8")).get("scenario", {}).get("description", "")
+        except (tomllib.TOMLDecodeError, OSError):
+            desc = "(unreadable)"
+        out[f.stem] = desc
+    return out
+
+
+def find(arg: str | Path) -> Path:
+    """A scenario by path, by shipped name, or by shipped name with ``.toml``; ScenarioError with the closest
+    shipped names otherwise. A file wins over a shipped name; a folder never counts as a scenario."""
+    path = Path(arg)
+    if path.is_file():
+        return path
+    stem = path.name[:-5] if path.name.endswith(".toml") else path.name
+    if path.parent == Path(".") and (SCENARIO_DIR / f"{stem}.toml").is_file():
+        return SCENARIO_DIR / f"{stem}.toml"
+    names = list(shipped())
+    close = difflib.get_close_matches(stem, names, n=3, cutoff=0.5)
+    hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+    what = "a folder, not a scenario file; " if path.is_dir() else ""
+    raise ScenarioError("SCENARIO", str(arg), f"{what}a scenario file or a shipped name ({', '.join(names)}){hint}")
+
+
+def load(path: str | Path, overrides: list[str] | None = None) -> Scenario:
+    """Read and validate a scenario file (a path or a shipped name), with ``KEY=VALUE`` overrides applied
+    (``set_value``); raises ``ScenarioError`` naming the first bad field."""
+    path = find(path)
     try:
-        text = path.read_text()
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ScenarioError("SCENARIO", str(path), f"a scenario file under {MAX_FILE_BYTES >> 10} KiB "
+                                f"(this one has {size} bytes)")
+        text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise ScenarioError("SCENARIO", str(path), f"a readable TOML file is required ({exc.strerror})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError("SCENARIO", str(path), f"valid TOML is required ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError("SCENARIO", str(path), f"a UTF-8 text file (byte {exc.start} is not UTF-8)") from None
+    data = loads(text, str(path))
+    for item in overrides or []:
+        set_value(data, item)
     return parse(data, source=path.name)
 
 
+def loads(text: str, where: str = "<string>") -> dict:
+    """TOML text to a dict, every failure (syntax, nesting too deep for the parser) a ScenarioError."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError("SCENARIO", where, f"valid TOML is required ({exc})") from None
+    except RecursionError:
+        raise ScenarioError("SCENARIO", where, "TOML without arrays or tables nested hundreds deep") from None
+
+
+def set_value(data: dict, item: str) -> None:
+    """Apply one ``dotted.key=VALUE`` override (VALUE in TOML syntax; a bare word is a string). A
+    ``[[devices]]`` entry is addressed by its name: ``devices.mtq.channel=can1``."""
+    key, sep, text = item.partition("=")
+    if not sep or not key.strip():
+        raise ScenarioError("--set", item, "KEY=VALUE with a dotted key, e.g. devices.mtq.channel=can1")
+    try:
+        value = tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = text.strip()
+    parts = key.strip().split(".")
+    node: Any = data
+    for i, part in enumerate(parts[:-1]):
+        if isinstance(node, list):
+            match = [d for d in node if isinstance(d, dict) and d.get("name") == part]
+            if not match:
+                raise ScenarioError("--set", item, f"a name of an entry of {'.'.join(parts[:i]) or 'the list'}")
+            node = match[0]
+        else:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict | list):
+                raise ScenarioError("--set", item, f"a key inside a table ({'.'.join(parts[:i + 1])} is a value)")
+    if not isinstance(node, dict):
+        raise ScenarioError("--set", item, "a key of a table")
+    node[parts[-1]] = value
+
+
 def parse(data: dict, source: str | None = None) -> Scenario:
-    root = _Table(data, "", source)
+    root = Table(data, "", source)
     sc = root.table("scenario")
     name = sc.text("name")
+    if not NAME_PATTERN.fullmatch(name):
+        raise sc.error("name", name, "a plain name of letters, digits, '_', '.' and '-' (at most 100, not "
+                       "starting with '.'): it names the run's folder, which stays inside the output folder")
     description = sc.raw("description", "")
     epoch_text = sc.text("epoch")
     try:
@@ -303,6 +362,8 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     except ValueError as exc:
         raise sc.error("epoch", epoch_text, str(exc).rstrip(".")) from None
     duration_s = sc.number("duration_s", lo=0, lo_open=True, hi=30 * 86400)
+    if not isinstance(description, str):
+        raise sc.error("description", description, "a string")
     seed = int(sc.number("seed", 0, lo=0, integer=True))
     sc.check_unknown()
 
@@ -314,6 +375,9 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     torques = dyn.raw("torques", ["magnetic", "gravity_gradient"])
     if not isinstance(torques, list) or any(t not in TORQUES for t in torques):
         raise dyn.error("torques", torques, "a list drawn from " + ", ".join(repr(t) for t in TORQUES))
+    if step_s > duration_s:
+        raise dyn.error("step_s", step_s, f"a step no longer than the run (scenario.duration_s = {duration_s:g} s): "
+                        "a run simulates whole steps")
     dyn.check_unknown()
 
     orbit = _orbit(root.table("orbit"))
@@ -323,7 +387,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     devices_raw = root.raw("devices", [])
     if not isinstance(devices_raw, list):
         raise root.error("devices", devices_raw, "an array of [[devices]] tables is expected")
-    devices = tuple(_device(_Table(d, f"devices[{k}]", source), step_s) for k, d in enumerate(devices_raw))
+    devices = tuple(_device(Table(d, f"devices[{k}]", source), step_s) for k, d in enumerate(devices_raw))
     names = [d.name for d in devices]
     if len(set(names)) != len(names):
         raise root.error("devices", names, "device names must be unique")
@@ -332,10 +396,10 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     crit_raw = root.raw("criteria", [])
     if not isinstance(crit_raw, list):
         raise root.error("criteria", crit_raw, "an array of [[criteria]] tables is expected")
-    criteria = tuple(_criterion(_Table(c, f"criteria[{k}]", source), duration_s) for k, c in enumerate(crit_raw))
+    criteria = tuple(_criterion(Table(c, f"criteria[{k}]", source), duration_s) for k, c in enumerate(crit_raw))
 
     rec = root.table("recording", required=False)
-    record_rate_hz = _rate(rec, "rate_hz", step_s, default=1.0 / step_s)
+    record_rate_hz = rate(rec, "rate_hz", step_s, default=1.0 / step_s)
     rec.check_unknown()
     root.check_unknown()
     return Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
@@ -343,7 +407,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
                     record_rate_hz)
 
 
-def _rate(t: _Table, key: str, step_s: float, default=MISSING) -> float:
+def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
     """A rate in Hz whose period is a whole number of dynamics steps (rates are exact ratios)."""
     hz = t.number(key, default, lo=0, lo_open=True, hi=1.0 / step_s)
     ratio = 1.0 / (hz * step_s)
@@ -353,7 +417,7 @@ def _rate(t: _Table, key: str, step_s: float, default=MISSING) -> float:
     return hz
 
 
-def _orbit(t: _Table) -> OrbitSpec:
+def _orbit(t: Table) -> OrbitSpec:
     e = t.number("e", 0.0, lo=0.0)
     sizes = [k for k in ("altitude_km", "a_km", "p_km") if t.has(k)]
     if len(sizes) != 1:
@@ -365,7 +429,8 @@ def _orbit(t: _Table) -> OrbitSpec:
             raise t.error("e", e, "0 when the orbit is given by altitude_km (a circular orbit); use a_km or p_km")
         a_m = R_EARTH + alt * 1e3
     elif sizes[0] == "a_km":
-        a_m = t.number("a_km") * 1e3
+        # Beyond the Earth's Hill sphere (1.5 million km) an orbit about the Earth alone means nothing.
+        a_m = t.number("a_km", lo=-HILL_KM, hi=HILL_KM) * 1e3
         if e < 1.0 and a_m <= 0:
             raise t.error("a_km", a_m / 1e3, "a positive semi-major axis for an elliptic orbit (e < 1)")
         if e > 1.0 and a_m >= 0:
@@ -373,7 +438,7 @@ def _orbit(t: _Table) -> OrbitSpec:
         if e == 1.0:
             raise t.error("a_km", a_m / 1e3, "p_km instead: a parabola (e = 1) has no finite semi-major axis")
     else:
-        p_m = t.number("p_km", lo=0.0, lo_open=True) * 1e3
+        p_m = t.number("p_km", lo=0.0, lo_open=True, hi=2 * HILL_KM) * 1e3
     peri = a_m * (1.0 - e) if a_m is not None else p_m / (1.0 + e)
     if peri < R_EARTH:
         raise t.error(sizes[0], (a_m or p_m) / 1e3,
@@ -401,14 +466,14 @@ def _orbit(t: _Table) -> OrbitSpec:
     return spec
 
 
-def _subset(t: _Table, key: str, options) -> list:
+def _subset(t: Table, key: str, options) -> list:
     value = t.raw(key, [])
     if not isinstance(value, list) or any(v not in options for v in value) or len(set(value)) != len(value):
         raise t.error(key, value, "a list drawn from " + ", ".join(repr(o) for o in options) + " without repeats")
     return value
 
 
-def _coefficients(t: _Table, key: str, spec: dict) -> dict | None:
+def _coefficients(t: Table, key: str, spec: dict) -> dict | None:
     """An optional table of named numbers: ``{name: (default or None if required, lo, hi)}``."""
     if not t.has(key):
         t.raw(key)
@@ -419,17 +484,21 @@ def _coefficients(t: _Table, key: str, spec: dict) -> dict | None:
     return out
 
 
-def _spacecraft(t: _Table, step_s: float, integrator: str) -> SpacecraftSpec:
+def _spacecraft(t: Table, step_s: float, integrator: str) -> SpacecraftSpec:
     from sim.attitude import check_step
     from sim.integrators import max_angle_rad
     from sim.rotations import check_unit
 
-    mass = t.number("mass_kg", lo=0.0, lo_open=True)
+    mass = t.number("mass_kg", lo=0.0, lo_open=True, hi=1e7)
     raw_I = t.raw("inertia_kg_m2")
     try:
         inertia = check_inertia(raw_I, "spacecraft.inertia_kg_m2")
     except (ValueError, TypeError) as exc:
         raise t.error("inertia_kg_m2", raw_I, str(exc).rstrip(".")) from None
+    moments = np.linalg.eigvalsh(inertia)
+    if moments.min() < 1e-9 or moments.max() > MAX_INERTIA_KG_M2:
+        raise t.error("inertia_kg_m2", raw_I, f"principal moments from 1e-9 to {MAX_INERTIA_KG_M2:g} kg m^2 (a "
+                      "CubeSat is about 0.01, a space station about 1e8)")
     q = t.vector("q_BN", 4, [1.0, 0.0, 0.0, 0.0])
     try:
         check_unit(q, "spacecraft.q_BN")
@@ -445,7 +514,7 @@ def _spacecraft(t: _Table, step_s: float, integrator: str) -> SpacecraftSpec:
     return SpacecraftSpec(mass, inertia, q, omega)
 
 
-def _environment(t: _Table, epoch: Epoch) -> EnvironmentSpec:
+def _environment(t: Table, epoch: Epoch) -> EnvironmentSpec:
     spec = EnvironmentSpec(
         # IGRF-14 unless the scenario asks for the centred dipole (comparison cases).
         magnetic_field=t.choice("magnetic_field", ("igrf", "dipole"), "igrf"),
@@ -461,194 +530,82 @@ def _environment(t: _Table, epoch: Epoch) -> EnvironmentSpec:
     return spec
 
 
-#: Star-tracker emulator settings a scenario may give: key -> (default, lo, hi, integer). Units are
-#: in the names; the defaults are those of drivers.star_tracker.emulator.EmulatorConfig.
-TRACKER_SETTINGS = {
-    "noise_cross_arcsec": (2.0, 0.0, 3600.0, False),
-    "noise_roll_arcsec": (10.0, 0.0, 3600.0, False),
-    "output_interval_s": (0.2, 0.01, 60.0, False),
-    "output_delay_s": (0.1, 0.0, 10.0, False),
-    "clock_offset_s": (0.0, -1e6, 1e6, False),
-    "clock_drift_ppm": (0.0, -1e3, 1e3, False),
-    "sun_exclusion_deg": (40.0, 0.0, 90.0, False),
-    "moon_exclusion_deg": (40.0, 0.0, 90.0, False),
-    "earth_exclusion_deg": (30.0, 0.0, 90.0, False),
-    "rate_limit_deg_s": (1.0, 0.01, 90.0, False),
-    "boot_time_s": (1.0, 0.0, 600.0, False),
-    "min_stars_matched": (6, 3, 100, True),
-    "stable_count": (5, 1, 1000, True),
-    "track_loss_count": (3, 1, 1000, True),
-}
-#: Settings of the truth source only: with source = "image" the image is the noise.
-TRUTH_ONLY_SETTINGS = ("noise_cross_arcsec", "noise_roll_arcsec")
-TRACKER_SOURCES = ("truth", "image")
-#: Image-source settings: key -> (default, lo, hi, integer). Pairs are [x, y] (image right, down).
-TRACKER_IMAGE_SETTINGS = {
-    "mag_limit": (8.0, 4.0, 9.0, False),  # stars drawn and used, Hipparcos Hp (the catalog fixture reaches 9)
-    "psf_sigma_px": (1.0, 0.3, 5.0, False),  # Gaussian spot sigma on the detector
-    "read_noise_e": (10.0, 0.0, 1000.0, False),  # rms per pixel
-    "background_e": (20.0, 0.0, 1e6, False),  # sky, stray light and dark current per pixel and exposure
-}
-TRACKER_IMAGE_PAIRS = {
-    "fov_deg": ((20.0, 15.0), 5.0, 60.0, False),  # full field along image x and y
-    "resolution_px": ((1024, 768), 64, 4096, True),  # detector columns and rows
-}
+def _device(t: Table, step_s: float) -> DeviceSpec:
+    """The common part of a ``[[devices]]`` table; the kind's own module validates the rest."""
+    from stand import devices
 
-
-def _whole_steps(t: _Table, key: str, value: float, step_s: float) -> None:
-    n = value / step_s
-    if abs(n - round(n)) > 1e-9 * max(n, 1.0):
-        raise t.error(key, value, f"a whole number of dynamics steps ({step_s:g} s), so exposures fall on ticks")
-
-
-def _pair(t: _Table, key: str, default, lo, hi, integer: bool) -> tuple:
-    value = t.raw(key, list(default))
-    kind = "whole numbers" if integer else "numbers"
-    ok = isinstance(value, list) and len(value) == 2 and all(
-        not isinstance(v, bool) and isinstance(v, int if integer else int | float)
-        and math.isfinite(v) and lo <= v <= hi for v in value)
-    if not ok:
-        raise t.error(key, value, f"a list of 2 {kind} [x, y], each from {lo:g} to {hi:g}")
-    return tuple(int(v) if integer else float(v) for v in value)
-
-
-def _tracker_image(t: _Table, name: str) -> tuple[Any, dict]:
-    """Optics (a star_screen TrackerOptics) and camera noise of an image-source tracker."""
-    from star_screen.geometry import TrackerOptics
-
-    pairs = {key: _pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}
-    values = {key: t.number(key, d, lo=lo, hi=hi, integer=integer)
-              for key, (d, lo, hi, integer) in TRACKER_IMAGE_SETTINGS.items()}
-    (fx_deg, fy_deg), (width, height) = pairs["fov_deg"], pairs["resolution_px"]
-    try:
-        optics = TrackerOptics.from_fov(fx_deg, fy_deg, width, height, psf_sigma_px=float(values["psf_sigma_px"]),
-                                        mag_limit=float(values["mag_limit"]), name=name)
-    except ValueError as exc:  # pragma: no cover - the ranges above keep the optics valid
-        raise t.error("fov_deg", list(pairs["fov_deg"]), str(exc).rstrip(".")) from None
-    aspect = (width / height) / (math.tan(math.radians(fx_deg) / 2) / math.tan(math.radians(fy_deg) / 2))
-    if not 0.5 <= aspect <= 2.0:
-        raise t.error("fov_deg", list(pairs["fov_deg"]),
-                      f"a field whose aspect matches resolution_px {list(pairs['resolution_px'])} within a factor "
-                      f"of 2 (pixels {aspect:.2f} times as tall as wide here)")
-    return optics, {"read_noise_e": float(values["read_noise_e"]), "background_e": float(values["background_e"])}
-
-
-def _star_tracker(t: _Table, name: str, link: str, q_SB: np.ndarray, step_s: float) -> StarTrackerSpec:
-    source = t.choice("source", TRACKER_SOURCES, "truth")
-    image_keys = (*TRACKER_IMAGE_PAIRS, *TRACKER_IMAGE_SETTINGS)
-    if source == "image":
-        for key in TRUTH_ONLY_SETTINGS:
-            if t.has(key):
-                raise t.error(key, t.raw(key), "no such setting with source = 'image': the rendered image and "
-                              "its camera noise (read_noise_e, background_e) are the measurement noise")
-    else:
-        for key in image_keys:
-            if t.has(key):
-                raise t.error(key, t.raw(key), f"a setting of image-source trackers only; this tracker has "
-                              f"source = {source!r} (set source = 'image' to render and solve its images)")
-    settings = {}
-    for key, (default, lo, hi, integer) in TRACKER_SETTINGS.items():
-        if source == "image" and key in TRUTH_ONLY_SETTINGS:
-            continue
-        v = t.number(key, default, lo=lo, hi=hi, integer=integer)
-        settings[key] = int(v) if integer else float(v)
-    for key in ("output_interval_s", "boot_time_s"):
-        _whole_steps(t, key, settings[key], step_s)
-    address = t.raw("address", None)
-    if address is not None and (isinstance(address, bool) or not isinstance(address, int) or not 0 <= address <= 255):
-        raise t.error("address", address, "a whole number from 0 to 255")
-    optics = camera = None
-    if source == "image":
-        optics, camera = _tracker_image(t, name)
-        # The solution is the image's: no added noise, and the stars matched are the solver's own.
-        settings.update(noise_cross_arcsec=0.0, noise_roll_arcsec=0.0, match_probability=1.0)
-    # In a run the flight-software side is in process; `stand emulate star-tracker --port URL` serves
-    # a real flight computer instead.
-    spec = StarTrackerSpec(name=name, link=link, port=t.choice("port", ("pty",), "pty"), address=address, q_SB=q_SB,
-                           source=source, emulator=settings, optics=optics, camera=camera)
-    t.check_unknown()
-    return spec
-
-
-def _sun_sensor(t: _Table, name: str, q_SB: np.ndarray, step_s: float) -> SunSensorSpec:
-    kind = t.choice("type", ("coarse", "fine"))
-    if kind == "coarse":
-        noise = t.number("noise_mA", 0.0, lo=0.0, hi=10.0) * 1e-3
-    else:
-        noise = math.radians(t.number("noise_deg", 0.0, lo=0.0, hi=10.0))
-    # Coarse heads default to the bare cosine law (a 90 deg half-field); a fine sensor to 60 deg.
-    fov = t.number("fov_half_deg", 90.0, lo=1.0, hi=90.0) if kind == "coarse" else \
-        t.number("fov_half_deg", 60.0, lo=1.0, hi=89.0)
-    spec = SunSensorSpec(name=name, type=kind, q_SB=q_SB, rate_hz=_rate(t, "rate_hz", step_s, 1.0 / step_s),
-                         noise=noise, fov_half_deg=fov)
-    t.check_unknown()
-    return spec
-
-
-def _device(t: _Table, step_s: float) -> MagnetorquerSpec | StarTrackerSpec | SunSensorSpec:
-    kind = t.choice("kind", DEVICE_KINDS)
+    names = devices.kind_names()
+    kind_name = t.choice("kind", names)
+    kind = devices.get(kind_name)
     name = t.text("name")
-    # A sun sensor is a model the stand samples (no device protocol yet); the others are emulated.
-    link = t.choice("link", ("model",) if kind == "sun_sensor" else ("emulated",),
-                    "model" if kind == "sun_sensor" else "emulated")
+    if not NAME_PATTERN.fullmatch(name):
+        raise t.error("name", name, "a plain name of letters, digits, '_', '.' and '-' (it names telemetry columns)")
+    link = t.choice("link", kind.links, kind.default_link)
     q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0])
     if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
-    if kind == "sun_sensor":
-        return _sun_sensor(t, name, q_SB, step_s)
-    if kind == "star_tracker":
-        return _star_tracker(t, name, link, q_SB, step_s)
-    max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=100.0)
-    spec = MagnetorquerSpec(
-        kind=kind,
-        name=name,
-        link=link,
-        interface=t.text("interface", "virtual"),
-        channel=t.text("channel", f"stand-{name}"),
-        q_SB=q_SB,
-        sample_rate_hz=_rate(t, "sample_rate_hz", step_s, 10.0),
-        max_dipole_A_m2=max_dipole,
-        dipole_lsb_A_m2=t.number("dipole_lsb_A_m2", 1e-5, lo=0.0, hi=max_dipole),
-        mag_noise_T=t.number("mag_noise_nT", 0.0, lo=0.0, hi=1e5) * 1e-9,
-        mag_bias_T=t.vector("mag_bias_nT", 3, [0.0, 0.0, 0.0]) * 1e-9,
-        coil_coupling_T_per_A_m2=np.asarray(
-            t.vector("coil_coupling_nT_per_A_m2", 3, [0.0, 0.0, 0.0]), dtype=float) * 1e-9,
-    )
-    t.check_unknown()
-    return spec
+    return kind.parse(t, DeviceSpec(name=name, kind=kind_name, link=link, q_SB=q_SB), step_s)
 
 
-def _controller(t: _Table, step_s: float, devices) -> ControllerSpec:
+def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     kind = t.choice("kind", CONTROLLER_KINDS, "none")
-    if kind == "none":
+    served = [d.name for d in devices if d.link == "served"]
+    if kind in ("none", "external"):
+        if kind == "external" and not served:
+            raise t.error("kind", kind, "a scenario with served devices ([[devices]] link = 'served') for the "
+                          "flight computer outside to close the loop through")
         t.check_unknown()
-        return ControllerSpec("none", 1.0 / step_s)
-    rate = _rate(t, "rate_hz", step_s)
+        return ControllerSpec(kind, 1.0 / step_s)
+    if served:
+        raise t.error("kind", kind, f"'external' when devices are served ({', '.join(served)}): a served device is "
+                      "for a flight computer outside the stand; an in-stand controller uses link 'emulated' or "
+                      "'hardware'")
+    rate_hz = rate(t, "rate_hz", step_s)
     params: dict = {}
     if kind == "bdot":
-        if not any(d.kind == "magnetorquer" for d in devices):
-            raise t.error("kind", kind, "a controller that has its devices: B-dot needs a [[devices]] entry "
-                          "of kind 'magnetorquer'")
-        params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True)
-        params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True)
-        params["skip_coil_active"] = bool(t.raw("skip_coil_active", True))
-        # Coils on for this fraction of the control period; the on-time must be whole dynamics steps
-        # so the zero-order hold switches exactly on a step boundary.
-        duty = t.number("duty_cycle", 1.0, lo=0.0, lo_open=True, hi=1.0)
-        on_steps = duty / (rate * step_s)
-        if abs(on_steps - round(on_steps)) > 1e-9 * on_steps:
-            raise t.error("duty_cycle", duty, f"a fraction whose on-time is whole dynamics steps of {step_s:g} s "
-                          f"(the control period is {1.0 / rate:g} s)")
-        params["duty_cycle"] = duty
+        _bdot(t, rate_hz, step_s, devices, params)
     else:
         params["module"] = t.text("module")
-        params["options"] = t.raw("options", {})
+        params["path"] = t.text("path") if t.has("path") else None
+        options = t.raw("options", {})
+        if not isinstance(options, dict):
+            raise t.error("options", options, "a table of keyword arguments for the plug-in's constructor")
+        params["options"] = options
     t.check_unknown()
-    return ControllerSpec(kind, rate, params)
+    return ControllerSpec(kind, rate_hz, params)
 
 
-def _criterion(t: _Table, duration_s: float) -> Criterion:
-    metric = t.choice("metric", tuple(METRICS))
+def _bdot(t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
+    boards = [d for d in devices if d.kind == "magnetorquer"]
+    if not boards:
+        raise t.error("kind", "bdot", "a controller that has its devices: B-dot needs a [[devices]] entry "
+                      "of kind 'magnetorquer'")
+    names = [d.name for d in boards]
+    params["device"] = t.choice("device", names, names[0])
+    board = boards[names.index(params["device"])]
+    params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True, hi=1e12)
+    # A command the board cannot carry would abort the run at its first saturation.
+    params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True, hi=board.max_dipole_A_m2)
+    params["skip_coil_active"] = t.flag("skip_coil_active", True)
+    # Coils on for this fraction of the control period; the on-time must be whole dynamics steps so the
+    # zero-order hold switches exactly on a step boundary, and it must fit the command's duration field.
+    duty = t.number("duty_cycle", 1.0, lo=0.0, lo_open=True, hi=1.0)
+    on_steps = duty / (rate_hz * step_s)
+    if abs(on_steps - round(on_steps)) > 1e-9 * on_steps:
+        raise t.error("duty_cycle", duty, f"a fraction whose on-time is whole dynamics steps of {step_s:g} s "
+                      f"(the control period is {1.0 / rate_hz:g} s)")
+    from stand.devices.magnetorquer import _codec
+
+    max_on_s = _codec().dbc.signal_range("MTQ_DIPOLE_CMD", "duration_ms")[1] * 1e-3
+    if duty / rate_hz > max_on_s:
+        raise t.error("rate_hz", rate_hz, f"a control rate whose on-time (duty_cycle / rate_hz = "
+                      f"{duty / rate_hz:g} s) fits the command's duration field (at most {max_on_s:g} s), "
+                      f"i.e. rate_hz >= {duty / max_on_s:.6g}")
+    params["duty_cycle"] = duty
+
+
+def _criterion(t: Table, duration_s: float) -> Criterion:
+    metric = t.choice("metric", tuple(all_metrics()))
     c = Criterion(
         name=t.text("name", metric),
         metric=metric,
@@ -658,7 +615,16 @@ def _criterion(t: _Table, duration_s: float) -> Criterion:
     )
     if c.max is None and c.min is None:
         raise t.error("max", MISSING, "a max or a min limit for the criterion")
-    if metric in ("rate_deg_s_at", "max_rate_deg_s_after", "tracker_availability_after") and c.at_s is None:
+    if metric in _metrics_at() and c.at_s is None:
         raise t.error("at_s", MISSING, f"a time in [0, {duration_s:g}] s for metric {metric!r}")
     t.check_unknown()
     return c
+
+
+def _metrics_at() -> set[str]:
+    from stand import devices
+
+    out = {"rate_deg_s_at", "max_rate_deg_s_after"}
+    for name in devices.kind_names():
+        out.update(devices.get(name).metrics_at)
+    return out

@@ -30,6 +30,10 @@ SCHEMA = "schema.json"
 ROWS = "rows.f64"
 
 
+class TelemetryError(OSError):
+    """The log could not be written (a full disk, a lost mount): the run must end, keeping what is on disk."""
+
+
 class Recorder:
     """Append rows of floats to the log from the loop; a thread writes them."""
 
@@ -43,18 +47,24 @@ class Recorder:
             "row_floats": self.width,
             "columns": [{"name": n, "width": w, "unit": u} for n, w, u in columns],
         }
-        (self.dir / SCHEMA).write_text(json.dumps(schema, indent=1))
+        try:
+            (self.dir / SCHEMA).write_text(json.dumps(schema, indent=1))
+        except OSError as exc:
+            raise TelemetryError(f"cannot write the telemetry schema in {self.dir}: {exc.strerror or exc}.") from None
         self._file = open(self.dir / ROWS, "wb")  # noqa: SIM115 - closed by close()
         self._clock = clock
         self._buffer: list[tuple] = []
         self._last_handoff = clock()
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self.error: str | None = None  # set by the writer thread when a write fails
         self._thread = threading.Thread(target=self._writer, name="telemetry-writer", daemon=True)
         self._thread.start()
         self.rows = 0
         self.closed = False
 
     def record(self, row: tuple) -> None:
+        if self.error is not None:
+            raise TelemetryError(self.error)
         self._buffer.append(row)
         if len(self._buffer) >= BATCH_ROWS or self._clock() - self._last_handoff >= FLUSH_S:
             self._handoff()
@@ -71,11 +81,24 @@ class Recorder:
             batch = self._queue.get()
             if batch is None:
                 break
+            if self.error is not None:
+                continue  # drain the queue; nothing more is written after a failure
             arr = np.asarray(batch, dtype="<f8")
             if arr.ndim != 2 or arr.shape[1] != self.width:
-                raise ValueError(f"telemetry row has {arr.shape[-1]} values; the schema has {self.width}.")
-            self._file.write(arr.tobytes())
-            self._file.flush()
+                self.error = f"a telemetry row has {arr.shape[-1]} values; the schema has {self.width}."
+                continue
+            try:
+                # Whole rows only: a short write (disk full) is cut back to the last whole row.
+                start = self._file.tell()
+                self._file.write(arr.tobytes())
+                self._file.flush()
+            except OSError as exc:
+                self.error = (f"writing the telemetry failed ({exc.strerror or exc}); the rows written before are "
+                              "kept")
+                try:
+                    self._file.truncate(start + ((self._file.tell() - start) // (8 * self.width)) * 8 * self.width)
+                except OSError:
+                    pass
 
     def close(self) -> None:
         """Write what is buffered and stop the writer. Idempotent."""
@@ -85,7 +108,12 @@ class Recorder:
         self._handoff()
         self._queue.put(None)
         self._thread.join()
-        self._file.close()
+        try:
+            self._file.close()
+        except OSError as exc:
+            self.error = self.error or f"closing the telemetry failed ({exc.strerror or exc})"
+        if self.error is not None:
+            raise TelemetryError(self.error)
 
     def __enter__(self):
         return self
@@ -101,14 +129,21 @@ class EventLog:
         Path(run_dir).mkdir(parents=True, exist_ok=True)
         self.path = Path(run_dir) / "events.jsonl"
         self._file = open(self.path, "a", buffering=1)  # noqa: SIM115 - line-buffered, closed by close()
+        self.lost = 0
 
     def log(self, kind: str, message: str, **fields) -> None:
         if not self._file.closed:
-            self._file.write(json.dumps({"kind": kind, "message": message, **fields}) + "\n")
+            try:
+                self._file.write(json.dumps({"kind": kind, "message": message, **fields}, default=str) + "\n")
+            except OSError:
+                self.lost += 1  # a full disk must not turn an event into a crash; the count goes in the summary
 
     def close(self) -> None:
         if not self._file.closed:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError:
+                self.lost += 1
 
 
 def load(run_dir: str | Path) -> dict[str, np.ndarray]:

@@ -41,7 +41,7 @@ def _cv2():
         import cv2
     except ImportError:  # pragma: no cover
         raise RuntimeError(
-            "calibration needs opencv-contrib-python-headless (pip install 'adcs-stand[screen]')."
+            "calibration needs opencv-contrib-python-headless (part of the base install: pip install adcs-stand)."
         ) from None
     if not hasattr(cv2, "aruco"):  # pragma: no cover
         raise RuntimeError(

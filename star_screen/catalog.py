@@ -25,12 +25,13 @@ from dataclasses import dataclass, field
 import erfa
 import numpy as np
 
+import fixtures
 from sim.ephemeris import earth_pv_bcrs
 from sim.time import Epoch
 
 __all__ = ["Catalog", "StarPlaces", "DEFAULT_CATALOG_PATH", "radec_to_unit", "unit_to_radec"]
 
-DEFAULT_CATALOG_PATH = pathlib.Path(__file__).resolve().parents[1] / "fixtures" / "catalog" / "hip2_hp9.npz"
+DEFAULT_CATALOG_PATH = fixtures.ROOT / "catalog" / "hip2_hp9.npz"
 _MAS = np.pi / (180.0 * 3600.0 * 1000.0)
 #: Hipparcos catalog epoch J1991.25 as a TT Julian date.
 HIP_EPOCH_JD_TT = 2448349.0625

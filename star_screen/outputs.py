@@ -26,7 +26,7 @@ def _cv2():
         import cv2
     except ImportError:  # pragma: no cover - depends on the installation
         raise RuntimeError(
-            "writing PNG files needs OpenCV; install the screen extra: pip install 'adcs-stand[screen]'."
+            "writing PNG files needs OpenCV; it is part of the base install (pip install adcs-stand)."
         ) from None
     return cv2
 

@@ -236,6 +236,7 @@ class MagnetorquerEmulator(BusEndpoint):
         self._sample_seq = 0
         self._heartbeat_counter = 0
 
+        self.last_sample: MagSample | None = None
         self._noise: list[list[float]] = []  # the current block of pre-drawn noise, T
         self._noise_i = 0
 
@@ -401,7 +402,8 @@ class MagnetorquerEmulator(BusEndpoint):
         sent = 0
         if since >= self._k_sample * cfg.sample_period_s:
             self._k_sample = self._next_slot(since, cfg.sample_period_s, self._k_sample, count_skips=True)
-            self._send(self.measure(t_s))
+            self.last_sample = self.measure(t_s)  # what crossed the bus, for a stand that serves this board
+            self._send(self.last_sample)
             sent += 1
         if since >= self._k_status * cfg.status_period_s:
             self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)

@@ -1,33 +1,51 @@
 """ADCS controllers in the loop, and the plug-in API for flight-software engineers.
 
-A controller sees the spacecraft only through host drivers, exactly as flight software sees its
-devices: every measurement it reads and every command it sends crosses the device protocol (the
-CAN codec on a bus). It never touches the truth model.
+A controller sees the spacecraft only through host drivers, exactly as flight software sees its devices: every
+measurement it reads and every command it sends crosses the device protocol. It never touches the truth model.
 
-Plug-in API: a class named in the scenario (``[controller] kind = "plugin"``,
-``module = "package.module:ClassName"``, ``options = {...}``) is built as
-``ClassName(devices, period_s, **options)`` where ``devices`` maps scenario device names to host
-drivers, and is called once per control period as ``update(t_s)``. ``close()`` is called at the
-end if it exists. The reference B-dot below is written against the same API.
+Plug-in API (``[controller] kind = "plugin"``, ``module = "package.module:ClassName"``, ``options = {...}``, and
+``path = "folder"`` when the module is not in an installed package): the class is built as
+``ClassName(devices, period_s, **options)`` where ``devices`` maps **every** scenario device name to its host
+driver, whatever its link (``take_sample``/``command_dipole`` for a magnetorquer, ``take_solution`` for a star
+tracker, ``take_sun`` for a sun sensor), and is called once per control period as ``update(t_s)``. Optional:
+``telemetry_columns()`` -> ``[(name, width, unit), ...]`` and ``telemetry()`` -> a tuple of floats recorded with
+every telemetry row, and ``close()`` at the end. An exception in ``update`` ends the run "aborted" (exit 3) with
+the traceback in ``events.jsonl`` and the summary and plots written. ``examples/plugin_template.py`` is a
+complete template; ``docs/plugins.md`` documents the API. The reference B-dot below is written against the same
+API (``BDot.from_devices``).
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import inspect
+import os
+import re
+import sys
+from importlib.metadata import packages_distributions
+from pathlib import Path
 
 import numpy as np
 
 from sim.rotations import dcm
 
+#: ``package.module:ClassName`` with plain identifiers only (no relative imports, no attribute paths).
+PLUGIN_SPEC = re.compile(r"([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*):([A-Za-z_]\w*)")
+
+
+class PluginError(ValueError):
+    """A plug-in that cannot be found, imported or constructed; the message is one sentence."""
+
 
 class BDot:
     """B-dot detumbling: m = -k dB/dt, by finite difference of successive magnetometer samples.
 
-    The derivative is taken in body axes (the sensor mount ``q_SB`` is known to the flight
-    software, as on a real spacecraft). Each command is clipped per axis to ``max_dipole_A_m2``
-    and keeps the coils on for ``duty_cycle`` of the control period; the board's watchdog turns
-    them off when that expires. Samples flagged ``coil_active`` are skipped when
-    ``skip_coil_active`` is set (the coils corrupt the magnetometer while they are driven).
+    The derivative is taken in body axes (the sensor mount ``q_SB`` is known to the flight software, as on a
+    real spacecraft). Each command is clipped per axis to ``max_dipole_A_m2`` and keeps the coils on for
+    ``duty_cycle`` of the control period; the board's watchdog turns them off when that expires. Samples flagged
+    ``coil_active`` are skipped when ``skip_coil_active`` is set (the coils corrupt the magnetometer while they
+    are driven).
     """
 
     def __init__(self, board, period_s: float, gain_A_m2_s_per_T: float, max_dipole_A_m2: float,
@@ -44,16 +62,25 @@ class BDot:
         self.samples_used = 0
         self.samples_skipped = 0
 
+    def telemetry_columns(self) -> list[tuple[str, int, str]]:
+        return [("dipole_cmd_B", 3, "A m^2")]
+
+    def telemetry(self) -> tuple:
+        return self.last_command
+
     def update(self, t_s: float) -> None:
         sample = self.board.take_sample()  # polls the bus
-        if sample is None:
-            return
+        if sample is not None:
+            self.command_for(sample, t_s)
+
+    def command_for(self, sample, t_s: float) -> None:
+        """Use one magnetometer sample taken at ``t_s`` (an external flight program calls this directly)."""
         if self.skip_coil_active and sample.coil_active or not sample.valid:
             self.samples_skipped += 1
             self._prev = None
             return
-        # Component by component on floats: this runs every control tick, and indexing or a
-        # generator over three components costs more than the arithmetic.
+        # Component by component on floats: this runs every control tick, and indexing or a generator over
+        # three components costs more than the arithmetic.
         sx, sy, sz = sample.b_T
         (c00, c01, c02), (c10, c11, c12), (c20, c21, c22) = self.dcm_BS
         bx = c00 * sx + c01 * sy + c02 * sz
@@ -72,17 +99,105 @@ class BDot:
         self.last_command = m
 
 
-def load_plugin(spec: str):
-    """Import ``package.module:ClassName``; raises ValueError naming what could not be found."""
-    module_name, _, attr = spec.partition(":")
-    if not module_name or not attr:
-        raise ValueError(f"controller.module = {spec!r} must look like 'package.module:ClassName'.")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ValueError(f"controller.module = {spec!r}: module {module_name!r} cannot be imported ({exc}).") from None
-    try:
-        return getattr(module, attr)
-    except AttributeError:
-        raise ValueError(f"controller.module = {spec!r}: {module_name!r} has no {attr!r}.") from None
+def load_plugin(spec: str, path: str | Path | None = None, base: Path | None = None):
+    """The class named by ``package.module:ClassName``: from the folder ``path`` (relative to ``base``, the
+    scenario's folder) when given, else from an installed distribution. Never from the working directory by
+    accident. Raises PluginError with one sentence."""
+    m = PLUGIN_SPEC.fullmatch(spec) if isinstance(spec, str) else None
+    if m is None:
+        raise PluginError(f"controller.module = {spec!r} is not allowed: give 'package.module:ClassName' with plain "
+                          "names (no relative imports).")
+    module_name, attr = m.groups()
+    top = module_name.split(".")[0]
+    if path is not None:
+        folder = (Path(base or ".") / path).resolve()
+        if not folder.is_dir():
+            raise PluginError(f"controller.path = {str(path)!r} is not allowed: a folder holding {top!r} is expected "
+                              f"({folder} is not a folder).")
+        module = _import_from(folder, module_name, spec)
+    else:
+        if top not in packages_distributions():
+            raise PluginError(
+                f"controller.module = {spec!r} is not allowed: {top!r} is not an installed package; install it "
+                "(pip install -e your_package) or give controller.path = 'folder' holding it (the working directory "
+                "is never searched by itself).")
+        module = _import_installed(module_name, spec)
+    cls = getattr(module, attr, None)
+    if not inspect.isclass(cls):
+        raise PluginError(f"controller.module = {spec!r} is not allowed: {module_name!r} has no class {attr!r}.")
+    return cls
 
+
+def _import_installed(module_name: str, spec: str):
+    saved = list(sys.path)
+    cwd = os.getcwd()
+    # `python -m stand.cli` puts the working directory first on sys.path: a stray file there must not load.
+    sys.path[:] = [p for p in sys.path if p not in ("", ".", cwd)]
+    try:
+        return importlib.import_module(module_name)
+    except Exception as exc:
+        raise PluginError(f"controller.module = {spec!r}: {module_name!r} cannot be imported "
+                          f"({type(exc).__name__}: {exc}).") from None
+    finally:
+        sys.path[:] = saved
+
+
+def _import_from(folder: Path, module_name: str, spec: str):
+    sys.path.insert(0, str(folder))
+    try:
+        return importlib.import_module(module_name)
+    except Exception as exc:
+        raise PluginError(f"controller.module = {spec!r}: {module_name!r} cannot be imported from {folder} "
+                          f"({type(exc).__name__}: {exc}).") from None
+    finally:
+        if sys.path and sys.path[0] == str(folder):
+            sys.path.pop(0)
+
+
+def build_controller(sc, devices: dict, base: Path | None = None):
+    """The scenario's controller over the scene's devices (name -> Device), or None. Plug-in failures at
+    construction are PluginError (a scenario error)."""
+    ctl = sc.controller
+    period = 1.0 / ctl.rate_hz
+    p = ctl.params
+    if ctl.kind == "bdot":
+        spec = next(d for d in sc.devices if d.name == p["device"])
+        return BDot(devices[spec.name].host, period, p["gain_A_m2_s_per_T"], p["max_dipole_A_m2"], q_SB=spec.q_SB,
+                    skip_coil_active=p["skip_coil_active"], duty_cycle=p.get("duty_cycle", 1.0))
+    if ctl.kind != "plugin":
+        return None
+    cls = load_plugin(p["module"], p.get("path"), base)
+    hosts = {name: d.host for name, d in devices.items()}
+    try:
+        return cls(hosts, period, **p["options"])
+    except Exception as exc:
+        raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, {period:g}, "
+                          f"**options) failed: {type(exc).__name__}: {exc}.") from None
+
+
+class _NotOpened:
+    """What ``stand check`` hands a plug-in for each device: nothing is opened, so any use says so."""
+
+    def __init__(self, name: str):
+        self._name = name
+
+    def __getattr__(self, attr):
+        raise RuntimeError(f"device {self._name!r} is not opened by `stand check` (the plug-in used .{attr} in its "
+                           "constructor; devices are only for update())")
+
+
+def check_controller(sc, base: Path | None = None) -> None:
+    """What ``stand check`` does for the controller: import the plug-in and construct it over unopened devices,
+    so a missing module, a wrong path or bad options fail here in one sentence, not at t = 0."""
+    ctl = sc.controller
+    if ctl.kind != "plugin":
+        return
+    p = ctl.params
+    cls = load_plugin(p["module"], p.get("path"), base)
+    try:
+        obj = cls({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz, **p["options"])
+    except Exception as exc:
+        raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, "
+                          f"{1.0 / ctl.rate_hz:g}, **options) failed: {type(exc).__name__}: {exc}.") from None
+    if not callable(getattr(obj, "update", None)):
+        raise PluginError(f"controller.module = {p['module']!r}: {cls.__name__} has no update(t_s) method.")

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+import fixtures
+
 BENCHES = {
     "loop": "stand.benches:bench_loop",
     "render": "stand.benches.render:bench_render",
@@ -28,7 +30,7 @@ BENCHES = {
 #: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
 BASILISK_RATE_DEG_S = {600.0: 7.2, 1800.0: 3.6, 3600.0: 0.88, 5670.0: 0.20}
 BASILISK_REALTIME = 2170.0
-REFERENCE_JSON = Path(__file__).resolve().parents[1] / "fixtures" / "reference" / "basilisk" / "detumble_basilisk.json"
+REFERENCE_JSON = fixtures.ROOT / "reference" / "basilisk" / "detumble_basilisk.json"
 
 
 def run_bench(name: str, quick: bool = False, plot_path: str | None = None) -> list[dict]:

@@ -59,7 +59,7 @@ def _read_image(path: str):
         import cv2
     except ImportError:  # pragma: no cover - depends on the installation
         raise ValueError(
-            "reading images needs OpenCV; install the screen extra: pip install 'adcs-stand[screen]'."
+            "reading images needs OpenCV; it is part of the base install (pip install adcs-stand)."
         ) from None
     img = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     if img is None:

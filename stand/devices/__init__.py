@@ -1,0 +1,220 @@
+"""Device kinds: one module per kind, one registry, one contract.
+
+The scenario loader, composition, the loop, telemetry, plots and the summary iterate over devices and never
+name a kind. Each kind is a :class:`DeviceKind` (its scenario table and validation, what it needs from the
+truth, how it is built for each link) that builds a :class:`Device` (what it does each tick, what it gives the
+truth, its telemetry columns, plots, summary counters and its host driver for the flight code).
+
+Kinds are found by name in :data:`KINDS` (``name -> "module:attribute"``, imported lazily, as python-can finds
+its interfaces) and in the entry-point group ``adcs_stand.devices``, so a bench adds its own kind with a
+package of its own::
+
+    [project.entry-points."adcs_stand.devices"]
+    my_sensor = "my_bench.sensor:KIND"
+
+Links (``link = ...`` in a ``[[devices]]`` table):
+
+* ``emulated``: the stand runs the device's emulator on an in-process loopback (pty pair, python-can
+  ``virtual``), fed by the truth, and talks to it through the host driver, over the real protocol.
+* ``hardware``: the stand runs only the host driver, on a real port; what an actuator produced is read back
+  from the device, never assumed.
+* ``served``: the stand runs the emulator on a real port, fed by the truth, for a flight computer outside.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from stand.scenario import Table
+
+LINKS = ("emulated", "hardware", "served")
+#: Links whose other end lives in wall time: the run must be paced.
+WALL_TIME_LINKS = ("hardware", "served")
+ENTRY_POINT_GROUP = "adcs_stand.devices"
+
+#: The kinds shipped with the stand: name -> "module:attribute" of a DeviceKind instance.
+KINDS = {
+    "magnetorquer": "stand.devices.magnetorquer:KIND",
+    "star_tracker": "stand.devices.star_tracker:KIND",
+    "sun_sensor": "stand.devices.sun_sensor:KIND",
+}
+
+#: Truth models a device may need, in the order ``stand check`` lists them.
+TRUTH_MODELS = ("magnetic_field", "sun", "moon", "eclipse", "star_screen")
+
+_loaded: dict[str, DeviceKind] = {}
+
+
+def kind_names() -> tuple[str, ...]:
+    """Every kind known: the shipped ones, then those of installed packages."""
+    extra = [ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS]
+    return (*KINDS, *sorted(extra))
+
+
+def get(name: str) -> DeviceKind:
+    """The kind called ``name`` (imported on first use). KeyError for an unknown name."""
+    if name in _loaded:
+        return _loaded[name]
+    if name in KINDS:
+        module, _, attr = KINDS[name].partition(":")
+        kind = getattr(importlib.import_module(module), attr)
+    else:
+        found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
+        if not found:
+            raise KeyError(name)
+        kind = found[0].load()
+    _loaded[name] = kind
+    return kind
+
+
+@dataclass(frozen=True)
+class DeviceSpec:
+    """What every ``[[devices]]`` table gives; a kind's spec extends it."""
+
+    name: str
+    kind: str
+    link: str
+    q_SB: np.ndarray  # device (sensor) frame relative to body, scalar-first
+
+
+@dataclass
+class BuildContext:
+    """What a kind may use to build a device: the truth, the Sun and Moon tracks it asked for, the scenario
+    epoch, its own seeded random stream and the dynamics step."""
+
+    truth: Any
+    tracks: dict
+    epoch: Any
+    rng: np.random.Generator
+    step_s: float
+    speed: float | None = None
+
+
+class Device:
+    """One device of a run, whatever its kind and link. The loop calls, every tick at sim time ``t_s``:
+
+    1. ``publish(t_s)`` on the ticks in ``every_ticks``: sensors sample the truth and send (emulated and served
+       links), or the host reads what a real device sent (hardware);
+    2. the controller runs;
+    3. ``receive(t_s)``: actuators take in commands; ``dipole_B`` (when ``gives_dipole``) is the output held
+       over the next step;
+    4. ``row()`` when a telemetry row is due, matching ``columns()``.
+
+    ``activity()`` counts measurements that reached the stand; the loop's watch reports a device whose count
+    stops moving for ``silent_after_s`` of sim time (None: not watched). ``host`` is the host driver the flight
+    code gets (None on a served link: the flight computer outside has it).
+    """
+
+    name: str
+    host: Any = None
+    every_ticks: int = 1
+    gives_dipole: bool = False
+    silent_after_s: float | None = None
+
+    def columns(self) -> list[tuple[str, int, str]]:
+        return []
+
+    def publish(self, t_s: float) -> None:
+        """Sample and send what is due at ``t_s``."""
+
+    def receive(self, t_s: float) -> None:
+        """Take in what arrived by ``t_s``."""
+
+    def dipole_B(self) -> tuple[float, float, float]:
+        return (0.0, 0.0, 0.0)
+
+    def row(self) -> tuple:
+        return ()
+
+    def activity(self) -> int:
+        return 0
+
+    def start(self, events) -> None:
+        """Before t = 0: set device clocks and log what was measured (``events.log``)."""
+
+    def summary(self) -> dict:
+        return {}
+
+    def close(self) -> None:
+        """Release ports and buses (idempotent)."""
+
+
+class DeviceKind:
+    """A kind of device: its scenario table, its needs, how it is built, its metrics and plots."""
+
+    name: str = ""
+    links: tuple[str, ...] = LINKS
+    default_link: str = "emulated"
+    #: Criteria metrics this kind evaluates: name -> description with the unit.
+    metrics: dict[str, str] = {}
+    #: Metrics that need ``at_s``.
+    metrics_at: tuple[str, ...] = ()
+
+    def parse(self, t: Table, base: DeviceSpec, step_s: float) -> DeviceSpec:
+        raise NotImplementedError
+
+    def needs(self, spec: DeviceSpec) -> dict[str, str]:
+        """Truth models this device needs (a key of TRUTH_MODELS -> why), for composition and ``stand check``."""
+        return {}
+
+    def describe(self, spec: DeviceSpec) -> str:
+        return f"{self.name}, {spec.link}"
+
+    def build(self, spec: DeviceSpec, ctx: BuildContext) -> Device:
+        raise NotImplementedError
+
+    def metric(self, metric: str, at_s: float | None, tel: dict, names: list[str]) -> float:
+        """The value of one of ``metrics`` from the telemetry of this kind's devices ``names``."""
+        return math.nan
+
+    def plots(self, tel: dict, name: str, out_dir, limits: list) -> list[str]:
+        return []
+
+
+#: CAN interfaces a link may use. Emulated devices stay in the process; a hardware or served link names a
+#: CAN adapter (udp_multicast is for tests inside a private network namespace: it sends to the network).
+CAN_INTERFACES = {
+    "emulated": ("virtual", "stand_loopback"),
+    "hardware": ("socketcan", "serial", "slcan", "pcan", "kvaser", "vector", "ixxat", "gs_usb", "neovi",
+                 "canalystii", "systec", "seeedstudio", "cantact", "udp_multicast"),
+}
+CAN_INTERFACES["served"] = CAN_INTERFACES["hardware"]
+#: Network hosts a serial URL (socket://, rfc2217://) may name: a scenario never makes the stand connect out.
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+
+
+def check_serial_url(t: Table, key: str, value: str) -> str:
+    """A serial port: a device path, a pty, ``loop://``, or a socket/RFC 2217 URL to this machine only."""
+    if "\x00" in value:
+        raise t.error(key, value.replace("\x00", "\\0"), "a port name without NUL bytes")
+    scheme, sep, rest = value.partition("://")
+    if not sep:
+        return value
+    if scheme == "loop":
+        return value
+    if scheme in ("socket", "rfc2217"):
+        host = rest.rsplit(":", 1)[0]
+        if host in LOCAL_HOSTS:
+            return value
+        raise t.error(key, value, f"a {scheme}:// URL to this machine ({', '.join(LOCAL_HOSTS)}); a scenario does "
+                      "not make the stand connect to other hosts (use a device path for a real line)")
+    raise t.error(key, value, "a device path (/dev/ttyUSB0), a pty, loop://, or socket://127.0.0.1:PORT")
+
+
+def check_can(t: Table, link: str, interface: str, channel: str) -> None:
+    allowed = CAN_INTERFACES[link]
+    if interface not in allowed:
+        raise t.error("interface", interface, f"for link = {link!r} one of " + ", ".join(repr(a) for a in allowed)
+                      + (" (an emulated device stays inside the stand; a real adapter needs link = 'hardware' or "
+                         "'served')" if link == "emulated" else ""))
+    if interface in ("serial", "slcan"):
+        check_serial_url(t, "channel", channel)
+    elif "\x00" in channel:
+        raise t.error("channel", channel.replace("\x00", "\\0"), "a channel name without NUL bytes")

@@ -1,18 +1,20 @@
-"""Star trackers in the loop: an emulator on one end of a serial line, the host driver on the other.
+"""Star trackers on a serial line (``drivers.star_tracker``, the ICD in ``fixtures/devices/star_tracker.toml``).
 
-The stand hands the emulator a measurement source (``TrackerTruth`` at an exposure time: the
-tracker-frame attitude, its rate, and the Sun, Moon and Earth seen from the spacecraft) and reads
-the solutions back through the real protocol (SLIP frames, CRC, the ICD of
-``fixtures/devices/star_tracker.toml``). Each solution is compared with the truth at its
-mid-exposure time, recovered from the device time stamp through the emulator's clock model, so the
-summary reports what a flight computer would have received and how wrong it was.
+The stand hands the emulator a measurement source (``TrackerTruth`` at an exposure time: the tracker-frame
+attitude, its rate, and the Sun, Moon and Earth seen from the spacecraft) and reads the solutions back through
+the real protocol (SLIP frames, CRC). Each solution is compared with the truth at its mid-exposure time,
+recovered from the device time stamp, so the summary reports what a flight computer would have received and
+how wrong it was.
 
-Two sources feed the emulator. ``truth``: the true attitude, to which the emulator adds its
-configured noise. ``image``: the star screen renders the tracker's detector image at the true
-attitude, camera noise is added and ``star_screen.tracking`` solves it (``ImageSolver``); the
-emulator is handed the solved attitude and the stars matched, with its own noise at 0. The Sun,
-Moon and Earth (hence the exclusion flags), the rate flag, the state machine and the protocol are
-the same for both.
+Two sources feed the emulator. ``truth``: the true attitude, to which the emulator adds its configured noise.
+``image``: the star screen renders the tracker's detector image at the true attitude, camera noise is added and
+``star_screen.tracking`` solves it (``ImageSolver``); the emulator is handed the solved attitude and the stars
+matched, with its own noise at 0.
+
+Links: ``emulated`` (emulator and host on an in-process pty pair, every exchange settled within the tick, so a
+run is bit-for-bit repeatable), ``hardware`` (the host on a real port: the stand sets the device clock to sim
+time at start, logs the offset it measures, and scores each solution against the truth at its time stamp),
+``served`` (the emulator on a real port, fed by the truth, for a flight computer outside).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import os
 import select
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +33,7 @@ from sim.constants import R_EARTH
 from sim.environment import R_SUN
 from sim.rotations import axis_angle, compose, conjugate, dcm, quat_from_axis_angle
 from sim.truth import compose_floats, rotate_to_body
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
 
 ARCSEC = math.pi / 180.0 / 3600.0
 #: Longest wall-clock wait for a frame to cross the in-process serial line before it counts as lost.
@@ -39,8 +43,50 @@ R_MOON = 1.7374e6
 ATMOSPHERE_M = 100e3
 FLAG_BITS = {"sun_in_field": 1, "moon_in_field": 2, "earth_in_field": 4, "rate_too_high": 8}
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
-#: The telemetry fragment before the first solution arrives (widths of TrackerLink.columns()).
+#: The telemetry fragment before the first solution arrives (widths of the columns).
 NO_SOLUTION = (math.nan,) * 10
+#: Solutions in a row a tracker may miss before it is reported silent.
+SILENT_SOLUTIONS = 5
+
+#: Emulator settings a scenario may give that the ICD does not carry as a parameter: key -> (default, lo, hi).
+TRACKER_SETTINGS = {
+    "noise_cross_arcsec": (2.0, 0.0, 3600.0),
+    "noise_roll_arcsec": (10.0, 0.0, 3600.0),
+    "output_delay_s": (0.1, 0.0, 10.0),
+    "clock_offset_s": (0.0, -1e6, 1e6),
+    "clock_drift_ppm": (0.0, -1e3, 1e3),
+    "boot_time_s": (1.0, 0.0, 600.0),
+}
+#: Scenario key suffix for an ICD parameter's wire unit, and the factor from the wire unit to the scenario's.
+_UNIT_KEYS = {"ms": ("_s", 1e-3), "deg": ("_deg", 1.0), "deg/s": ("_deg_s", 1.0), "count": ("", 1.0)}
+#: Settings of the truth source only: with source = "image" the image is the noise.
+TRUTH_ONLY_SETTINGS = ("noise_cross_arcsec", "noise_roll_arcsec")
+TRACKER_SOURCES = ("truth", "image")
+#: Image-source settings: key -> (default, lo, hi, integer). Pairs are [x, y] (image right, down).
+TRACKER_IMAGE_SETTINGS = {
+    "mag_limit": (8.0, 4.0, 9.0, False),  # stars drawn and used, Hipparcos Hp (the catalog fixture reaches 9)
+    "psf_sigma_px": (1.0, 0.3, 5.0, False),  # Gaussian spot sigma on the detector
+    "read_noise_e": (10.0, 0.0, 1000.0, False),  # rms per pixel
+    "background_e": (20.0, 0.0, 1e6, False),  # sky, stray light and dark current per pixel and exposure
+}
+TRACKER_IMAGE_PAIRS = {
+    "fov_deg": ((20.0, 15.0), 5.0, 60.0, False),  # full field along image x and y
+    "resolution_px": ((1024, 768), 64, 4096, True),  # detector columns and rows
+}
+
+
+def icd_settings() -> dict[str, tuple[float, float, float, bool]]:
+    """Scenario settings that are ICD parameters: key -> (default, lo, hi, integer) in the scenario's units,
+    read from the ICD's parameter table so scenario limits are the device's own."""
+    from drivers.star_tracker.codec import load_icd
+
+    out = {}
+    for p in load_icd()["parameters"]:
+        suffix, factor = _UNIT_KEYS[p["unit"]]
+        integer = bool(p.get("integer", False))
+        default = int(p["default"]) if integer else p["default"] * factor
+        out[p["name"] + suffix] = (default, p["min"] * factor, p["max"] * factor, integer)
+    return out
 
 
 def attitude_error_arcsec(q_true, q_meas) -> tuple[float, float]:
@@ -50,65 +96,179 @@ def attitude_error_arcsec(q_true, q_meas) -> tuple[float, float]:
     return math.hypot(theta[0], theta[1]) / ARCSEC, abs(theta[2]) / ARCSEC
 
 
-@dataclass
-class TrackerLink:
-    name: str
-    emulator: object
-    host: object
-    q_SB: tuple
-    truth_at: dict = field(default_factory=dict)  # exposure time (us of sim time) -> q_TN
-    slave_fd: int | None = None
-    solutions: int = 0
-    valid: int = 0
-    flags: dict = field(default_factory=lambda: dict.fromkeys(FLAG_BITS, 0))
-    errors: list = field(default_factory=list)  # (t_s, cross, roll) of valid solutions
-    last: tuple = NO_SOLUTION  # the newest solution as a telemetry row fragment (see columns())
-    last_solution: object | None = None  # the newest decoded SOLUTION message, as the host got it
-    image: object | None = None  # the ImageSolver of an image-source tracker
+@dataclass(frozen=True)
+class StarTrackerSpec(DeviceSpec):
+    """A star tracker on a serial line, fed by truth plus noise (``source = "truth"``) or by image-based
+    solutions (``source = "image"``)."""
 
-    def sim_time_of(self, time_us: int) -> float:
-        """Invert the device clock (offset and drift; the stand never sends SET_TIME in a run)."""
-        cfg = self.emulator.config
-        return (time_us * 1e-6 - cfg.clock_offset_s) / (1.0 + cfg.clock_drift_ppm * 1e-6)
+    port: str = "pty"  # emulated: an in-process pty pair; hardware/served: a pyserial URL or device path
+    baudrate: int = 115200
+    address: int | None = None
+    source: str = "truth"
+    emulator: dict = field(default_factory=dict)  # keyword arguments of the emulator's EmulatorConfig
+    optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
+    camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
 
-    def _frames_in(self, counters: dict) -> int:
-        return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
 
-    def _settle(self, done, port) -> None:
-        """Wait (wall clock, bounded) until the other end has the frames written to it.
+class StarTrackerKind(DeviceKind):
+    name = "star_tracker"
+    metrics = {
+        "tracker_availability_after": "fraction of star-tracker solutions after time at_s that are valid",
+        "tracker_error_cross_arcsec_p95": "95th percentile of the valid solutions' cross-boresight error (arcsec)",
+        "tracker_error_roll_arcsec_p95": "95th percentile of the valid solutions' roll error (arcsec)",
+    }
+    metrics_at = ("tracker_availability_after",)
 
-        A pty hands bytes over asynchronously: an as-fast-as-possible loop would otherwise see a
-        frame one or many ticks late, a different number each run. Waiting for the exchange to
-        complete makes every run take the same tick for every frame, as a paced bench would.
-        """
-        deadline = time.monotonic() + SETTLE_TIMEOUT_S
-        while not done():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise DeviceTimeoutError(
-                    f"{self.name}: a frame written to the serial line did not arrive within {SETTLE_TIMEOUT_S:g} s.",
-                    device=self.name, awaited="frames written to the serial line", timeout_s=SETTLE_TIMEOUT_S)
-            select.select([port.fileno()], [], [], min(left, 0.01))
-            if port is self.host.port:
-                self.host.poll()
-            else:
-                return  # the emulator reads in service(); it only had to be readable
+    def parse(self, t, base: DeviceSpec, step_s: float) -> StarTrackerSpec:
+        source = t.choice("source", TRACKER_SOURCES, "truth")
+        image_keys = (*TRACKER_IMAGE_PAIRS, *TRACKER_IMAGE_SETTINGS)
+        if source == "image":
+            for key in TRUTH_ONLY_SETTINGS:
+                if t.has(key):
+                    raise t.error(key, t.raw(key), "no such setting with source = 'image': the rendered image and "
+                                  "its camera noise (read_noise_e, background_e) are the measurement noise")
+        else:
+            for key in image_keys:
+                if t.has(key):
+                    raise t.error(key, t.raw(key), f"a setting of image-source trackers only; this tracker has "
+                                  f"source = {source!r} (set source = 'image' to render and solve its images)")
+        settings = {}
+        limits = {**{k: (*v, False) for k, v in TRACKER_SETTINGS.items()}, **icd_settings()}
+        for key, (default, lo, hi, integer) in limits.items():
+            if source == "image" and key in TRUTH_ONLY_SETTINGS:
+                continue
+            v = t.number(key, default, lo=lo, hi=hi, integer=integer)
+            settings[key] = int(v) if integer else float(v)
+        for key in ("output_interval_s", "boot_time_s"):
+            _whole_steps(t, key, settings[key], step_s)
+        address = t.raw("address", None)
+        if address is not None and (isinstance(address, bool) or not isinstance(address, int)
+                                    or not 0 <= address <= 255):
+            raise t.error("address", address, "a whole number from 0 to 255")
+        optics = camera = None
+        if source == "image":
+            optics, camera = _tracker_image(t, base.name)
+            # The solution is the image's: no added noise, and the stars matched are the solver's own.
+            settings.update(noise_cross_arcsec=0.0, noise_roll_arcsec=0.0, match_probability=1.0)
+        if base.link == "emulated":
+            port = t.choice("port", ("pty",), "pty")
+        else:
+            port = check_serial_url(t, "port", t.text("port"))
+        baud = int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True))
+        spec = StarTrackerSpec(**base.__dict__, port=port, baudrate=baud, address=address, source=source,
+                               emulator=settings, optics=optics, camera=camera)
+        t.check_unknown()
+        return spec
 
-    def step(self, t_s: float) -> None:
-        emu, host = self.emulator, self.host
-        if host.counters["sent"] > self._frames_in(emu.counters):
-            self._settle(lambda: emu.port.in_waiting > 0, emu.port)
-        emu.service(t_s)
-        if emu.counters["sent"] > self._frames_in(host.counters):
-            self._settle(lambda: self._frames_in(host.counters) >= emu.counters["sent"], host.port)
-        sol = host.take_solution()
+    def needs(self, spec) -> dict[str, str]:
+        if spec.link == "hardware":
+            return {}
+        why = f"exclusion of {spec.name}"
+        out = {"sun": why, "moon": why}
+        if spec.source == "image":
+            o, cam = spec.optics, spec.camera
+            fx, fy = o.fov_deg
+            out["star_screen"] = (
+                f"renders the detector image of {spec.name} ({fx:g} x {fy:g} deg on {o.width} x {o.height} px, "
+                f"stars to Hp {o.mag_limit:g}, PSF sigma {o.psf_sigma_px:g} px, aberration, rate smear), adds camera "
+                f"noise (read {cam['read_noise_e']:g} e-, background {cam['background_e']:g} e-) and solves it "
+                "(pattern database built at compose time)")
+        return out
+
+    def describe(self, spec) -> str:
+        what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
+        every = f"a solution every {spec.emulator['output_interval_s']:g} s"
+        return {"emulated": f"star tracker emulated on an in-process serial pty pair, {what}, {every}",
+                "hardware": f"star tracker on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads "
+                            "its solutions and sets its clock)",
+                "served": f"star tracker served on serial {spec.port} for a flight computer outside, {what}, "
+                          f"{every}"}[spec.link]
+
+    def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
+        return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
+
+    def metric(self, metric, at_s, tel, names):
+        sol = _solutions(tel, names[0]) if names else None
         if sol is None:
-            return
+            return math.nan
+        if metric == "tracker_availability_after":
+            sel = sol["t"] >= at_s - 1e-9
+            return float(sol["valid"][sel].mean()) if np.any(sel) else math.nan
+        err = sol["cross" if "cross" in metric else "roll"][sol["valid"] == 1.0]
+        err = err[np.isfinite(err)]
+        return float(np.percentile(err, 95)) if len(err) else math.nan
+
+
+def _solutions(tel, n: str) -> dict | None:
+    """A tracker's solutions, one per exposure (the telemetry repeats the newest)."""
+    if f"{n}.t_exposure_s" not in tel:
+        return None
+    t = tel[f"{n}.t_exposure_s"]
+    ok = np.isfinite(t)
+    _, first = np.unique(t[ok], return_index=True)
+    idx = np.flatnonzero(ok)[first]
+    return {"t": t[idx], "valid": tel[f"{n}.valid"][idx], "cross": tel[f"{n}.err_cross"][idx],
+            "roll": tel[f"{n}.err_roll"][idx]}
+
+
+def _whole_steps(t, key: str, value: float, step_s: float) -> None:
+    n = value / step_s
+    if abs(n - round(n)) > 1e-9 * max(n, 1.0):
+        raise t.error(key, value, f"a whole number of dynamics steps ({step_s:g} s), so exposures fall on ticks")
+
+
+def _pair(t, key: str, default, lo, hi, integer: bool) -> tuple:
+    value = t.raw(key, list(default))
+    kind = "whole numbers" if integer else "numbers"
+    ok = isinstance(value, list) and len(value) == 2 and all(
+        not isinstance(v, bool) and isinstance(v, int if integer else int | float)
+        and math.isfinite(v) and lo <= v <= hi for v in value)
+    if not ok:
+        raise t.error(key, value, f"a list of 2 {kind} [x, y], each from {lo:g} to {hi:g}")
+    return tuple(int(v) if integer else float(v) for v in value)
+
+
+def _tracker_image(t, name: str) -> tuple[Any, dict]:
+    """Optics (a star_screen TrackerOptics) and camera noise of an image-source tracker."""
+    from star_screen.geometry import TrackerOptics
+
+    pairs = {key: _pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}
+    values = {key: t.number(key, d, lo=lo, hi=hi, integer=integer)
+              for key, (d, lo, hi, integer) in TRACKER_IMAGE_SETTINGS.items()}
+    (fx_deg, fy_deg), (width, height) = pairs["fov_deg"], pairs["resolution_px"]
+    optics = TrackerOptics.from_fov(fx_deg, fy_deg, width, height, psf_sigma_px=float(values["psf_sigma_px"]),
+                                    mag_limit=float(values["mag_limit"]), name=name)
+    aspect = (width / height) / (math.tan(math.radians(fx_deg) / 2) / math.tan(math.radians(fy_deg) / 2))
+    if not 0.5 <= aspect <= 2.0:
+        raise t.error("fov_deg", list(pairs["fov_deg"]),
+                      f"a field whose aspect matches resolution_px {list(pairs['resolution_px'])} within a factor "
+                      f"of 2 (pixels {aspect:.2f} times as tall as wide here)")
+    return optics, {"read_noise_e": float(values["read_noise_e"]), "background_e": float(values["background_e"])}
+
+
+class TrackerDevice(Device):
+    """What every link shares: scoring solutions against the truth, the telemetry columns and the summary."""
+
+    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
+        self.name, self.spec = spec.name, spec
+        self.q_SB = tuple(float(x) for x in spec.q_SB)
+        self.truth_at: dict[int, tuple] = {}  # exposure time (us of sim time) -> q_TN
+        self.solutions = self.valid = 0
+        self.flags = dict.fromkeys(FLAG_BITS, 0)
+        self.errors: list[tuple] = []  # (t_s, cross, roll) of valid solutions
+        self.last = NO_SOLUTION  # the newest solution as a telemetry row fragment (see columns())
+        self.last_solution = None  # the newest decoded SOLUTION message, as the host got it
+        self.image = None  # the ImageSolver of an image-source tracker
+        cfg = spec.emulator
+        self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
+        self.emulator = None
+        self._slave_fd: int | None = None
+
+    def _score(self, sol, t_exp: float) -> None:
         self.last_solution = sol
         self.solutions += 1
         for flag in FLAG_BITS:
             self.flags[flag] += bool(getattr(sol, flag))
-        t_exp = self.sim_time_of(sol.time_us)
         q_true = self.truth_at.pop(round(t_exp * 1e6), None)
         cross = roll = math.nan
         if q_true is not None:
@@ -124,20 +284,29 @@ class TrackerLink:
                 del self.truth_at[k]
 
     def columns(self) -> list[tuple[str, int, str]]:
-        """Telemetry of the newest solution the host received (repeated until the next): exposure
-        time in sim time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun,
-        2 Moon, 4 Earth, 8 rate), and its error against the truth at that exposure."""
+        """Telemetry of the newest solution the host received (repeated until the next): exposure time in sim
+        time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon, 4 Earth,
+        8 rate), and its error against the truth at that exposure."""
         n = self.name
         return [(f"{n}.t_exposure_s", 1, "s"), (f"{n}.q_TN", 4, "1"), (f"{n}.valid", 1, "1"),
                 (f"{n}.mode", 1, "1"), (f"{n}.flags", 1, "1"), (f"{n}.err_cross", 1, "arcsec"),
                 (f"{n}.err_roll", 1, "arcsec")]
 
+    def row(self) -> tuple:
+        return self.last
+
+    def activity(self) -> int:
+        return self.solutions
+
     def summary(self) -> dict:
         err = np.array([e[1:] for e in self.errors if math.isfinite(e[1])]).reshape(-1, 2)
         out = {"solutions": self.solutions, "valid": self.valid,
                "availability": round(self.valid / self.solutions, 4) if self.solutions else 0.0,
-               "flags_fired": dict(self.flags), "host_counters": dict(self.host.counters),
-               "emulator_counters": dict(self.emulator.counters)}
+               "flags_fired": dict(self.flags)}
+        if self.host is not None:
+            out["host_counters"] = dict(self.host.counters)
+        if self.emulator is not None:
+            out["emulator_counters"] = dict(self.emulator.counters)
         if self.image is not None:
             out["image"] = self.image.summary()
         if len(err):
@@ -147,11 +316,168 @@ class TrackerLink:
         return out
 
     def close(self) -> None:
-        self.host.close()
-        self.emulator.close()
-        if self.slave_fd is not None:
-            os.close(self.slave_fd)
-            self.slave_fd = None
+        if self.host is not None:
+            self.host.close()
+        if self.emulator is not None:
+            self.emulator.close()
+        if self._slave_fd is not None:
+            os.close(self._slave_fd)
+            self._slave_fd = None
+
+
+def _measure(spec: StarTrackerSpec, ctx: BuildContext, dev: TrackerDevice):
+    """The emulator's measurement source: the truth (or the image solver's solution) at an exposure."""
+    from drivers.star_tracker.emulator import TrackerTruth
+
+    fields = _sky_truth(spec, ctx.truth, ctx.tracks, dev)
+    if spec.source != "image":
+        return lambda t_s: TrackerTruth(**fields(t_s))
+    # The camera's own stream, spawned from the tracker's seed, so the emulator's draws are unchanged.
+    dev.image = solver = ImageSolver(spec.optics, spec.camera, ctx.epoch, ctx.rng.spawn(1)[0])
+    truth = ctx.truth
+
+    def measure(t_s: float) -> TrackerTruth:
+        out = fields(t_s)
+        out.update(solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N))
+        return TrackerTruth(**out)
+
+    return measure
+
+
+def _config(spec: StarTrackerSpec):
+    from drivers.star_tracker.emulator import EmulatorConfig
+
+    return EmulatorConfig(address=spec.address, **spec.emulator)
+
+
+class EmulatedTracker(TrackerDevice):
+    """Emulator and host on an in-process pty pair: the same kernel tty path a bench would use, without a
+    second process; every exchange completes within the tick, so runs are repeatable."""
+
+    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
+        from drivers.serial_port import pty_pair
+        from drivers.star_tracker.codec import Subscribe
+        from drivers.star_tracker.emulator import StarTrackerEmulator
+        from drivers.star_tracker.host import StarTrackerHost
+
+        super().__init__(spec, ctx)
+        measure = _measure(spec, ctx, self)
+        emulator_port, host_port, self._slave_fd = pty_pair()
+        self.emulator = StarTrackerEmulator(emulator_port, measure, _config(spec), ctx.rng,
+                                            name=f"{spec.name} emulator")
+        try:
+            self.host = StarTrackerHost(host_port, spec.address, name=spec.name)
+            # Not the blocking subscribe(): nothing services the emulator while the host would wait.
+            self.host.send_command(Subscribe(self.host.codec.solution_id, 0.0))
+        except BaseException:
+            self.close()
+            raise
+
+    def sim_time_of(self, time_us: int) -> float:
+        """Invert the emulator's clock (offset and drift; no SET_TIME in an emulated run)."""
+        cfg = self.emulator.config
+        return (time_us * 1e-6 - cfg.clock_offset_s) / (1.0 + cfg.clock_drift_ppm * 1e-6)
+
+    @staticmethod
+    def _frames_in(counters: dict) -> int:
+        return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
+
+    def _settle(self, done, port) -> None:
+        """Wait (wall clock, bounded) until the other end has the frames written to it.
+
+        A pty hands bytes over asynchronously: an as-fast-as-possible loop would otherwise see a frame one or
+        many ticks late, a different number each run. Waiting for the exchange to complete makes every run take
+        the same tick for every frame, as a paced bench would.
+        """
+        deadline = time.monotonic() + SETTLE_TIMEOUT_S
+        while not done():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise DeviceTimeoutError(
+                    f"{self.name}: a frame written to the serial line did not arrive within {SETTLE_TIMEOUT_S:g} s.",
+                    device=self.name, awaited="frames written to the serial line", timeout_s=SETTLE_TIMEOUT_S)
+            select.select([port.fileno()], [], [], min(left, 0.01))
+            if port is self.host.port:
+                self.host.poll()
+            else:
+                return  # the emulator reads in service(); it only had to be readable
+
+    def publish(self, t_s: float) -> None:
+        emu, host = self.emulator, self.host
+        if host.counters["sent"] > self._frames_in(emu.counters):
+            self._settle(lambda: emu.port.in_waiting > 0, emu.port)
+        emu.service(t_s)
+        if emu.counters["sent"] > self._frames_in(host.counters):
+            self._settle(lambda: self._frames_in(host.counters) >= emu.counters["sent"], host.port)
+        sol = host.take_solution()
+        if sol is not None:
+            self._score(sol, self.sim_time_of(sol.time_us))
+
+
+class HardwareTracker(TrackerDevice):
+    """The host driver on a real port. At start the device clock is set to sim time 0 (SET_TIME) and the
+    offset the device then reports is logged; solutions are scored against the truth at their time stamps."""
+
+    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
+        from drivers.star_tracker.host import StarTrackerHost
+
+        super().__init__(spec, ctx)
+        self._truth = ctx.truth
+        self._step_us = round(ctx.step_s * 1e6)
+        self._speed = ctx.speed or 1.0
+        self.host = StarTrackerHost(spec.port, spec.address, name=spec.name, baudrate=spec.baudrate)
+        self.clock_offset_s = math.nan
+
+    def start(self, events) -> None:
+        host = self.host
+        t_set = time.monotonic()
+        host.set_time(0)
+        status = host.request_status()
+        # Device time runs in wall time; sim time runs `speed` times faster from the start of the run.
+        self.clock_offset_s = status.time_us * 1e-6 - (time.monotonic() - t_set)
+        host.subscribe("SOLUTION", 0.0)
+        events.log("device_clock", f"{self.name}: device clock set to 0 at start; it then read "
+                   f"{self.clock_offset_s * 1e3:+.3f} ms against the stand's clock", device=self.name,
+                   offset_s=self.clock_offset_s)
+
+    def publish(self, t_s: float) -> None:
+        # The truth of every tick, to score solutions whose exposures fall on (or near) it.
+        self.truth_at[round(t_s * 1e6)] = compose_floats(self.q_SB, self._truth.q)
+        sol = self.host.take_solution()
+        if sol is not None:
+            t_exp = sol.time_us * 1e-6 * self._speed
+            t_tick = round(t_exp * 1e6 / self._step_us) * self._step_us * 1e-6
+            self._score(sol, t_tick)
+
+    def columns(self):
+        return [*super().columns(), (f"{self.name}.clock_offset_s", 1, "s")]
+
+    def row(self):
+        return (*self.last, self.clock_offset_s)
+
+    def summary(self):
+        return {**super().summary(), "clock_offset_s": self.clock_offset_s}
+
+
+class ServedTracker(TrackerDevice):
+    """The emulator on a real port, fed by the truth, for a flight computer outside (no host in the stand)."""
+
+    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
+        from drivers.star_tracker.emulator import StarTrackerEmulator
+
+        super().__init__(spec, ctx)
+        self.emulator = StarTrackerEmulator(spec.port, _measure(spec, ctx, self), _config(spec), ctx.rng,
+                                            name=f"{spec.name} emulator", baudrate=spec.baudrate)
+
+    def publish(self, t_s: float) -> None:
+        self.emulator.service(t_s)
+
+    def activity(self) -> int:
+        # Silence here means the flight computer stopped talking to the tracker.
+        return self.emulator.counters["frames_received"]
+
+    def row(self) -> tuple:
+        return self.last
 
 
 class ImageSolver:
@@ -228,7 +554,8 @@ class ImageSolver:
         return out
 
 
-def _sky_truth(spec, truth, tracks: dict, link: TrackerLink):
+
+def _sky_truth(spec, truth, tracks: dict, link: TrackerDevice):
     """``fields(t_s)``: the TrackerTruth fields at an exposure (true q_TN, rate, Sun, Moon and Earth in
     tracker axes), logging the true attitude in ``link.truth_at``; shared by every source."""
     q_SB = link.q_SB
@@ -260,50 +587,4 @@ def _sky_truth(spec, truth, tracks: dict, link: TrackerLink):
     return fields
 
 
-def build_tracker(spec, truth, tracks: dict, rng: np.random.Generator, epoch=None) -> TrackerLink:
-    """Emulator + host for one ``StarTrackerSpec``, wired to the truth model and the Sun/Moon tracks.
-
-    ``source = "truth"``: the emulator is handed the true attitude and adds its configured noise.
-    ``source = "image"``: the attitude handed over is the one solved from the rendered, noisy
-    detector image (``ImageSolver``; ``epoch`` is the scenario epoch, required), with the stars it
-    matched (0 when the solve failed); the scenario set the emulator's own noise to 0. Either way the
-    emulator's state machine, exclusion and rate flags and the serial protocol are the same, and
-    ``link.truth_at`` keeps the true attitude that the solutions are scored against.
-    """
-    from drivers.serial_port import pty_pair
-    from drivers.star_tracker.codec import Subscribe
-    from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator, TrackerTruth
-    from drivers.star_tracker.host import StarTrackerHost
-
-    q_SB = tuple(float(x) for x in spec.q_SB)
-    link = TrackerLink(spec.name, None, None, q_SB)
-    fields = _sky_truth(spec, truth, tracks, link)
-
-    if spec.source == "image":
-        if epoch is None:
-            raise ValueError(f"{spec.name}: an image-source tracker needs the scenario epoch "
-                             "(build_tracker(..., epoch=...)).")
-        # The camera's own stream, spawned from the tracker's seed, so the emulator's draws are unchanged.
-        link.image = solver = ImageSolver(spec.optics, spec.camera, epoch, rng.spawn(1)[0])
-
-        def measure(t_s: float) -> TrackerTruth:
-            out = fields(t_s)
-            out.update(solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N))
-            return TrackerTruth(**out)
-    else:
-        def measure(t_s: float) -> TrackerTruth:
-            return TrackerTruth(**fields(t_s))
-
-    config = EmulatorConfig(address=spec.address, **spec.emulator)
-    # An in-process pty pair: the same kernel tty path a bench would use, without a second process.
-    emulator_port, host_port, link.slave_fd = pty_pair()
-    link.emulator = StarTrackerEmulator(emulator_port, measure, config, rng, name=f"{spec.name} emulator")
-    try:
-        link.host = StarTrackerHost(host_port, spec.address, name=spec.name)
-        # Not the blocking subscribe(): nothing services the emulator while the host would wait.
-        link.host.send_command(Subscribe(link.host.codec.solution_id, 0.0))
-    except BaseException:
-        link.emulator.close()
-        os.close(link.slave_fd)
-        raise
-    return link
+KIND = StarTrackerKind()

@@ -1,0 +1,263 @@
+"""Magnetorquer board with its magnetometer, on CAN (``drivers.magnetorquer``, the DBC in ``fixtures/devices``).
+
+The coils act in body axes; the magnetometer reads in its sensor frame ``q_SB``. Links:
+
+* ``emulated``: the board's emulator and the host driver on an in-process python-can bus; the emulator samples
+  the true field and holds the dipole it was commanded (saturated, quantised, watchdog).
+* ``hardware``: the host driver on a real adapter. The dipole applied to the truth is the one the board
+  reports it produced: its coil currents (``MTQ_STATUS``) times ``coil_area_turns_m2``.
+* ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.rotations import dcm
+from sim.truth import rotate_to_body
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_can
+
+NAN3 = (math.nan, math.nan, math.nan)
+#: A board whose magnetometer has sent nothing for this many sample periods is reported silent.
+SILENT_PERIODS = 5
+
+
+@dataclass(frozen=True)
+class MagnetorquerSpec(DeviceSpec):
+    interface: str = "virtual"
+    channel: str = ""
+    sample_rate_hz: float = 10.0
+    status_rate_hz: float = 1.0
+    max_dipole_A_m2: float = 0.2
+    dipole_lsb_A_m2: float = 1e-5
+    mag_noise_T: float = 0.0
+    mag_bias_T: tuple = (0.0, 0.0, 0.0)
+    coil_coupling_T_per_A_m2: tuple = (0.0, 0.0, 0.0)
+    coil_area_turns_m2: tuple = (2.0, 2.0, 2.0)
+
+
+def _codec():
+    from drivers.magnetorquer.codec import MagnetorquerCodec
+
+    return MagnetorquerCodec()
+
+
+class MagnetorquerKind(DeviceKind):
+    name = "magnetorquer"
+
+    def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetorquerSpec:
+        from stand.scenario import rate
+
+        codec = _codec()
+        dipole_max = codec.dipole_range_A_m2[1]  # what MTQ_DIPOLE_CMD can carry
+        interface = t.text("interface", "virtual" if base.link == "emulated" else "socketcan")
+        channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
+        check_can(t, base.link, interface, channel)
+        max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=dipole_max)
+        spec = MagnetorquerSpec(
+            **base.__dict__,
+            interface=interface, channel=channel,
+            sample_rate_hz=rate(t, "sample_rate_hz", step_s, 10.0),
+            status_rate_hz=rate(t, "status_rate_hz", step_s, 1.0),
+            max_dipole_A_m2=max_dipole,
+            # The produced dipole is quantised to the board's PWM step, no finer than the command's LSB.
+            dipole_lsb_A_m2=t.number("dipole_lsb_A_m2", 1e-5, lo=codec.dbc.signal_scale("MTQ_DIPOLE_CMD", "dipole_x"),
+                                     hi=max_dipole),
+            mag_noise_T=t.number("mag_noise_nT", 0.0, lo=0.0, hi=1e5) * 1e-9,
+            mag_bias_T=tuple(t.vector("mag_bias_nT", 3, [0.0, 0.0, 0.0], lo=-1e5, hi=1e5) * 1e-9),
+            coil_coupling_T_per_A_m2=tuple(t.vector("coil_coupling_nT_per_A_m2", 3, [0.0, 0.0, 0.0], lo=-1e6,
+                                                    hi=1e6) * 1e-9),
+            coil_area_turns_m2=tuple(t.vector("coil_area_turns_m2", 3, [2.0, 2.0, 2.0], lo=1e-3, hi=1e4)),
+        )
+        t.check_unknown()
+        return spec
+
+    def needs(self, spec) -> dict[str, str]:
+        return {"magnetic_field": f"magnetometer of {spec.name}"} if spec.link != "hardware" else {}
+
+    def describe(self, spec) -> str:
+        where = f"CAN {spec.interface}:{spec.channel}"
+        return {"emulated": f"magnetorquer board emulated on {where}, magnetometer at {spec.sample_rate_hz:g} Hz",
+                "hardware": f"magnetorquer board on {where} (hardware: the produced dipole is read back from its "
+                            f"coil currents at {spec.status_rate_hz:g} Hz)",
+                "served": f"magnetorquer board served on {where} for a flight computer outside, magnetometer at "
+                          f"{spec.sample_rate_hz:g} Hz"}[spec.link]
+
+    def build(self, spec: MagnetorquerSpec, ctx: BuildContext) -> Device:
+        return {"emulated": EmulatedBoard, "hardware": HardwareBoard, "served": ServedBoard}[spec.link](spec, ctx)
+
+
+class _Board(Device):
+    gives_dipole = True
+
+    def __init__(self, spec: MagnetorquerSpec):
+        self.name, self.spec = spec.name, spec
+        self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
+        self._m = (0.0, 0.0, 0.0)
+        self._buses: list = []
+
+    def columns(self):
+        n = self.name
+        return [(f"{n}.mag_S", 3, "T"), (f"{n}.mag_coil_active", 1, "1"), (f"{n}.dipole_B", 3, "A m^2")]
+
+    def dipole_B(self):
+        return self._m
+
+    def close(self) -> None:
+        for b in self._buses:
+            b.shutdown()
+        self._buses = []
+
+
+def _emulator(spec: MagnetorquerSpec, ctx: BuildContext, bus):
+    from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
+
+    truth = ctx.truth
+    q_SB = tuple(float(x) for x in spec.q_SB)
+
+    def field_S(_t_s):
+        # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
+        return rotate_to_body(q_SB, truth.b_B())
+
+    config = EmulatorConfig(
+        max_dipole_A_m2=spec.max_dipole_A_m2, dipole_lsb_A_m2=spec.dipole_lsb_A_m2,
+        mag_noise_T=spec.mag_noise_T, mag_bias_T=tuple(spec.mag_bias_T),
+        coil_coupling_T_per_A_m2=np.diag(spec.coil_coupling_T_per_A_m2) @ dcm(spec.q_SB).T,
+        coil_area_turns_m2=tuple(spec.coil_area_turns_m2),
+        sample_period_s=1.0 / spec.sample_rate_hz, status_period_s=1.0 / spec.status_rate_hz,
+    )
+    return MagnetorquerEmulator(bus, field_S, config, ctx.rng)
+
+
+class EmulatedBoard(_Board):
+    def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+        from drivers.magnetorquer.host import MagnetorquerBoard
+
+        super().__init__(spec)
+        try:
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self.emulator = _emulator(spec, ctx, self._buses[0])
+            self.host = MagnetorquerBoard(self._buses[1], name=spec.name)
+        except BaseException:
+            self.close()
+            raise
+        self._publish, self._receive, self._held = self.emulator.publish, self.emulator.receive, \
+            self.emulator.dipole_xyz_at
+
+    def publish(self, t_s):
+        self._publish(t_s)
+
+    def receive(self, t_s):
+        self._receive(t_s)
+        self._m = self._held(t_s)
+
+    def row(self):
+        self.host.poll()  # log every sample that crossed the bus, not only those the ADCS took
+        s = self.host.latest_sample
+        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+
+    def activity(self):
+        return self.host.counters["samples"]
+
+    def summary(self):
+        return {**self.host.counters, "emulator": dict(self.emulator.counters)}
+
+    def close(self):
+        if self.host is not None:
+            self.host.close()
+        super().close()
+
+
+class HardwareBoard(_Board):
+    """The host driver on a real board; the truth gets the dipole the board reports (coil currents x N A)."""
+
+    def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+        from drivers.magnetorquer.host import MagnetorquerBoard
+
+        super().__init__(spec)
+        self._buses.append(open_bus(spec.interface, spec.channel))
+        self.host = MagnetorquerBoard(self._buses[0], name=spec.name)
+        self._na = tuple(float(x) for x in spec.coil_area_turns_m2)
+        self._status_seen = 0
+
+    def start(self, events):
+        # The board's DBC has no time message: its clock cannot be set. Its heartbeat uptime is logged against
+        # the stand's clock so a reader can line the two up.
+        t0 = time.monotonic()
+        deadline = t0 + 2.0
+        while self.host.last_heartbeat is None and time.monotonic() < deadline:
+            self.host.poll()
+            time.sleep(0.01)
+        hb = self.host.last_heartbeat
+        events.log("device_clock", f"{self.name}: the DBC has no time message, so the board clock is not set; "
+                   + (f"its uptime is {hb.uptime_s} s at start" if hb else "no heartbeat within 2 s of start"),
+                   device=self.name, uptime_s=hb.uptime_s if hb else None)
+
+    def publish(self, t_s):
+        self.host.poll()
+
+    def receive(self, t_s):
+        self.host.poll()
+        st = self.host.latest_status
+        if st is not None:
+            ix, iy, iz = st.coil_current_A
+            nx, ny, nz = self._na
+            self._m = (ix * nx, iy * ny, iz * nz)
+
+    def row(self):
+        s = self.host.latest_sample
+        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+
+    def activity(self):
+        return self.host.counters["samples"]
+
+    def summary(self):
+        return dict(self.host.counters)
+
+    def close(self):
+        self.host.close()
+        super().close()
+
+
+class ServedBoard(_Board):
+    """The emulator on a real adapter for a flight computer outside; the stand holds no host driver."""
+
+    def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+
+        super().__init__(spec)
+        self._buses.append(open_bus(spec.interface, spec.channel))
+        try:
+            self.emulator = _emulator(spec, ctx, self._buses[0])
+        except BaseException:
+            self.close()
+            raise
+        # Silence here means the flight computer stopped commanding.
+        self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
+
+    def publish(self, t_s):
+        self.emulator.publish(t_s)
+
+    def receive(self, t_s):
+        self.emulator.receive(t_s)
+        self._m = self.emulator.dipole_xyz_at(t_s)
+
+    def row(self):
+        s = self.emulator.last_sample
+        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+
+    def activity(self):
+        return self.emulator.counters["commands_accepted"]
+
+    def summary(self):
+        return {"emulator": dict(self.emulator.counters)}
+
+
+KIND = MagnetorquerKind()
