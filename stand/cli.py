@@ -1,6 +1,6 @@
 """The ``stand`` command line.
 
-Exit codes (DESIGN.md): 0 when the scenario's pass criteria hold, 1 when they fail (or a run
+Exit codes (docs/public_surface.md): 0 when the scenario's pass criteria hold, 1 when they fail (or a run
 was aborted by a device or numerical error), 2 for a usage or scenario error. User mistakes get
 one sentence naming the field, the value and what is allowed; never a bare traceback.
 """

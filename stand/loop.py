@@ -1,6 +1,6 @@
 """The multi-rate loop: one tick per dynamics step.
 
-Order inside a tick at sim time t (DESIGN.md, data flow):
+Order inside a tick at sim time t (docs/architecture.md, "One tick"):
 
 1. wait for the tick's wall-clock deadline (paced runs only);
 2. each device emulator publishes what is due at t (magnetometer samples of the truth at t,
