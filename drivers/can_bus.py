@@ -5,7 +5,7 @@ A CAN endpoint is an interface name plus a channel: ``("virtual", "adcs")`` in t
 costs nothing on a stand that has no CAN device.
 
 Never use python-can's ``udp_multicast`` interface on shared machines: it sends multicast out of
-the default route (see ``notes/ecosystem.md``).
+the default route (see docs/architecture.md, "Cross-process tests on one machine").
 """
 
 from __future__ import annotations

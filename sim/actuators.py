@@ -4,7 +4,7 @@ Each is linear (or piecewise linear) with inputs held over a step (zero-order ho
 solution over a step costs as much as one explicit stage and has no stability limit. Integrating
 them inside the attitude ODE with explicit RK4 would need h < 2.78 tau (coil), h < 2.78 / stiffness
 (regularised friction) or h < 2.83 / omega_n (flexible mode) just to stay stable, and at the
-dynamics step of 10-100 ms they are stiff (numerics.md section 3.6: RK4 blew up a tau = 1 ms coil in
+dynamics step of 10-100 ms they are stiff (docs/numerical_methods.md: RK4 blew up a tau = 1 ms coil in
 0.04 s and wiped out a 40 Hz mode). ``max_explicit_step_s`` on each model states that limit, for
 the step guard of a scene that would put the model into an explicit integrator.
 """

@@ -1,7 +1,7 @@
 """Environment models: geomagnetic field, Sun, Moon, shadow.
 
 The geomagnetic field here is the centred (tilted) dipole given by the degree-1 Gauss
-coefficients; it is exact for what it is and is what BENCHMARKS.md's comparison case uses. The full
+coefficients; it is exact for what it is and is what docs/benchmarks.md's comparison case uses. The full
 IGRF-14 model arrives with the environment issue and takes over wherever a scenario does not ask
 for the dipole.
 """
@@ -12,12 +12,12 @@ import numpy as np
 
 from .constants import R_EARTH, R_IGRF
 
-# DESIGN.md names the Sun and Moon here; they live in sim.ephemeris with their track.
+# docs/public_surface.md names the Sun and Moon here; they live in sim.ephemeris with their track.
 from .ephemeris import moon_position_gcrs, sun_position_gcrs
 
 __all__ = ["dipole_field_itrs", "magnetic_field_itrs", "moon_position_gcrs", "shadow_fraction", "sun_position_gcrs"]
 
-#: Degree-1 IGRF Gauss coefficients (nT) of BENCHMARKS.md's comparison case.
+#: Degree-1 IGRF Gauss coefficients (nT) of docs/benchmarks.md's comparison case.
 DIPOLE_G10_NT = -30926.0
 DIPOLE_G11_NT = -2318.0
 DIPOLE_H11_NT = 5817.0

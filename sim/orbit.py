@@ -21,8 +21,8 @@ Mean anomaly ``M`` is the conic-appropriate one: ``E - e sin E`` (elliptic),
 matching mean motions are ``sqrt(mu/a**3)``, ``sqrt(mu/(-a)**3)`` and ``2 sqrt(mu/p**3)``, so
 ``M = n (t - tp)`` for every conic.
 
-Numerics (the project's numerics research note, sections 2.3, 2.4 and 3.4)
--------------------------------------------------------------------------
+Numerics (docs/numerical_methods.md, "Orbits and Kepler's equation")
+--------------------------------------------------------------------
 * Kepler's equation: Markley (1995) starter with its fifth-order correction, then Newton steps on the
   cancellation-free residual ``(E - sin E) + (1 - e) sin E - M`` (series for ``E - sin E`` at small
   ``E``). Hyperbolic: a starter that is a proven upper bound (cubic or logarithmic), then Halley on

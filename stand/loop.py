@@ -1,6 +1,6 @@
 """The multi-rate loop: one tick per dynamics step, the same for every device kind and link.
 
-Order inside a tick at sim time t:
+Order inside a tick at sim time t (docs/architecture.md, "One tick"):
 
 1. wait for the tick's wall-clock deadline (paced runs only);
 2. each device publishes what is due at t (``Device.publish``): an emulator samples the truth and sends

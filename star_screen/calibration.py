@@ -70,7 +70,7 @@ class CharucoPattern:
         )
 
     def corner_screen_px(self) -> np.ndarray:
-        """Screen pixel positions (DESIGN convention) of the inner chessboard corners, by corner id."""
+        """Screen pixel positions (docs/conventions.md) of the inner chessboard corners, by corner id."""
         c = np.asarray(self.board().getChessboardCorners(), float)[:, :2]
         return c + [self.x0_px, self.y0_px]
 
@@ -134,7 +134,7 @@ def calibrate_screen(
         ch_corners, ch_ids, _, _ = detector.detectBoard(img)
         if ch_ids is None or len(ch_ids) < 12:
             continue
-        cam_px = ch_corners.reshape(-1, 2).astype(float) + 0.5  # OpenCV -> DESIGN pixel convention
+        cam_px = ch_corners.reshape(-1, 2).astype(float) + 0.5  # OpenCV -> our pixel convention
         d = cam.unproject(cam_px)
         xy_list.append(d[:, :2] / d[:, 2:3])
         scr_list.append(corners_screen[ch_ids.ravel()])

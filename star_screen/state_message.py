@@ -1,6 +1,6 @@
 """Time-tagged attitude state for a display node: a small versioned binary message.
 
-The sim PC sends state, not pixels (research note ecosystem.md section 5): a display PC renders
+The sim PC sends state, not pixels (docs/architecture.md, "Stimulators"): a display PC renders
 locally with its own catalog, bench geometry and vsync, so a message is ~200 bytes, lossless by
 construction, and the frame it produces is bit-identical to the one the sim PC would render.
 

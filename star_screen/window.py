@@ -3,7 +3,7 @@
 pygame-ce bundles an SDL with the KMS/DRM backend, so a display PC without X can run it
 (``SDL_VIDEODRIVER=kmsdrm``); tests use ``SDL_VIDEODRIVER=dummy``. Frames are shown as 8-bit
 palette surfaces wrapping the frame's own buffer (``pygame.image.frombuffer(..., 'P')`` with a
-grey palette: ~1.7 ms at 1080p in the research note, against ~30 ms for an RGB ``blit_array``).
+grey palette: ~1.7 ms at 1080p, against ~30 ms for an RGB ``blit_array``; docs/benchmarks.md).
 
 Time tags: every shown frame must carry ``time_tag_ns`` (sim time, ns). The window keeps a log of
 :class:`Presented` records (present sequence number, frame time tag, and the injected clock's

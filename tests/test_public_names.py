@@ -1,4 +1,4 @@
-"""The Python names DESIGN.md promises stay importable (add, do not rename)."""
+"""The Python names docs/public_surface.md promises stay importable (add, do not rename)."""
 
 import importlib
 

@@ -1,6 +1,6 @@
 """``stand bench NAME``: measurements, printed as rows and written as JSON.
 
-Every bench measures on this machine, now; anchors from BENCHMARKS.md are quoted beside our
+Every bench measures on this machine, now; anchors from docs/benchmarks.md are quoted beside our
 figures with where they come from. Speed is only ever measured here, never in a timed test.
 """
 
@@ -27,7 +27,7 @@ BENCHES = {
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
 }
 
-#: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
+#: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
 BASILISK_RATE_DEG_S = {600.0: 7.2, 1800.0: 3.6, 3600.0: 0.88, 5670.0: 0.20}
 BASILISK_REALTIME = 2170.0
 REFERENCE_JSON = fixtures.ROOT / "reference" / "basilisk" / "detumble_basilisk.json"
@@ -87,7 +87,7 @@ def bench_loop(quick: bool = False) -> list[dict]:
 
         sc = dataclasses.replace(sc, duration_s=300.0)
     anchor = BASILISK_REALTIME
-    note = "BENCHMARKS.md"
+    note = "docs/benchmarks.md"
     if REFERENCE_JSON.exists():
         ref = json.loads(REFERENCE_JSON.read_text())
         if ref.get("realtime_factor"):
@@ -119,7 +119,7 @@ def bench_loop(quick: bool = False) -> list[dict]:
 def bench_pacing(quick: bool = False) -> list[dict]:
     """The default scenario paced to the wall clock at 10 Hz: how punctual are the ticks?
 
-    Anchors (BENCHMARKS.md): Basilisk's ClockSynch holds the period to 0.2-0.6 ms standard
+    Anchors (docs/benchmarks.md): Basilisk's ClockSynch holds the period to 0.2-0.6 ms standard
     deviation with a worst period 6 ms late; NASA 42's REAL mode runs 2.3 % slow at 0.1 s steps.
     """
     import dataclasses

@@ -1,6 +1,6 @@
 """``stand bench accuracy``: error against run time for every attitude and orbit integrator.
 
-Cases (BENCHMARKS.md and issue 6):
+Cases (docs/benchmarks.md and issue 6):
 
 * ``separatrix``: torque-free body, inertia diag(10, 20, 30) kg m^2, omega0 = (0.01, 0.5, 0.01)
   rad/s, identity start, 600 s; reference: the closed form ``sim.torque_free`` (itself checked
@@ -41,7 +41,7 @@ W_SEPARATRIX = [0.01, 0.5, 0.01]
 W_FASTSPIN = [20.0 * math.sin(math.radians(4.0)), 0.0, 20.0 * math.cos(math.radians(4.0))]
 DURATION_S = 600.0
 
-#: BENCHMARKS.md, near-separatrix case: Basilisk RK4 0.1 s (1.1e-4 deg) in 56-84 ms; RKF78 0.25 s
+#: docs/benchmarks.md, near-separatrix case: Basilisk RK4 0.1 s (1.1e-4 deg) in 56-84 ms; RKF78 0.25 s
 #: (1.6e-8 deg) in 124 ms. Measured on another machine of the same class.
 BASILISK_1E4_MS = 84.0
 BASILISK_1E4_DEG = 1.1e-4
@@ -137,7 +137,7 @@ def _plot(rows, path: Path) -> None:
             ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=method)
         if case == "separatrix":
             ax.loglog([BASILISK_1E4_MS / 1e3, BASILISK_16E9_MS / 1e3], [BASILISK_1E4_DEG, BASILISK_16E9_DEG],
-                      "k*", ms=10, label="Basilisk (BENCHMARKS.md)")
+                      "k*", ms=10, label="Basilisk (docs/benchmarks.md)")
         ax.set_title(case)
         ax.set_xlabel("wall time [s]")
         ax.set_ylabel(f"final error [{sel[0]['error_unit'] if sel else ''}]")
@@ -195,7 +195,7 @@ def bench_accuracy(quick: bool = False, plot_path: str | Path = "accuracy.png") 
         best = min(ok, key=lambda r: r["wall_s"]) if ok else None
         rows.append({"name": f"accuracy.acceptance.fastest_to_{target:g}deg",
                      "value": round(best["wall_s"] * 1e3, 2) if best else "not reached", "unit": "ms",
-                     "anchor": f"Basilisk {anchor_ms:g} ms for {anchor_deg:g} deg (BENCHMARKS.md)",
+                     "anchor": f"Basilisk {anchor_ms:g} ms for {anchor_deg:g} deg (docs/benchmarks.md)",
                      "limit": f"<= {anchor_ms:g} ms", "pass": bool(best and best["wall_s"] * 1e3 <= anchor_ms),
                      "note": f"{best['method']} {best['note']}, error {best['error']:.2g} deg" if best else
                      "no configuration in the grid reached it"})

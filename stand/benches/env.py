@@ -1,4 +1,4 @@
-"""``stand bench env``: per-call cost of the environment models against BENCHMARKS.md's anchors.
+"""``stand bench env``: per-call cost of the environment models against the anchors of docs/benchmarks.md.
 
 Machines are noisy: the anchors are the table's figures from another run, quoted for scale, not
 measured side by side; compare orders of magnitude. Nothing here is asserted in tests.
@@ -39,22 +39,22 @@ def bench_env(quick: bool = False) -> list[dict]:
     r_sun = ephemeris.sun_position_gcrs(epoch)
     rows = [
         ("igrf14_deg13_single_point", _per_call_us(lambda: igrf.field_itrs(epoch, r1), n), "us",
-         "BENCHMARKS.md: pyIGRF14 154 us, brahe 8 us, ppigrf 16 ms", 20.0),
+         "docs/benchmarks.md: pyIGRF14 154 us, brahe 8 us, ppigrf 16 ms", 20.0),
         ("igrf14_deg13_per_point_vectorised_10k", _per_call_us(lambda: igrf.field_itrs(2026.4, big), 3) / 1e4,
          "us", "10,000 points per call (truth.py evaluates chunks)", None),
         ("dipole_single_point", _per_call_us(lambda: environment.magnetic_field_itrs(epoch, r1), n), "us", "", None),
         ("sun_erfa_epv00", _per_call_us(lambda: ephemeris.sun_position_gcrs(jd), n), "us",
-         "BENCHMARKS.md: 75 us", None),
+         "docs/benchmarks.md: 75 us", None),
         ("moon_erfa_moon98", _per_call_us(lambda: ephemeris.moon_position_gcrs(jd), n), "us",
-         "BENCHMARKS.md: 8.5 us", None),
+         "docs/benchmarks.md: 8.5 us", None),
         ("moon_track_per_point_vectorised_10k", _per_call_us(lambda: track.position_gcrs(t_big), 3) / 1e4, "us",
          "1 h grid, cubic Hermite, nodes cached", None),
         ("sun_analytic_single", _per_call_us(lambda: ephemeris.sun_position_gcrs_analytic(jd), n), "us",
          "42 arcsec worst vs DE421", None),
         ("gcrs_to_itrs_c2t06a", _per_call_us(lambda: frames.dcm_itrs_gcrs(epoch), n), "us",
-         "BENCHMARKS.md: pyerfa c2t06a 57 us", None),
+         "docs/benchmarks.md: pyerfa c2t06a 57 us", None),
         ("gravity_jgm3_20x20_single_point", _per_call_us(lambda: field.accel_itrs(r1), n), "us",
-         "ecosystem.md: brahe 4.3 us, satkit 3.9 us at degree 20", None),
+         "docs/benchmarks.md: brahe 4.3 us, satkit 3.9 us at degree 20", None),
         ("gravity_jgm3_20x20_per_point_vectorised_10k", _per_call_us(lambda: field.accel_itrs(big), 3) / 1e4, "us",
          "", None),
         ("shadow_conical_per_point_vectorised_10k",

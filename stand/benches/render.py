@@ -6,7 +6,7 @@ Rows (``bench_render(quick) -> list[dict]`` with ``name, value, unit`` and optio
   gamma-2.2 response) against an independent TAN projection (astropy WCS when installed, else
   spherical-trigonometry gnomonic formulas) of the same catalog places, at random attitudes plus
   both celestial poles and the RA 0/360 wrap. RMS and max for stars whose peak is at least 8/255 of
-  full-scale luminance (the research note's G2 definition), and the same for all stars (info).
+  full-scale luminance (goal G2 of docs/benchmarks.md), and the same for all stars (info).
 * brightness: emitted flux against the flux the photometry policy asked for, as magnitudes.
 * detector: truth detector pixels against the independent projection.
 * speed: screen frame time (wall clock, persistent sparse update, no copy) at 1920 x 1080,

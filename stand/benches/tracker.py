@@ -17,10 +17,10 @@ noise (shot noise on signal + 20 e- background, 10 e- read noise, seeded), then:
 * random-dot frames (no real sky): any valid solution is a false solve;
 * covariance: RMS error over the predicted sigma (1 when the covariance is honest).
 
-Times are process CPU time (``time.process_time``), as in the research note's anchors, which
+Times are process CPU time (``time.process_time``), as in the anchors of docs/benchmarks.md, which
 were measured on the same kind of shared 2-core machine: tetra3rs 0.14 (Rust) 0.29 ms median /
 0.44 ms p95 LIS, 0.20 ms tracking, 5.6 ms extraction on 1 Mpx; cedar-solve 0.5.1 (Python) 2.4 ms /
-3.3 ms LIS, 30-45 ms extraction per 1 Mpx frame (BENCHMARKS.md, notes/anchor-starscreen.md 6.2).
+3.3 ms LIS, 30-45 ms extraction per 1 Mpx frame (docs/benchmarks.md, "Star tracker").
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ from sim.actuators import CoilLR, FlexibleMode, ReactionWheel
 
 
 def test_coil_tau_1ms_at_10ms_step_is_exact():
-    # numerics.md D1: L = 50 mH, R = 50 ohm (tau = 1 ms), 10 Hz random +-5 V, 10 ms step.
+    # docs/numerical_methods.md D1: L = 50 mH, R = 50 ohm (tau = 1 ms), 10 Hz random +-5 V, 10 ms step.
     coil = CoilLR(0.05, 50.0)
     assert coil.tau_s == pytest.approx(1e-3)
     rng = np.random.default_rng(1)
@@ -36,7 +36,7 @@ def test_coil_broadcasts_over_three_rods_and_gives_dipole():
 
 
 def test_wheel_below_coulomb_stops_and_stays_at_exactly_zero():
-    # numerics.md D2: J = 2e-4, tau_c = 5e-4, u = -2e-4, Omega0 = 2 rad/s, 10 ms step.
+    # docs/numerical_methods.md D2: J = 2e-4, tau_c = 5e-4, u = -2e-4, Omega0 = 2 rad/s, 10 ms step.
     J, tc, c, u = 2e-4, 5e-4, 1e-6, -2e-4
     wheel = ReactionWheel(J, tc, viscous_nms=c)
     w, ws, fr = 2.0, [], []

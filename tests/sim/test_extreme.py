@@ -1,4 +1,4 @@
-"""Extreme and stiff cases of numerics.md section 4 and issue 6, with their pass criteria."""
+"""Extreme and stiff cases of docs/numerical_methods.md and issue 6, with their pass criteria."""
 
 import math
 
@@ -33,7 +33,7 @@ def test_inertia_beyond_the_triangle_limit_or_non_positive_is_refused(I):
 
 
 def test_axisymmetric_body_matches_the_trigonometric_solution():
-    # numerics.md A7 with an inertia that exists (diag(10, 10, 30) violates the triangle rule).
+    # docs/numerical_methods.md A7 with an inertia that exists (diag(10, 10, 30) violates the triangle rule).
     I, w0 = [20.0, 20.0, 30.0], [0.3, 0.0, 2.0]
     t, q, w = att.propagate(I, Q0, w0, 600.0, 0.02)
     ref = TorqueFreeBody(I, Q0, w0)
@@ -66,7 +66,7 @@ def test_middle_axis_spin_perturbed_flips_at_the_oracle_times():
 
 @pytest.mark.parametrize(("method", "step", "energy_bound"), [("rk4", 0.5, 1e-7), ("rkmk4", 1.0, 2e-6)])
 def test_24_hours_keep_the_quaternion_unit_and_the_energy(method, step, energy_bound):
-    # numerics.md A10: slow tumble (0.05 rad/s), 24 simulated hours; guard limit is 2 s. RKMK4
+    # docs/numerical_methods.md A10: slow tumble (0.05 rad/s), 24 simulated hours; guard limit is 2 s. RKMK4
     # does not renormalise, so its norm error is pure round-off accumulated over 86,400 steps.
     I, w0 = [10.0, 20.0, 30.0], [0.02, 0.03, 0.035]
     t, q, w = att.propagate(I, Q0, w0, 86400.0, step, method)

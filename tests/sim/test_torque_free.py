@@ -97,7 +97,7 @@ def test_state_exactly_on_the_separatrix_is_refused():
 
 
 def test_closer_to_the_separatrix_than_the_functions_resolve_is_refused():
-    # numerics.md case A5, D / I2 - 1 ~ 1e-9: 1 - k^2 = 4.4e-11. Its energy was right at 40 s but off
+    # docs/numerical_methods.md case A5, D / I2 - 1 ~ 1e-9: 1 - k^2 = 4.4e-11. Its energy was right at 40 s but off
     # by 1e23 at 1e5 s before this refusal existed (found by the invariants property below).
     w3 = 0.03 * np.sqrt(100.0 / 300.0) * (1.0 + 1e-9)
     with pytest.raises(ValueError, match="too close to the separatrix"):
