@@ -62,6 +62,18 @@ def test_epoch_path_uses_the_calendar_decimal_year():
     np.testing.assert_array_equal(env.magnetic_field_itrs(e, r, model="igrf"), igrf.field_itrs(igrf.decimal_year(e), r))
 
 
+def test_default_field_model_is_igrf_and_the_dipole_only_by_name():
+    e = Epoch.from_iso("2026-03-20T12:00:00Z")
+    r = np.array([[7e6, 0.0, 0.0], [0.0, 0.0, 6.9e6], [-3e6, 4e6, 4.5e6]])
+    default = env.magnetic_field_itrs(e, r)
+    np.testing.assert_array_equal(default, igrf.field_itrs(e, r, degree=igrf.MAX_DEGREE))
+    np.testing.assert_array_equal(env.magnetic_field_itrs(e, r, degree=3), igrf.field_itrs(e, r, degree=3))
+    dipole = env.magnetic_field_itrs(e, r, model="dipole")
+    np.testing.assert_array_equal(dipole, env.dipole_field_itrs(r))
+    # The 1925 dipole against the 2026 field to degree 13: microtesla apart in LEO (6-14 uT here).
+    assert np.all(np.linalg.norm(default - dipole, axis=-1) > 1000 * NT)
+
+
 @pytest.mark.parametrize("year", [1899.99, 2030.01, 2100.0])
 def test_epochs_outside_1900_2030_are_refused(year):
     with pytest.raises(ValueError, match=r"outside its validity 1900.0 to 2030.0"):
