@@ -3,8 +3,8 @@
 Geomagnetic field: :func:`magnetic_field_itrs` is IGRF-14 (:mod:`sim.igrf`, degrees 1..13 at the
 epoch) unless a caller asks for ``model="dipole"`` by name: the centred (tilted) dipole of
 :func:`dipole_field_itrs`, given by three degree-1 Gauss coefficients and independent of time. The
-dipole is exact for what it is and serves comparison cases and scenarios that ask for it
-(``magnetic_field = "dipole"``).
+dipole is exact for what it is and serves comparison cases and the scenarios that ask for it
+(``magnetic_field = "dipole"``, which ``stand.compose`` passes on by name).
 
 Sun and Moon positions are re-exported from :mod:`sim.ephemeris`, where they live with their
 interpolated track.
@@ -16,13 +16,13 @@ import numpy as np
 
 from .constants import R_EARTH, R_IGRF
 
-# Public here; they live in sim.ephemeris with their track.
+# Re-exported: they live in sim.ephemeris with their track.
 from .ephemeris import moon_position_gcrs, sun_position_gcrs
 
 __all__ = ["dipole_field_itrs", "magnetic_field_itrs", "moon_position_gcrs", "shadow_fraction", "sun_position_gcrs"]
 
-#: Degree-1 Gauss coefficients (nT) of the dipole: IGRF's 1925.0 values (g10, g11, h11), the
-#: comparison case of the attitude benchmarks.
+#: Degree-1 Gauss coefficients (nT) of the dipole: IGRF's 1925.0 values (g10, g11, h11), those of
+#: the B-dot detumble comparison with Basilisk (the ``detumble`` scenario).
 DIPOLE_G10_NT = -30926.0
 DIPOLE_G11_NT = -2318.0
 DIPOLE_H11_NT = 5817.0

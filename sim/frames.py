@@ -69,8 +69,8 @@ class EarthRotation:
     milliarcseconds per minute) is evaluated on a coarse grid and interpolated linearly, and the
     Earth rotation angle is exact (linear in UT1). Polar motion is held constant over the run.
     ``model="uniform"``: rotation about the GCRS z axis at the nominal rate from ``era0_rad`` at
-    the epoch, the idealised Earth of comparison cases (BENCHMARKS.md starts with the Earth-fixed
-    axes equal to the inertial axes).
+    the epoch, the idealised Earth of comparison cases (the B-dot detumble comparison with Basilisk
+    starts with the Earth-fixed axes equal to the inertial axes).
     """
 
     def __init__(self, epoch: Epoch, model: str = "iau2006", era0_rad: float = 0.0,

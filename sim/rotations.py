@@ -1,6 +1,6 @@
 """Rotations: direction cosine matrices, quaternions, Euler angles, axis-angle.
 
-Conventions (DESIGN.md, fixed for the whole project):
+Conventions (fixed for the whole project):
 
 * Quaternions are scalar-first ``[w, x, y, z]``, unit norm, Hamilton algebra.
 * ``q_BN`` is the attitude of frame B relative to N and is *defined by its matrix*:

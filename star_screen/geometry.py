@@ -1,6 +1,6 @@
 """Geometry of a star-tracker bench: tracker optics, screen, collimator, and the maps between them.
 
-Frames and pixels (DESIGN.md):
+Frames and pixels (the project's conventions):
 
 * Tracker frame S: +z is the boresight, +x is image x (right), +y is image y (down).
 * Pixel coordinates are continuous, with (0.5, 0.5) the *centre* of the top-left pixel, so pixel

@@ -35,7 +35,7 @@ def test_degree_1_is_the_centred_dipole_of_the_same_coefficients():
     g, h = igrf.coefficients(1925.0)
     nn, mm = harmonics.index_nm(igrf.MAX_DEGREE)
     k10, k11 = np.flatnonzero((nn == 1) & (mm == 0))[0], np.flatnonzero((nn == 1) & (mm == 1))[0]
-    # BENCHMARKS.md's dipole case uses exactly the 1925 degree-1 terms.
+    # The dipole (the Basilisk detumble comparison's field) is exactly the 1925 degree-1 terms.
     assert (g[k10], g[k11], h[k11]) == (env.DIPOLE_G10_NT, env.DIPOLE_G11_NT, env.DIPOLE_H11_NT)
     r = np.random.default_rng(3).normal(size=(30, 3)) * 7e6
     np.testing.assert_allclose(igrf.field_itrs(1925.0, r, degree=1), env.dipole_field_itrs(r), rtol=1e-12)
