@@ -1,9 +1,13 @@
 """Environment models: geomagnetic field, Sun, Moon, shadow.
 
-The geomagnetic field here is the centred (tilted) dipole given by the degree-1 Gauss
-coefficients; it is exact for what it is and is what docs/benchmarks.md's comparison case uses. The full
-IGRF-14 model arrives with the environment issue and takes over wherever a scenario does not ask
-for the dipole.
+Geomagnetic field: :func:`magnetic_field_itrs` is IGRF-14 (:mod:`sim.igrf`, degrees 1..13 at the
+epoch) unless a caller asks for ``model="dipole"`` by name: the centred (tilted) dipole of
+:func:`dipole_field_itrs`, given by three degree-1 Gauss coefficients and independent of time. The
+dipole is exact for what it is and serves comparison cases and the scenarios that ask for it
+(``magnetic_field = "dipole"``, which ``stand.compose`` passes on by name).
+
+Sun and Moon positions are re-exported from :mod:`sim.ephemeris`, where they live with their
+interpolated track.
 """
 
 from __future__ import annotations
@@ -12,12 +16,13 @@ import numpy as np
 
 from .constants import R_EARTH, R_IGRF
 
-# docs/public_surface.md names the Sun and Moon here; they live in sim.ephemeris with their track.
+# Re-exported: they live in sim.ephemeris with their track.
 from .ephemeris import moon_position_gcrs, sun_position_gcrs
 
 __all__ = ["dipole_field_itrs", "magnetic_field_itrs", "moon_position_gcrs", "shadow_fraction", "sun_position_gcrs"]
 
-#: Degree-1 IGRF Gauss coefficients (nT) of docs/benchmarks.md's comparison case.
+#: Degree-1 Gauss coefficients (nT) of the dipole: IGRF's 1925.0 values (g10, g11, h11), those of
+#: the B-dot detumble comparison with Basilisk (the ``detumble`` scenario).
 DIPOLE_G10_NT = -30926.0
 DIPOLE_G11_NT = -2318.0
 DIPOLE_H11_NT = 5817.0
@@ -43,19 +48,20 @@ def dipole_field_itrs(r_itrs, g10_nT: float = DIPOLE_G10_NT, g11_nT: float = DIP
     return (r_ref_m / rn) ** 3 * (3.0 * np.sum(g * rhat, axis=-1, keepdims=True) * rhat - g)
 
 
-def magnetic_field_itrs(epoch, r_itrs, model: str = "dipole", degree: int | None = None) -> np.ndarray:
+def magnetic_field_itrs(epoch, r_itrs, model: str = "igrf", degree: int | None = None) -> np.ndarray:
     """Geomagnetic field (T, ITRS components) at ``r_itrs`` (m) and ``epoch``.
 
-    ``model="dipole"`` is the centred dipole above (time-independent). ``model="igrf"`` is IGRF-14
-    (:mod:`sim.igrf`) to ``degree`` (1..13, default 13) at ``epoch`` (Epoch or decimal year,
-    1900.0-2030.0; refused outside).
+    ``model="igrf"`` (the default) is IGRF-14 (:mod:`sim.igrf`) to ``degree`` (1..13, default 13)
+    at ``epoch`` (Epoch or decimal year, 1900.0-2030.0; refused outside). ``model="dipole"`` is the
+    centred dipole of :func:`dipole_field_itrs` (time-independent; ``epoch`` and ``degree`` unused)
+    and is evaluated only when asked for by name.
     """
-    if model == "dipole":
-        return dipole_field_itrs(r_itrs)
     if model == "igrf":
         from .igrf import MAX_DEGREE, field_itrs
 
         return field_itrs(epoch, r_itrs, MAX_DEGREE if degree is None else degree)
+    if model == "dipole":
+        return dipole_field_itrs(r_itrs)
     raise ValueError(f"magnetic field model {model!r} is not available; allowed: 'dipole', 'igrf'.")
 
 

@@ -14,13 +14,11 @@ Every function returns a direction cosine matrix ``dcm_XY`` that maps Y componen
 
 from __future__ import annotations
 
-import warnings
-
 import erfa
 import numpy as np
 
 from .constants import OMEGA_EARTH
-from .time import Epoch
+from .time import Epoch, ignore_dubious_year
 
 
 def _unit(v, name: str) -> np.ndarray:
@@ -47,8 +45,7 @@ def dcm_itrs_gcrs(epoch: Epoch, xp_rad: float = 0.0, yp_rad: float = 0.0, eop=No
         xp_rad, yp_rad = e.xp_rad, e.yp_rad
         # erfa.utcut1 handles the stretched quasi-JD of a leap-second day (Epoch.jd_ut1 adds
         # dut1 / 86400 to it, which is up to 1 s off in UT1 on such a day).
-        with warnings.catch_warnings():
-            warnings.filterwarnings("ignore", message=".*dubious year.*")
+        with ignore_dubious_year():
             u1, u2 = erfa.utcut1(*epoch.jd_utc, e.dut1_s)
     else:
         u1, u2 = epoch.jd_ut1
@@ -72,8 +69,8 @@ class EarthRotation:
     milliarcseconds per minute) is evaluated on a coarse grid and interpolated linearly, and the
     Earth rotation angle is exact (linear in UT1). Polar motion is held constant over the run.
     ``model="uniform"``: rotation about the GCRS z axis at the nominal rate from ``era0_rad`` at
-    the epoch, the idealised Earth of comparison cases (docs/benchmarks.md starts with the Earth-fixed
-    axes equal to the inertial axes).
+    the epoch, the idealised Earth of comparison cases (the B-dot detumble comparison with Basilisk
+    starts with the Earth-fixed axes equal to the inertial axes).
     """
 
     def __init__(self, epoch: Epoch, model: str = "iau2006", era0_rad: float = 0.0,

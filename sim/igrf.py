@@ -20,7 +20,6 @@ poles), vectorised over positions. Degrees 1..``degree`` are summed (``degree`` 
 from __future__ import annotations
 
 import hashlib
-import warnings
 from functools import lru_cache
 
 import erfa
@@ -30,7 +29,7 @@ import fixtures
 
 from . import harmonics
 from .constants import R_IGRF
-from .time import _DUBIOUS, Epoch
+from .time import Epoch, ignore_dubious_year
 
 __all__ = ["IGRF_FILE", "YEAR_MIN", "YEAR_MAX", "MAX_DEGREE", "decimal_year", "coefficients", "field_itrs"]
 
@@ -71,8 +70,7 @@ def _load() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def decimal_year(epoch: Epoch) -> float:
     """IGRF's time argument: UTC calendar year plus the elapsed fraction of that year."""
     u1, u2 = epoch.jd_utc
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=_DUBIOUS.pattern)
+    with ignore_dubious_year():
         y, _, _, _ = erfa.jd2cal(u1, u2)
         j0, j1 = erfa.cal2jd(int(y), 1, 1)
         k0, k1 = erfa.cal2jd(int(y) + 1, 1, 1)

@@ -1,6 +1,6 @@
 """Rotations: direction cosine matrices, quaternions, Euler angles, axis-angle.
 
-Conventions (docs/conventions.md, fixed for the whole project):
+Conventions (fixed for the whole project):
 
 * Quaternions are scalar-first ``[w, x, y, z]``, unit norm, Hamilton algebra.
 * ``q_BN`` is the attitude of frame B relative to N and is *defined by its matrix*:
@@ -73,21 +73,27 @@ def canonical(q) -> np.ndarray:
     return np.where(q[..., :1] < 0.0, -q, q)
 
 
-def hamilton(p, q) -> np.ndarray:
-    """Hamilton product ``p (x) q`` of scalar-first quaternions (no unit-norm check)."""
-    p = np.asarray(p, dtype=float)
-    q = np.asarray(q, dtype=float)
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        (
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ),
-        axis=-1,
+def hamilton_floats(p, q) -> tuple:
+    """Hamilton product ``p (x) q`` of scalar-first quaternions given as 4 floats (or 4 arrays) each.
+
+    The one written-out product in ``sim``: :func:`hamilton` and the float-tuple steppers and
+    compositions call it (a numpy call on one quaternion costs more than the arithmetic).
+    """
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
     )
+
+
+def hamilton(p, q) -> np.ndarray:
+    """Hamilton product ``p (x) q`` of scalar-first quaternions ``(..., 4)`` (no unit-norm check)."""
+    p = np.moveaxis(np.asarray(p, dtype=float), -1, 0)
+    q = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    return np.stack(hamilton_floats(p, q), axis=-1)
 
 
 def compose(q_CB, q_BN) -> np.ndarray:

@@ -12,7 +12,6 @@ polar motion and precession-nutation is neglected: below 1e-9 relative).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import erfa
@@ -20,7 +19,7 @@ import numpy as np
 
 from .constants import OMEGA_EARTH
 from .frames import dcm_itrs_gcrs, rotation_z
-from .time import Epoch
+from .time import Epoch, ignore_dubious_year
 
 __all__ = ["TLE", "parse_tle", "teme_to_gcrs"]
 
@@ -108,8 +107,7 @@ def teme_to_gcrs(r_teme, v_teme, epoch: Epoch, eop=None) -> tuple[np.ndarray, np
 
     e = EOP(epoch.dut1_s, 0.0, 0.0, False, False, "epoch") if eop is None else (
         eop if isinstance(eop, EOP) else eop_at(epoch, eop))
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message=".*dubious year.*")
+    with ignore_dubious_year():
         ut1 = erfa.utcut1(*epoch.jd_utc, e.dut1_s)  # exact on leap-second days too
     W = np.asarray(erfa.pom00(e.xp_rad, e.yp_rad, erfa.sp00(*epoch.jd_tt)))  # PEF (TIRS) -> ITRS
     C = dcm_itrs_gcrs(epoch, eop=e)  # GCRS -> ITRS

@@ -37,7 +37,7 @@ import math
 import numpy as np
 from scipy.special import ellipj, ellipkinc, ellipkm1
 
-from .attitude import check_inertia
+from .rigid_body import check_inertia
 from .rotations import canonical, check_unit, dcm, quat_from_dcm
 
 #: Relative distance |D - I2| / I2 below which a state counts as on the separatrix. There the

@@ -8,7 +8,7 @@ What it computes and where:
   and velocities (0.3 mm at 10 s in LEO) onto the half-step grid the attitude RK4 samples.
 * The geomagnetic field is evaluated vectorised for a whole chunk of that grid at once, so the
   attitude stages only rotate a precomputed inertial field into the body frame.
-* The attitude is RK4 on plain floats (``sim.attitude.RigidBody``) with magnetic and gravity-
+* The attitude is RK4 on plain floats (``sim.rigid_body.RigidBody``) with magnetic and gravity-
   gradient torques re-evaluated inside every stage.
 
 Only what the scene needs exists: no field track without a field model, no torque the scenario
@@ -23,10 +23,11 @@ from collections.abc import Callable
 import numpy as np
 
 from . import orbit as orbit_mod
-from .attitude import RigidBody, check_step
 from .constants import J2_EARTH, MU_EARTH, R_EARTH
 from .frames import EarthRotation
 from .integrators import max_angle_rad, stepper
+from .rigid_body import RigidBody, check_step
+from .rotations import hamilton_floats
 from .time import NS_PER_S
 
 #: Length of one precomputed chunk of orbit and field, s. Long enough to amortise the vectorised
@@ -49,12 +50,7 @@ def rotate_to_body(q, v):
 
 def compose_floats(q_CB, q_BN):
     """``compose(q_CB, q_BN)`` (``dcm = dcm(q_CB) @ dcm(q_BN)``) on float tuples, ``w >= 0``."""
-    pw, px, py, pz = q_BN
-    qw, qx, qy, qz = q_CB
-    w = pw * qw - px * qx - py * qy - pz * qz
-    x = pw * qx + px * qw + py * qz - pz * qy
-    y = pw * qy - px * qz + py * qw + pz * qx
-    z = pw * qz + px * qy - py * qx + pz * qw
+    w, x, y, z = hamilton_floats(q_BN, q_CB)
     return (w, x, y, z) if w >= 0.0 else (-w, -x, -y, -z)
 
 

@@ -1,6 +1,6 @@
 """Geometry of a star-tracker bench: tracker optics, screen, collimator, and the maps between them.
 
-Frames and pixels (docs/conventions.md):
+Frames and pixels (the project's conventions):
 
 * Tracker frame S: +z is the boresight, +x is image x (right), +y is image y (down).
 * Pixel coordinates are continuous, with (0.5, 0.5) the *centre* of the top-left pixel, so pixel
@@ -93,6 +93,13 @@ class BrownConrady:
         return xy
 
 
+def _check_pixel_size(owner: str, width, height) -> None:
+    """Refuse a detector or panel size that is not a whole number of pixels, at least 8 each way."""
+    for key, v in (("width", width), ("height", height)):
+        if int(v) != v or v < 8:
+            raise ValueError(f"{owner} {key} = {v!r}; it must be a whole number of pixels >= 8.")
+
+
 @dataclass(frozen=True)
 class TrackerOptics:
     """A star tracker's camera: pixels, focal length in pixels (per axis), distortion, PSF, band.
@@ -116,10 +123,7 @@ class TrackerOptics:
     name: str = "default"
 
     def __post_init__(self):
-        for key in ("width", "height"):
-            v = getattr(self, key)
-            if int(v) != v or v < 8:
-                raise ValueError(f"tracker {key} = {v!r}; it must be a whole number of pixels >= 8.")
+        _check_pixel_size("tracker", self.width, self.height)
         for key in ("fx", "fy", "psf_sigma_px", "flux_mag0_e"):
             v = getattr(self, key)
             if not (math.isfinite(v) and v > 0):
@@ -199,10 +203,7 @@ class Screen:
     name: str = "screen"
 
     def __post_init__(self):
-        for key in ("width", "height"):
-            v = getattr(self, key)
-            if int(v) != v or v < 8:
-                raise ValueError(f"screen {key} = {v!r}; it must be a whole number of pixels >= 8.")
+        _check_pixel_size("screen", self.width, self.height)
         if not (self.pitch_m > 0 and math.isfinite(self.pitch_m)):
             raise ValueError(f"screen pitch_m = {self.pitch_m!r}; it must be a positive length in metres.")
         if self.bits != 8:

@@ -1,6 +1,6 @@
 """Star extraction from a detector image: background, threshold, blobs, sub-pixel centroids.
 
-Pixel convention (docs/conventions.md): (0.5, 0.5) is the centre of the top-left pixel, x to the right
+Pixel convention (as in star_screen.geometry): (0.5, 0.5) is the centre of the top-left pixel, x to the right
 (columns), y down (rows), so pixel (column i, row j) has its centre at (i + 0.5, j + 0.5).
 
 Steps, all vectorised (no per-star Python loop):

@@ -35,7 +35,7 @@ def test_degree_1_is_the_centred_dipole_of_the_same_coefficients():
     g, h = igrf.coefficients(1925.0)
     nn, mm = harmonics.index_nm(igrf.MAX_DEGREE)
     k10, k11 = np.flatnonzero((nn == 1) & (mm == 0))[0], np.flatnonzero((nn == 1) & (mm == 1))[0]
-    # The dipole case of docs/benchmarks.md uses exactly the 1925 degree-1 terms.
+    # The dipole (the Basilisk detumble comparison's field) is exactly the 1925 degree-1 terms.
     assert (g[k10], g[k11], h[k11]) == (env.DIPOLE_G10_NT, env.DIPOLE_G11_NT, env.DIPOLE_H11_NT)
     r = np.random.default_rng(3).normal(size=(30, 3)) * 7e6
     np.testing.assert_allclose(igrf.field_itrs(1925.0, r, degree=1), env.dipole_field_itrs(r), rtol=1e-12)
@@ -60,6 +60,18 @@ def test_epoch_path_uses_the_calendar_decimal_year():
     assert igrf.decimal_year(e) == pytest.approx(2026.5, abs=1e-9)
     r = [4e6, 1e6, 5.5e6]
     np.testing.assert_array_equal(env.magnetic_field_itrs(e, r, model="igrf"), igrf.field_itrs(igrf.decimal_year(e), r))
+
+
+def test_default_field_model_is_igrf_and_the_dipole_only_by_name():
+    e = Epoch.from_iso("2026-03-20T12:00:00Z")
+    r = np.array([[7e6, 0.0, 0.0], [0.0, 0.0, 6.9e6], [-3e6, 4e6, 4.5e6]])
+    default = env.magnetic_field_itrs(e, r)
+    np.testing.assert_array_equal(default, igrf.field_itrs(e, r, degree=igrf.MAX_DEGREE))
+    np.testing.assert_array_equal(env.magnetic_field_itrs(e, r, degree=3), igrf.field_itrs(e, r, degree=3))
+    dipole = env.magnetic_field_itrs(e, r, model="dipole")
+    np.testing.assert_array_equal(dipole, env.dipole_field_itrs(r))
+    # The 1925 dipole against the 2026 field to degree 13: microtesla apart in LEO (6-14 uT here).
+    assert np.all(np.linalg.norm(default - dipole, axis=-1) > 1000 * NT)
 
 
 @pytest.mark.parametrize("year", [1899.99, 2030.01, 2100.0])

@@ -12,7 +12,7 @@ from sim.torque_free import TorqueFreeBody
 DEG = np.pi / 180.0
 I = [10.0, 20.0, 30.0]
 Q0 = [1.0, 0.0, 0.0, 0.0]
-W_SEP = [0.01, 0.5, 0.01]  # the near-separatrix case of docs/benchmarks.md
+W_SEP = [0.01, 0.5, 0.01]  # the near-separatrix case of `stand bench accuracy`
 W_FAST = [20.0 * np.sin(4 * DEG), 0.0, 20.0 * np.cos(4 * DEG)]  # 20 rad/s, 4 deg off the major axis
 
 
@@ -213,7 +213,7 @@ def test_rk8_near_separatrix_agrees_with_the_closed_form():
     e_quarter = _err_deg("rk8", 0.25, 600.0)
     assert e_half <= 5e-6
     assert e_quarter <= 2.0 * e_half / 2 ** 8 + 2e-9
-    assert e_quarter <= 1.6e-8  # the RKF78 anchor of docs/benchmarks.md
+    assert e_quarter <= 1.6e-8  # the RKF78 anchor of `stand bench accuracy` (README)
 
 
 def test_rk8_step_guard_refuses_more_than_half_a_radian_per_step():

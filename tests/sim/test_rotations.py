@@ -1,4 +1,4 @@
-"""sim.rotations against docs/conventions.md and an independent library (scipy's Rotation)."""
+"""sim.rotations against the conventions in its docstring and an independent library (scipy's Rotation)."""
 
 import numpy as np
 import pytest

@@ -56,3 +56,22 @@ def test_ut1_on_a_leap_second_day_is_tai_minus_37_s_plus_dut1():
     # UT1 = TAI - 36 s + dut1 whatever ERFA's stretched quasi-JD of UTC looks like.
     e = Epoch.from_iso("2016-12-31T23:59:00Z", dut1_s=0.4)
     assert abs(days_between(e.jd_ut1, e.jd_tai) * DAY - (-36.0 + 0.4)) < 1e-6
+
+
+def test_dubious_year_guard_silences_only_erfas_dubious_year_warning():
+    import warnings
+
+    import erfa
+
+    from sim.time import ignore_dubious_year
+
+    late = Epoch.from_iso("2090-06-01T00:00:00Z")  # far past ERFA's leap-second table
+    assert late.iso == "2090-06-01T00:00:00.000000Z"  # guarded inside Epoch (warnings are errors here)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        erfa.taiutc(*late.jd_tai)  # unguarded: ERFA warns for this date
+        with ignore_dubious_year():
+            erfa.taiutc(*late.jd_tai)
+            warnings.warn("another warning", UserWarning, stacklevel=1)
+    assert [(w.category, "dubious year" in str(w.message)) for w in caught] == [
+        (erfa.ErfaWarning, True), (UserWarning, False)]
