@@ -14,7 +14,6 @@ Errors come from one tree, documented in :mod:`drivers.errors`.
 
 from __future__ import annotations
 
-
 import fixtures
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
 

@@ -45,7 +45,7 @@ def test_short_run_records_truth_measurements_and_commands(scenario_dict, write_
     # One MAG_SAMPLE per tick went over the bus, every command reached the emulator.
     counters = result.counters
     assert counters["mtq"]["rejected_unknown_id"] == 0
-    assert counters["mtq.emulator"]["commands_accepted"] == counters["mtq"]["sent"] > 250
+    assert counters["mtq"]["emulator"]["commands_accepted"] == counters["mtq"]["sent"] > 250
     assert summary["models"]["left_out"] and summary["timing"]["ticks"] == 300
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["scenario"] == "detumble"
     for plot in ("rate.png", "attitude.png", "dipole.png"):
@@ -160,8 +160,8 @@ def test_plugin_controller_gets_the_host_drivers(scenario_dict, write_scenario, 
         "        self.calls += 1\n"
         "        self.board.command_dipole(self.dipole, self.period_s)\n"
     )
-    monkeypatch.syspath_prepend(str(tmp_path))
     scenario_dict["controller"] = {"kind": "plugin", "rate_hz": 5.0, "module": "my_adcs:Constant",
+                                   "path": str(tmp_path),
                                    "options": {"dipole": [0.05, 0.0, -0.05]}}
     sc = short(scenario_dict, write_scenario, 2.0)
     with build(sc) as scene:
@@ -174,9 +174,9 @@ def test_plugin_controller_gets_the_host_drivers(scenario_dict, write_scenario, 
 def test_a_device_that_stops_answering_is_logged_and_the_run_goes_on(scenario_dict, write_scenario, tmp_path):
     sc = short(scenario_dict, write_scenario, 20.0)
     with build(sc) as scene:
-        emu = scene.emulators["mtq"]
-        publish = emu.publish
-        emu.publish = lambda t: 0 if 5.0 <= t < 12.0 else publish(t)  # the board goes quiet for 7 s
+        board = scene.devices["mtq"]
+        publish = board.publish
+        board.publish = lambda t: 0 if 5.0 <= t < 12.0 else publish(t)  # the board goes quiet for 7 s
         result = run(scene, tmp_path / "out")
     assert result.status == "completed" and result.counters["mtq"]["silences"] == 1
     events = [json.loads(line) for line in (tmp_path / "out" / "events.jsonl").read_text().splitlines()]

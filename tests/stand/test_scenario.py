@@ -69,7 +69,7 @@ def test_bdot_without_a_magnetorquer_is_refused(scenario_dict, write_scenario):
 
 
 def test_missing_file_and_bad_toml(tmp_path):
-    with pytest.raises(ScenarioError, match="readable TOML"):
+    with pytest.raises(ScenarioError, match="a scenario file or a shipped name"):
         scenario.load(tmp_path / "nope.toml")
     p = tmp_path / "broken.toml"
     p.write_text("[scenario\nname = 1")

@@ -56,7 +56,7 @@ def test_plan_lists_the_star_screen_only_for_image_trackers():
     assert image["star_screen"].reason.startswith("renders the detector image of st1 (20 x 15 deg on 1024 x 768 px")
     assert "solved from its rendered detector image" in image["device.st1"].reason
     truth = {c.model: c for c in plan(scenario.load(SCENARIO_DIR / "detumble_star_tracker.toml"))}
-    assert not truth["star_screen"].built and "truth plus noise: st1" in truth["star_screen"].reason
+    assert not truth["star_screen"].built and "image-source star tracker" in truth["star_screen"].reason
 
 
 @pytest.mark.parametrize("key, value, allowed", [
@@ -96,7 +96,7 @@ def test_image_source_solutions_cross_the_serial_line_within_the_image_accuracy(
     image_dict["criteria"] = [c for c in image_dict["criteria"] if c["metric"].startswith("tracker_error")]
     sc = scenario.load(write_scenario(image_dict))
     with build(sc) as scene:
-        link = scene.trackers["st1"]
+        link = scene.devices["st1"]
         # The pattern database and the apparent places exist before the first tick.
         assert link.image is not None and link.image.tracker._dbs and link.image.counts["frames"] == 0
         result = run(scene, tmp_path / "out")
@@ -170,7 +170,7 @@ def test_truth_source_still_adds_the_emulator_noise(image_dict, write_scenario, 
     sc = scenario.load(write_scenario(image_dict))
     assert not {c.model: c for c in plan(sc)}["star_screen"].built
     with build(sc) as scene:
-        assert scene.trackers["st1"].image is None
+        assert scene.devices["st1"].image is None
         result = run(scene, tmp_path / "out")
     s = result.counters["st1"]
     # Unpaced, the loop outruns the pty's delivery now and then, so not every solution is read.
@@ -195,7 +195,7 @@ def test_serial_tracker_runs_are_bit_identical_and_lose_no_solution(tmp_path):
     for k in range(2):
         with build(sc) as scene:
             run(scene, tmp_path / f"r{k}")
-            link = scene.trackers["st1"]
+            link = scene.devices["st1"]
             assert link.solutions == link.emulator.counters["published"] > 90
         logs.append(telemetry.load(tmp_path / f"r{k}"))
     for name in logs[0]:
