@@ -103,7 +103,7 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
     }
     write_json_atomic(out_dir / "summary.json", summary)
     try:
-        plots = write_plots(tel, out_dir)
+        plots = write_plots(tel, out_dir, rate_limits=rate_limits(sc.criteria))
         for d in sc.devices:
             plots += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
         write_markdown(summary, plots, out_dir)
@@ -139,58 +139,34 @@ def limit_text(c: dict) -> str:
     return " and ".join(parts) + at
 
 
-def write_plots(tel, out_dir: Path) -> list[str]:
-    import matplotlib
+#: Criteria on the body rate, drawn on the rate plot: metric -> what the limit applies to.
+RATE_METRICS = {"final_rate_deg_s": "at the end", "rate_deg_s_at": "at t = {at_s:g} s",
+                "max_rate_deg_s_after": "after t = {at_s:g} s"}
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from sim.rotations import euler_from_quat
+def rate_limits(criteria) -> list[tuple[str, float, float | None]]:
+    """``(label, value_deg_s, at_s or None)`` of every rate criterion, for ``plots.plot_rate``."""
+    out = []
+    for c in criteria:
+        if c.metric in RATE_METRICS:
+            for bound, value in (("at most", c.max), ("at least", c.min)):
+                if value is not None:
+                    when = RATE_METRICS[c.metric].format(at_s=c.at_s or 0.0)
+                    out.append((f"{c.name}: {bound} {value:g} deg/s {when}", value, c.at_s))
+    return out
 
-    t = tel["t_s"]
-    made = []
-    if len(t) < 2:
-        return made
-    fig, ax = plt.subplots(figsize=(8, 4))
-    w = np.degrees(tel["omega_BN_B"])
-    for i, lbl in enumerate("xyz"):
-        ax.plot(t, w[:, i], lw=0.8, label=f"omega_{lbl}")
-    ax.plot(t, np.linalg.norm(w, axis=1), "k", lw=1.2, label="|omega|")
-    ax.set(xlabel="t (s)", ylabel="body rate (deg/s)", title="Body rate omega_BN_B")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(out_dir / "rate.png", dpi=110)
-    plt.close(fig)
-    made.append("rate.png")
 
-    fig, ax = plt.subplots(figsize=(8, 4))
-    ang = np.degrees(euler_from_quat(tel["q_BN"], "321"))
-    for i, lbl in enumerate(("yaw (3)", "pitch (2)", "roll (1)")):
-        ax.plot(t, ang[:, i], lw=0.6, label=lbl)
-    ax.set(xlabel="t (s)", ylabel="angle (deg)", title="Attitude q_BN as 3-2-1 Euler angles")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="upper right")
-    fig.tight_layout()
-    fig.savefig(out_dir / "attitude.png", dpi=110)
-    plt.close(fig)
-    made.append("attitude.png")
+def write_plots(tel, out_dir: Path, *, rate_limits: list | None = None) -> list[str]:
+    """rate.png, attitude.png and, when the run commanded or produced a dipole, dipole.png."""
+    from . import plots
 
-    cmd_cols = [k for k in tel if k.endswith(".dipole_B") or k == "dipole_cmd_B"]
-    if cmd_cols:
-        fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
-        for k in cmd_cols:
-            for i, ax in enumerate(axes):
-                ax.plot(t, tel[k][:, i], lw=0.6, label=k)
-                ax.set_ylabel(f"m_{'xyz'[i]} (A m^2)")
-                ax.grid(alpha=0.3)
-        axes[0].legend(loc="upper right", fontsize=8)
-        axes[0].set_title("Magnetorquer dipole: commanded and produced")
-        axes[-1].set_xlabel("t (s)")
-        fig.tight_layout()
-        fig.savefig(out_dir / "dipole.png", dpi=110)
-        plt.close(fig)
-        made.append("dipole.png")
+    if len(tel["t_s"]) < 2:
+        return []
+    made = [plots.plot_rate(tel, out_dir, rate_limits or ()), plots.plot_attitude(tel, out_dir)]
+    produced = {k[: -len(".dipole_B")]: k for k in tel if k.endswith(".dipole_B")}
+    commanded = "dipole_cmd_B" if "dipole_cmd_B" in tel else None
+    if produced or commanded:
+        made.append(plots.plot_dipole(tel, out_dir, produced, commanded))
     return made
 
 

@@ -3,9 +3,11 @@
     stand screen --ra DEG --dec DEG --roll DEG --out DIR [--epoch ISO] [--aberration on|off]
                  [--screen WxH] [--scenario S --tracker NAME]
 
-Writes ``DIR/screen.png`` (what the panel shows, 8-bit drive codes), ``DIR/detector.png`` (what an
-ideal tracker records through the collimator, 16-bit) and ``DIR/truth.json`` (q_SN, optics, every
-star drawn with its Hipparcos number, magnitude and detector pixel position).
+Writes ``DIR/screen.png`` (what the panel shows, 8-bit drive codes), ``DIR/detector_raw.png`` (what
+an ideal tracker records through the collimator, 16-bit counts: the file to measure or to solve
+with ``stand solve``), ``DIR/detector.png`` (the same image stretched to 8 bits for looking at) and
+``DIR/truth.json`` (q_SN, optics, every star drawn with its Hipparcos number, magnitude and detector
+pixel position).
 
 Pointing: the boresight (+z of the tracker frame) points to (ra, dec); roll 0 puts celestial north
 up in the image (-y) and east to the left; positive roll turns the sky counter-clockwise on the
@@ -29,7 +31,7 @@ DEFAULT_EPOCH = "2026-01-01T00:00:00Z"
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "screen",
-        help="render one star-screen frame (screen.png, detector.png, truth.json)",
+        help="render one star-screen frame (screen.png, detector_raw.png, detector.png, truth.json)",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("--ra", type=float, required=True, help="boresight right ascension, deg")
@@ -132,7 +134,7 @@ def run(args) -> int:
     except RuntimeError as exc:  # an optional dependency (OpenCV for PNG) is not installed
         return _fail(str(exc))
     print(
-        f"wrote {args.out}/screen.png, detector.png, truth.json: {truth['n_stars']} stars, "
+        f"wrote {args.out}/screen.png, detector_raw.png, detector.png, truth.json: {truth['n_stars']} stars, "
         f"q_SN = {[round(v, 9) for v in truth['q_SN']]}"
     )
     return 0

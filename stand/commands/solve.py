@@ -3,9 +3,10 @@
     stand solve IMAGE [--fov-deg 20x15] [--psf-sigma-px 1.0] [--epoch ISO] [--aberration on|off]
                       [--mag-limit 8]
 
-IMAGE is a single-channel PNG (16-bit as ``stand screen`` writes ``detector.png``, or 8-bit; a
-colour image is converted to grey). The field of view is the full undistorted field along the
-image's x and y (pinhole optics centred on the image). The JSON holds ``q_SN`` (tracker frame S
+IMAGE is a single-channel PNG (16-bit as ``stand screen`` writes ``detector_raw.png``, or 8-bit; a
+colour image is converted to grey). The stretched 8-bit ``detector.png`` solves too, but its
+centroids are less accurate: solve the raw file. The field of view is the full undistorted field
+along the image's x and y (pinhole optics centred on the image). The JSON holds ``q_SN`` (tracker frame S
 relative to GCRS, scalar first, w >= 0; S: +z boresight, +x image right, +y image down), the
 boresight's ``ra_deg``, ``dec_deg`` and ``roll_deg`` in the convention of ``stand screen``
 (``star_screen.attitude``), ``stars_centroided``, ``stars_matched``, ``sigma_cross_arcsec``,

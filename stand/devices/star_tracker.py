@@ -199,6 +199,21 @@ class StarTrackerKind(DeviceKind):
         return float(np.percentile(err, 95)) if len(err) else math.nan
 
 
+    def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        from stand.plots import plot_tracker
+
+        lim = {c["metric"]: c for c in criteria}
+
+        def most(metric):
+            return lim[metric]["limit"].get("max") if metric in lim else None
+
+        avail = lim.get("tracker_availability_after")
+        availability = (avail["limit"]["min"], avail.get("at_s", 0.0)) if avail and "min" in avail["limit"] else None
+        return [plot_tracker(tel, out_dir, name, cross_limit_arcsec=most("tracker_error_cross_arcsec_p95"),
+                             roll_limit_arcsec=most("tracker_error_roll_arcsec_p95"), availability=availability,
+                             modes=MODES, flag_bits=FLAG_BITS)]
+
+
 def _solutions(tel, n: str) -> dict | None:
     """A tracker's solutions, one per exposure (the telemetry repeats the newest)."""
     if f"{n}.t_exposure_s" not in tel:

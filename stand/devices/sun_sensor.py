@@ -21,6 +21,7 @@ from sim.truth import rotate_to_body
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec
 
 #: Coarse heads on the six body faces (+x, -x, +y, -y, +z, -z), rotated by the mount.
+HEAD_LABELS = ["+x face", "-x face", "+y face", "-y face", "+z face", "-z face"]
 FACE_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
 
 
@@ -96,6 +97,11 @@ class SunSensorKind(DeviceKind):
 
     def build(self, spec: SunSensorSpec, ctx: BuildContext) -> Device:
         return SunSensor(spec, ctx)
+
+    def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        from stand.plots import plot_sun_sensor
+
+        return [plot_sun_sensor(tel, out_dir, name, head_labels=HEAD_LABELS if f"{name}.currents" in tel else None)]
 
 
 class SunSensor(Device):

@@ -15,9 +15,13 @@ def test_screen_writes_png_and_truth(tmp_path):
     rc = cli_main(["screen", "--ra", "83.8", "--dec", "-5.4", "--roll", "15", "--out", str(out)])
     assert rc == 0
     scr = cv2.imread(str(out / "screen.png"), cv2.IMREAD_UNCHANGED)
-    det = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
+    det = cv2.imread(str(out / "detector_raw.png"), cv2.IMREAD_UNCHANGED)
+    view = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
     assert scr.shape == (1080, 1920) and scr.dtype == np.uint8 and scr.max() > 200
     assert det.shape == (768, 1024) and det.dtype == np.uint16
+    # the viewing copy: 8-bit, a grey sky, and the same stars bright where the raw counts peak
+    assert view.shape == det.shape and view.dtype == np.uint8
+    assert 15 <= np.median(view) <= 60 and view[det > np.percentile(det, 99.9)].min() > 2 * np.median(view)
     truth = json.loads((out / "truth.json").read_text())
     assert np.allclose(truth["q_SN"], q_SN_from_radec_roll(83.8, -5.4, 15.0))
     assert truth["tracker"]["width"] == 1024 and np.allclose(truth["tracker"]["fov_deg"], [20, 15])
@@ -79,7 +83,7 @@ def test_screen_uses_the_scenario_tracker_optics_and_epoch(tmp_path):
     rc = cli_main(["screen", "--scenario", str(sc), "--tracker", "st1", "--ra", "83.8", "--dec", "-5.4",
                               "--out", str(out)])
     assert rc == 0
-    det = cv2.imread(str(out / "detector.png"), cv2.IMREAD_UNCHANGED)
+    det = cv2.imread(str(out / "detector_raw.png"), cv2.IMREAD_UNCHANGED)
     assert det.shape == (480, 640) and det.max() > 0
     truth = json.loads((out / "truth.json").read_text())
     assert truth["tracker"]["name"] == "st1" and (truth["tracker"]["width"], truth["tracker"]["height"]) == (640, 480)

@@ -283,7 +283,7 @@ def test_stand_solve_prints_the_attitude_of_a_stand_screen_png(tmp_path, capsys)
     assert screen_main(["screen", "--ra", "201.3", "--dec", "-11.2", "--roll", "-40", "--out", str(out)]) == 0
     truth = json.loads((out / "truth.json").read_text())
     capsys.readouterr()
-    assert solve_main(["solve", str(out / "detector.png"), "--fov-deg", "20x15"]) == 0
+    assert solve_main(["solve", str(out / "detector_raw.png"), "--fov-deg", "20x15"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["valid"] and res["stars_matched"] >= 50
     assert angle_between(np.array(res["q_SN"]), np.array(truth["q_SN"])) < 10 * ARCSEC
