@@ -22,6 +22,23 @@ from sim.truth import rotate_to_body
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_can
 
 NAN3 = (math.nan, math.nan, math.nan)
+#: python-can's serial-line interfaces ignore recv()'s timeout and block for the port's own: keep it short, so a
+#: poll that finds nothing costs a millisecond, not the default 0.1 s.
+SERIAL_LINE_TIMEOUT_S = 1e-3
+SERIAL_WRITE_TIMEOUT_S = 0.5
+
+
+def _open(spec: MagnetorquerSpec):
+    from drivers.can_bus import open_bus
+
+    if spec.interface not in ("serial", "slcan"):
+        return open_bus(spec.interface, spec.channel)
+    bus = open_bus(spec.interface, spec.channel, timeout=SERIAL_LINE_TIMEOUT_S)
+    # A peer that stops reading must not block the loop: a write that cannot finish in time is a CAN error.
+    port = getattr(bus, "_ser", None) or getattr(bus, "serialPortOrig", None)
+    if port is not None:
+        port.write_timeout = SERIAL_WRITE_TIMEOUT_S
+    return bus
 #: A board whose magnetometer has sent nothing for this many sample periods is reported silent.
 SILENT_PERIODS = 5
 
@@ -178,11 +195,10 @@ class HardwareBoard(_Board):
     """The host driver on a real board; the truth gets the dipole the board reports (coil currents x N A)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
         from drivers.magnetorquer.host import MagnetorquerBoard
 
         super().__init__(spec)
-        self._buses.append(open_bus(spec.interface, spec.channel))
+        self._buses.append(_open(spec))
         self.host = MagnetorquerBoard(self._buses[0], name=spec.name)
         self._na = tuple(float(x) for x in spec.coil_area_turns_m2)
         self._status_seen = 0
@@ -230,10 +246,8 @@ class ServedBoard(_Board):
     """The emulator on a real adapter for a flight computer outside; the stand holds no host driver."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
-
         super().__init__(spec)
-        self._buses.append(open_bus(spec.interface, spec.channel))
+        self._buses.append(_open(spec))
         try:
             self.emulator = _emulator(spec, ctx, self._buses[0])
         except BaseException:
