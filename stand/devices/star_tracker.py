@@ -278,6 +278,17 @@ class TrackerDevice(Device):
         self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
         self.emulator = None
         self._slave_fd: int | None = None
+        self._seen = 0
+
+    def _new_solution(self):
+        """The newest solution the host decoded since the last call, without taking it from the flight code
+        (``take_solution`` stays theirs)."""
+        self.host.poll()
+        n = self.host.counters["solutions"]
+        if n == self._seen:
+            return None
+        self._seen = n
+        return self.host.latest_solution
 
     def _score(self, sol, t_exp: float) -> None:
         self.last_solution = sol
@@ -424,7 +435,7 @@ class EmulatedTracker(TrackerDevice):
         emu.service(t_s)
         if emu.counters["sent"] > self._frames_in(host.counters):
             self._settle(lambda: self._frames_in(host.counters) >= emu.counters["sent"], host.port)
-        sol = host.take_solution()
+        sol = self._new_solution()
         if sol is not None:
             self._score(sol, self.sim_time_of(sol.time_us))
 
@@ -458,7 +469,7 @@ class HardwareTracker(TrackerDevice):
     def publish(self, t_s: float) -> None:
         # The truth of every tick, to score solutions whose exposures fall on (or near) it.
         self.truth_at[round(t_s * 1e6)] = compose_floats(self.q_SB, self._truth.q)
-        sol = self.host.take_solution()
+        sol = self._new_solution()
         if sol is not None:
             t_exp = sol.time_us * 1e-6 * self._speed
             t_tick = round(t_exp * 1e6 / self._step_us) * self._step_us * 1e-6
