@@ -18,7 +18,8 @@ from pathlib import Path
 from .errors import ScenarioError
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
-EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve")
+EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
+                  "stand.commands.shadow")
 
 
 def _fail(message: str) -> int:

@@ -104,6 +104,10 @@ def plan(sc: Scenario) -> list[Choice]:
             why = (f"star tracker, {d.link} on a serial {d.port} pair, {what}, a solution every "
                    f"{d.emulator['output_interval_s']:g} s")
         choices.append(Choice(f"device.{d.name}", True, why))
+    if sc.rendezvous is not None:
+        from .rendezvous import describe
+
+        choices.append(Choice("rendezvous.shadow", True, describe(sc.rendezvous)))
     ctl = sc.controller
     choices.append(Choice(f"controller.{ctl.kind}", ctl.kind != "none",
                           f"at {ctl.rate_hz:g} Hz through the host drivers" if ctl.kind != "none"
