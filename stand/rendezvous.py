@@ -314,9 +314,8 @@ def _chaser_path(spec: RendezvousSpec, orbit, t) -> np.ndarray:
     if spec.trajectory == "line":
         return line_state(spec.r0_L_m, spec.v0_L_m_s, t)[0]
     if spec.trajectory == "cw":
-        r0, _ = _target_state0(orbit)
         a = orbit.a_m if orbit.a_m is not None else orbit.p_m / (1 - orbit.e ** 2)
-        return cw_state(spec.r0_L_m, spec.v0_L_m_s, t, mean_motion(a if a else np.linalg.norm(r0)))[0]
+        return cw_state(spec.r0_L_m, spec.v0_L_m_s, t, mean_motion(a))[0]
     r0, v0 = _target_state0(orbit)
     return kepler_relative_state(r0, v0, spec.r0_L_m, spec.v0_L_m_s, t)[0]
 
@@ -540,15 +539,17 @@ def render_camera(approach: Approach, t_s: float, camera: CameraSpec | None = No
     seen = np.isfinite(lam_best)
     x_P = o_P + np.where(seen, lam_best, 0.0)[:, None] * d_P
     normal = np.tile([0.0, 0.0, 1.0], (len(d_P), 1))
-    albedo = np.full(len(d_P), 0.25)
+    albedo = np.full(len(d_P), 0.3)
     on_plate = seen & (which < 0)
     dist = np.linalg.norm(x_P[:, None, :2] - plate.marks_m[None], axis=-1).min(axis=1)
-    albedo[on_plate & (dist <= plate.mark_radius_m)] = 0.9
+    albedo[on_plate & (dist <= plate.mark_radius_m)] = 1.0
     for j, occ in enumerate(approach.spec.target_bodies):
         sel = seen & (which == j)
         if np.any(sel):
             n_T = occ.shape.normal((x_P[sel] - r_TP_P) @ dcm_TP.T)
-            normal[sel] = n_T @ dcm_TP
+            n_P = n_T @ dcm_TP
+            # A panel is seen from either side; a solid's outward normal faces the camera already.
+            normal[sel] = np.where((np.sum(n_P * d_P[sel], axis=1) > 0)[:, None], -n_P, n_P)
             albedo[sel] = 0.55
     s = st["sun_P"][0]
     cos_i = np.clip(normal @ s, 0.0, None)
