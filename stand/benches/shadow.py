@@ -2,9 +2,10 @@
 
 The shipped approach (``fixtures/scenarios/rendezvous_shadow.toml``) is sampled at a range of
 steps, with each interval end reported at the first sample past it (unrefined) or bisected between
-its two samples to 1 ms (refined). The reference is the same computation at a 0.5 s step bisected
-to 10 us. An unrefined end is late by less than one step by construction; the rows show how far,
-and what the refinement costs. Ends at the run's own start or end are left out (they are not events).
+its two samples to 1 ms (refined); at an 8 s step the bisection tolerance is swept too. The
+reference is the same computation at a 0.5 s step bisected to 10 us. An unrefined end is late by
+less than one step by construction; the rows show how far, and what the refinement costs. Ends at
+the run's own start or end are left out (they are not events).
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ import numpy as np
 STEPS_S = (16.0, 8.0, 4.0, 2.0, 1.0)
 QUICK_STEPS_S = (8.0, 2.0)
 REFINE_TOL_S = 1e-3
+#: Tolerances swept at an 8 s step: the cost of each further digit of the ends.
+TOLS_S = (1e-1, 1e-2, 1e-3, 1e-4)
+QUICK_TOLS_S = (1e-2,)
 
 
 def _ends(res) -> np.ndarray:
@@ -48,7 +52,7 @@ def bench_shadow(quick: bool = False, plot_path: str | None = None) -> list[dict
     rows = [{"name": "shadow.reference.ends", "value": len(ref_ends), "unit": "",
              "note": f"{ref.step_s:g} s step bisected to 1e-5 s in {ref_wall:.2f} s: "
              + ", ".join(f"{e:.3f}" for e in ref_ends)}]
-    curves: dict[str, list[tuple[float, float]]] = {"unrefined": [], "refined": []}
+    curves: dict[str, list[tuple[float, float]]] = {"unrefined": [], "refined": [], "refined, 8 s step": []}
     for h in QUICK_STEPS_S if quick else STEPS_S:
         for refine in (False, True):
             t0 = time.perf_counter()
@@ -61,6 +65,15 @@ def bench_shadow(quick: bool = False, plot_path: str | None = None) -> list[dict
             rows.append({"name": f"shadow.{kind}.step_{h:g}s.max_end_error", "value": err, "unit": "s",
                          "limit": f"<= {limit:g} s", "pass": bool(np.isfinite(err) and err <= limit),
                          "note": f"{res.evaluations} evaluations in {wall:.3f} s, {n} ends found"})
+    for tol in QUICK_TOLS_S if quick else TOLS_S:
+        t0 = time.perf_counter()
+        res = compute(approach, step_s=8.0, refine=True, tol_s=tol, per_occluder=False)
+        wall = time.perf_counter() - t0
+        err, n = _errors(res, ref_ends)
+        curves["refined, 8 s step"].append((wall, err))
+        rows.append({"name": f"shadow.refined.step_8s.tol_{tol:g}s.max_end_error", "value": err, "unit": "s",
+                     "limit": f"<= {tol:g} s", "pass": bool(np.isfinite(err) and err <= tol),
+                     "note": f"{res.evaluations} evaluations in {wall:.3f} s, {n} ends found"})
     per_eval = ref_wall / max(ref.evaluations, 1) * 1e3
     rows.append({"name": "shadow.cost_per_time_sample", "value": round(per_eval, 3), "unit": "ms",
                  "note": f"{approach.mark_pts.shape[0] * approach.mark_pts.shape[1]} mark points x "
