@@ -748,6 +748,8 @@ def run_shadow(sc, out: Path, step_s: float | None = None, refine: bool | None =
 
 def describe(spec: RendezvousSpec) -> str:
     """One line for ``stand check``."""
-    return (f"{spec.trajectory} approach from {np.linalg.norm(spec.r0_L_m):.4g} m, {len(spec.plate.marks_m)} marks, "
-            f"{len(spec.target_bodies)} target and {len(spec.chaser_bodies)} chaser bodies, Sun "
-            f"{spec.sun}, every {spec.step_s:g} s (run with 'stand shadow')")
+    earth = "conical Earth shadow" if spec.earth_shadow else "no Earth shadow"
+    return (f"{spec.trajectory} approach from {np.linalg.norm(spec.r0_L_m):.4g} m off the target's centre, "
+            f"{len(spec.plate.marks_m)} marks, "
+            f"{len(spec.target_bodies)} target and {len(spec.chaser_bodies)} chaser bodies, Sun ({spec.sun}) from "
+            f"the ephemeris, {earth}, every {spec.step_s:g} s (run with 'stand shadow')")
