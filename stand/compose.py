@@ -93,6 +93,10 @@ def plan(sc: Scenario) -> list[Choice]:
     ]
     for d in sc.devices:
         choices.append(Choice(f"device.{d.name}", True, devices.get(d.kind).describe(d)))
+    if sc.rendezvous is not None:
+        from .rendezvous import describe
+
+        choices.append(Choice("rendezvous.shadow", True, describe(sc.rendezvous)))
     ctl = sc.controller
     ctl_why = {"none": "no controller in the scenario: open loop",
                "external": "a flight computer outside closes the loop through the served devices ("

@@ -21,6 +21,7 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
     [controller]   kind = "bdot" | "none" | "plugin", rate_hz, ...
     [[criteria]]   name, metric, max | min, at_s
     [recording]    rate_hz
+    [rendezvous]   shadows on a docking target during an approach (``stand shadow``; see stand.rendezvous)
 """
 
 from __future__ import annotations
@@ -251,6 +252,7 @@ class Scenario:
     controller: ControllerSpec
     criteria: tuple[Criterion, ...]
     record_rate_hz: float
+    rendezvous: Any = None  # stand.rendezvous.RendezvousSpec when the scenario has a [rendezvous] section
 
     def device(self, kind: str) -> DeviceSpec | None:
         return next((d for d in self.devices if d.kind == kind), None)
@@ -401,10 +403,15 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     rec = root.table("recording", required=False)
     record_rate_hz = rate(rec, "rate_hz", step_s, default=1.0 / step_s)
     rec.check_unknown()
+    rendezvous = None
+    if root.has("rendezvous"):
+        from .rendezvous import parse_rendezvous
+
+        rendezvous = parse_rendezvous(root.table("rendezvous"), duration_s, orbit, source)
     root.check_unknown()
     return Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
                     tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
-                    record_rate_hz)
+                    record_rate_hz, rendezvous)
 
 
 def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:

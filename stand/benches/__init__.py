@@ -25,6 +25,7 @@ BENCHES = {
     "pacing": "stand.benches:bench_pacing",
     "tracker": "stand.benches.tracker:bench_tracker",
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
+    "shadow": "stand.benches.shadow:bench_shadow",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
