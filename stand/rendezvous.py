@@ -179,12 +179,12 @@ def _body(t, vehicle: str, k: int) -> Occluder:
 
 
 def _bodies(t, vehicle: str) -> tuple[Occluder, ...]:
-    from .scenario import _Table
+    from .scenario import Table
 
     raw = t.raw("bodies", [])
     if not isinstance(raw, list):
         raise t.error("bodies", raw, f"an array of [[rendezvous.{vehicle}.bodies]] tables")
-    out = tuple(_body(_Table(b, f"{t.path}.bodies[{k}]", t.source), vehicle, k) for k, b in enumerate(raw))
+    out = tuple(_body(Table(b, f"{t.path}.bodies[{k}]", t.source), vehicle, k) for k, b in enumerate(raw))
     names = [o.name for o in out]
     if len(set(names)) != len(names):
         raise t.error("bodies", names, "bodies with unique names")
@@ -220,22 +220,22 @@ def _plate(t) -> PlateSpec:
 
 
 def _camera(t, duration_s: float) -> CameraSpec:
-    from .scenario import _pair
+    from .scenario import pair
 
     times = t.raw("times_s", [0.0])
     if not isinstance(times, list) or not times or len(times) > 50 or any(
             isinstance(x, bool) or not isinstance(x, int | float) or not 0 <= x <= duration_s for x in times):
         raise t.error("times_s", times, f"a list of 1 to 50 times in [0, {duration_s:g}] s")
     spec = CameraSpec(position_C_m=t.vector("position_m", 3, [0.0, 0.0, 0.0]),
-                      fov_deg=_pair(t, "fov_deg", (30.0, 22.5), 1.0, 120.0, False),
-                      resolution_px=_pair(t, "resolution_px", (480, 360), 16, 2048, True),
+                      fov_deg=pair(t, "fov_deg", (30.0, 22.5), 1.0, 120.0, False),
+                      resolution_px=pair(t, "resolution_px", (480, 360), 16, 2048, True),
                       times_s=tuple(float(x) for x in times))
     t.check_unknown()
     return spec
 
 
 def parse_rendezvous(t, duration_s: float, orbit, source: str | None = None) -> RendezvousSpec:
-    """Validate a ``[rendezvous]`` table (a ``stand.scenario._Table``) against the scenario's
+    """Validate a ``[rendezvous]`` table (a ``stand.scenario.Table``) against the scenario's
     duration and ``[orbit]``; raises ``ScenarioError`` naming the first bad field."""
     step = t.number("step_s", 1.0, lo=1e-3, hi=max(duration_s / 2.0, 1e-3))
     refine = t.raw("refine", True)

@@ -424,6 +424,18 @@ def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
     return hz
 
 
+def pair(t: Table, key: str, default, lo, hi, integer: bool) -> tuple:
+    """A list of two numbers ``[x, y]``, each within ``[lo, hi]``."""
+    value = t.raw(key, list(default))
+    kind = "whole numbers" if integer else "numbers"
+    ok = isinstance(value, list) and len(value) == 2 and all(
+        not isinstance(v, bool) and isinstance(v, int if integer else int | float)
+        and math.isfinite(v) and lo <= v <= hi for v in value)
+    if not ok:
+        raise t.error(key, value, f"a list of 2 {kind} [x, y], each from {lo:g} to {hi:g}")
+    return tuple(int(v) if integer else float(v) for v in value)
+
+
 def _orbit(t: Table) -> OrbitSpec:
     e = t.number("e", 0.0, lo=0.0)
     sizes = [k for k in ("altitude_km", "a_km", "p_km") if t.has(k)]

@@ -232,22 +232,12 @@ def _whole_steps(t, key: str, value: float, step_s: float) -> None:
         raise t.error(key, value, f"a whole number of dynamics steps ({step_s:g} s), so exposures fall on ticks")
 
 
-def _pair(t, key: str, default, lo, hi, integer: bool) -> tuple:
-    value = t.raw(key, list(default))
-    kind = "whole numbers" if integer else "numbers"
-    ok = isinstance(value, list) and len(value) == 2 and all(
-        not isinstance(v, bool) and isinstance(v, int if integer else int | float)
-        and math.isfinite(v) and lo <= v <= hi for v in value)
-    if not ok:
-        raise t.error(key, value, f"a list of 2 {kind} [x, y], each from {lo:g} to {hi:g}")
-    return tuple(int(v) if integer else float(v) for v in value)
-
-
 def _tracker_image(t, name: str) -> tuple[Any, dict]:
     """Optics (a star_screen TrackerOptics) and camera noise of an image-source tracker."""
+    from stand.scenario import pair
     from star_screen.geometry import TrackerOptics
 
-    pairs = {key: _pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}
+    pairs = {key: pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}
     values = {key: t.number(key, d, lo=lo, hi=hi, integer=integer)
               for key, (d, lo, hi, integer) in TRACKER_IMAGE_SETTINGS.items()}
     (fx_deg, fy_deg), (width, height) = pairs["fov_deg"], pairs["resolution_px"]
