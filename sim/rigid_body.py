@@ -31,12 +31,14 @@ import numpy as np
 MAX_ANGLE_PER_STEP_RAD = 0.1
 
 
-def check_inertia(inertia, name: str = "inertia_kg_m2") -> np.ndarray:
+def check_inertia(inertia, name: str = "inertia_kg_m2", triangle: bool = True) -> np.ndarray:
     """Return a validated 3x3 inertia matrix (kg m^2) from a 3-vector of principal moments or 3x3.
 
     Refuses, with the field name and the value: non-finite, non-symmetric, not positive definite,
     and principal moments that violate the triangle inequality (I1 + I2 >= I3 for every
-    permutation: no physical body does; equality, a flat plate, is accepted).
+    permutation: no physical body does; equality, a flat plate, is accepted). ``triangle=False``
+    skips only that last test, for the inertia of a body with its wheels' spin inertia taken out
+    (:mod:`sim.wheels`), which is a matrix of the equations rather than of one rigid body.
     """
     I = np.asarray(inertia, dtype=float)
     if I.shape == (3,):
@@ -53,7 +55,7 @@ def check_inertia(inertia, name: str = "inertia_kg_m2") -> np.ndarray:
         raise ValueError(
             f"{name} has principal moments {moments.tolist()} kg m^2; all must be positive."
         )
-    if moments[0] + moments[1] < moments[2] * (1.0 - 1e-12):
+    if triangle and moments[0] + moments[1] < moments[2] * (1.0 - 1e-12):
         raise ValueError(
             f"{name} has principal moments {moments.tolist()} kg m^2, which violate the triangle "
             f"inequality: {moments[0]:.6g} + {moments[1]:.6g} < {moments[2]:.6g}. No rigid body has "
@@ -63,13 +65,13 @@ def check_inertia(inertia, name: str = "inertia_kg_m2") -> np.ndarray:
     return I
 
 
-def nutation_rate(inertia, omega) -> float:
+def nutation_rate(inertia, omega, triangle: bool = True) -> float:
     """Upper estimate (rad/s) of the body-frame nutation frequency for rate ``omega``.
 
     For a torque-free body spinning near principal axis k the body-frame nutation frequency is
     ``|omega| sqrt((Ik - Ii)(Ik - Ij) / (Ii Ij))``; the maximum over the three axes bounds it.
     """
-    m = np.sort(np.linalg.eigvalsh(check_inertia(inertia)))
+    m = np.sort(np.linalg.eigvalsh(check_inertia(inertia, triangle=triangle)))
     w = float(np.linalg.norm(omega))
     rates = []
     for k in range(3):
@@ -78,9 +80,28 @@ def nutation_rate(inertia, omega) -> float:
     return w * max(rates)
 
 
-def max_step_s(inertia, omega, max_angle_rad: float = MAX_ANGLE_PER_STEP_RAD) -> float:
-    """Largest RK4 step (s) that keeps rotation and nutation phase per step below ``max_angle_rad``."""
-    fastest = max(float(np.linalg.norm(omega)), nutation_rate(inertia, omega))
+def gyroscopic_rate(inertia, h_wheels_B, triangle: bool = True) -> float:
+    """Upper estimate (rad/s) of the nutation frequency that wheel momentum ``h_wheels_B`` (N m s, body axes)
+    gives the body: ``|h| / I_min``.
+
+    Linearised about rest, I domega/dt = -omega x h has frequency ``|h| / sqrt(Ii Ij)`` for h along
+    principal axis k; ``|h| / I_min`` bounds it for any direction.
+    """
+    if h_wheels_B is None:
+        return 0.0
+    h = float(np.linalg.norm(h_wheels_B))
+    return h / float(np.linalg.eigvalsh(check_inertia(inertia, triangle=triangle))[0]) if h else 0.0
+
+
+def max_step_s(inertia, omega, max_angle_rad: float = MAX_ANGLE_PER_STEP_RAD, h_wheels_B=None,
+               triangle: bool = True) -> float:
+    """Largest RK4 step (s) that keeps rotation and nutation phase per step below ``max_angle_rad``.
+
+    ``h_wheels_B`` (N m s, body axes): the wheels' spin momentum, whose gyroscopic stiffness adds
+    :func:`gyroscopic_rate` to the body's own nutation frequency.
+    """
+    nut = nutation_rate(inertia, omega, triangle) + gyroscopic_rate(inertia, h_wheels_B, triangle)
+    fastest = max(float(np.linalg.norm(omega)), nut)
     return math.inf if fastest == 0.0 else max_angle_rad / fastest
 
 
@@ -91,15 +112,19 @@ def check_step_value(step_s, name: str = "step_s") -> None:
 
 
 def check_step(inertia, omega, step_s: float, name: str = "step_s", max_angle_rad: float = MAX_ANGLE_PER_STEP_RAD,
-               method: str = "RK4") -> None:
-    """Raise ``ValueError`` naming the limit when ``step_s`` is too large for rate ``omega``."""
+               method: str = "RK4", h_wheels_B=None, triangle: bool = True) -> None:
+    """Raise ``ValueError`` naming the limit when ``step_s`` is too large for rate ``omega`` (and wheel
+    momentum ``h_wheels_B``, N m s body axes, when the body carries wheels)."""
     check_step_value(step_s, name)
-    limit = max_step_s(inertia, omega, max_angle_rad)
+    limit = max_step_s(inertia, omega, max_angle_rad, h_wheels_B, triangle)
     if step_s > limit:
         w = float(np.linalg.norm(omega))
+        wheels = "" if h_wheels_B is None else (
+            f" and a wheel momentum of {float(np.linalg.norm(h_wheels_B)):.6g} N m s (gyroscopic rate "
+            f"{gyroscopic_rate(inertia, h_wheels_B, triangle):.6g} rad/s)")
         raise ValueError(
             f"{name} = {step_s:g} s is too large for a body rate of {w:.6g} rad/s "
-            f"({math.degrees(w):.4g} deg/s): {method} stays accurate only while the rotation and nutation "
+            f"({math.degrees(w):.4g} deg/s){wheels}: {method} stays accurate only while the rotation and nutation "
             f"phase per step are at most {max_angle_rad:g} rad, i.e. {name} <= {limit:.3g} s "
             "here. Use a smaller step."
         )
@@ -108,8 +133,8 @@ def check_step(inertia, omega, step_s: float, name: str = "step_s", max_angle_ra
 class RigidBody:
     """Euler's equations and an RK4 step on plain floats for one inertia matrix."""
 
-    def __init__(self, inertia):
-        I = check_inertia(inertia)
+    def __init__(self, inertia, triangle: bool = True):
+        I = check_inertia(inertia, triangle=triangle)
         Ii = np.linalg.inv(I)
         self.inertia = I
         self.inertia_inv = Ii

@@ -10,6 +10,10 @@ What it computes and where:
   attitude stages only rotate a precomputed inertial field into the body frame.
 * The attitude is RK4 on plain floats (``sim.rigid_body.RigidBody``) with magnetic and gravity-
   gradient torques re-evaluated inside every stage.
+* Reaction wheels, when the scene has them (``wheels``: a :class:`sim.wheels.WheelCluster`), put
+  their momentum into the rigid-body equations (:class:`sim.wheels.WheeledBody`); their speeds join
+  the state and the net torque on each rotor is an input held over the step, as the dipole is.
+  Without wheels the step is the same code as before, bit for bit.
 
 Only what the scene needs exists: no field track without a field model, no torque the scenario
 did not list. Time is integer nanoseconds; a run is bit-for-bit repeatable.
@@ -29,6 +33,7 @@ from .integrators import max_angle_rad, stepper
 from .rigid_body import RigidBody, check_step
 from .rotations import hamilton_floats
 from .time import NS_PER_S
+from .wheels import WheelCluster, WheeledBody
 
 #: Length of one precomputed chunk of orbit and field, s. Long enough to amortise the vectorised
 #: calls, short enough that a stopped run wasted little.
@@ -150,7 +155,8 @@ class TruthModel:
     def __init__(self, *, inertia, q_BN, omega_BN_B, r_N, v_N, step_ns: int, gravity: str = "j2",
                  orbit_step_s: float = 10.0, field_itrs: Callable | None = None,  # (t_s, r_itrs) -> B_itrs
                  earth_rotation: EarthRotation | None = None, torques=("magnetic", "gravity_gradient"),
-                 forces: Callable | None = None, integrator: str = "rk4"):
+                 forces: Callable | None = None, integrator: str = "rk4", wheels: WheelCluster | None = None,
+                 wheel_speeds_rad_s=None):
         if step_ns <= 0 or step_ns % 2:
             raise ValueError(f"step_ns = {step_ns}; the dynamics step must be a positive even number of ns.")
         self.body = RigidBody(inertia)
@@ -159,10 +165,23 @@ class TruthModel:
         self.integrator = integrator
         self._step = stepper(self.body, integrator)
         self._max_angle = max_angle_rad(integrator)
-        check_step(self.body.inertia, omega_BN_B, self.h, "dynamics.step_s", self._max_angle, integrator)
-        self._limit_sq = (self._max_angle / self.h) ** 2
         self.q = tuple(float(x) for x in q_BN)
         self.w = tuple(float(x) for x in omega_BN_B)
+        self.wheels = wheels
+        if wheels is None:
+            if wheel_speeds_rad_s is not None:
+                raise ValueError("wheel_speeds_rad_s was given without wheels; give wheels (a WheelCluster) too.")
+            check_step(self.body.inertia, omega_BN_B, self.h, "dynamics.step_s", self._max_angle, integrator)
+        else:
+            self._wheeled = WheeledBody(self.body.inertia, wheels, integrator)
+            speeds = np.zeros(wheels.n) if wheel_speeds_rad_s is None else np.asarray(wheel_speeds_rad_s, float)
+            if speeds.shape != (wheels.n,) or not np.all(np.isfinite(speeds)):
+                raise ValueError(f"wheel_speeds_rad_s = {wheel_speeds_rad_s!r}; it must be {wheels.n} finite speeds "
+                                 "in rad/s, one per wheel.")
+            self.h_wheels = tuple(float(x) for x in wheels.absolute_momentum(speeds, self.w))
+            self._wheeled.check_step(self.w, self.h_wheels, self.h, "dynamics.step_s")
+            self.wheel_torque_Nm = (0.0,) * wheels.n
+        self._limit_sq = (self._max_angle / self.h) ** 2
         self.t_ns = 0
         self.k = 0  # dynamics step index; half-step grid index is 2k
         self.magnetic = "magnetic" in torques
@@ -207,6 +226,27 @@ class TruthModel:
     def b_N(self):
         return self.track.field(2 * self.k)
 
+    @property
+    def wheel_speeds_rad_s(self) -> tuple:
+        """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them."""
+        J = self._wheeled._J
+        return tuple(h / j - (ax * self.w[0] + ay * self.w[1] + az * self.w[2])
+                     for h, j, (ax, ay, az) in zip(self.h_wheels, J, self._wheeled._A, strict=True))
+
+    def angular_momentum_B(self) -> tuple:
+        """Total angular momentum of body and wheels (N m s, body components)."""
+        I = self._I
+        w0, w1, w2 = self.w
+        H = (I[0] * w0 + I[1] * w1 + I[2] * w2, I[3] * w0 + I[4] * w1 + I[5] * w2,
+             I[6] * w0 + I[7] * w1 + I[8] * w2)
+        if self.wheels is None:
+            return H
+        # I omega + A J Omega = I_s omega + A h
+        Is = self._wheeled.hub._I
+        hx, hy, hz = self._wheeled.axes_sum(self.h_wheels)
+        return (Is[0] * w0 + Is[1] * w1 + Is[2] * w2 + hx, Is[3] * w0 + Is[4] * w1 + Is[5] * w2 + hy,
+                Is[6] * w0 + Is[7] * w1 + Is[8] * w2 + hz)
+
     def b_B(self):
         k, b = self._b_B
         if k != self.k:  # q only changes in step(), which advances k
@@ -236,8 +276,14 @@ class TruthModel:
             tz += c * (rx * iy - ry * ix)
         return tx, ty, tz
 
-    def step(self, dipole_B=(0.0, 0.0, 0.0)) -> None:
-        """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant."""
+    def step(self, dipole_B=(0.0, 0.0, 0.0), wheel_torque_Nm=None) -> None:
+        """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant, and with wheels
+        the net torque on each rotor (N m about its spin axis: motor minus friction; None keeps the last)."""
+        if self.wheels is not None:
+            self._step_wheels(dipole_B, wheel_torque_Nm)
+            return
+        if wheel_torque_Nm is not None:
+            raise ValueError("wheel_torque_Nm was given to a truth model without wheels.")
         self.dipole_B = dipole_B
         base = 2 * self.k
         # The four stages sample the half-step grid at base, base + 1 (twice) and base + 2; each
@@ -253,5 +299,27 @@ class TruthModel:
         if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
             check_step(self.body.inertia, w, self.h, "dynamics.step_s", self._max_angle, self.integrator)
         self.q, self.w = q, w
+        self.k += 1
+        self.t_ns += self.step_ns
+
+    def _step_wheels(self, dipole_B, wheel_torque_Nm) -> None:
+        if wheel_torque_Nm is not None:
+            tau = tuple(float(x) for x in wheel_torque_Nm)
+            if len(tau) != self.wheels.n or not all(math.isfinite(x) for x in tau):
+                raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite torques "
+                                 "in N m, one per wheel.")
+            self.wheel_torque_Nm = tau
+        self.dipole_B = dipole_B
+        base = 2 * self.k
+        track = self.track
+        mag, gg = self.magnetic, self.gravity_gradient
+        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
+                                   for i in (base, base + 1, base + 2))
+        torque = self._torque if (mag or gg) else None
+        body = self._wheeled
+        q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)
+        if body.fastest_rate(w, hw) * self.h > self._max_angle:
+            body.check_step(w, hw, self.h, "dynamics.step_s")
+        self.q, self.w, self.h_wheels = q, w, hw
         self.k += 1
         self.t_ns += self.step_ns
