@@ -1,0 +1,378 @@
+"""The reference pointing ADCS as a plug-in: ``PointingController(devices, period_s, **options)``.
+
+Written only against host drivers, by the names the options give (the plug-in API of :mod:`stand.adcs`):
+
+* star tracker ``take_solution()`` -> None or a solution with ``.q_TN`` (tracker frame in GCRS; ``.q`` is
+  accepted too) and ``.valid``;
+* gyro ``take_rate()`` -> None or a sample with ``.omega_rad_s`` (sensor axes) and ``.valid``;
+* reaction wheels ``take_speed()`` -> None, a speed in rad/s, or a sample with ``.speed_rad_s``; and
+  ``command_torque(torque_Nm)`` (motor torque on the rotor about its spin axis);
+* magnetorquer (optional) ``take_sample()`` (``.b_T`` sensor axes, ``.valid``, ``.coil_active``) and
+  ``command_dipole(m_A_m2, duration_s)``;
+* sun sensor (optional) ``take_sun()`` -> a fine sample (``.angles_rad`` = atan2(s_x, s_z), atan2(s_y, s_z)) or a
+  coarse one (``.currents_A``, with ``sun_sensor_normals_B`` given), and ``.valid``.
+
+Each ``update(t_s)``: read the sensors, propagate the MEKF on the gyro and update it with a valid tracker
+solution (:mod:`.determination`), run the mode manager (:mod:`.modes`), compute the reference
+(:mod:`.guidance`) and the control torque (:mod:`.control`), and command the wheels (and the
+magnetorquer for momentum dumping). Options (SI units; mounts are ``q_SB``: sensor frame relative to body):
+
+``inertia_kg_m2`` (required), ``star_tracker``, ``star_tracker_q_TB``, ``tracker_sigma_rad`` (cross, roll),
+``gyro``, ``gyro_q_SB``, ``gyro_arw_rad_s05``, ``gyro_rrw_rad_s15``, ``wheels`` (names), ``wheel_axes_B``
+(one 3-vector per wheel; default body x, y, z for three wheels, the 54.74 deg pyramid about +z for
+four), ``wheel_inertia_kg_m2``, ``max_wheel_torque_Nm``, ``wheel_speed_target_rad_s``,
+``null_gain_per_s``, ``magnetorquer``, ``magnetorquer_q_SB``, ``dump_gain_per_s``, ``max_dipole_A_m2``,
+``h_target_B``, ``sun_sensor``, ``sun_sensor_q_SB``, ``sun_sensor_normals_B``, ``sun_axis_B``,
+``guidance`` (``"inertial"`` with ``q_RN``; ``"nadir"`` with ``orbit_r_N_m``, ``orbit_v_N_m_s`` at t = 0;
+``"sun"`` with ``epoch`` (ISO UTC) and ``secondary_N``; ``"target"`` with the orbit, ``epoch`` and
+``target_itrs_m``), ``law`` (``"mrp"`` or ``"quaternion"``), ``natural_frequency_rad_s``,
+``damping_ratio``, ``detumble_gain_N_m_s``, ``initial_mode``, ``modes`` (a dict of
+:class:`~.modes.ModeConfig` fields), ``gate_sigma``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim.rotations import compose, conjugate, dcm
+
+from . import guidance as gd
+from .control import LAWS, WheelDistribution, control_torque, dumping_dipole, pd_gains
+from .determination import MEKF
+from .modes import DETUMBLE, FINE_POINTING, MODES, SUN_ACQUISITION, ModeConfig, ModeManager
+
+__all__ = ["PointingController", "default_wheel_axes_B"]
+
+MODE_CODES = {m: float(i) for i, m in enumerate(MODES)}
+OMEGA_EARTH_RAD_S = 7.292115e-5
+GUIDANCE = ("inertial", "nadir", "sun", "target")
+
+
+def default_wheel_axes_B(n: int) -> np.ndarray:
+    """Spin axes (3 x n): body x, y, z for three wheels; a pyramid about +z at 54.74 deg for four."""
+    if n == 3:
+        return np.eye(3)
+    if n == 4:
+        tilt = math.acos(1.0 / math.sqrt(3.0))
+        az = np.radians([0.0, 90.0, 180.0, 270.0])
+        return np.stack((math.sin(tilt) * np.cos(az), math.sin(tilt) * np.sin(az), np.full(4, math.cos(tilt))))
+    raise ValueError(f"wheels: {n} names given and no wheel_axes_B; defaults exist for 3 (orthogonal) or 4 "
+                     "(pyramid) wheels only; give wheel_axes_B.")
+
+
+def _option_vec(options, name, n, default=None):
+    v = options.get(name, default)
+    a = np.asarray(v, dtype=float)
+    if a.shape != (n,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"options.{name} = {v!r}; it must be {n} finite numbers.")
+    return a
+
+
+def _mount(options, name) -> np.ndarray:
+    q = _option_vec(options, name, 4, (1.0, 0.0, 0.0, 0.0))
+    if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+        raise ValueError(f"options.{name} = {options.get(name)!r}; a unit quaternion [w, x, y, z] is required.")
+    return q
+
+
+def _positive(options, name, default):
+    v = options.get(name, default)
+    if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+        raise ValueError(f"options.{name} = {v!r}; it must be a finite positive number.")
+    return float(v)
+
+
+def _speed_of(sample):
+    if sample is None:
+        return None
+    if isinstance(sample, int | float):
+        return float(sample)
+    if not getattr(sample, "valid", True):
+        return None
+    return float(sample.speed_rad_s)
+
+
+class PointingController:
+    """Detumble, sun acquisition and fine pointing over a star tracker, a gyro and reaction wheels."""
+
+    def __init__(self, devices: dict, period_s: float, **options):
+        known = {"inertia_kg_m2", "star_tracker", "star_tracker_q_TB", "tracker_sigma_rad", "gyro", "gyro_q_SB",
+                 "gyro_arw_rad_s05", "gyro_rrw_rad_s15", "wheels", "wheel_axes_B", "wheel_inertia_kg_m2",
+                 "max_wheel_torque_Nm", "wheel_speed_target_rad_s", "null_gain_per_s", "magnetorquer",
+                 "magnetorquer_q_SB", "dump_gain_per_s", "max_dipole_A_m2", "h_target_B", "sun_sensor",
+                 "sun_sensor_q_SB", "sun_sensor_normals_B", "sun_axis_B", "guidance", "q_RN", "orbit_r_N_m",
+                 "orbit_v_N_m_s", "epoch", "secondary_N", "target_itrs_m", "law", "natural_frequency_rad_s",
+                 "damping_ratio", "detumble_gain_N_m_s", "initial_mode", "modes", "gate_sigma", "initial_bias_rad_s",
+                 "sigma_bias_rad_s"}
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise ValueError(f"options {unknown} are not PointingController options; allowed: {sorted(known)}.")
+        if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
+            raise ValueError(f"period_s = {period_s!r}; the control period must be a positive number of seconds.")
+        self.period_s = float(period_s)
+        if "inertia_kg_m2" not in options:
+            raise ValueError("options.inertia_kg_m2 is required (3 principal moments or a 3 x 3 matrix, kg m^2).")
+        I = np.asarray(options["inertia_kg_m2"], dtype=float)
+        self.inertia = np.diag(I) if I.shape == (3,) else I
+        if self.inertia.shape != (3, 3) or not np.all(np.isfinite(self.inertia)):
+            raise ValueError(f"options.inertia_kg_m2 = {options['inertia_kg_m2']!r}; 3 moments or a 3 x 3 matrix.")
+
+        def device(key, required=False):
+            name = options.get(key)
+            if name is None:
+                if required:
+                    raise ValueError(f"options.{key} must name a device; devices: {sorted(devices)}.")
+                return None
+            if name not in devices:
+                raise ValueError(f"options.{key} = {name!r} is not a device of this scenario; devices: "
+                                 f"{sorted(devices)}.")
+            return devices[name]
+
+        self.tracker = device("star_tracker")
+        self.gyro = device("gyro", required=True)
+        self.mtq = device("magnetorquer")
+        self.sun_sensor = device("sun_sensor")
+        names = options.get("wheels")
+        if not isinstance(names, list | tuple) or len(names) < 3:
+            raise ValueError(f"options.wheels = {names!r}; name at least three reaction wheels.")
+        self.wheels = []
+        for name in names:
+            if name not in devices:
+                raise ValueError(f"options.wheels names {name!r}, which is not a device; devices: {sorted(devices)}.")
+            self.wheels.append(devices[name])
+        n = len(self.wheels)
+        axes = options.get("wheel_axes_B")
+        A = default_wheel_axes_B(n) if axes is None else np.asarray(axes, dtype=float).T
+        if A.shape != (3, n):
+            raise ValueError(f"options.wheel_axes_B = {axes!r}; give one 3-vector per wheel ({n}).")
+        self.max_wheel_torque = _positive(options, "max_wheel_torque_Nm", 0.01)
+        self.dist = WheelDistribution(A, self.max_wheel_torque)
+        J = np.broadcast_to(np.asarray(options.get("wheel_inertia_kg_m2", 0.0), dtype=float), (n,)).copy()
+        if not np.all(np.isfinite(J)) or np.any(J <= 0):
+            raise ValueError(f"options.wheel_inertia_kg_m2 = {options.get('wheel_inertia_kg_m2')!r}; give the rotors' "
+                             "spin inertia (kg m^2, one value or one per wheel).")
+        self.wheel_inertia = J
+        self.speed_target = float(options.get("wheel_speed_target_rad_s", 0.0))
+        self.null_gain = float(options.get("null_gain_per_s", 0.0))
+        self.q_TB = _mount(options, "star_tracker_q_TB")
+        self.dcm_BS_gyro = dcm(_mount(options, "gyro_q_SB")).T
+        self.dcm_BS_mtq = dcm(_mount(options, "magnetorquer_q_SB")).T
+        self.dcm_BS_sun = dcm(_mount(options, "sun_sensor_q_SB")).T
+        sig = _option_vec(options, "tracker_sigma_rad", 2, (math.radians(5.0 / 3600.0), math.radians(40.0 / 3600.0)))
+        C_BT = dcm(self.q_TB).T
+        self.R_tracker_B = C_BT @ np.diag([sig[0] ** 2, sig[0] ** 2, sig[1] ** 2]) @ C_BT.T
+        self.arw = float(options.get("gyro_arw_rad_s05", 1e-5))
+        self.rrw = float(options.get("gyro_rrw_rad_s15", 1e-7))
+        self.initial_bias = _option_vec(options, "initial_bias_rad_s", 3, (0.0, 0.0, 0.0))
+        self.sigma_bias = _positive(options, "sigma_bias_rad_s", 1e-4)
+        self.gate_sigma = options.get("gate_sigma")
+        self.law = options.get("law", "mrp")
+        if self.law not in LAWS:
+            raise ValueError(f"options.law = {self.law!r}; allowed: {', '.join(LAWS)}.")
+        wn = self.natural_frequency = _positive(options, "natural_frequency_rad_s", 0.1)
+        self.K, self.P = pd_gains(self.inertia, wn, _positive(options, "damping_ratio", 0.9), self.law)
+        self.detumble_gain = _positive(options, "detumble_gain_N_m_s", float(np.max(np.diag(self.inertia))) * 0.1)
+        self.dump_gain = float(options.get("dump_gain_per_s", 0.0))
+        self.max_dipole = _positive(options, "max_dipole_A_m2", 0.2)
+        self.h_target = _option_vec(options, "h_target_B", 3, (0.0, 0.0, 0.0))
+        self.sun_axis_B = _option_vec(options, "sun_axis_B", 3, (0.0, 0.0, 1.0))
+        self.sun_axis_B = self.sun_axis_B / np.linalg.norm(self.sun_axis_B)
+        normals = options.get("sun_sensor_normals_B")
+        self.sun_normals = None if normals is None else np.asarray(normals, dtype=float)
+        self._setup_guidance(options)
+        mode = options.get("initial_mode", DETUMBLE)
+        if mode not in MODES:
+            raise ValueError(f"options.initial_mode = {mode!r}; allowed: {', '.join(MODES)}.")
+        self.modes = ModeManager(ModeConfig(**options.get("modes", {})), mode)
+        self.filter: MEKF | None = None
+        self._t_prev: float | None = None
+        self._omega_meas_B: np.ndarray | None = None
+        self._speeds = np.zeros(n)
+        self._b_B: np.ndarray | None = None
+        self.last_wheel_cmd = np.zeros(n)
+        self.last_dipole = np.zeros(3)
+        self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
+        self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0}
+
+    # -- guidance -----------------------------------------------------------------------------------
+    def _setup_guidance(self, options) -> None:
+        kind = options.get("guidance", "inertial")
+        if kind not in GUIDANCE:
+            raise ValueError(f"options.guidance = {kind!r}; allowed: {', '.join(GUIDANCE)}.")
+        self.guidance = kind
+        self.q_RN = None
+        if kind == "inertial":
+            self.q_RN, _ = gd.inertial(_option_vec(options, "q_RN", 4, (1.0, 0.0, 0.0, 0.0)))
+        if kind in ("nadir", "target"):
+            self.r0 = _option_vec(options, "orbit_r_N_m", 3)
+            self.v0 = _option_vec(options, "orbit_v_N_m_s", 3)
+        if kind in ("sun", "target"):
+            from sim.time import Epoch
+
+            if "epoch" not in options:
+                raise ValueError(f"options.guidance = {kind!r} needs options.epoch (ISO 8601 UTC of t = 0).")
+            self.epoch = Epoch.from_iso(options["epoch"])
+        if kind == "sun":
+            self.secondary_N = _option_vec(options, "secondary_N", 3, (0.0, 0.0, 1.0))
+        if kind == "target":
+            self.target_itrs = _option_vec(options, "target_itrs_m", 3)
+
+    def reference(self, t_s: float):
+        """``(q_RN, omega_RN_R)`` at ``t_s`` for the configured guidance."""
+        if self.guidance == "inertial":
+            return self.q_RN, np.zeros(3)
+        if self.guidance == "sun":
+            from sim.environment import sun_position_gcrs
+
+            return gd.sun_pointing(sun_position_gcrs(self.epoch + t_s), self.secondary_N, self.sun_axis_B)
+        from sim.orbit import propagate_kepler
+
+        r, v = propagate_kepler(self.r0, self.v0, t_s) if t_s != 0 else (self.r0, self.v0)
+        if self.guidance == "nadir":
+            return gd.nadir(r, v)
+        from sim.frames import dcm_itrs_gcrs
+
+        rt = dcm_itrs_gcrs(self.epoch + t_s).T @ self.target_itrs  # the matrix maps GCRS to ITRS
+        vt = np.cross([0.0, 0.0, OMEGA_EARTH_RAD_S], rt)
+        return gd.target_pointing(r, v, rt, vt)
+
+    # -- the plug-in API --------------------------------------------------------------------------------
+    def telemetry_columns(self) -> list[tuple[str, int, str]]:
+        cols = [("adcs_q_BN_est", 4, ""), ("adcs_bias_est_B", 3, "rad/s"), ("adcs_sigma3_B", 3, "rad"),
+                ("adcs_mode", 1, "0 detumble, 1 sun acquisition, 2 fine pointing"), ("adcs_gyro_only", 1, ""),
+                ("adcs_q_RN", 4, ""), ("adcs_wheel_torque_cmd", len(self.wheels), "N m")]
+        if self.mtq is not None:
+            cols.append(("adcs_dipole_cmd_B", 3, "A m^2"))
+        return cols
+
+    def telemetry(self) -> tuple:
+        f = self.filter
+        q = tuple(f.q) if f is not None else (math.nan,) * 4
+        b = tuple(f.bias) if f is not None else (math.nan,) * 3
+        s = tuple(f.sigma3_attitude_rad) if f is not None else (math.nan,) * 3
+        row = (*q, *b, *s, MODE_CODES[self.modes.mode], float(self.modes.gyro_only), *self.last_q_RN,
+               *self.last_wheel_cmd)
+        if self.mtq is not None:
+            row += tuple(self.last_dipole)
+        return tuple(float(x) for x in row)
+
+    def update(self, t_s: float) -> None:
+        dt = 0.0 if self._t_prev is None else t_s - self._t_prev
+        self._t_prev = t_s
+        self._read_gyro()
+        self._read_wheels()
+        self._read_magnetometer()
+        q_meas = self._read_tracker()
+        w = self._omega_meas_B
+        if self.filter is not None and w is not None:
+            self.filter.propagate(w, dt)
+        if q_meas is not None:
+            if self.filter is None:
+                # The first solution is the estimate: its uncertainty is the tracker's.
+                sigma0 = math.sqrt(float(np.max(np.linalg.eigvalsh(self.R_tracker_B))))
+                self.filter = MEKF(q_meas, self.initial_bias, sigma_attitude_rad=sigma0,
+                                   sigma_bias_rad_s=self.sigma_bias, arw_rad_s05=self.arw, rrw_rad_s15=self.rrw)
+            else:
+                self.filter.update_attitude(q_meas, self.R_tracker_B, self.gate_sigma)
+        rate = self._rate_B()
+        sigma3 = float(np.max(self.filter.sigma3_attitude_rad)) if self.filter is not None else math.inf
+        mode = self.modes.update(t_s, float(np.linalg.norm(rate)), q_meas is not None, sigma3)
+        h_w = self.dist.momentum_B(self._speeds, self.wheel_inertia)
+        if mode == FINE_POINTING and self.filter is not None:
+            q_RN, w_RN = self.reference(t_s)
+            self.last_q_RN = np.asarray(q_RN, dtype=float)
+            u_B = control_torque(self.filter.q, rate, q_RN, w_RN, self.inertia, self.K, self.P, h_w, law=self.law)
+        elif mode == SUN_ACQUISITION:
+            u_B = self._sun_acquisition_torque(rate, h_w)
+        else:
+            u_B = -self.detumble_gain * rate + np.cross(rate, self.inertia @ rate + h_w)
+        m_B = self._dump(h_w) if self.mtq is not None else None
+        if m_B is not None and self._b_B is not None:
+            u_B = u_B - np.cross(m_B, self._b_B)  # the magnetic torque is already on the body
+        cmd = self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
+        for wheel, u in zip(self.wheels, cmd, strict=True):
+            wheel.command_torque(float(u))
+        self.last_wheel_cmd = cmd
+
+    # -- pieces -------------------------------------------------------------------------------------
+    def _rate_B(self) -> np.ndarray:
+        if self._omega_meas_B is None:
+            return np.zeros(3)
+        bias = self.filter.bias if self.filter is not None else self.initial_bias
+        return self._omega_meas_B - bias
+
+    def _read_gyro(self) -> None:
+        s = self.gyro.take_rate()
+        if s is None or not getattr(s, "valid", True):
+            self.counters["gyro_missing"] += 1
+            return
+        w = np.asarray(s.omega_rad_s, dtype=float)
+        if w.shape != (3,) or not np.all(np.isfinite(w)):
+            raise ValueError(f"gyro rate {s.omega_rad_s!r} is not 3 finite numbers (rad/s) although flagged valid.")
+        self._omega_meas_B = self.dcm_BS_gyro @ w
+
+    def _read_wheels(self) -> None:
+        for i, wheel in enumerate(self.wheels):
+            s = _speed_of(wheel.take_speed())
+            if s is not None and math.isfinite(s):
+                self._speeds[i] = s
+
+    def _read_tracker(self):
+        if self.tracker is None:
+            return None
+        sol = self.tracker.take_solution()
+        if sol is None:
+            return None
+        if not getattr(sol, "valid", True):
+            self.counters["tracker_invalid"] += 1
+            return None
+        q_TN = np.asarray(sol.q_TN if hasattr(sol, "q_TN") else sol.q, dtype=float)
+        if q_TN.shape != (4,) or not np.all(np.isfinite(q_TN)) or abs(np.linalg.norm(q_TN) - 1.0) > 1e-3:
+            self.counters["tracker_invalid"] += 1
+            return None
+        self.counters["tracker_used"] += 1
+        return compose(conjugate(self.q_TB), q_TN / np.linalg.norm(q_TN))
+
+    def _read_magnetometer(self) -> None:
+        if self.mtq is None:
+            return
+        s = self.mtq.take_sample()
+        if s is not None and s.valid and not s.coil_active:
+            self._b_B = self.dcm_BS_mtq @ np.asarray(s.b_T, dtype=float)
+
+    def _sun_B(self):
+        if self.sun_sensor is None:
+            return None
+        s = self.sun_sensor.take_sun()
+        if s is None or not getattr(s, "valid", False):
+            return None
+        if hasattr(s, "angles_rad"):
+            a, b = s.angles_rad
+            v = np.array([math.tan(a), math.tan(b), 1.0])
+        elif self.sun_normals is not None:
+            v, *_ = np.linalg.lstsq(self.sun_normals, np.asarray(s.currents_A, dtype=float), rcond=None)
+        else:
+            return None
+        n = float(np.linalg.norm(v))
+        return None if not (math.isfinite(n) and n > 0) else self.dcm_BS_sun @ (v / n)
+
+    def _sun_acquisition_torque(self, rate, h_w) -> np.ndarray:
+        gyro = np.cross(rate, self.inertia @ rate + h_w)
+        s = self._sun_B()
+        if s is None:
+            return -self.detumble_gain * rate + gyro
+        # Turning the body about a x s brings the Sun (s, body axes) onto the axis a.
+        # |a x s| ~ the angle off the Sun: the same stiffness per radian as fine pointing.
+        k = self.natural_frequency ** 2 * float(np.max(np.linalg.eigvalsh(self.inertia)))
+        return k * np.cross(self.sun_axis_B, s) - self.P @ rate + gyro
+
+    def _dump(self, h_w) -> np.ndarray:
+        if self._b_B is None or self.dump_gain <= 0.0:
+            self.last_dipole = np.zeros(3)
+            return self.last_dipole
+        m_B = dumping_dipole(self._b_B, h_w - self.h_target, self.dump_gain, self.max_dipole)
+        self.mtq.command_dipole(tuple(float(x) for x in self.dcm_BS_mtq.T @ m_B), self.period_s)
+        self.last_dipole = m_B
+        return m_B
