@@ -31,7 +31,9 @@ import math
 
 import numpy as np
 
-from sim.rotations import canonical, compose, conjugate, dcm
+from sim.rotations import canonical, compose, conjugate
+
+from .quat import cross, dcm1, error
 
 __all__ = ["WheelDistribution", "attitude_error", "control_torque", "dumping_dipole", "mrp", "pd_gains"]
 
@@ -49,12 +51,20 @@ def _vec(v, name: str) -> np.ndarray:
     return a
 
 
-def _gain(g, name: str) -> np.ndarray:
+def check_gain(g, name: str) -> np.ndarray:
+    """A gain as a 3 x 3 matrix from a positive scalar, 3 positive values or a positive definite matrix."""
     a = np.asarray(g, dtype=float)
     a = np.eye(3) * float(a) if a.ndim == 0 else (np.diag(a) if a.shape == (3,) else a)
     if a.shape != (3, 3) or not np.all(np.isfinite(a)) or np.linalg.eigvalsh(0.5 * (a + a.T))[0] <= 0.0:
         raise ControlError(f"{name} must be a positive scalar, 3 positive values or a positive definite 3 x 3 matrix.")
     return a
+
+
+def _gain(g, name: str) -> np.ndarray:
+    # A 3 x 3 array is taken as already checked (pd_gains and check_gain return them): this runs every period.
+    if isinstance(g, np.ndarray) and g.shape == (3, 3):
+        return g
+    return check_gain(g, name)
 
 
 def attitude_error(q_BN, q_RN) -> np.ndarray:
@@ -93,14 +103,24 @@ def control_torque(q_BN, omega_BN_B, q_RN, omega_RN_R, inertia, K, P, h_wheels_B
     w = _vec(omega_BN_B, "omega_BN_B")
     I = np.asarray(inertia, dtype=float)
     I = np.diag(I) if I.shape == (3,) else I
-    q_BR = attitude_error(q_BN, q_RN)
-    C_BR = dcm(q_BR)
+    q_BR = error(_unit4(q_BN, "q_BN"), _unit4(q_RN, "q_RN"))
+    C_BR = dcm1(q_BR)
     w_RN_B = C_BR @ _vec(omega_RN_R, "omega_RN_R")
     dw = w - w_RN_B
-    e = mrp(q_BR) if law == "mrp" else 2.0 * q_BR[1:]  # q_BR has w >= 0: the short way round
+    e = q_BR[1:] / (1.0 + q_BR[0]) if law == "mrp" else 2.0 * q_BR[1:]  # w >= 0: the short way round
     H = I @ w + _vec(h_wheels_B, "h_wheels_B")
-    return (-_gain(K, "K") @ e - _gain(P, "P") @ dw + np.cross(w, H)
-            + I @ (C_BR @ _vec(domega_RN_R, "domega_RN_R") - np.cross(w, w_RN_B)))
+    return (-_gain(K, "K") @ e - _gain(P, "P") @ dw + cross(w, H)
+            + I @ (C_BR @ _vec(domega_RN_R, "domega_RN_R") - cross(w, w_RN_B)))
+
+
+def _unit4(q, name: str) -> np.ndarray:
+    a = np.asarray(q, dtype=float)
+    if a.shape != (4,) or not np.all(np.isfinite(a)):
+        raise ControlError(f"{name} = {np.asarray(q).tolist()} must be 4 finite numbers [w, x, y, z].")
+    n = float(np.sqrt(a @ a))
+    if abs(n - 1.0) > 1e-6:
+        raise ControlError(f"{name} has norm {n:.9g}; a unit quaternion is required.")
+    return a
 
 
 class WheelDistribution:
@@ -164,7 +184,7 @@ def dumping_dipole(b_B, h_err_B, gain_per_s: float, max_dipole_A_m2: float | Non
         raise ControlError("b_B is zero; no dipole can dump momentum without a field.")
     if not (math.isfinite(gain_per_s) and gain_per_s >= 0.0):
         raise ControlError(f"gain_per_s = {gain_per_s!r}; it must be finite and >= 0.")
-    m = gain_per_s * np.cross(_vec(h_err_B, "h_err_B"), b) / bb
+    m = gain_per_s * cross(_vec(h_err_B, "h_err_B"), b) / bb
     if max_dipole_A_m2 is not None:
         peak = float(np.max(np.abs(m)))
         if peak > max_dipole_A_m2:

@@ -27,7 +27,9 @@ import math
 
 import numpy as np
 
-from sim.rotations import canonical, compose, dcm, hamilton, quat_from_dcm
+from sim.rotations import canonical, compose, quat_from_dcm
+
+from .quat import conj, dcm1, positive, qmul
 
 __all__ = ["MEKF", "FilterError", "quest", "triad"]
 
@@ -202,7 +204,7 @@ class MEKF:
         half = 0.5 * wn * dt_s
         # sin(x)/x with its series near 0, so a zero rate is exact and never divides by zero.
         s = 0.5 * dt_s * (1.0 - half * half / 6.0) if half < 1e-4 else math.sin(half) / wn
-        self.q = canonical(_normalise(hamilton(self.q, np.concatenate(([math.cos(half)], s * w)))))
+        self.q = positive(_normalise(qmul(self.q, (math.cos(half), s * w[0], s * w[1], s * w[2]))))
         W = _skew(w)
         W2 = W @ W
         th = wn * dt_s
@@ -229,7 +231,7 @@ class MEKF:
         whose residual exceeds that many sigma (chi-square on 3 dof) is rejected and counted; returns whether used.
         """
         qm = _quat(q_BN_meas, "q_BN_meas")
-        dq = hamilton(np.array([self.q[0], -self.q[1], -self.q[2], -self.q[3]]), qm)
+        dq = qmul(conj(self.q), qm)
         if dq[0] < 0.0:
             dq = -dq
         # Rotation vector of the residual (2 atan2 keeps it exact at large residuals).
@@ -245,7 +247,7 @@ class MEKF:
         b, r = _vectors(b_B, "b_B"), _vectors(r_N, "r_N")
         if not (math.isfinite(sigma_rad) and sigma_rad > 0.0):
             raise FilterError(f"sigma_rad = {sigma_rad!r}; it must be a finite positive 1-sigma.")
-        pred = dcm(self.q) @ r
+        pred = dcm1(self.q) @ r
         H = np.zeros((3, 6))
         H[:, :3] = _skew(pred)
         # The unit-vector noise lies across the direction; the small along-axis term keeps R invertible.
@@ -263,7 +265,7 @@ class MEKF:
         IKH = np.eye(6) - K @ H
         self._set_P(IKH @ self.P @ IKH.T + K @ R @ K.T, "update")  # Joseph form
         a = dx[:3]
-        self.q = canonical(_normalise(hamilton(self.q, np.concatenate(([1.0], 0.5 * a)))))
+        self.q = positive(_normalise(qmul(self.q, (1.0, 0.5 * a[0], 0.5 * a[1], 0.5 * a[2]))))
         self.bias = self.bias + dx[3:]
         self.updates += 1
         return True

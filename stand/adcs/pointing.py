@@ -36,18 +36,21 @@ import math
 
 import numpy as np
 
-from sim.rotations import compose, conjugate, dcm
+from sim.rotations import dcm
 
 from . import guidance as gd
 from .control import LAWS, WheelDistribution, control_torque, dumping_dipole, pd_gains
 from .determination import MEKF
 from .modes import DETUMBLE, FINE_POINTING, MODES, SUN_ACQUISITION, ModeConfig, ModeManager
+from .quat import conj, cross, positive, qmul
 
 __all__ = ["PointingController", "default_wheel_axes_B"]
 
 MODE_CODES = {m: float(i) for i, m in enumerate(MODES)}
 OMEGA_EARTH_RAD_S = 7.292115e-5
 GUIDANCE = ("inertial", "nadir", "sun", "target")
+#: Control periods of on-board orbit solved in one vectorised call.
+ORBIT_BATCH = 1000
 
 
 def default_wheel_axes_B(n: int) -> np.ndarray:
@@ -203,6 +206,7 @@ class PointingController:
             raise ValueError(f"options.guidance = {kind!r}; allowed: {', '.join(GUIDANCE)}.")
         self.guidance = kind
         self.q_RN = None
+        self._orbit_cache = None
         if kind == "inertial":
             self.q_RN, _ = gd.inertial(_option_vec(options, "q_RN", 4, (1.0, 0.0, 0.0, 0.0)))
         if kind in ("nadir", "target"):
@@ -227,16 +231,30 @@ class PointingController:
             from sim.environment import sun_position_gcrs
 
             return gd.sun_pointing(sun_position_gcrs(self.epoch + t_s), self.secondary_N, self.sun_axis_B)
-        from sim.orbit import propagate_kepler
-
-        r, v = propagate_kepler(self.r0, self.v0, t_s) if t_s != 0 else (self.r0, self.v0)
+        r, v = self._orbit(t_s)
         if self.guidance == "nadir":
             return gd.nadir(r, v)
         from sim.frames import dcm_itrs_gcrs
 
         rt = dcm_itrs_gcrs(self.epoch + t_s).T @ self.target_itrs  # the matrix maps GCRS to ITRS
-        vt = np.cross([0.0, 0.0, OMEGA_EARTH_RAD_S], rt)
+        vt = cross([0.0, 0.0, OMEGA_EARTH_RAD_S], rt)
         return gd.target_pointing(r, v, rt, vt)
+
+    def _orbit(self, t_s: float):
+        """On-board two-body orbit from the state at t = 0: solved for the next ORBIT_BATCH control times at once
+        (one vectorised call), looked up while the controller keeps its period."""
+        k = round(t_s / self.period_s)
+        cache = self._orbit_cache
+        if cache is not None and cache[0] <= k < cache[0] + len(cache[1]) and abs(k * self.period_s - t_s) < 1e-9:
+            i = k - cache[0]
+            return cache[1][i], cache[2][i]
+        from sim.orbit import propagate_kepler
+
+        if abs(k * self.period_s - t_s) >= 1e-9:  # off the control grid: one state
+            return propagate_kepler(self.r0, self.v0, t_s)
+        r, v = propagate_kepler(self.r0, self.v0, (k + np.arange(ORBIT_BATCH)) * self.period_s)
+        self._orbit_cache = (k, r, v)
+        return r[0], v[0]
 
     # -- the plug-in API --------------------------------------------------------------------------------
     def telemetry_columns(self) -> list[tuple[str, int, str]]:
@@ -287,10 +305,10 @@ class PointingController:
         elif mode == SUN_ACQUISITION:
             u_B = self._sun_acquisition_torque(rate, h_w)
         else:
-            u_B = -self.detumble_gain * rate + np.cross(rate, self.inertia @ rate + h_w)
+            u_B = -self.detumble_gain * rate + cross(rate, self.inertia @ rate + h_w)
         m_B = self._dump(h_w) if self.mtq is not None else None
         if m_B is not None and self._b_B is not None:
-            u_B = u_B - np.cross(m_B, self._b_B)  # the magnetic torque is already on the body
+            u_B = u_B - cross(m_B, self._b_B)  # the magnetic torque is already on the body
         cmd = self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
         for wheel, u in zip(self.wheels, cmd, strict=True):
             wheel.command_torque(float(u))
@@ -333,7 +351,8 @@ class PointingController:
             self.counters["tracker_invalid"] += 1
             return None
         self.counters["tracker_used"] += 1
-        return compose(conjugate(self.q_TB), q_TN / np.linalg.norm(q_TN))
+        # q_BN = compose(conjugate(q_TB), q_TN) = q_TN (x) conjugate(q_TB) in Hamilton order
+        return positive(qmul(q_TN / np.linalg.norm(q_TN), conj(self.q_TB)))
 
     def _read_magnetometer(self) -> None:
         if self.mtq is None:
@@ -359,14 +378,14 @@ class PointingController:
         return None if not (math.isfinite(n) and n > 0) else self.dcm_BS_sun @ (v / n)
 
     def _sun_acquisition_torque(self, rate, h_w) -> np.ndarray:
-        gyro = np.cross(rate, self.inertia @ rate + h_w)
+        gyro = cross(rate, self.inertia @ rate + h_w)
         s = self._sun_B()
         if s is None:
             return -self.detumble_gain * rate + gyro
         # Turning the body about a x s brings the Sun (s, body axes) onto the axis a.
         # |a x s| ~ the angle off the Sun: the same stiffness per radian as fine pointing.
         k = self.natural_frequency ** 2 * float(np.max(np.linalg.eigvalsh(self.inertia)))
-        return k * np.cross(self.sun_axis_B, s) - self.P @ rate + gyro
+        return k * cross(self.sun_axis_B, s) - self.P @ rate + gyro
 
     def _dump(self, h_w) -> np.ndarray:
         if self._b_B is None or self.dump_gain <= 0.0:

@@ -27,7 +27,7 @@ class FakeTracker:
     def take_solution(self):
         t = self.loop.truth.t_s
         valid = not any(a <= t < b for a, b in self.outages)
-        q = compose(Q_TB, self.loop.truth.q)
+        q = compose(Q_TB, self.loop.truth.q)  # q_TN
         if valid and self.loop.tracker_noise_rad > 0:
             err = self.loop.rng.normal(0.0, self.loop.tracker_noise_rad, 3)
             q = compose(quat_from_axis_angle(err / np.linalg.norm(err), np.linalg.norm(err)), q)

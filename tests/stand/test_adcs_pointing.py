@@ -1,0 +1,138 @@
+"""The pointing plug-in in a closed loop: fake host drivers (the plug-in API's method names) around sim's truth
+model with reaction wheels; no device kinds involved."""
+
+import math
+
+import numpy as np
+import pytest
+
+from sim.rotations import angle_between, compose, quat_from_axis_angle
+from stand.adcs.modes import DETUMBLE, FINE_POINTING, SUN_ACQUISITION
+from stand.adcs.pointing import PointingController, default_wheel_axes_B
+
+from .adcs_harness import INERTIA, Q_GB, Q_TB, R_ORBIT, V_ORBIT, Loop
+
+ARCSEC = math.radians(1.0 / 3600.0)
+AXIS = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+Q_R = quat_from_axis_angle(AXIS, 1.0)
+
+
+def _offset(q, deg, axis=(1.0, 1.0, 0.0)):
+    a = np.asarray(axis, dtype=float)
+    return compose(quat_from_axis_angle(a / np.linalg.norm(a), math.radians(deg)), q)
+
+
+def _controller(loop, **extra):
+    options = dict(inertia_kg_m2=INERTIA, star_tracker="st", star_tracker_q_TB=list(Q_TB), gyro="imu",
+                   gyro_q_SB=list(Q_GB), wheels=[f"rw{i}" for i in range(len(loop.wheels))], wheel_inertia_kg_m2=0.02,
+                   max_wheel_torque_Nm=loop.max_torque, guidance="inertial", q_RN=list(Q_R),
+                   initial_mode=FINE_POINTING)
+    options.update(extra)
+    return PointingController(loop.devices, 0.1, **options)
+
+
+def _run(loop, ctl, duration_s):
+    log = {"t": [], "err": [], "mode": [], "gyro_only": [], "row": [], "covered": []}
+
+    def record(lp, c):
+        f = c.filter
+        log["covered"].append(f is not None and angle_between(np.array(lp.truth.q), f.q)
+                              <= np.linalg.norm(f.sigma3_attitude_rad))
+        log["t"].append(lp.truth.t_s)
+        log["err"].append(angle_between(np.array(lp.truth.q), c.last_q_RN if c.modes.mode == FINE_POINTING else Q_R))
+        log["mode"].append(c.modes.mode)
+        log["gyro_only"].append(c.modes.gyro_only)
+        log["row"].append(c.telemetry())
+
+    loop.run(ctl, duration_s, record=record)
+    return {k: np.array(v) for k, v in log.items()}
+
+
+@pytest.mark.parametrize("axes", [None, default_wheel_axes_B(4)])
+def test_settles_from_a_5_deg_offset_to_below_30_arcsec_with_ideal_sensors(axes):
+    loop = Loop(_offset(Q_R, 5.0), axes=axes, speeds=None if axes is None else [30.0, -20.0, 10.0, 0.0])
+    ctl = _controller(loop)
+    log = _run(loop, ctl, 240.0)
+    settled = log["t"] >= 120.0
+    assert log["err"][0] > math.radians(4.9)
+    assert np.max(log["err"][settled]) < 30 * ARCSEC, np.max(log["err"][settled]) / ARCSEC
+    assert set(log["mode"][settled]) == {FINE_POINTING}
+    # The telemetry columns are what the controller says they are.
+    widths = sum(w for _, w, _ in ctl.telemetry_columns())
+    assert log["row"].shape[1] == widths
+    # Wheels did the work, and stayed inside their torque limit.
+    assert 0.0 < np.max(np.abs(log["row"][:, -len(loop.wheels):])) <= loop.max_torque + 1e-15
+
+
+def test_estimates_the_gyro_bias_through_the_tracker_and_points_with_noise():
+    bias = np.array([2e-4, -1e-4, 3e-4])  # rad/s: ~ 40-60 deg/h, body axes
+    loop = Loop(_offset(Q_R, 2.0), gyro_bias=bias, tracker_noise_rad=5 * ARCSEC, seed=4)
+    ctl = _controller(loop, tracker_sigma_rad=[5 * ARCSEC, 5 * ARCSEC], sigma_bias_rad_s=1e-3)
+    log = _run(loop, ctl, 400.0)
+    settled = log["t"] >= 200.0
+    np.testing.assert_allclose(ctl.filter.bias, bias, atol=5e-6)
+    assert np.max(log["err"][settled]) < 30 * ARCSEC
+    # The filter's own 3-sigma covers its true error through the run.
+    assert np.mean(log["covered"]) >= 0.99
+    assert np.all(np.isfinite(log["row"][:, :4]))
+
+
+def test_rides_a_short_tracker_outage_on_the_gyro_and_falls_back_on_a_long_one():
+    bias = np.array([5e-5, -5e-5, 2e-5])
+    loop = Loop(_offset(Q_R, 1.0), gyro_bias=bias)
+    loop.tracker.outages = [(100.0, 130.0), (200.0, 400.0)]
+    ctl = _controller(loop, sigma_bias_rad_s=1e-3, modes={"outage_s": 60.0, "max_sigma3_rad": math.radians(0.5)})
+    log = _run(loop, ctl, 500.0)
+    short = (log["t"] >= 101.0) & (log["t"] < 130.0)
+    assert set(log["mode"][short]) == {FINE_POINTING} and np.all(log["gyro_only"][short])
+    assert np.max(log["err"][short]) < 60 * ARCSEC  # the calibrated gyro holds the attitude through 30 s
+    long_ = (log["t"] >= 262.0) & (log["t"] < 400.0)
+    assert set(log["mode"][long_]) == {SUN_ACQUISITION}
+    assert any("outage" in tr[3] for tr in ctl.modes.transitions)
+    back = log["t"] >= 450.0
+    assert set(log["mode"][back]) == {FINE_POINTING}
+    assert np.max(log["err"][back]) < 30 * ARCSEC
+
+
+def test_detumbles_with_the_wheels_then_acquires_and_points():
+    loop = Loop(Q_R, w0=np.radians([2.5, -1.5, 2.0]), max_torque=0.1)
+    ctl = _controller(loop, initial_mode=DETUMBLE, max_wheel_torque_Nm=0.1,
+                      modes={"hold_s": 5.0, "detumble_entry_rate_rad_s": math.radians(5.0)})
+    log = _run(loop, ctl, 600.0)
+    path = [m for i, m in enumerate(log["mode"]) if i == 0 or m != log["mode"][i - 1]]
+    assert path == [DETUMBLE, SUN_ACQUISITION, FINE_POINTING]
+    assert np.max(log["err"][log["t"] >= 500.0]) < 30 * ARCSEC
+
+
+def test_nadir_guidance_tracks_lvlh():
+    from sim.frames import dcm_lvlh_gcrs
+    from sim.orbit import propagate_kepler
+    from sim.rotations import quat_from_dcm
+
+    r0, v0 = np.array([R_ORBIT, 0.0, 0.0]), np.array([0.0, V_ORBIT, 0.0])
+    q_lvlh = quat_from_dcm(dcm_lvlh_gcrs(r0, v0))
+    w0 = np.array([0.0, -V_ORBIT / R_ORBIT, 0.0])
+    loop = Loop(_offset(q_lvlh, 3.0), w0=w0)
+    ctl = _controller(loop, guidance="nadir", orbit_r_N_m=list(r0), orbit_v_N_m_s=list(v0), q_RN=None)
+    log = []
+    loop.run(ctl, 300.0, record=lambda lp, c: log.append((lp.truth.t_s, *lp.truth.q)))
+    log = np.array(log)
+    r, v = propagate_kepler(r0, v0, log[:, 0])
+    errs = angle_between(log[:, 1:], quat_from_dcm(dcm_lvlh_gcrs(r, v)))
+    assert np.max(errs[log[:, 0] >= 150.0]) < 30 * ARCSEC
+
+
+@pytest.mark.parametrize(("options", "match"), [
+    (dict(gyro="nope"), "not a device"),
+    (dict(wheels=["rw0", "rw1"]), "at least three"),
+    (dict(wheel_axes_B=[[1, 0, 0], [0, 1, 0]]), "one 3-vector per wheel"),
+    (dict(speed=3), "not PointingController options"),
+    (dict(law="pid"), "law"),
+    (dict(guidance="sun"), "epoch"),
+    (dict(star_tracker_q_TB=[1, 1, 0, 0]), "unit quaternion"),
+    (dict(wheel_inertia_kg_m2=-1.0), "spin inertia"),
+])
+def test_bad_options_are_refused_in_one_sentence(options, match):
+    loop = Loop(Q_R)
+    with pytest.raises(ValueError, match=match):
+        _controller(loop, **options)
