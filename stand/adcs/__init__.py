@@ -12,7 +12,8 @@ tracker, ``take_sun`` for a sun sensor), and is called once per control period a
 every telemetry row, and ``close()`` at the end. An exception in ``update`` ends the run "aborted" (exit 3) with
 the traceback in ``events.jsonl`` and the summary and plots written. ``examples/plugin_template.py`` is a
 complete template; ``docs/plugins.md`` documents the API. The reference B-dot below is written against the same
-API (``BDot.from_devices``).
+API (``BDot.from_devices``), and so is the reference pointing ADCS, :class:`stand.adcs.pointing.PointingController`
+(gyro ``take_rate``, reaction wheels ``take_speed``/``command_torque``; docs/adcs.md).
 """
 
 from __future__ import annotations

@@ -279,13 +279,15 @@ class PointingController:
     def update(self, t_s: float) -> None:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
+        w_prev = self._omega_meas_B
         self._read_gyro()
         self._read_wheels()
         self._read_magnetometer()
         q_meas = self._read_tracker()
         w = self._omega_meas_B
         if self.filter is not None and w is not None:
-            self.filter.propagate(w, dt)
+            # The rate over the last period: the mean of its end samples (second order while slewing).
+            self.filter.propagate(w if w_prev is None else 0.5 * (w + w_prev), dt)
         if q_meas is not None:
             if self.filter is None:
                 # The first solution is the estimate: its uncertainty is the tracker's.
