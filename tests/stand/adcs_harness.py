@@ -59,16 +59,44 @@ class FakeWheel:
         self.command = max(-lim, min(lim, float(torque_Nm)))
 
 
+class FakeMagnetorquer:
+    def __init__(self, loop):
+        self.loop = loop
+        self.dipole = (0.0, 0.0, 0.0)
+
+    def take_sample(self):
+        return SimpleNamespace(b_T=tuple(self.loop.truth.b_B()), valid=True, coil_active=False, seq=0)
+
+    def command_dipole(self, m_A_m2, duration_s):
+        if not all(math.isfinite(x) for x in m_A_m2) or duration_s < 0:
+            raise ValueError("bad dipole command")
+        self.dipole = tuple(float(x) for x in m_A_m2)
+
+
 class Loop:
     """Truth with wheels, fake devices, and the controller called every ``ctl_every`` dynamics steps."""
 
     def __init__(self, q0, w0=(0.0, 0.0, 0.0), axes=None, J=0.02, speeds=None, step_s=0.05, seed=1,
-                 gyro_bias=(0.0, 0.0, 0.0), tracker_noise_rad=0.0, max_torque=0.05):
+                 gyro_bias=(0.0, 0.0, 0.0), tracker_noise_rad=0.0, max_torque=0.05, magnetic=False,
+                 inclination_deg=0.0):
         axes = np.eye(3) if axes is None else np.asarray(axes, dtype=float)
         n = axes.shape[1]
+        field = rotation = None
+        if magnetic:  # a tilted dipole on a uniformly turning Earth: the field a magnetorquer can push on
+            from sim.environment import dipole_field_itrs
+            from sim.frames import EarthRotation
+            from sim.time import Epoch
+
+            rotation = EarthRotation(Epoch.from_iso("2026-03-01T00:00:00Z"), "uniform")
+
+            def field(t_s, r_itrs):
+                return dipole_field_itrs(r_itrs)
+        inc = math.radians(inclination_deg)
         self.truth = TruthModel(inertia=INERTIA, q_BN=q0, omega_BN_B=w0, r_N=(R_ORBIT, 0.0, 0.0),
-                                v_N=(0.0, V_ORBIT, 0.0), step_ns=int(round(step_s * 1e9)), gravity="point",
-                                torques=(), wheels=WheelCluster(axes, [J] * n),
+                                v_N=(0.0, V_ORBIT * math.cos(inc), V_ORBIT * math.sin(inc)),
+                                step_ns=int(round(step_s * 1e9)), gravity="point",
+                                torques=("magnetic",) if magnetic else (), field_itrs=field, earth_rotation=rotation,
+                                wheels=WheelCluster(axes, [J] * n),
                                 wheel_speeds_rad_s=speeds if speeds is not None else [0.0] * n)
         self.rng = np.random.default_rng(seed)
         self.gyro_bias = np.asarray(gyro_bias, dtype=float)
@@ -78,6 +106,8 @@ class Loop:
         self.gyro = FakeGyro(self)
         self.wheels = [FakeWheel(self, i, as_sample=(i % 2 == 1)) for i in range(n)]
         self.devices = {"st": self.tracker, "imu": self.gyro, **{f"rw{i}": w for i, w in enumerate(self.wheels)}}
+        if magnetic:
+            self.mtq = self.devices["mtq"] = FakeMagnetorquer(self)
 
     def run(self, controller, duration_s, ctl_every=2, record=None):
         n = int(round(duration_s / self.truth.h))
@@ -86,4 +116,5 @@ class Loop:
                 controller.update(self.truth.t_s)
                 if record is not None:
                     record(self, controller)
-            self.truth.step((0.0, 0.0, 0.0), tuple(w.command for w in self.wheels))
+            dipole = self.mtq.dipole if "mtq" in self.devices else (0.0, 0.0, 0.0)
+            self.truth.step(dipole, tuple(w.command for w in self.wheels))

@@ -31,7 +31,7 @@ def _controller(loop, **extra):
     return PointingController(loop.devices, 0.1, **options)
 
 
-def _run(loop, ctl, duration_s):
+def _run(loop, ctl, duration_s, ctl_every=2):
     log = {"t": [], "err": [], "mode": [], "gyro_only": [], "row": [], "covered": []}
 
     def record(lp, c):
@@ -44,7 +44,7 @@ def _run(loop, ctl, duration_s):
         log["gyro_only"].append(c.modes.gyro_only)
         log["row"].append(c.telemetry())
 
-    loop.run(ctl, duration_s, record=record)
+    loop.run(ctl, duration_s, ctl_every=ctl_every, record=record)
     return {k: np.array(v) for k, v in log.items()}
 
 
@@ -102,6 +102,20 @@ def test_detumbles_with_the_wheels_then_acquires_and_points():
     path = [m for i, m in enumerate(log["mode"]) if i == 0 or m != log["mode"][i - 1]]
     assert path == [DETUMBLE, SUN_ACQUISITION, FINE_POINTING]
     assert np.max(log["err"][log["t"] >= 500.0]) < 30 * ARCSEC
+
+
+def test_dumps_wheel_momentum_through_the_magnetorquer_while_pointing():
+    J = 0.02
+    speeds = [0.6, -0.4, 0.5]  # rad/s: h ~ 0.017 N m s
+    loop = Loop(Q_R, speeds=speeds, J=J, step_s=0.1, magnetic=True, inclination_deg=60.0)
+    ctl = _controller(loop, magnetorquer="mtq", dump_gain_per_s=0.01, max_dipole_A_m2=1.0)
+    h0 = np.linalg.norm(J * np.array(speeds))
+    log = _run(loop, ctl, 700.0, ctl_every=1)
+    h_end = np.linalg.norm(J * np.array(loop.truth.wheel_speeds_rad_s))
+    assert h_end < 0.3 * h0, (h0, h_end)
+    assert np.max(log["err"][log["t"] >= 100.0]) < 30 * ARCSEC  # the wheels absorb the dumping torque
+    dip = log["row"][:, -3:]
+    assert 0.0 < np.max(np.abs(dip)) <= 1.0 + 1e-12
 
 
 def test_nadir_guidance_tracks_lvlh():
