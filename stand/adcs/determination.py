@@ -180,6 +180,8 @@ class MEKF:
         self.omega_B = np.zeros(3)  # last bias-corrected rate (rad/s)
         self.updates = 0
         self.rejected = 0
+        self._Q: dict[float, np.ndarray] = {}
+        self._R_checked: tuple = (None, None)  # (the caller's array, its checked copy)
 
     # -- outputs ------------------------------------------------------------------------------------
     @property
@@ -209,19 +211,23 @@ class MEKF:
         W2 = W @ W
         th = wn * dt_s
         if th < 1e-4:
-            Phi11 = np.eye(3) - W * dt_s + 0.5 * W2 * dt_s ** 2
-            Phi12 = -(np.eye(3) * dt_s - 0.5 * W * dt_s ** 2 + W2 * dt_s ** 3 / 6.0)
+            Phi11 = _EYE3 - W * dt_s + 0.5 * W2 * dt_s ** 2
+            Phi12 = -(_EYE3 * dt_s - 0.5 * W * dt_s ** 2 + W2 * dt_s ** 3 / 6.0)
         else:
-            Phi11 = np.eye(3) - W * (math.sin(th) / wn) + W2 * ((1.0 - math.cos(th)) / wn ** 2)
-            Phi12 = W * ((1.0 - math.cos(th)) / wn ** 2) - np.eye(3) * dt_s - W2 * ((th - math.sin(th)) / wn ** 3)
+            Phi11 = _EYE3 - W * (math.sin(th) / wn) + W2 * ((1.0 - math.cos(th)) / wn ** 2)
+            Phi12 = W * ((1.0 - math.cos(th)) / wn ** 2) - _EYE3 * dt_s - W2 * ((th - math.sin(th)) / wn ** 3)
         Phi = np.eye(6)
         Phi[:3, :3] = Phi11
         Phi[:3, 3:] = Phi12
-        v2, u2 = self.arw ** 2, self.rrw ** 2
-        Q = np.zeros((6, 6))
-        Q[:3, :3] = (v2 * dt_s + u2 * dt_s ** 3 / 3.0) * np.eye(3)
-        Q[:3, 3:] = Q[3:, :3] = -(u2 * dt_s ** 2 / 2.0) * np.eye(3)
-        Q[3:, 3:] = u2 * dt_s * np.eye(3)
+        Q = self._Q.get(dt_s)
+        if Q is None:
+            v2, u2 = self.arw ** 2, self.rrw ** 2
+            Q = np.zeros((6, 6))
+            Q[:3, :3] = (v2 * dt_s + u2 * dt_s ** 3 / 3.0) * _EYE3
+            Q[:3, 3:] = Q[3:, :3] = -(u2 * dt_s ** 2 / 2.0) * _EYE3
+            Q[3:, 3:] = u2 * dt_s * _EYE3
+            if len(self._Q) < 64:  # a loop uses one or two step lengths
+                self._Q[dt_s] = Q
         self._set_P(Phi @ self.P @ Phi.T + Q, "propagation")
 
     # -- updates ------------------------------------------------------------------------------------
@@ -237,9 +243,13 @@ class MEKF:
         # Rotation vector of the residual (2 atan2 keeps it exact at large residuals).
         vn = float(np.linalg.norm(dq[1:]))
         z = dq[1:] * (2.0 * math.atan2(vn, dq[0]) / vn) if vn > 0.0 else np.zeros(3)
-        H = np.zeros((3, 6))
-        H[:, :3] = np.eye(3)
-        return self._update(z, H, _covariance(R_B, "R_B"), gate_sigma)
+        src, checked = self._R_checked
+        # A controller passes the same matrix every period: its checks (an eigenvalue solve) run once.
+        if src is None or not (isinstance(R_B, np.ndarray) and R_B.shape == (3, 3) and np.array_equal(R_B, src)):
+            checked = _covariance(R_B, "R_B")
+            if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3):
+                self._R_checked = (R_B.copy(), checked)
+        return self._update(z, _H_ATTITUDE, checked, gate_sigma)
 
     def update_vector(self, b_B, r_N, sigma_rad: float, gate_sigma: float | None = None) -> bool:
         """Update with a measured unit direction ``b_B`` of the reference direction ``r_N`` (sun, field), with
@@ -276,6 +286,10 @@ class MEKF:
             raise FilterError(f"the MEKF covariance lost positive definiteness in the {where} (diagonal "
                               f"{np.diag(P).tolist()}); check the noise settings and the measurement covariances.")
         self.P = P
+
+
+_EYE3 = np.eye(3)
+_H_ATTITUDE = np.hstack((np.eye(3), np.zeros((3, 3))))
 
 
 def _finite3(v, name: str) -> np.ndarray:
