@@ -259,7 +259,7 @@ class PointingController:
     # -- the plug-in API --------------------------------------------------------------------------------
     def telemetry_columns(self) -> list[tuple[str, int, str]]:
         cols = [("adcs_q_BN_est", 4, ""), ("adcs_bias_est_B", 3, "rad/s"), ("adcs_sigma3_B", 3, "rad"),
-                ("adcs_mode", 1, "0 detumble, 1 sun acquisition, 2 fine pointing"), ("adcs_gyro_only", 1, ""),
+                ("adcs_mode", 1, ""), ("adcs_gyro_only", 1, ""),
                 ("adcs_q_RN", 4, ""), ("adcs_wheel_torque_cmd", len(self.wheels), "N m")]
         if self.mtq is not None:
             cols.append(("adcs_dipole_cmd_B", 3, "A m^2"))

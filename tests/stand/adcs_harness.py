@@ -73,6 +73,20 @@ class FakeMagnetorquer:
         self.dipole = tuple(float(x) for x in m_A_m2)
 
 
+class FakeFineSunSensor:
+    """Boresight body +z, 60 deg half-cone; the Sun fixed in GCRS."""
+
+    def __init__(self, loop, sun_N):
+        self.loop = loop
+        self.sun_N = np.asarray(sun_N, dtype=float) / np.linalg.norm(sun_N)
+
+    def take_sun(self):
+        s = dcm(np.array(self.loop.truth.q)) @ self.sun_N
+        valid = s[2] >= math.cos(math.radians(60.0))
+        angles = (math.atan2(s[0], s[2]), math.atan2(s[1], s[2])) if valid else (math.nan, math.nan)
+        return SimpleNamespace(angles_rad=angles, valid=bool(valid), intensity=1.0, time_us=0, seq=0)
+
+
 class Loop:
     """Truth with wheels, fake devices, and the controller called every ``ctl_every`` dynamics steps."""
 

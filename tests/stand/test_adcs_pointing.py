@@ -118,6 +118,24 @@ def test_dumps_wheel_momentum_through_the_magnetorquer_while_pointing():
     assert 0.0 < np.max(np.abs(dip)) <= 1.0 + 1e-12
 
 
+def test_sun_acquisition_turns_the_sun_axis_onto_the_sun_without_a_tracker():
+    from sim.rotations import dcm
+
+    from .adcs_harness import FakeFineSunSensor
+
+    sun_N = np.array([0.2, -0.6, 0.77])
+    loop = Loop(_offset(Q_R, 0.0))
+    s0 = dcm(np.array(loop.truth.q)) @ (sun_N / np.linalg.norm(sun_N))
+    assert math.degrees(math.acos(s0[2])) > 20.0  # starts well off the Sun, inside the sensor's field
+    loop.devices["sun"] = FakeFineSunSensor(loop, sun_N)
+    ctl = _controller(loop, star_tracker=None, sun_sensor="sun", initial_mode=SUN_ACQUISITION)
+    loop.run(ctl, 200.0)
+    s = dcm(np.array(loop.truth.q)) @ (sun_N / np.linalg.norm(sun_N))
+    assert math.degrees(math.acos(min(s[2], 1.0))) < 0.01
+    assert np.linalg.norm(loop.truth.w) < 1e-5
+    assert ctl.modes.mode == SUN_ACQUISITION
+
+
 def test_nadir_guidance_tracks_lvlh():
     from sim.frames import dcm_lvlh_gcrs
     from sim.orbit import propagate_kepler
