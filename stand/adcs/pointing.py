@@ -197,7 +197,7 @@ class PointingController:
         self.last_wheel_cmd = np.zeros(n)
         self.last_dipole = np.zeros(3)
         self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
-        self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0}
+        self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0, "gyro_rejected": 0}
 
     # -- guidance -----------------------------------------------------------------------------------
     def _setup_guidance(self, options) -> None:
@@ -330,7 +330,8 @@ class PointingController:
             return
         w = np.asarray(s.omega_rad_s, dtype=float)
         if w.shape != (3,) or not np.all(np.isfinite(w)):
-            raise ValueError(f"gyro rate {s.omega_rad_s!r} is not 3 finite numbers (rad/s) although flagged valid.")
+            self.counters["gyro_rejected"] += 1  # flagged valid but unusable: flight code drops it, keeps flying
+            return
         self._omega_meas_B = self.dcm_BS_gyro @ w
 
     def _read_wheels(self) -> None:

@@ -168,3 +168,24 @@ def test_bad_options_are_refused_in_one_sentence(options, match):
     loop = Loop(Q_R)
     with pytest.raises(ValueError, match=match):
         _controller(loop, **options)
+
+
+def test_unusable_samples_are_dropped_and_counted_not_flown():
+    from types import SimpleNamespace
+
+    loop = Loop(_offset(Q_R, 1.0))
+    good_gyro, good_tracker = loop.gyro.take_rate, loop.tracker.take_solution
+    bad = {"on": False}
+    loop.gyro.take_rate = lambda: (SimpleNamespace(omega_rad_s=(math.nan, 0.0, 0.0), valid=True) if bad["on"]
+                                   else good_gyro())
+    loop.tracker.take_solution = lambda: (SimpleNamespace(q_TN=(2.0, 0.0, 0.0, 0.0), valid=True) if bad["on"]
+                                          else good_tracker())
+    ctl = _controller(loop)
+    loop.run(ctl, 60.0)
+    bad["on"] = True
+    loop.run(ctl, 2.0)
+    assert ctl.counters["gyro_rejected"] == 20 and ctl.counters["tracker_invalid"] == 20  # 2 s at 10 Hz
+    assert np.all(np.isfinite(ctl.filter.q)) and np.all(np.isfinite(ctl.last_wheel_cmd))
+    bad["on"] = False
+    loop.run(ctl, 120.0)
+    assert angle_between(np.array(loop.truth.q), Q_R) < 30 * ARCSEC
