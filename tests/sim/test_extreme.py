@@ -106,6 +106,8 @@ def test_input_errors_are_named(q0, w0, step, match):
 
 
 # -- B: reaction wheels in the truth model (saturation, zero crossing, stiff friction at long steps) -----
+# docs/numerical_methods.md D2 and D3 with the rotor coupled to the body: the caller's limits, the wheel through zero
+# and stopping, momentum kept with no external torque.
 # The motor's limits are the caller's (the wheel kind); the friction is sim.actuators.ReactionWheel, stepped
 # exactly (Karnopp stick/slip), fed the truth's wheel speed, and the net rotor torque it implies goes back to the
 # truth held over the step.
