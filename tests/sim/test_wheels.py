@@ -187,6 +187,16 @@ def test_truth_model_with_wheels_and_gravity_gradient_conserves_nothing_it_shoul
     assert np.max(np.abs(H_N(gg) - H0)) > 1e-7
 
 
+def test_truth_model_guard_names_the_wheel_momentum_and_the_scenario_field():
+    cluster = W.WheelCluster(np.eye(3)[:, [2]], [0.05])
+    with pytest.raises(ValueError, match=r"dynamics\.step_s = 0\.05 s .*wheel momentum of 30\.0\d* N m s"):
+        _truth(cluster, (600.0,))  # 30 N m s on I_min ~ 11 kg m^2: ~2.7 rad/s gyroscopic rate
+    truth = _truth(cluster, (10.0,))  # 0.5 N m s: fine at 0.05 s
+    with pytest.raises(ValueError, match=r"dynamics\.step_s .*wheel momentum"):
+        for _ in range(20000):  # the motor spins the wheel up until the guard trips
+            truth.step((0.0, 0.0, 0.0), (0.5,))
+
+
 def test_truth_model_without_wheels_refuses_wheel_input():
     truth = _truth()
     with pytest.raises(ValueError, match="without wheels"):
