@@ -228,7 +228,9 @@ class TruthModel:
 
     @property
     def wheel_speeds_rad_s(self) -> tuple:
-        """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them."""
+        """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them (() without wheels)."""
+        if self.wheels is None:
+            return ()
         J = self._wheeled._J
         return tuple(h / j - (ax * self.w[0] + ay * self.w[1] + az * self.w[2])
                      for h, j, (ax, ay, az) in zip(self.h_wheels, J, self._wheeled._A, strict=True))

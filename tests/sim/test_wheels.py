@@ -199,6 +199,7 @@ def test_truth_model_guard_names_the_wheel_momentum_and_the_scenario_field():
 
 def test_truth_model_without_wheels_refuses_wheel_input():
     truth = _truth()
+    assert truth.wheel_speeds_rad_s == ()
     with pytest.raises(ValueError, match="without wheels"):
         truth.step((0.0, 0.0, 0.0), (0.1,))
     with pytest.raises(ValueError, match="wheel_speeds_rad_s"):
