@@ -27,6 +27,8 @@ import numpy as np
 from sim.frames import dcm_lvlh_gcrs
 from sim.rotations import canonical, quat_from_dcm
 
+from .quat import cross
+
 __all__ = ["inertial", "nadir", "pointing_frame", "sun_pointing", "target_pointing"]
 
 #: Smallest sine between a primary and a secondary direction (1 deg) before the frame is refused.
@@ -62,7 +64,7 @@ def inertial(q_RN) -> tuple[np.ndarray, np.ndarray]:
 def nadir(r_N, v_N) -> tuple[np.ndarray, np.ndarray]:
     """LVLH reference from the spacecraft's inertial position (m) and velocity (m/s)."""
     r, v = _vec(r_N, "r_N"), _vec(v_N, "v_N")
-    h = np.cross(r, v)
+    h = cross(r, v)
     if np.linalg.norm(h) <= MIN_SINE * np.linalg.norm(r) * np.linalg.norm(v):
         raise GuidanceError("r_N and v_N are (nearly) parallel; the orbit normal, and so LVLH, is undefined.")
     C_RN = dcm_lvlh_gcrs(r, v)
@@ -77,13 +79,13 @@ def pointing_frame(primary_N, secondary_N, primary_axis_B=(0.0, 0.0, 1.0),
     p, s = _unit(primary_N, "primary_N"), _unit(secondary_N, "secondary_N")
     a, b = _unit(primary_axis_B, "primary_axis_B"), _unit(secondary_axis_B, "secondary_axis_B")
     for name, u, w in (("primary_N, secondary_N", p, s), ("primary_axis_B, secondary_axis_B", a, b)):
-        if np.linalg.norm(np.cross(u, w)) < MIN_SINE:
+        if np.linalg.norm(cross(u, w)) < MIN_SINE:
             raise GuidanceError(f"{name} are within 1 deg of parallel; they cannot fix a frame.")
 
     def triad(u, w):
-        t2 = np.cross(u, w)
+        t2 = cross(u, w)
         t2 /= np.linalg.norm(t2)
-        return np.column_stack((u, t2, np.cross(u, t2)))
+        return np.column_stack((u, t2, cross(u, t2)))
 
     return triad(a, b) @ triad(p, s).T
 
@@ -103,7 +105,7 @@ def target_pointing(r_N, v_N, target_r_N, target_v_N, secondary_N=None, boresigh
     if not (math.isfinite(dt_s) and dt_s > 0.0):
         raise GuidanceError(f"dt_s = {dt_s!r}; the differencing interval must be a positive number of seconds.")
 
-    sec = np.cross(r, v) if secondary_N is None else _vec(secondary_N, "secondary_N")
+    sec = cross(r, v) if secondary_N is None else _vec(secondary_N, "secondary_N")
 
     def frame(tau):
         return pointing_frame((rt + vt * tau) - (r + v * tau), sec, boresight_B, secondary_axis_B)

@@ -207,6 +207,7 @@ class PointingController:
         self.guidance = kind
         self.q_RN = None
         self._orbit_cache = None
+        self._earth = None
         if kind == "inertial":
             self.q_RN, _ = gd.inertial(_option_vec(options, "q_RN", 4, (1.0, 0.0, 0.0, 0.0)))
         if kind in ("nadir", "target"):
@@ -234,9 +235,11 @@ class PointingController:
         r, v = self._orbit(t_s)
         if self.guidance == "nadir":
             return gd.nadir(r, v)
-        from sim.frames import dcm_itrs_gcrs
+        if self._earth is None:
+            from sim.frames import EarthRotation
 
-        rt = dcm_itrs_gcrs(self.epoch + t_s).T @ self.target_itrs  # the matrix maps GCRS to ITRS
+            self._earth = EarthRotation(self.epoch)  # precession-nutation on a coarse grid, cheap per call
+        rt = self._earth.dcm_itrs_gcrs(t_s).T @ self.target_itrs  # the matrix maps GCRS to ITRS
         vt = cross([0.0, 0.0, OMEGA_EARTH_RAD_S], rt)
         return gd.target_pointing(r, v, rt, vt)
 
