@@ -197,6 +197,7 @@ class PointingController:
         self.last_wheel_cmd = np.zeros(n)
         self.last_dipole = np.zeros(3)
         self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
+        self._w_RN_prev: tuple | None = None  # (t_s, omega_RN_R) of the last fine-pointing period
         self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0, "gyro_rejected": 0}
 
     # -- guidance -----------------------------------------------------------------------------------
@@ -306,7 +307,14 @@ class PointingController:
         if mode == FINE_POINTING and self.filter is not None:
             q_RN, w_RN = self.reference(t_s)
             self.last_q_RN = np.asarray(q_RN, dtype=float)
-            u_B = control_torque(self.filter.q, rate, q_RN, w_RN, self.inertia, self.K, self.P, h_w, law=self.law)
+            # The reference's angular acceleration (R-frame derivative) by a backward difference over one period:
+            # the feed-forward that keeps a slewing target (a ground pass) from lagging by alpha / wn^2.
+            prev = self._w_RN_prev
+            dw_RN = (w_RN - prev[1]) / (t_s - prev[0]) if prev is not None and 0.0 < t_s - prev[0] <= (
+                1.5 * self.period_s) else np.zeros(3)
+            self._w_RN_prev = (t_s, np.asarray(w_RN, dtype=float))
+            u_B = control_torque(self.filter.q, rate, q_RN, w_RN, self.inertia, self.K, self.P, h_w, dw_RN,
+                                 law=self.law)
         elif mode == SUN_ACQUISITION:
             u_B = self._sun_acquisition_torque(rate, h_w)
         else:

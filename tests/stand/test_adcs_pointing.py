@@ -136,6 +136,54 @@ def test_sun_acquisition_turns_the_sun_axis_onto_the_sun_without_a_tracker():
     assert ctl.modes.mode == SUN_ACQUISITION
 
 
+def test_tracks_a_ground_target_through_a_pass():
+    from sim.frames import dcm_itrs_gcrs
+    from sim.orbit import propagate_kepler
+    from sim.rotations import dcm
+    from sim.time import Epoch
+    from stand.adcs import guidance as gd
+
+    epoch = "2026-03-01T00:00:00Z"
+    t0 = Epoch.from_iso(epoch)
+    r0, v0 = np.array([R_ORBIT, 0.0, 0.0]), np.array([0.0, V_ORBIT, 0.0])
+    # A site 3 deg (about 330 km) off the ground track, passed at t = 150 s.
+    r150, _ = propagate_kepler(r0, v0, 150.0)
+    site_N = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), math.radians(-3.0))
+    site_N = dcm(site_N).T @ (6378137.0 * r150 / np.linalg.norm(r150))
+    site_itrs = dcm_itrs_gcrs(t0 + 150.0) @ site_N
+    omega_e = np.array([0.0, 0.0, 7.292115e-5])
+
+    def los_N(t):
+        r, _ = propagate_kepler(r0, v0, t) if t else (r0, v0)
+        rt = dcm_itrs_gcrs(t0 + t).T @ site_itrs
+        return (rt - r) / np.linalg.norm(rt - r), r
+
+    rt0 = dcm_itrs_gcrs(t0).T @ site_itrs
+    q0, w0 = gd.target_pointing(r0, v0, rt0, np.cross(omega_e, rt0))
+    loop = Loop(q0, w0=w0, max_torque=0.05)
+    ctl = _controller(loop, guidance="target", orbit_r_N_m=list(r0), orbit_v_N_m_s=list(v0), epoch=epoch,
+                      target_itrs_m=list(site_itrs), q_RN=None)
+    log = []
+    loop.run(ctl, 300.0, record=lambda lp, c: log.append((lp.truth.t_s, *lp.truth.q)))
+    log = np.array(log)
+    err = []
+    for row in log[::10]:
+        los, _ = los_N(row[0])
+        err.append(math.acos(min(1.0, (dcm(row[1:]) @ los)[2])))
+    err = np.array(err)
+    rates = np.linalg.norm([gd.target_pointing(*_state(r0, v0, t), dcm_itrs_gcrs(t0 + t).T @ site_itrs,
+                                                np.cross(omega_e, dcm_itrs_gcrs(t0 + t).T @ site_itrs))[1]
+                            for t in (0.0, 150.0)], axis=1)
+    assert rates[1] > 3 * rates[0] and rates[1] > 0.01  # a real pass: the line of sight turns fast overhead
+    assert np.max(err) < 30 * ARCSEC, np.max(err) / ARCSEC
+
+
+def _state(r0, v0, t):
+    from sim.orbit import propagate_kepler
+
+    return propagate_kepler(r0, v0, t) if t else (r0, v0)
+
+
 def test_nadir_guidance_tracks_lvlh():
     from sim.frames import dcm_lvlh_gcrs
     from sim.orbit import propagate_kepler
