@@ -229,7 +229,6 @@ class DatagramCodec:
         return head + crc16(head).to_bytes(2, self.byte_order)
 
     def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Any) -> Any:
-        where = f"{self.device} {spec.name}.{f.name}"
         if f.bits is not None:
             v = 0
             for i, bit in enumerate(f.bits):
@@ -241,7 +240,7 @@ class DatagramCodec:
             try:
                 value = value[f.index]
             except (TypeError, IndexError):
-                raise EncodeError(f"{where}: {f.attr} must be a sequence with an element {f.index}; "
+                raise EncodeError(f"{self._where(spec, f)}: {f.attr} must be a sequence with an element {f.index}; "
                                   f"got {value!r}.") from None
         if f.enum is not None:
             if isinstance(value, str) and value.upper() in f.enum:
@@ -249,29 +248,37 @@ class DatagramCodec:
             if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
                 return value
             allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
-            raise EncodeError(f"{where} = {value!r} is not allowed; allowed: {allowed}.")
-        try:
-            value = float(value) if not isinstance(value, int) or isinstance(value, bool) else value
-        except (TypeError, ValueError):
-            raise EncodeError(f"{where} = {value!r} is not a number.") from None
+            raise EncodeError(f"{self._where(spec, f)} = {value!r} is not allowed; allowed: {allowed}.")
+        t = type(value)
+        if t is not int and t is not float:
+            try:
+                value = float(value) if not isinstance(value, int) or isinstance(value, bool) else int(value)
+            except (TypeError, ValueError):
+                raise EncodeError(f"{self._where(spec, f)} = {value!r} is not a number.") from None
         wire = value / f.scale if f.scale != 1.0 else value
-        si = f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
         if f.is_float:
             if not (math.isfinite(wire) and f.lo <= wire <= f.hi):
-                raise EncodeError(f"{where} = {wire!r}{si} is outside the field: allowed a finite number from "
-                                  f"{f.lo:g} to {f.hi:g}.")
+                raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
+                                  f"allowed a finite number from {f.lo:g} to {f.hi:g}.")
             return float(wire)
         if not math.isfinite(wire):
-            raise EncodeError(f"{where} = {wire!r}{si} is not finite; allowed: {f.lo} to {f.hi} {f.unit}.".rstrip())
+            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is not finite; allowed: "
+                              f"{f.lo} to {f.hi} {f.unit}.".rstrip())
         n = round(wire)
         if not f.lo <= n <= f.hi:
-            lo, hi = f.lo * f.scale, f.hi * f.scale
-            extra = f"; in SI {lo:.6g} to {hi:.6g}" if f.scale != 1.0 else ""
-            raise EncodeError(f"{where} = {wire!r}{si} is outside the field: allowed {f.lo} to {f.hi} "
-                              f"({f.type}{extra}).")
+            extra = f"; in SI {f.lo * f.scale:.6g} to {f.hi * f.scale:.6g}" if f.scale != 1.0 else ""
+            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
+                              f"allowed {f.lo} to {f.hi} ({f.type}{extra}).")
         if f.type == "i24":
             return n.to_bytes(3, self.byte_order, signed=True)
         return n
+
+    def _where(self, spec: MessageSpec, f: FieldSpec) -> str:
+        return f"{self.device} {spec.name}.{f.name}"
+
+    @staticmethod
+    def _si(f: FieldSpec, value: Any) -> str:
+        return f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
 
     # -- decode ---------------------------------------------------------------------------------
 

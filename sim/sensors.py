@@ -210,6 +210,12 @@ class Gyro:
         if d.shape != (3, 3) or not np.allclose(d @ d.T, np.eye(3), atol=1e-9) or np.linalg.det(d) < 0:
             raise ValueError("gyro dcm_SB must be a 3x3 proper rotation matrix.")
         object.__setattr__(self, "dcm_SB", d)
+        # Derived once: the loop measures one sample per tick.
+        object.__setattr__(self, "_input_T", ((np.eye(3) + np.diag(sf) + m) @ d).T.copy())
+        x = self.sample_period_s / self.bias_correlation_s
+        object.__setattr__(self, "_gm", (math.exp(-x), self.gauss_markov_sigma_rad_s * math.sqrt(-math.expm1(-2.0 * x))))
+        object.__setattr__(self, "_white", self.arw_rad_sqrt_s / math.sqrt(self.sample_period_s))
+        object.__setattr__(self, "_walk", self.rrw_rad_s_sqrt_s * math.sqrt(self.sample_period_s))
 
     @property
     def gauss_markov_sigma_rad_s(self) -> float:
@@ -229,17 +235,18 @@ class Gyro:
 
     def errors(self, n: int, rng: np.random.Generator | None, state: GyroState) -> tuple[np.ndarray, GyroState]:
         """Bias plus noise of ``n`` consecutive samples, ``(n, 3)`` rad/s, and the state after them."""
-        dt = self.sample_period_s
         out = np.broadcast_to(self.bias_rad_s, (n, 3)).copy()
         if rng is None:
             return out + state.rate_random_walk + state.gauss_markov, state
         w = rng.standard_normal((n, 3, 3))
+        if n == 1:  # one sample per tick in the loop: the same arithmetic in the same order, minus the batch tools
+            return self._one(out[0], w[0], state)
         if self.arw_rad_sqrt_s > 0:
-            out += w[:, 0, :] * (self.arw_rad_sqrt_s / math.sqrt(dt))
+            out += w[:, 0, :] * self._white
         rrw = state.rate_random_walk
         if self.rrw_rad_s_sqrt_s > 0:
             # cumsum over [state, steps...] so chunks of any size give identical sums
-            steps = np.vstack((rrw, w[:, 1, :] * (self.rrw_rad_s_sqrt_s * math.sqrt(dt))))
+            steps = np.vstack((rrw, w[:, 1, :] * self._walk))
             walk = np.cumsum(steps, axis=0)[1:]
             rrw = walk[-1].copy()
             out += walk
@@ -247,8 +254,7 @@ class Gyro:
             out += rrw
         gm = state.gauss_markov
         if self.bias_instability_rad_s > 0:
-            phi = math.exp(-dt / self.bias_correlation_s)
-            c = self.gauss_markov_sigma_rad_s * math.sqrt(-math.expm1(-2.0 * dt / self.bias_correlation_s))
+            phi, c = self._gm
             # b_k = phi b_(k-1) + c w_k, the exact discretisation of the continuous process
             series, _ = lfilter([c], [1.0, -phi], w[:, 2, :], axis=0, zi=(phi * gm)[None, :])
             gm = series[-1].copy()
@@ -256,6 +262,20 @@ class Gyro:
         else:
             out += gm
         return out, GyroState(rrw, gm)
+
+    def _one(self, out: np.ndarray, w: np.ndarray, state: GyroState) -> tuple[np.ndarray, GyroState]:
+        if self.arw_rad_sqrt_s > 0:
+            out += w[0] * self._white
+        rrw = state.rate_random_walk
+        if self.rrw_rad_s_sqrt_s > 0:
+            rrw = rrw + w[1] * self._walk
+        out += rrw
+        gm = state.gauss_markov
+        if self.bias_instability_rad_s > 0:
+            phi, c = self._gm
+            gm = c * w[2] + phi * gm
+        out += gm
+        return out[None, :], GyroState(rrw, gm)
 
     def measure(self, omega_BN_B, rng: np.random.Generator | None, state: GyroState | None = None):
         """Readings of consecutive samples: ``(omega_S, saturated, state)``.
@@ -272,7 +292,7 @@ class Gyro:
             state = self.initial_state(rng)
         w2 = np.atleast_2d(w)
         err, state = self.errors(len(w2), rng, state)
-        y = w2 @ self.input_matrix.T + err
+        y = w2 @ self._input_T + err
         saturated = np.abs(y) > self.range_rad_s
         y = np.clip(y, -self.range_rad_s, self.range_rad_s)
         if self.lsb_rad_s > 0:

@@ -254,3 +254,20 @@ def test_config_and_wheel_number_errors_are_named(bus):
         WheelEmulatorConfig(telemetry_period_s=0.0)
     with pytest.raises(ValueError, match="codec is for wheel 0"):
         ReactionWheelHost(bus(), wheel=1, codec=CODEC)
+
+
+# -- the wheel DBC through the fast codec equals cantools -------------------------------------------
+
+from .test_dbc import _physical_values  # noqa: E402
+
+
+@settings(max_examples=300, deadline=None)
+@given(data=st.data())
+def test_fast_codec_equals_cantools_on_the_wheel_dbc(data):
+    dbc = CODEC.dbc
+    name = data.draw(st.sampled_from(dbc.names))
+    msg = dbc.database.get_message_by_name(name)
+    values = data.draw(st.composite(lambda draw: _physical_values(msg, draw))())
+    assert dbc.encode(name, values) == (msg.frame_id, msg.encode(values, strict=True))
+    payload = data.draw(st.binary(min_size=8, max_size=8))
+    assert dbc.decode(msg.frame_id, payload) == (name, msg.decode(payload, decode_choices=False))
