@@ -213,7 +213,8 @@ class Gyro:
         # Derived once: the loop measures one sample per tick.
         object.__setattr__(self, "_input_T", ((np.eye(3) + np.diag(sf) + m) @ d).T.copy())
         x = self.sample_period_s / self.bias_correlation_s
-        object.__setattr__(self, "_gm", (math.exp(-x), self.gauss_markov_sigma_rad_s * math.sqrt(-math.expm1(-2.0 * x))))
+        gm_step = self.gauss_markov_sigma_rad_s * math.sqrt(-math.expm1(-2.0 * x))
+        object.__setattr__(self, "_gm", (math.exp(-x), gm_step))
         object.__setattr__(self, "_white", self.arw_rad_sqrt_s / math.sqrt(self.sample_period_s))
         object.__setattr__(self, "_walk", self.rrw_rad_s_sqrt_s * math.sqrt(self.sample_period_s))
 
