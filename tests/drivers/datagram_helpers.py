@@ -4,9 +4,14 @@ the test services the emulator itself (sim time, no thread) or a thread serves i
 
 from __future__ import annotations
 
+import array
+import fcntl
 import os
+import select
 import struct
+import termios
 import threading
+import time
 from typing import Any
 
 from hypothesis import strategies as st
@@ -59,6 +64,8 @@ class PtyLink:
         self.host = make_host(self.slave_path)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._written = self._consumed = 0
+        self._count_writes()
         self.error: BaseException | None = None
 
     def serve(self, duration_s: float = 20.0) -> None:
@@ -71,7 +78,31 @@ class PtyLink:
         self._thread = threading.Thread(target=run, daemon=True)
         self._thread.start()
 
+    def _count_writes(self) -> None:
+        port = self.host.port
+        write = port.write
+
+        def counted(data: bytes) -> int:
+            self._written += len(data)
+            return write(data)
+
+        port.write = counted
+
+    def wait_input(self, timeout_s: float = 2.0) -> None:
+        """Wait (bounded) until every byte the host wrote has crossed the pty: the kernel moves it
+        asynchronously, so a sim-time step right after a write could miss it."""
+        deadline = time.monotonic() + timeout_s
+        buf = array.array("i", [0])
+        while self._written > self._consumed:
+            fcntl.ioctl(self.master.fd, termios.FIONREAD, buf)
+            if buf[0] >= self._written - self._consumed or time.monotonic() >= deadline:
+                break
+            select.select([self.master.fd], [], [], 0.01)
+        self._consumed = self._written
+
     def step(self, t: float) -> Any:
+        """Service the emulator at sim time ``t`` once what the host wrote has arrived."""
+        self.wait_input()
         self.emu.service(t)
 
     def close(self) -> None:
@@ -91,3 +122,12 @@ class PtyLink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def wait_samples(host: Any, n: int, timeout_s: float = 2.0) -> None:
+    """Read (bounded) until the host has received ``n`` samples in all."""
+    deadline = time.monotonic() + timeout_s
+    while host.counters["samples"] < n and time.monotonic() < deadline:
+        host.poll()
+        if host.counters["samples"] < n:
+            host._read(block=True)

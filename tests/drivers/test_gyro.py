@@ -5,6 +5,12 @@ thread serves it in wall-clock time). No test measures time."""
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -194,15 +200,17 @@ def _link(config: GyroEmulatorConfig | None = None, source=None) -> PtyLink:
 
 
 def _drain(host: GyroHost, want: int) -> list[GyroRate]:
+    """Read until ``want`` RATE datagrams arrived in all; the newest of each batch read."""
     out: list[GyroRate] = []
     for _ in range(200):
-        before = host.counters["samples"]
-        host.poll()
-        if host.counters["samples"] - before:
-            out.append(host.latest_rate)  # type: ignore[arg-type]
         if host.counters["samples"] >= want:
             break
-        host._read(block=True)
+        before = host.counters["samples"]
+        host.poll()
+        if host.counters["samples"] == before:
+            host._read(block=True)
+        if host.counters["samples"] > before:
+            out.append(host.latest_rate)  # type: ignore[arg-type]
     return out
 
 
@@ -310,3 +318,49 @@ def test_emulator_config_errors_are_named():
         GyroEmulator("loop://", Rate(), GyroEmulatorConfig(output_period_s=2.0))
     with pytest.raises(ValueError, match="max_burst"):
         GyroEmulatorConfig(max_burst=0)
+
+
+# -- two processes over a socat pty pair: pyserial at both ends ------------------------------------
+
+_EMULATOR_SCRIPT = """
+import sys
+from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
+emu = GyroEmulator(sys.argv[1], lambda t: (0.01, 0.02, -0.03), GyroEmulatorConfig(output_period_s=0.01))
+emu.run(float(sys.argv[2]))
+emu.close()
+"""
+
+
+@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed (apt-get install socat)")
+def test_gyro_emulator_in_another_process_over_a_socat_pty_pair(tmp_path):
+    a, b = tmp_path / "ttyGY_A", tmp_path / "ttyGY_B"
+    socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = None
+    try:
+        for _ in range(500):
+            if a.exists() and b.exists():
+                break
+            time.sleep(0.01)
+        assert a.exists() and b.exists(), "socat did not create its pty pair"
+        proc = subprocess.Popen([sys.executable, "-c", _EMULATOR_SCRIPT, str(b), "20"], cwd=REPO,
+                                env={**os.environ, "PYTHONPATH": str(REPO)},
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        with GyroHost(str(a), timeout_s=10.0) as host:
+            rates = [host.read_rate()]  # the emulator is up: a command sent now is read
+            host.set_time(1_000_000_000)
+            for _ in range(200):  # SET_TIME reaches the other process within a few samples
+                if rates[-1].time_synced:
+                    break
+                rates.append(host.read_rate())
+            assert rates[-1].time_synced
+            last = host.read_rate()  # measured after the clock was set
+            assert last.time_synced and last.time_us >= 1_000_000_000
+            assert last.omega_rad_s == pytest.approx((0.01, 0.02, -0.03), abs=LSB)
+            assert host.counters["rejected_crc"] == 0
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.communicate(timeout=10)
+        socat.send_signal(signal.SIGTERM)
+        socat.wait(5)

@@ -28,7 +28,7 @@ from drivers.sun_sensor.emulator import SunEmulatorConfig, SunSensorEmulator
 from drivers.sun_sensor.host import SunSensorHost
 from sim.sensors import CoarseSunSensors, FineSunSensor
 
-from .datagram_helpers import PtyLink, datagram_strategy
+from .datagram_helpers import PtyLink, datagram_strategy, wait_samples
 
 REPO = Path(__file__).resolve().parents[2]
 CODEC = SunSensorCodec()
@@ -187,9 +187,11 @@ def test_a_late_service_sends_the_newest_sample_and_the_host_sees_the_gap():
         link.step(0.0)
         link.step(0.55)  # slots 0.1 .. 0.5 due: one sent, measured at 0.5
         assert link.emu.counters["samples_skipped"] == 4 and sun.calls[-1] == pytest.approx(0.5)
-        assert _read(link.host).seq == 1  # the newest of the two sent so far
+        wait_samples(link.host, 2)
+        assert link.host.take_sun().seq == 1  # the newest of the two sent so far
         link.step(0.6)
-        assert _read(link.host).seq == 2
+        wait_samples(link.host, 3)
+        assert link.host.take_sun().seq == 2
         assert link.host.counters["samples_lost"] == 0  # skipped slots never got a counter value
 
 
