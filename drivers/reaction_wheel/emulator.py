@@ -11,8 +11,9 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 - RW_TORQUE_CMD puts the wheel in mode TORQUE holding the torque, clipped to ``max_torque_Nm``
   keeping its sign (``torque_limited`` and one ``saturations`` count); RW_SPEED_CMD puts it in mode
   SPEED holding the speed, clipped to ``max_speed_rad_s``. RW_MODE_CMD sets the mode with a zero
-  command (IDLE: motor off). A command with a timeout is dropped (zero) that long after it, with
-  one ``watchdog_expiries`` count. The wheel boots in ``initial_mode`` with a zero command.
+  command (IDLE: motor off). A command with a timeout is dropped that long after it: the wheel
+  goes IDLE (motor off, it coasts), with one ``watchdog_expiries`` count. The wheel boots in
+  ``initial_mode`` with a zero command.
 - RW_SPEED_TLM every ``telemetry_period_s``: the speed from ``speed_source(t)`` (a float, rad/s,
   or a ``(speed_rad_s, motor_torque_Nm)`` pair; with a float the held torque command is reported as
   the motor torque in TORQUE mode, 0 otherwise), quantised by the wire; ``speed_limited`` at or
@@ -161,9 +162,9 @@ class ReactionWheelEmulator(BusEndpoint):
     # -- what the stand reads ---------------------------------------------------------------------
 
     def command_at(self, t_s: float) -> WheelCommand:
-        """The command the wheel holds at ``t_s`` (a timed-out command reads as zero)."""
+        """The command the wheel holds at ``t_s`` (after a command's timeout: IDLE, motor off)."""
         if t_s >= self._expires_s:
-            return WheelCommand(self.mode, 0.0, 0.0)
+            return WheelCommand("IDLE", 0.0, 0.0)
         return WheelCommand(self.mode, self._torque, self._speed)
 
     def torque_command_Nm(self, t_s: float) -> float:
@@ -193,7 +194,7 @@ class ReactionWheelEmulator(BusEndpoint):
 
     def _watchdog(self, t_s: float) -> None:
         if t_s >= self._expires_s:
-            self._torque = self._speed = 0.0
+            self.mode, self._torque, self._speed = "IDLE", 0.0, 0.0
             self._expires_s = math.inf
             self.counters["watchdog_expiries"] += 1
             self._board["watchdog_expiries"] += 1

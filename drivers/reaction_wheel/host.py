@@ -95,7 +95,7 @@ class ReactionWheelHost(BusEndpoint):
     def command_torque(self, torque_Nm: float, timeout_s: float = 0.0) -> int:
         """Send RW_TORQUE_CMD (mode TORQUE): motor torque on the rotor about the spin axis, N m.
 
-        ``timeout_s`` > 0 makes the wheel drop the command that long after it (0 = hold). Returns the
+        ``timeout_s`` > 0 makes the wheel go IDLE that long after it unless commanded again (0 = hold). Returns the
         sequence number, echoed in ``latest_status.seq_ack`` once applied. EncodeError (a ValueError)
         beyond what the field carries (+-1 N m); the wheel itself clips at its rating.
         """

@@ -34,8 +34,8 @@ def render(codec: ReactionWheelCodec | None = None) -> str:
             "command (IDLE: motor off, the wheel coasts down on its friction).",
             "The wheel clips a torque beyond its rating or a speed beyond its rated speed, keeping the sign, "
             "and counts a saturation; RW_SPEED_TLM.torque_limited tells the host the last torque was clipped.",
-            "A command with timeout_ms > 0 is dropped (zero command) that long after it unless a new command "
-            "came: a silent host cannot leave a wheel accelerating.",
+            "A command with timeout_ms > 0 is dropped that long after it unless a new command came, and the "
+            "wheel goes IDLE (motor off, it coasts): a silent host cannot leave a wheel accelerating.",
             "Positive torque and speed are about the wheel's spin axis (the mounting gives its direction in "
             "the body); the body feels the opposite of the motor torque.",
             "RW_SPEED_TLM every 100 ms, RW_STATUS and RW_HEARTBEAT every 1000 ms (GenMsgCycleTime); the "

@@ -176,9 +176,9 @@ def test_speed_mode_idle_and_the_command_timeout(bus):
     host.command_speed(300.0, timeout_s=0.5)
     emu.service(0.0)
     assert emu.command_at(0.2) == WheelCommand("SPEED", 0.0, pytest.approx(300.0))
-    assert emu.command_at(0.5) == WheelCommand("SPEED", 0.0, 0.0)  # timed out
+    assert emu.command_at(0.5) == WheelCommand("IDLE", 0.0, 0.0)  # timed out: motor off
     emu.service(0.6)
-    assert emu.counters["watchdog_expiries"] == 1
+    assert emu.counters["watchdog_expiries"] == 1 and emu.mode == "IDLE"
     host.command_speed(1e3)  # beyond 6000 rpm: clipped to the rating
     emu.service(0.7)
     assert emu.command_at(0.7).speed_rad_s == pytest.approx(WheelEmulatorConfig().max_speed_rad_s)
