@@ -364,3 +364,21 @@ def test_gyro_emulator_in_another_process_over_a_socat_pty_pair(tmp_path):
             proc.communicate(timeout=10)
         socat.send_signal(signal.SIGTERM)
         socat.wait(5)
+
+
+def test_a_failed_port_raises_connect_error_and_is_reopened_on_the_next_call():
+    from drivers.errors import ConnectError
+
+    with GyroHost("loop://", name="gyro-loop") as host:
+        def broken(*_a, **_k):
+            raise OSError(5, "Input/output error")
+
+        host.port.read = broken
+        host.port.write(CODEC.encode(_rate()))  # something to read, so read() is called
+        with pytest.raises(ConnectError, match="gyro-loop: cannot read from .*reopened on the next call"):
+            host.poll()
+        assert not host.online
+        host.poll()  # reopens a fresh loop:// port
+        assert host.counters["reconnects"] == 1
+        host.port.write(CODEC.encode(_rate(seq=9)))  # loop:// reads back what is written
+        assert host.take_rate().seq == 9 and host.online and host.counters["recoveries"] == 1
