@@ -56,7 +56,8 @@ def test_the_wheel_carries_its_data_and_not_the_checkout(installed):
     bindir, work = installed
     out = subprocess.run([str(bindir / "python"), "-c",
                           "import stand, fixtures, sim, drivers, star_screen; print(stand.__file__); "
-                          "print(fixtures.path('scenarios/detumble.toml')); print(fixtures.path('catalog/hip2_hp9.npz'))"],
+                          "print(fixtures.path('scenarios/detumble.toml')); "
+                          "print(fixtures.path('catalog/hip2_hp9.npz'))"],
                          cwd=work, capture_output=True, text=True, check=True).stdout.split()
     assert all("site-packages" in p and str(REPO) not in p for p in out)
 
