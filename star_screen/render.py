@@ -62,10 +62,11 @@ _SQRT2 = math.sqrt(2.0)
 _CULL_MARGIN_RAD = math.radians(0.25)
 #: Longest smear trail drawn (px, on the finer of the screen and detector grids). The trail is
 #: sampled every half spot sigma, so this caps the spots per star, hence the work of a frame, for
-#: any rate: on the default bench (3974 screen px/rad, 0.1 s exposure) 48 px is 6.9 deg/s, seven
-#: times the default tracker's rate limit, and 139 samples per star. A faster state is refused
-#: (SmearTooLong) rather than drawn as a dotted line that no tracker would see.
-MAX_SMEAR_PX = 48.0
+#: any rate: on the default bench (3974 screen px/rad, 0.1 s exposure) 32 px is 4.6 deg/s, over
+#: four times the default tracker's rate limit, and 93 samples per star (about 100 ms for the
+#: densest field of a 20 x 15 deg tracker, 330 stars, against 1.5 ms unsmeared). A faster state
+#: is refused (SmearTooLong) rather than drawn as a dotted line that no tracker would see.
+MAX_SMEAR_PX = 32.0
 _C_LIGHT = 299_792_458.0
 
 
