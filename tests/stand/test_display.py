@@ -11,7 +11,7 @@ from star_screen.catalog import Catalog
 from star_screen.geometry import default_bench
 from star_screen.outputs import FrameQueue
 from star_screen.render import Renderer
-from star_screen.state_message import encode
+from star_screen.state_message import DisplayState, encode
 
 EPOCH = Epoch.from_iso("2026-01-01T00:00:00Z")
 W, H = 640, 360
@@ -248,3 +248,19 @@ def test_cli_reads_the_key_from_a_private_file_or_the_environment(tmp_path, monk
     argv = ["display-node", "--bind", "127.0.0.1:0", "--screen", f"{W}x{H}", "--timeout", "0.05", "--allow", "any"]
     assert main(argv) == 0
     assert "refused: none" in capsys.readouterr().out
+
+
+def test_fifty_spoofed_streams_cannot_take_over_a_live_screen(catalog):
+    # The case: 50 datagrams, each with its own stream_id, were each rendered.
+    with _node(catalog) as n, StateSender(*n.address, scenario_epoch=EPOCH, stream_id=7) as s:
+        s.send(_q(10, 10), 1)
+        for k in range(50):
+            s.send_state(DisplayState(0, 1000 + k, EPOCH, tuple(_q(200, -40)), stream_id=1000 + k))
+        stats = n.serve(max_frames=2, timeout_s=0.3)
+        assert (stats.rendered, stats.errors) == (1, {"stream": 50})
+        assert n.output.latest().time_tag_ns == 1
+
+
+def test_cli_display_node_refuses_a_bad_allow_entry(capsys):
+    assert main(["display-node", "--bind", "127.0.0.1:0", "--allow", "lab-pc"]) == 2
+    assert "--allow 'lab-pc' is not an address or network" in capsys.readouterr().err
