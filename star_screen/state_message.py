@@ -1,8 +1,8 @@
 """Time-tagged attitude state for a display node: a small versioned binary message.
 
-The sim PC sends state, not pixels: a display PC renders locally with its own catalog, bench
-geometry and vsync, so a message is ~200 bytes, lossless by construction, and the frame it
-produces is bit-identical to the one the sim PC would render.
+The sim PC sends state, not pixels (research note ecosystem.md section 5): a display PC renders
+locally with its own catalog, bench geometry and vsync, so a message is ~200 bytes, lossless by
+construction, and the frame it produces is bit-identical to the one the sim PC would render.
 
 Layout, version 1, little-endian, no padding (``struct`` formats in brackets)::
 
