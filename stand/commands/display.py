@@ -111,6 +111,11 @@ class StateSender:
     ``scenario_epoch`` lets :meth:`send` derive each frame's instant from its sim time;
     ``stream_id`` (default random) tells the node that a restarted sender starts a new sequence;
     ``key`` (bytes, from :func:`load_key`) signs every message with HMAC-SHA256.
+
+    A per-frame :meth:`send` never stops the sim: a state outside the message's physical ranges
+    (a tumble faster than one turn per second, say) is not sent and counts in ``refused``, and a
+    socket error (the node is down: ECONNREFUSED from an earlier datagram) counts in
+    ``send_errors``; ``last_error`` keeps the newest sentence.
     """
 
     def __init__(self, host: str, port: int, *, scenario_epoch: Epoch | None = None, stream_id: int | None = None,
@@ -125,6 +130,9 @@ class StateSender:
         self.stream_id = secrets.randbits(32) if stream_id is None else int(stream_id)
         self.sequence = 0
         self.sent = 0
+        self.refused = 0
+        self.send_errors = 0
+        self.last_error = ""
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.connect(self.address)
 
@@ -138,9 +146,10 @@ class StateSender:
         omega_SN_S=None,
         sun_N=None,
         moon_N=None,
-    ) -> DisplayState:
+    ) -> DisplayState | None:
         """Send the state of the frame at ``sim_time_ns``; ``epoch`` is the frame's instant (default
-        ``scenario_epoch + sim_time_ns``). Returns what was sent (with its sequence number)."""
+        ``scenario_epoch + sim_time_ns``). Returns what was sent (with its sequence number), or None
+        when the state was refused (counted, see the class docstring)."""
         if epoch is None:
             if self.scenario_epoch is None:
                 raise ValueError("epoch = None and no scenario_epoch was given; pass one of them.")
@@ -151,7 +160,13 @@ class StateSender:
                              None if sun_N is None else tuple(float(x) for x in sun_N),
                              None if moon_N is None else tuple(float(x) for x in moon_N),
                              stream_id=self.stream_id)
-        self.send_state(state)
+        try:
+            data = encode(state, self.key)
+        except StateMessageError as exc:
+            self.refused += 1
+            self.last_error = str(exc)
+            return None
+        self.send_bytes(data)
         self.sequence += 1
         return state
 
@@ -160,7 +175,13 @@ class StateSender:
         return self.send_bytes(encode(state, self.key))
 
     def send_bytes(self, data: bytes) -> int:
-        n = self._sock.send(data)
+        """Send one datagram; a socket error is counted (``send_errors``), not raised: returns 0."""
+        try:
+            n = self._sock.send(data)
+        except OSError as exc:
+            self.send_errors += 1
+            self.last_error = f"sending to {self.address[0]}:{self.address[1]} failed: {exc}"
+            return 0
         self.sent += 1
         return n
 

@@ -264,3 +264,18 @@ def test_fifty_spoofed_streams_cannot_take_over_a_live_screen(catalog):
 def test_cli_display_node_refuses_a_bad_allow_entry(capsys):
     assert main(["display-node", "--bind", "127.0.0.1:0", "--allow", "lab-pc"]) == 2
     assert "--allow 'lab-pc' is not an address or network" in capsys.readouterr().err
+
+
+def test_the_sender_never_stops_the_sim():
+    import socket
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()  # nobody listens there: the kernel answers with ICMP port unreachable
+    with StateSender("127.0.0.1", port, scenario_epoch=EPOCH, stream_id=5) as s:
+        assert s.send(_q(0, 0), 0, omega_SN_S=(0.0, 0.0, 20.0)) is None  # a tumble past one turn a second
+        assert s.refused == 1 and "omega_SN_S" in s.last_error and s.sequence == 0
+        for k in range(5):
+            s.send(_q(0, 0), k)
+        assert s.send_errors >= 1 and "failed" in s.last_error and s.sent + s.send_errors == 5
