@@ -161,10 +161,16 @@ def write_available(port: Any, data: bytes) -> int:
         except Exception:  # noqa: BLE001 - loop:// and others without a usable descriptor
             fd = None
     if isinstance(fd, int) and fd >= 0:
+        blocking = os.get_blocking(fd)  # pyserial's ports are non-blocking already; make sure
+        if blocking:
+            os.set_blocking(fd, False)
         try:
             return os.write(fd, data)
         except BlockingIOError:
             return 0
+        finally:
+            if blocking:
+                os.set_blocking(fd, True)
     try:
         n = port.write(data)
     except DeviceTimeoutError as exc:

@@ -142,3 +142,17 @@ def test_emulator_refuses_a_configuration_the_icd_cannot_carry():
     a, b = pipe_pair()
     with pytest.raises(ValueError, match="temperature_cC"):
         StarTrackerEmulator(a, Truth(), EmulatorConfig(temperature_C=-300.0))
+
+
+def test_write_available_never_blocks_even_on_a_blocking_descriptor():
+    r, w = os.pipe()  # a blocking pipe, as a port opened by someone else might be
+    try:
+        class Port:
+            def fileno(self):
+                return w
+
+        total = sum(write_available(Port(), bytes(65536)) for _ in range(8))
+        assert 0 < total < 8 * 65536 and os.get_blocking(w)  # took what fit, then 0; left as it was
+    finally:
+        os.close(r)
+        os.close(w)
