@@ -23,6 +23,7 @@ BENCHES = {
     "pacing": "stand.benches:bench_pacing",
     "tracker": "stand.benches.tracker:bench_tracker",
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
+    "cage": "stand.benches.cage:bench_cage",
 }
 
 #: BENCHMARKS.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
