@@ -2,6 +2,7 @@
 
     STAND_STAR_TRACKER_URL=/dev/ttyUSB0 pytest -m hardware
     STAND_MAGNETORQUER_URL=socketcan:can0 pytest -m hardware
+    STAND_CAGE_URL=tcp://192.0.2.10:502 pytest -m hardware      (or a serial port for Modbus RTU)
 
 A device emulated elsewhere (`stand emulate ...` on a pty, a socat link or another machine) is a
 fine stand-in: these tests only speak the protocol.
@@ -40,3 +41,13 @@ def test_magnetorquer_board_sends_magnetometer_samples():
     with MagnetorquerBoard.open(interface, channel) as board:
         sample = board.read_sample(timeout_s=2.0)
     assert all(abs(b) < 100e-6 for b in sample.b_T)  # an Earth-like field, not garbage
+
+
+def test_cage_reports_its_map_version_limits_and_field_without_driving_the_coils():
+    from drivers.cage.host import CageHost
+
+    with CageHost.open(_url("STAND_CAGE_URL"), timeout_s=2.0) as cage:
+        st = cage.status()
+    assert st.values["map_version"] == 256  # map 1.0
+    assert all(v > 0 for k, v in st.limits.items() if not k.startswith("temperature"))
+    assert st.field.valid and all(abs(b) < 1e-3 for b in st.field.b_T)
