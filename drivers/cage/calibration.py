@@ -107,6 +107,12 @@ class CageCalibration:
         except (KeyError, TypeError) as exc:
             raise ValueError(f"cage calibration {p}: missing or malformed field {exc}.") from None
 
+    @classmethod
+    def from_config(cls, config, bench: str = "emulated") -> CageCalibration:
+        """The exact calibration of an emulated cage (its :class:`~drivers.cage.model.CageConfig`):
+        for runs that do not want to spend sim time calibrating. A bench calibrates instead."""
+        return cls(config.coil_T_per_A, config.lab_field_T, 0.0, 0, bench, "")
+
     @staticmethod
     def path_for(bench: str, root: str | Path) -> Path:
         """Where the calibration of ``bench`` is kept under ``root``: ``root/<bench>/cage_calibration.json``."""

@@ -411,7 +411,11 @@ class CageModel:
         values = self.input_values()
         words: list[int] = []
         for r in self._input_regs:
-            words += r.encode(values[r.name])
+            v = values[r.name]
+            if isinstance(v, float):  # a measurement beyond what its register carries reads as the end of the range
+                lo, hi = r.si_range
+                v = min(max(v, lo), hi)
+            words += r.encode(v)
         return words
 
     def _span_ok(self, table: str, address: int, count: int) -> bool:

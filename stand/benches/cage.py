@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.constants import OMEGA_EARTH, R_EARTH
+from sim.constants import MU_EARTH, OMEGA_EARTH, R_EARTH
 from sim.environment import dipole_field_itrs
 from sim.frames import rotation_z
 from sim.orbit import elements_to_state
@@ -47,7 +47,7 @@ class LeoProfile:
         self.i = math.radians(inclination_deg)
         self.rate = math.radians(rate_deg_s)
         self.axis = np.asarray(axis, dtype=float)
-        self.n = math.sqrt(3.986004418e14 / self.a**3)
+        self.n = math.sqrt(MU_EARTH / self.a**3)
 
     def __call__(self, t_s) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t_s, dtype=float))

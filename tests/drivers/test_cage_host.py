@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import threading
 import time
 
 import numpy as np
@@ -16,6 +17,12 @@ from drivers.cage.emulator import CageEmulator
 from drivers.cage.host import CageHost, parse_url
 from drivers.cage.model import CageConfig
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+
+
+@pytest.fixture(autouse=True)
+def no_server_thread_left():
+    yield
+    assert not [t for t in threading.enumerate() if t.name.startswith("cage-emulator")]
 
 
 class SimTime:
@@ -58,7 +65,7 @@ def test_command_currents_take_field_and_status(rig):
     assert st.limits["current_limit_A"] == pytest.approx(4.0)
     assert st.voltages_V[0] == pytest.approx(1.2 * emu.config.resistance_ohm[0], abs=2e-3)
     assert st.values["map_version"] == 256
-    assert host.counters["sent"] == host.counters["received"] == emu.counters["received"]
+    assert host.counters["sent"] == host.counters["received"] == emu.counters["received"] >= 5
 
 
 def test_calibration_recovers_the_cage_and_command_field_reproduces_a_field(rig, tmp_path):
@@ -98,6 +105,14 @@ def test_fit_is_exact_on_noiseless_data_and_refuses_what_it_cannot_determine():
         fit_calibration(flat, flat @ k.T + b0)
     with pytest.raises(ValueError, match="bench"):
         CageCalibration.path_for("../x", "/tmp")
+
+
+def test_the_exact_calibration_of_an_emulated_cage_inverts_its_field():
+    cfg = CageConfig()
+    cal = CageCalibration.from_config(cfg)
+    i = cal.currents_for([10e-6, 20e-6, -30e-6])
+    assert np.array(cfg.coil_T_per_A) @ i + np.array(cfg.lab_field_T) == pytest.approx([10e-6, 20e-6, -30e-6],
+                                                                                         abs=1e-18)
 
 
 def test_a_broken_calibration_file_is_refused_naming_it(tmp_path):

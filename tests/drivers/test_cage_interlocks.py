@@ -63,6 +63,12 @@ def test_the_addresses_used_here_are_those_of_the_document():
     assert "| `current_setpoint_x_A` | u16 | 0.0001 |" in text and "| `current_x_A` | i32 | 1e-06 |" in text
 
 
+@pytest.fixture(autouse=True)
+def no_server_thread_left():
+    yield
+    assert not [t for t in threading.enumerate() if t.name.startswith("cage-emulator")]
+
+
 class Bench:
     """The emulator in sim time on 127.0.0.1 and a raw pymodbus client; ``t`` is sim time."""
 
