@@ -6,6 +6,7 @@ terminal can be wired to it.
                   [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
                   [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
                   [--interval-s S] [--delay-s S]
+    stand emulate cage --port tcp://127.0.0.1:PORT | SERIAL [--duration S] [--baud B] [--seed N]
 
 The star tracker is the truth-plus-noise emulator (``drivers.star_tracker.emulator``) with a
 built-in measurement source: the boresight (+z of the tracker frame) at right ascension ``--ra``
@@ -13,6 +14,9 @@ and declination ``--dec`` (GCRS), rolled by ``--roll`` about it (roll 0: celesti
 tracker -y, east along -x: north up and east left on the image), spinning at ``--rate-deg-s``
 (tracker axes; default at rest). No Sun, Moon or Earth in the field. Sim time is wall time since
 start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its counters as one JSON line.
+The cage is the Helmholtz cage controller (``drivers.cage.emulator``, register map
+``docs/cage_register_map.md``) on Modbus TCP (``tcp://HOST:PORT``) or Modbus RTU (a serial port),
+running its coils in wall time with the nominal bench configuration.
 Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error.
 """
 
@@ -29,18 +33,19 @@ import numpy as np
 
 from star_screen.attitude import q_SN_from_radec_roll
 
-DEVICES = ("star-tracker", "magnetorquer")
+DEVICES = ("star-tracker", "magnetorquer", "cage")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "emulate",
-        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN)",
+        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN, cage on Modbus)",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("device", help="device to emulate: " + ", ".join(DEVICES))
     p.add_argument("--port", required=True, help="star tracker: a serial URL or path (/dev/ttyUSB0, a pty or socat "
-                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs)")
+                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs); "
+                   "cage: tcp://127.0.0.1:PORT (Modbus TCP) or a serial port (Modbus RTU)")
     p.add_argument("--field-nT", default="20000,0,-40000",
                    help="magnetorquer: the field its magnetometer sees, sensor axes, nT, as X,Y,Z")
     p.add_argument("--address", type=lambda s: int(s, 0), default=None, help="device address (default 0x21)")
@@ -139,6 +144,45 @@ def run_magnetorquer(args) -> int:
     return 0
 
 
+def run_cage(args) -> int:
+    """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time."""
+    from drivers.cage.emulator import CageEmulator
+    from drivers.cage.host import parse_url
+    from drivers.errors import DriverError
+
+    try:
+        kind, host, port = parse_url(args.port)
+    except ValueError as exc:
+        return _fail(str(exc))
+    emu = CageEmulator(rng=args.seed)
+    try:
+        if kind == "tcp":
+            emu.serve_tcp(host, port)
+        else:
+            emu.serve_rtu(host, baudrate=args.baud)
+    except DriverError as exc:
+        emu.close()
+        return _fail(str(exc))
+    old = _stop_on_sigterm()
+    status = 0
+    with emu:
+        print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
+                                                      " until Ctrl-C"), flush=True)
+        try:
+            emu.run(args.duration)
+        except KeyboardInterrupt:
+            pass
+        except DriverError as exc:
+            print(f"stand emulate: {exc}", file=sys.stderr)
+            status = 1
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGTERM, old)
+        print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
+                          "counters": emu.counters}), flush=True)
+    return status
+
+
 def run(args) -> int:
     if args.device not in DEVICES:
         return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
@@ -146,6 +190,8 @@ def run(args) -> int:
         return _fail(f"--duration {args.duration!r} is not allowed; give a positive number of seconds.")
     if args.device == "magnetorquer":
         return run_magnetorquer(args)
+    if args.device == "cage":
+        return run_cage(args)
     if not -90.0 <= args.dec <= 90.0:
         return _fail(f"--dec {args.dec!r} is not allowed; give a declination from -90 to 90 deg.")
     try:

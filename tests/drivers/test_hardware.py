@@ -4,6 +4,7 @@
     STAND_MAGNETORQUER_URL=socketcan:can0 pytest -m hardware
     STAND_GYRO_URL=/dev/ttyUSB1 STAND_SUN_SENSOR_URL=/dev/ttyUSB2 pytest -m hardware
     STAND_REACTION_WHEEL_URL=socketcan:can0:0 pytest -m hardware     (interface:channel:wheel number)
+    STAND_CAGE_URL=tcp://192.0.2.10:502 pytest -m hardware      (or a serial port for Modbus RTU)
 
 A device emulated elsewhere (`stand emulate ...` on a pty, a socat link or another machine) is a
 fine stand-in: these tests only speak the protocol.
@@ -77,3 +78,11 @@ def test_reaction_wheel_reports_its_speed_and_acknowledges_a_zero_torque():
             rw.read_speed(timeout_s=2.0)
     assert abs(tlm.speed_rad_s) < 2000.0
     assert rw.latest_status is not None and rw.latest_status.seq_ack == seq
+def test_cage_reports_its_map_version_limits_and_field_without_driving_the_coils():
+    from drivers.cage.host import CageHost
+
+    with CageHost.open(_url("STAND_CAGE_URL"), timeout_s=2.0) as cage:
+        st = cage.status()
+    assert st.values["map_version"] == 256  # map 1.0
+    assert all(v > 0 for k, v in st.limits.items() if not k.startswith("temperature"))
+    assert st.field.valid and all(abs(b) < 1e-3 for b in st.field.b_T)
