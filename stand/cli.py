@@ -253,6 +253,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("stand: interrupted", file=sys.stderr)
         return EXIT_STOPPED
+    except BrokenPipeError:  # the reader of our output went away (stand ... | head): nothing left to say
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

@@ -347,7 +347,7 @@ def set_value(data: dict, item: str) -> None:
                 raise ScenarioError("--set", item, f"a key inside a table ({'.'.join(parts[:i + 1])} is a value)")
     if not isinstance(node, dict):
         raise ScenarioError("--set", item, "a key of a table")
-    node[parts[-1]] = value
+    node[parts[-1]] = value  # an inline table replaces the whole table: --set 'controller={kind = "external"}'
 
 
 def parse(data: dict, source: str | None = None) -> Scenario:
@@ -575,10 +575,6 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
                           "flight computer outside to close the loop through")
         t.check_unknown()
         return ControllerSpec(kind, 1.0 / step_s)
-    if served:
-        raise t.error("kind", kind, f"'external' when devices are served ({', '.join(served)}): a served device is "
-                      "for a flight computer outside the stand; an in-stand controller uses link 'emulated' or "
-                      "'hardware'")
     rate_hz = rate(t, "rate_hz", step_s)
     params: dict = {}
     if kind == "bdot":
@@ -602,6 +598,9 @@ def _bdot(t: Table, rate_hz: float, step_s: float, devices, params: dict) -> Non
     names = [d.name for d in boards]
     params["device"] = t.choice("device", names, names[0])
     board = boards[names.index(params["device"])]
+    if board.link == "served":
+        raise t.error("device", board.name, "a board the stand's B-dot can command: this one is served to a flight "
+                      "computer outside (link = 'served'); use controller.kind = 'external' or another link")
     params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True, hi=1e12)
     # A command the board cannot carry would abort the run at its first saturation.
     params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True, hi=board.max_dipole_A_m2)
