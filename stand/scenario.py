@@ -393,6 +393,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     names = [d.name for d in devices]
     if len(set(names)) != len(names):
         raise root.error("devices", names, "device names must be unique")
+    _check_refs(devices, source)
 
     controller = _controller(root.table("controller", required=False), step_s, devices)
     crit_raw = root.raw("criteria", [])
@@ -564,6 +565,21 @@ def _device(t: Table, step_s: float) -> DeviceSpec:
     if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
     return kind.parse(t, DeviceSpec(name=name, kind=kind_name, link=link, q_SB=q_SB), step_s)
+
+
+def _check_refs(specs, source) -> None:
+    """A device that takes something from another (a magnetometer reading a cage's field) names one that exists
+    and provides it."""
+    from stand import devices
+
+    by_name = {d.name: d for d in specs}
+    for k, d in enumerate(specs):
+        for key, (target, what) in devices.get(d.kind).refs(d).items():
+            providers = [x.name for x in specs if what in devices.get(x.kind).provides]
+            if target not in by_name or target not in providers:
+                raise ScenarioError(f"devices[{k}].{key}", target, "'truth' or the name of a device that makes the "
+                                    f"{what.replace('_', ' ')} ({', '.join(providers) or 'none in this scenario'})",
+                                    source)
 
 
 def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
