@@ -211,16 +211,22 @@ def _plot(tel, name: str, out_dir) -> str:
     cage, true = tel[f"{name}.b_cage_B"] / 1e-6, tel["b_true_B"] / 1e-6
     for i, ax in enumerate(axes[:3]):
         ax.plot(t, true[:, i], color="0.2", lw=2.2, alpha=0.35, label="simulated field")
-        ax.plot(t, cage[:, i], color="tab:blue", lw=0.8, label=f"cage {name} at the test position")
+        ax.plot(t, cage[:, i], color="tab:blue", lw=0.8, label=f"made by the cage ({name}) at the test position")
         ax.set_ylabel(f"B {'xyz'[i]} body (uT)")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     err = np.linalg.norm(tel[f"{name}.b_cage_B"] - tel["b_true_B"], axis=1) / NT
-    axes[3].plot(t, err, color="tab:red", lw=0.8)
+    axes[3].semilogy(t, np.maximum(err, 1e-3), color="tab:red", lw=0.8)
+    axes[3].axvline(SETTLE_S, color="0.5", ls=":", lw=0.8)
     axes[3].set_ylabel("|difference| (nT)")
+    settled = err[t >= SETTLE_S]
+    if len(settled):
+        rms = float(np.sqrt(np.mean(settled**2)))
+        axes[3].axhline(rms, color="0.3", ls="--", lw=0.8, label=f"RMS after start-up {rms:.0f} nT")
+        axes[3].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     axes[3].set_xlabel("t (s)")
     axes[3].grid(alpha=0.3)
-    axes[0].set_title(f"Helmholtz cage {name}: the field it makes against the simulated one")
+    axes[0].set_title(f"Helmholtz cage ({name}): the field it makes against the simulated one")
     fname = f"cage_{name}.png"
     fig.savefig(f"{out_dir}/{fname}", dpi=110)
     return fname
