@@ -18,7 +18,7 @@ from drivers.errors import ConnectError
 if TYPE_CHECKING:  # pragma: no cover
     import can
 
-__all__ = ["open_bus", "socketcan_available"]
+__all__ = ["loops_back", "open_bus", "socketcan_available"]
 
 
 def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
@@ -74,3 +74,9 @@ def socketcan_available() -> bool:
         return False
     sock.close()
     return True
+
+
+def loops_back(bus) -> bool:
+    """True for a bus that hands a node its own frames back (python-can's ``udp_multicast``: every datagram sent to
+    the group reaches the sender too). A node on such a bus counts those frames as echoes, not as foreign traffic."""
+    return type(bus).__name__ == "UdpMulticastBus"

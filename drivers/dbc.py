@@ -283,17 +283,27 @@ class DbcCodec:
     # -- encode ---------------------------------------------------------------------------------
 
     def encode(self, name: str, values: Mapping[str, Any]) -> tuple[int, bytes]:
-        """Encode ``values`` (physical, DBC units) as message ``name``: returns (frame id, payload)."""
-        entry = self._by_name.get(name)
+        """Encode ``values`` (physical, DBC units) as message ``name``: returns (frame id, payload).
+
+        Raises :class:`~drivers.errors.EncodeError`, and nothing else, for anything it cannot encode."""
+        entry = self._by_name.get(name) if isinstance(name, str) else None
         if entry is None:
             raise EncodeError(
                 f"Unknown message {name!r} in {self.path.name}; known: {', '.join(self.names)}."
             )
+        if not isinstance(values, Mapping):
+            raise EncodeError(f"Cannot encode {name}: values = {values!r} must be a mapping of signal name to value; "
+                              f"the message has {', '.join(self.signal_names(name))}.")
         if not entry.fast:
             return entry.frame_id, self._encode_cantools(entry, values)
-        payload = entry.encode_fast(values)
-        if payload is None:
-            payload = self._encode_general(entry, values)
+        try:
+            payload = entry.encode_fast(values)
+            if payload is None:
+                payload = self._encode_general(entry, values)
+        except EncodeError:
+            raise
+        except (TypeError, ValueError, ArithmeticError) as exc:  # an object no number check foresaw
+            raise EncodeError(f"Cannot encode {name}: {type(exc).__name__}: {exc} (DBC {self.path.name}).") from None
         return entry.frame_id, payload
 
     def _encode_general(self, entry: _Message, values: Mapping[str, Any]) -> bytes:
@@ -353,10 +363,16 @@ class DbcCodec:
             return value
         if isinstance(value, (int, float)):  # subclasses (numpy.float64 is a float)
             return float(value) if isinstance(value, float) else int(value)
-        if hasattr(value, "__index__"):  # numpy integers
-            return int(value.__index__())
+        if hasattr(value, "__index__"):  # numpy integers (an array has the method but refuses)
+            try:
+                return int(value.__index__())
+            except (TypeError, ValueError):
+                pass
         if hasattr(value, "__float__") and not isinstance(value, complex):
-            return float(value)
+            try:
+                return float(value)
+            except (TypeError, ValueError, ArithmeticError):
+                pass
         raise EncodeError(
             f"Cannot encode {entry.name}.{sig.name} = {value!r}: expected a number"
             + (f" or one of {', '.join(sig.choices)}" if sig.choices else "")
@@ -402,7 +418,7 @@ class DbcCodec:
 
         try:
             return bytes(entry.cantools_message.encode(dict(values), scaling=True, strict=True))
-        except (CantoolsEncodeError, KeyError, ValueError, TypeError) as exc:
+        except (CantoolsEncodeError, KeyError, ValueError, TypeError, ArithmeticError) as exc:
             raise EncodeError(f"Cannot encode {entry.name}: {exc} (DBC {self.path.name}).") from exc
 
     # -- decode ---------------------------------------------------------------------------------

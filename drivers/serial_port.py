@@ -9,7 +9,13 @@ A port is given as
 
 :class:`FdPort` wraps a raw file descriptor (the master side of ``os.openpty()``), and
 :func:`pty_pair` makes an in-process pty pair: the emulator serves on the master fd, the code
-under test opens the slave path like any serial device. :class:`SerialEndpoint` is the serial
+under test opens the slave path like any serial device.
+
+Nothing here can hang on a peer that stopped reading: :meth:`FdPort.write` has a monotonic
+deadline (``write_timeout``) and raises :class:`~drivers.errors.DeviceTimeoutError` when the line
+does not take the bytes in time; :func:`write_available` writes only what a port takes at once
+(an emulator in the loop's thread uses it and counts what it had to drop). A pty takes about 4 KiB
+before a writer would block. :class:`SerialEndpoint` is the serial
 sibling of :class:`drivers.endpoint.BusEndpoint`: an owned port, idempotent ``close()``, context
 manager.
 """
@@ -22,24 +28,31 @@ import tty
 from typing import Any
 
 from drivers.endpoint import Endpoint
-from drivers.errors import ConnectError
+from drivers.errors import ConnectError, DeviceTimeoutError
 
-__all__ = ["FdPort", "SerialEndpoint", "open_port", "port_name", "pty_pair"]
+__all__ = ["FdPort", "SerialEndpoint", "open_port", "port_name", "pty_pair", "write_available"]
 
 
 class FdPort:
     """A byte stream on a file descriptor, with the parts of the ``serial.Serial`` API drivers use.
 
     ``timeout`` (s, None = block) bounds :meth:`read` like pyserial's: it returns as soon as
-    ``size`` bytes arrived or the timeout passed. The descriptor is closed by :meth:`close` (twice is fine).
+    ``size`` bytes arrived or the timeout passed. ``write_timeout`` (s) bounds :meth:`write`: the
+    descriptor is non-blocking and a write that the other side does not take by then raises
+    :class:`~drivers.errors.DeviceTimeoutError` (``written`` says how many bytes went out). The
+    descriptor is closed by :meth:`close` (twice is fine).
     """
 
-    def __init__(self, fd: int, name: str = "", timeout: float | None = 0.0) -> None:
+    def __init__(self, fd: int, name: str = "", timeout: float | None = 0.0, write_timeout: float = 1.0) -> None:
+        if not (isinstance(write_timeout, (int, float)) and 0 <= write_timeout < 3600):
+            raise ValueError(f"FdPort write_timeout = {write_timeout!r}; allowed 0 to 3600 s (never unbounded).")
         self.fd = fd
         self.name = name or f"fd:{fd}"
         self.timeout = timeout
+        self.write_timeout = float(write_timeout)
         self.port = self.name
         self.is_open = True
+        os.set_blocking(fd, False)
 
     def fileno(self) -> int:
         return self.fd
@@ -63,6 +76,8 @@ class FdPort:
                 break
             try:
                 chunk = os.read(self.fd, size - len(out))
+            except BlockingIOError:
+                continue
             except OSError:  # EIO: the other side of a pty is closed
                 break
             if not chunk:
@@ -71,18 +86,42 @@ class FdPort:
         return bytes(out)
 
     def write(self, data: bytes) -> int:
-        view = memoryview(data)
+        import time
+
+        view = memoryview(bytes(data))
+        deadline = time.monotonic() + self.write_timeout
         while view:
-            n = os.write(self.fd, view)
+            try:
+                n = os.write(self.fd, view)
+            except BlockingIOError:
+                n = 0
             view = view[n:]
+            if not view:
+                break
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([], [self.fd], [], left)[1]:
+                written = len(data) - len(view)
+                err = DeviceTimeoutError(
+                    f"{self.name}: {len(view)} of {len(data)} bytes could not be written within "
+                    f"{self.write_timeout:g} s; the other end is not reading.",
+                    device=self.name, awaited="the line to take the bytes", timeout_s=self.write_timeout)
+                err.written = written
+                raise err
         return len(data)
 
     def flush(self) -> None:
         pass
 
     def reset_input_buffer(self) -> None:
-        while self.in_waiting:
-            if not os.read(self.fd, 4096):
+        for _ in range(256):  # bounded: a peer writing without pause cannot hold the caller here
+            if not self.in_waiting:
+                break
+            try:
+                if not os.read(self.fd, 4096):
+                    break
+            except BlockingIOError:
+                break
+            except OSError:
                 break
 
     def close(self) -> None:
@@ -107,8 +146,45 @@ def pty_pair() -> tuple[FdPort, str, int]:
     return FdPort(master, f"pty-master:{os.ttyname(slave)}"), os.ttyname(slave), slave
 
 
+def write_available(port: Any, data: bytes) -> int:
+    """Write as much of ``data`` as ``port`` takes now, without blocking; return the bytes written.
+
+    A port with a descriptor (FdPort, pyserial's tty and socket:// ports, both non-blocking) is
+    written with one ``os.write``; 0 when its buffer is full. Other ports (``loop://``) get their
+    own ``write``, bounded by their ``write_timeout``; a timeout there counts as nothing written.
+    """
+    fileno = getattr(port, "fileno", None)
+    fd = None
+    if fileno is not None:
+        try:
+            fd = fileno()
+        except Exception:  # noqa: BLE001 - loop:// and others without a usable descriptor
+            fd = None
+    if isinstance(fd, int) and fd >= 0:
+        blocking = os.get_blocking(fd)  # pyserial's ports are non-blocking already; make sure
+        if blocking:
+            os.set_blocking(fd, False)
+        try:
+            return os.write(fd, data)
+        except BlockingIOError:
+            return 0
+        finally:
+            if blocking:
+                os.set_blocking(fd, True)
+    try:
+        n = port.write(data)
+    except DeviceTimeoutError as exc:
+        return getattr(exc, "written", 0)
+    except Exception as exc:
+        if type(exc).__name__ in ("SerialTimeoutException", "Full"):
+            return 0
+        raise
+    return len(data) if n is None else int(n)
+
+
 def open_port(
-    port: Any, *, baudrate: int = 115200, timeout: float | None = 0.0, name: str = "serial"
+    port: Any, *, baudrate: int = 115200, timeout: float | None = 0.0, name: str = "serial",
+    write_timeout: float = 2.0,
 ) -> tuple[Any, bool]:
     """Open ``port`` (URL/path) with pyserial, or pass an open port object through.
 
@@ -131,7 +207,7 @@ def open_port(
                            "the base install (pip install adcs-stand).", where=url, reason="pyserial missing") from None
 
     try:
-        ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=2.0)
+        ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=write_timeout)
     except (serial.SerialException, ValueError, OSError) as exc:
         raise ConnectError(f"{name}: cannot open serial port {url!r}: {exc}", where=url, reason=str(exc)) from exc
     return ser, True

@@ -1,4 +1,5 @@
-"""Stiff actuator sub-models as exact discrete updates: magnetorquer coil, wheel friction, flexible mode.
+"""Stiff actuator sub-models as exact discrete updates: magnetorquer coil, wheel friction and motor,
+flexible mode; and the spin-axis layouts of wheel clusters.
 
 Each is linear (or piecewise linear) with inputs held over a step (zero-order hold), so its exact
 solution over a step costs as much as one explicit stage and has no stability limit. Integrating
@@ -12,6 +13,7 @@ the step guard of a scene that would put the model into an explicit integrator.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
@@ -173,6 +175,157 @@ class ReactionWheel:
         d_energy = 0.5 * J * (w * w - w_start * w_start)
         friction = max(motor_work - d_energy, 0.0)
         return w, -J * (w - w_start) / h, friction
+
+
+class WheelState(NamedTuple):
+    """A wheel motor's state: rotor speed about its spin axis (rad/s) and the motor torque now (N m)."""
+
+    omega_rad_s: float
+    motor_torque_Nm: float
+
+
+class WheelMotor:
+    """A reaction wheel with its motor: torque limit, back-EMF roll-off, motor lag, friction.
+
+    The rotor is a :class:`ReactionWheel` (Karnopp friction, stepped exactly). The motor adds:
+
+    - ``max_torque_Nm``: the command is clipped to +-tau_max;
+    - ``max_speed_rad_s`` w_max with ``rolloff_rad_s`` (default 10 % of w_max): driving the speed up
+      (torque and speed of one sign) the available torque falls linearly from tau_max to 0 over the
+      last ``rolloff_rad_s`` before w_max, as the back-EMF eats the driver's voltage; braking keeps
+      tau_max. The roll-off is evaluated at the start of each step and the motor never drives the
+      speed past ``max(w_max, |w|)`` within a step, so the limit holds at any step;
+    - ``time_constant_s`` T: the motor torque follows the (limited) command as a first-order lag,
+      exactly: tau(t) = u + (tau0 - u) e^(-t/T). The rotor is driven by the mean torque of that
+      exponential over the step, so the momentum the motor delivers is exact at any step length.
+
+    :meth:`step` returns the new state, the mean torque on the body over the step (-J dOmega / h:
+    the motor's and the bearing friction's reactions together, so momentum is exchanged exactly)
+    and the friction energy. In speed mode (:meth:`speed_loop_torque`) the wheel's own controller
+    asks for the torque that closes the speed error over ``speed_loop_s`` (never faster than one
+    step, so it cannot overshoot by gain at a long step) plus its friction at the present speed.
+    Scalars: one wheel per object.
+    """
+
+    def __init__(self, wheel: ReactionWheel, max_torque_Nm: float, max_speed_rad_s: float,
+                 time_constant_s: float = 0.0, rolloff_rad_s: float | None = None, speed_loop_s: float = 0.2):
+        if not isinstance(wheel, ReactionWheel):
+            raise TypeError(f"WheelMotor needs a ReactionWheel rotor; got {type(wheel).__name__}.")
+        self.wheel = wheel
+        self.max_torque_Nm = _positive("max_torque_Nm", max_torque_Nm, "N m")
+        self.max_speed_rad_s = _positive("max_speed_rad_s", max_speed_rad_s, "rad/s")
+        self.time_constant_s = _non_negative("time_constant_s", time_constant_s, "s")
+        roll = 0.1 * self.max_speed_rad_s if rolloff_rad_s is None else rolloff_rad_s
+        self.rolloff_rad_s = _positive("rolloff_rad_s", roll, "rad/s")
+        if self.rolloff_rad_s > self.max_speed_rad_s:
+            raise ValueError(f"rolloff_rad_s = {rolloff_rad_s!r} rad/s exceeds max_speed_rad_s = "
+                             f"{max_speed_rad_s!r} rad/s; the roll-off band lies below the rated speed.")
+        self.speed_loop_s = _positive("speed_loop_s", speed_loop_s, "s")
+        if wheel.static > self.max_torque_Nm:
+            raise ValueError(f"the wheel's breakaway friction {wheel.static!r} N m exceeds max_torque_Nm = "
+                             f"{max_torque_Nm!r} N m: the motor could never start it.")
+        self._lag: dict[float, tuple[float, float]] = {}
+
+    @property
+    def inertia(self) -> float:
+        return self.wheel.inertia
+
+    def available_torque(self, omega_rad_s: float, u_nm: float) -> float:
+        """The torque the motor can give for command ``u_nm`` at speed ``omega_rad_s`` (clipped, rolled off)."""
+        u = min(max(float(u_nm), -self.max_torque_Nm), self.max_torque_Nm)
+        w = float(omega_rad_s)
+        if u * w > 0.0:  # driving the speed up: the back-EMF limits the torque near w_max
+            room = (self.max_speed_rad_s - abs(w)) / self.rolloff_rad_s
+            u *= min(max(room, 0.0), 1.0)
+        return u
+
+    def speed_loop_torque(self, state: WheelState, omega_cmd_rad_s: float, h_s: float) -> float:
+        """The torque command of the wheel's speed loop for the next ``h_s`` (before the motor's limits).
+
+        It asks for the mean torque that closes the speed error over ``max(speed_loop_s, h_s)`` plus
+        the friction at the present speed, and inverts the motor lag so that the step's MEAN torque
+        is that value (the torque still decaying from the last command counts towards it).
+        Friction fed forward at the present speed, not the commanded one, keeps the approach from
+        overshooting; at the command it is exact, so there is no steady error.
+        """
+        h = _positive("h_s", h_s, "s")
+        w_cmd = min(max(float(omega_cmd_rad_s), -self.max_speed_rad_s), self.max_speed_rad_s)
+        w_now, tau0 = float(state[0]), float(state[1])
+        r = self.wheel
+        s = w_now if w_now != 0.0 else w_cmd
+        feed = r.coulomb * (1.0 if s > 0 else -1.0 if s < 0 else 0.0) + r.viscous * w_now
+        want = r.inertia * (w_cmd - w_now) / max(self.speed_loop_s, h) + feed
+        _, mean = self._lag_factors(h)
+        return (want - tau0 * mean) / (1.0 - mean)
+
+    def _lag_factors(self, h: float) -> tuple[float, float]:
+        """``(e^(-h/T), mean of e^(-t/T) over the step)``, cached per step length."""
+        f = self._lag.get(h)
+        if f is None:
+            T = self.time_constant_s
+            if T == 0.0:
+                f = (0.0, 0.0)
+            else:
+                x = h / T
+                f = (math.exp(-x), -math.expm1(-x) / x)
+            self._lag[h] = f
+        return f
+
+    def step(self, state: WheelState, u_cmd_Nm: float, h_s: float) -> tuple[WheelState, float, float]:
+        """Advance ``h_s`` seconds with torque command ``u_cmd_Nm`` held: ``(state, body_torque_Nm, friction_J)``."""
+        h = _positive("h_s", h_s, "s")
+        w0, tau0 = float(state[0]), float(state[1])
+        if not (math.isfinite(w0) and math.isfinite(tau0) and math.isfinite(float(u_cmd_Nm))):
+            raise ValueError(f"state = {tuple(state)!r}, u_cmd_Nm = {u_cmd_Nm!r}; all must be finite.")
+        u = self.available_torque(w0, u_cmd_Nm)
+        decay, mean = self._lag_factors(h)
+        tau_end = u + (tau0 - u) * decay
+        tau_mean = u + (tau0 - u) * mean
+        w1, _, friction = self.wheel.step(w0, tau_mean, h)
+        cap = max(self.max_speed_rad_s, abs(w0))
+        if abs(w1) > cap and tau_mean * w1 > 0.0:
+            w1 = math.copysign(cap, w1)  # the back-EMF allows no more within this step
+        J = self.wheel.inertia
+        return WheelState(w1, tau_end), -J * (w1 - w0) / h, friction
+
+    def step_speed(self, state: WheelState, omega_cmd_rad_s: float, h_s: float) -> tuple[WheelState, float, float]:
+        """:meth:`step` in speed mode: the speed loop computes the torque command."""
+        return self.step(state, self.speed_loop_torque(state, omega_cmd_rad_s, h_s), h_s)
+
+
+#: Tilt of the spin axes from the pyramid's axis that gives equal torque capability about all three
+#: body axes: arccos(1 / sqrt(3)) = 54.7356 deg.
+PYRAMID_EQUAL_TILT_DEG = math.degrees(math.acos(1.0 / math.sqrt(3.0)))
+
+
+def wheel_spin_axes_B(layout: str, tilt_deg: float = PYRAMID_EQUAL_TILT_DEG) -> np.ndarray:
+    """Unit spin axes of a wheel cluster in the body frame, one row per wheel.
+
+    ``"orthogonal"``: three wheels along body x, y, z. ``"pyramid"``: four wheels whose axes lean
+    ``tilt_deg`` from body +z, at azimuths 0, 90, 180, 270 deg from body +x.
+    """
+    if layout == "orthogonal":
+        return np.eye(3)
+    if layout == "pyramid":
+        if not 0.0 < tilt_deg < 90.0:
+            raise ValueError(f"pyramid tilt_deg = {tilt_deg!r}; it must lie strictly between 0 and 90 deg.")
+        t = math.radians(tilt_deg)
+        az = np.radians([0.0, 90.0, 180.0, 270.0])
+        return np.column_stack((math.sin(t) * np.cos(az), math.sin(t) * np.sin(az), np.full(4, math.cos(t))))
+    raise ValueError(f"wheel layout = {layout!r}; allowed: 'orthogonal' (3 wheels) or 'pyramid' (4 wheels).")
+
+
+def wheel_torque_distribution(spin_axes_B) -> np.ndarray:
+    """The minimum-norm map from a wanted motor torque on the body axes to per-wheel motor torques.
+
+    With ``A`` the spin axes as columns (3 x n), the wheels' motor torques ``u`` give the body the
+    torque ``-A u``; this returns ``pinv(A)`` (n x 3), so ``u = pinv(A) @ tau_B`` puts ``A u = tau_B``
+    on the rotors (and ``-tau_B`` on the body). Refuses axes that do not span three dimensions.
+    """
+    A = np.asarray(spin_axes_B, dtype=float).T
+    if A.ndim != 2 or A.shape[0] != 3 or np.linalg.matrix_rank(A, tol=1e-9) < 3:
+        raise ValueError(f"spin axes of shape {np.shape(spin_axes_B)} must be n >= 3 vectors spanning 3-D.")
+    return np.linalg.pinv(A)
 
 
 class FlexibleMode:

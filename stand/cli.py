@@ -246,13 +246,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
         return args.func(args)
     except KeyboardInterrupt:
         print("stand: interrupted", file=sys.stderr)
         return EXIT_STOPPED
+    except BrokenPipeError:  # the reader of our output went away (stand ... | head): nothing left to say
+        sys.stderr.close()
+        return 0
 
 
 if __name__ == "__main__":

@@ -212,10 +212,16 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None) ->
     )
     scene = Scene(sc, truth, choices)
     try:
-        seeds = np.random.SeedSequence(sc.seed).spawn(len(sc.devices))
-        for d, seed in zip(sc.devices, seeds, strict=True):
-            ctx = BuildContext(truth, tracks, sc.epoch, np.random.default_rng(seed), sc.step_s, speed)
-            scene.devices[d.name] = devices.get(d.kind).build(d, ctx)
+        seeds = dict(zip((d.name for d in sc.devices), np.random.SeedSequence(sc.seed).spawn(len(sc.devices)),
+                         strict=True))
+        stimuli: dict = {}
+        # Stimulators first, so they are built, and step each tick, before the devices that read them.
+        for d in sorted(sc.devices, key=lambda d: not devices.get(d.kind).provides):
+            ctx = BuildContext(truth, tracks, sc.epoch, np.random.default_rng(seeds[d.name]), sc.step_s, speed,
+                               stimuli)
+            scene.devices[d.name] = built = devices.get(d.kind).build(d, ctx)
+            if devices.get(d.kind).provides:
+                stimuli[d.name] = built
         scene.controller = build_controller(sc, scene.devices, base)
     except BaseException:
         scene.close()

@@ -29,6 +29,8 @@ from .compose import Scene, ticks_per
 from .pacing import Pacer
 from .telemetry import EventLog, Recorder, TelemetryError
 
+#: Where in a paced tick's wall-clock frame commands from devices in wall time are taken in (fraction of the tick).
+FRAME_END = 0.8
 #: Lines of a plug-in's traceback kept in the event log.
 TRACEBACK_LINES = 40
 
@@ -154,6 +156,11 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals once here, and
     # the dipoles travel as tuples of floats (no arrays, no float() per tick).
     wait = pacer.wait if pacer.factor is not None else None
+    # Frame-based scheduling when devices live in wall time (hardware and served links): measurements go out at
+    # the start of a tick's wall-clock frame, actuator commands are taken in near its end, so a flight computer
+    # outside that answers within the frame acts in the same tick, as the in-process controller does.
+    hold = pacer.hold if (pacer.factor is not None and sc.wall_time_links) else None
+    frame_end_s = FRAME_END * sc.step_s
     step = truth.step
     ctl_update = controller.update if controller is not None else None
     show = bar.update if progress else None
@@ -171,6 +178,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                     publish(t)
             if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
                 ctl_update(t)
+            if hold is not None:
+                hold(t + frame_end_s)
             dx = dy = dz = 0.0
             for receive in receivers:
                 receive(t)

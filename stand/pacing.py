@@ -66,6 +66,15 @@ class Pacer:
         if late > self.tick_s / self.factor:
             self.overruns += 1
 
+    def hold(self, t_sim_s: float) -> None:
+        """Sleep until the wall-clock time of sim time ``t_sim_s`` if it is still ahead (no statistics, no spin):
+        the frame-end wait before a paced tick takes in what devices outside sent during the frame."""
+        if self.factor is None:
+            return
+        left = self.start + t_sim_s / self.factor - self.clock()
+        if left > 0:
+            self.sleep(left)
+
     def stats(self) -> dict:
         out = {"paced": self.factor is not None, "speed_factor": self.factor, "overruns": self.overruns}
         if self._lateness:

@@ -57,13 +57,21 @@ def _rejected(counters: dict) -> int:
     return total
 
 
+def metric_unit(metric: str) -> str:
+    """The unit of a metric: the run's table, else the unit its name ends with (``..._rms_nT``)."""
+    if metric in METRIC_UNITS:
+        return METRIC_UNITS[metric]
+    tail = metric.rsplit("_", 1)[-1]
+    return tail if tail in ("nT", "arcsec", "deg", "s", "ms") else ""
+
+
 def evaluate(criteria, tel, result: RunResult, scene_devices=()) -> list[dict]:
     out = []
     for c in criteria:
         v = metric_value(c, tel, result, scene_devices)
         ok = math.isfinite(v) and (c.max is None or v <= c.max) and (c.min is None or v >= c.min)
         limit = {"max": c.max} if c.min is None else {"min": c.min} if c.max is None else {"min": c.min, "max": c.max}
-        out.append({"name": c.name, "metric": c.metric, "value": v, "unit": METRIC_UNITS.get(c.metric, ""),
+        out.append({"name": c.name, "metric": c.metric, "value": v, "unit": metric_unit(c.metric),
                     "limit": limit, "pass": bool(ok),
                     **({"at_s": c.at_s} if c.at_s is not None else {})})
     return out

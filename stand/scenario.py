@@ -347,7 +347,7 @@ def set_value(data: dict, item: str) -> None:
                 raise ScenarioError("--set", item, f"a key inside a table ({'.'.join(parts[:i + 1])} is a value)")
     if not isinstance(node, dict):
         raise ScenarioError("--set", item, "a key of a table")
-    node[parts[-1]] = value
+    node[parts[-1]] = value  # an inline table replaces the whole table: --set 'controller={kind = "external"}'
 
 
 def parse(data: dict, source: str | None = None) -> Scenario:
@@ -393,6 +393,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     names = [d.name for d in devices]
     if len(set(names)) != len(names):
         raise root.error("devices", names, "device names must be unique")
+    _check_refs(devices, source)
 
     controller = _controller(root.table("controller", required=False), step_s, devices)
     crit_raw = root.raw("criteria", [])
@@ -566,6 +567,21 @@ def _device(t: Table, step_s: float) -> DeviceSpec:
     return kind.parse(t, DeviceSpec(name=name, kind=kind_name, link=link, q_SB=q_SB), step_s)
 
 
+def _check_refs(specs, source) -> None:
+    """A device that takes something from another (a magnetometer reading a cage's field) names one that exists
+    and provides it."""
+    from stand import devices
+
+    by_name = {d.name: d for d in specs}
+    for k, d in enumerate(specs):
+        for key, (target, what) in devices.get(d.kind).refs(d).items():
+            providers = [x.name for x in specs if what in devices.get(x.kind).provides]
+            if target not in by_name or target not in providers:
+                raise ScenarioError(f"devices[{k}].{key}", target, "'truth' or the name of a device that makes the "
+                                    f"{what.replace('_', ' ')} ({', '.join(providers) or 'none in this scenario'})",
+                                    source)
+
+
 def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     kind = t.choice("kind", CONTROLLER_KINDS, "none")
     served = [d.name for d in devices if d.link == "served"]
@@ -575,10 +591,6 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
                           "flight computer outside to close the loop through")
         t.check_unknown()
         return ControllerSpec(kind, 1.0 / step_s)
-    if served:
-        raise t.error("kind", kind, f"'external' when devices are served ({', '.join(served)}): a served device is "
-                      "for a flight computer outside the stand; an in-stand controller uses link 'emulated' or "
-                      "'hardware'")
     rate_hz = rate(t, "rate_hz", step_s)
     params: dict = {}
     if kind == "bdot":
@@ -602,6 +614,9 @@ def _bdot(t: Table, rate_hz: float, step_s: float, devices, params: dict) -> Non
     names = [d.name for d in boards]
     params["device"] = t.choice("device", names, names[0])
     board = boards[names.index(params["device"])]
+    if board.link == "served":
+        raise t.error("device", board.name, "a board the stand's B-dot can command: this one is served to a flight "
+                      "computer outside (link = 'served'); use controller.kind = 'external' or another link")
     params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True, hi=1e12)
     # A command the board cannot carry would abort the run at its first saturation.
     params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True, hi=board.max_dipole_A_m2)

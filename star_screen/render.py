@@ -12,7 +12,9 @@ Per frame (``Renderer.render``), with no per-star Python loop:
    pixels (collimator + screen), keeping stars that land on the detector;
 5. pixel-integrated Gaussian spots (exact ``erf`` integrals, so the emitted-light centroid of a
    spot is its ideal position up to truncation at 4 sigma), smeared along each star's path during
-   the exposure when the tracker rotates;
+   the exposure when the tracker rotates (a trail up to ``max_smear_px`` long, default
+   :data:`MAX_SMEAR_PX`; a longer one is refused with :class:`SmearTooLong`, which bounds the
+   work of a frame: at most ``max_smear_samples`` spots per star);
 6. screen: linear luminance accumulated in a persistent float buffer, converted to drive codes
    through the panel's inverse response (nearest emitted luminance), and written into a
    persistent uint8 frame, clearing only the pixels the previous frame lit (cost grows with the
@@ -44,11 +46,32 @@ from sim.time import Epoch
 from star_screen.catalog import Catalog
 from star_screen.geometry import Bench
 
-__all__ = ["Photometry", "Renderer", "Frame", "StarsInField", "splat_gaussians", "centred_peak_fraction"]
+__all__ = [
+    "MAX_SMEAR_PX",
+    "Frame",
+    "Photometry",
+    "Renderer",
+    "SmearTooLong",
+    "StarsInField",
+    "centred_peak_fraction",
+    "splat_gaussians",
+]
 
 _SQRT2 = math.sqrt(2.0)
 #: Cull margin beyond the detector's half diagonal: aberration (25") + spot wings + safety.
 _CULL_MARGIN_RAD = math.radians(0.25)
+#: Longest smear trail drawn (px, on the finer of the screen and detector grids). The trail is
+#: sampled every half spot sigma, so this caps the spots per star, hence the work of a frame, for
+#: any rate: on the default bench (3974 screen px/rad, 0.1 s exposure) 32 px is 4.6 deg/s, over
+#: four times the default tracker's rate limit, and 93 samples per star (about 100 ms for the
+#: densest field of a 20 x 15 deg tracker, 330 stars, against 1.5 ms unsmeared). A faster state
+#: is refused (SmearTooLong) rather than drawn as a dotted line that no tracker would see.
+MAX_SMEAR_PX = 32.0
+_C_LIGHT = 299_792_458.0
+
+
+class SmearTooLong(ValueError):
+    """The rate and exposure of a frame trail its stars further than the renderer's ``max_smear_px``."""
 
 
 def centred_peak_fraction(sigma) -> np.ndarray:
@@ -166,6 +189,7 @@ class Frame:
     detector: np.ndarray | None  #: (h, w) float32 electrons, noise-free
     aberration: bool
     bodies: dict = field(default_factory=dict)
+    smear_samples: int = 1  #: spots drawn per star (1 without smear; at most Renderer.max_smear_samples)
 
 
 class Renderer:
@@ -185,7 +209,11 @@ class Renderer:
         photometry: Photometry | None = None,
         aberration: bool = True,
         bright_bodies=None,
+        max_smear_px: float = MAX_SMEAR_PX,
     ):
+        if not (isinstance(max_smear_px, int | float) and 0 < max_smear_px <= 4096):
+            raise ValueError(f"max_smear_px = {max_smear_px!r}; allowed a number of pixels in (0, 4096].")
+        self.max_smear_px = float(max_smear_px)
         self.bench = bench if bench is not None else Bench()
         t = self.bench.tracker
         self.photometry = photometry if photometry is not None else Photometry()
@@ -270,23 +298,48 @@ class Renderer:
         return StarsInField(places.hip[sel], places.mag[sel], d_S, det, scr, on)
 
     # ------------------------------------------------------------------ drawing
-    def _smear_offsets(self, stars: StarsInField, omega_SN_S, exposure_s: float):
-        """Directions along each star's path during the exposure: (n, k, 3) and the sample count k."""
+    @property
+    def _smear_step_px(self) -> float:
+        return 0.5 * min(self.sigma_screen, self.bench.tracker.psf_sigma_px)
+
+    @property
+    def _px_per_rad(self) -> float:
+        return max(self.bench.k_px, self.bench.tracker.fx)
+
+    @property
+    def max_smear_samples(self) -> int:
+        """Most spots drawn per star for any smear this renderer accepts."""
+        return math.ceil(self.max_smear_px / self._smear_step_px) + 1
+
+    def max_rate_rad_s(self, exposure_s: float | None = None) -> float:
+        """Fastest rate whose smear over ``exposure_s`` (default: the tracker's) is drawn."""
+        exposure = self.bench.tracker.exposure_s if exposure_s is None else float(exposure_s)
+        return math.inf if exposure <= 0 else self.max_smear_px / (exposure * self._px_per_rad)
+
+    def _trail(self, omega_SN_S, exposure_s: float) -> tuple[np.ndarray, float, float] | None:
+        """``(omega, rate, trail_px)`` of a smeared frame, None without smear; refuses a long trail."""
         if omega_SN_S is None or exposure_s <= 0:
             return None
-        w = np.asarray(omega_SN_S, dtype=float)
-        rate = float(np.linalg.norm(w))
+        w = self._rate_vector(omega_SN_S)
+        rate = math.hypot(*w)  # no overflow for huge components, unlike norm's sum of squares
         if rate == 0.0:
             return None
-        trail_rad = rate * exposure_s
-        trail_px = trail_rad * max(self.bench.k_px, self.bench.tracker.fx)
-        k = int(
-            np.clip(
-                math.ceil(trail_px / (0.5 * min(self.sigma_screen, self.bench.tracker.psf_sigma_px))) + 1,
-                2,
-                256,
+        trail_px = rate * exposure_s * self._px_per_rad
+        if not trail_px <= self.max_smear_px:
+            raise SmearTooLong(
+                f"omega_SN_S = {tuple(float(x) for x in w)} rad/s over a {exposure_s:g} s exposure trails the stars "
+                f"{trail_px:.4g} px; this renderer draws trails up to max_smear_px = {self.max_smear_px:g} px "
+                f"(a rate up to {self.max_rate_rad_s(exposure_s):.4g} rad/s)."
             )
-        )
+        return w, rate, trail_px
+
+    def _smear_offsets(self, stars: StarsInField, omega_SN_S, exposure_s: float):
+        """Directions along each star's path during the exposure: (n, k, 3) and the sample count k."""
+        trail = self._trail(omega_SN_S, exposure_s)
+        if trail is None:
+            return None
+        w, rate, trail_px = trail
+        k = max(2, math.ceil(trail_px / self._smear_step_px) + 1)
         ts = (np.arange(k) + 0.5) / k - 0.5  # fractions of the exposure about mid-exposure
         axis = w / rate
         ang = -rate * exposure_s * ts  # an inertial direction turns by -omega t in S
@@ -295,6 +348,21 @@ class Renderer:
         kxd = np.cross(axis, d)[:, None, :]
         kdd = (d @ axis)[:, None, None] * axis
         return d[:, None, :] * c + kxd * s + kdd * (1 - c), k
+
+    @staticmethod
+    def _rate_vector(omega_SN_S) -> np.ndarray:
+        w = np.asarray(omega_SN_S, dtype=float).reshape(-1)
+        if w.shape != (3,) or not np.all(np.isfinite(w)):
+            raise ValueError(f"omega_SN_S = {omega_SN_S!r}; it must be 3 finite numbers (rad/s).")
+        return w
+
+    def _check_velocity(self, v_sc_gcrs_m_s) -> None:
+        if v_sc_gcrs_m_s is None:
+            return
+        v = np.asarray(v_sc_gcrs_m_s, dtype=float).reshape(-1)
+        if v.shape != (3,) or not np.all(np.isfinite(v)) or not math.hypot(*v) < 0.01 * _C_LIGHT:
+            raise ValueError(f"v_sc_gcrs_m_s = {v_sc_gcrs_m_s!r}; it must be 3 finite numbers (m/s) with a speed "
+                             "below 1% of c (aberration is computed for a spacecraft, not a light beam).")
 
     def render(
         self,
@@ -319,8 +387,12 @@ class Renderer:
         """
         t = self.bench.tracker
         ph = self.photometry
-        stars = self.stars_in_field(q_SN, epoch, v_sc_gcrs_m_s)
         exposure = t.exposure_s if exposure_s is None else float(exposure_s)
+        if not math.isfinite(exposure):
+            raise ValueError(f"exposure_s = {exposure_s!r}; it must be a finite number of seconds.")
+        self._check_velocity(v_sc_gcrs_m_s)
+        self._trail(omega_SN_S, exposure)  # refuse a long trail before any work
+        stars = self.stars_in_field(q_SN, epoch, v_sc_gcrs_m_s)
         path = self._smear_offsets(stars, omega_SN_S, exposure)
         n = len(stars)
         mag = stars.mag.astype(float)
@@ -388,5 +460,6 @@ class Renderer:
         if self.bright_bodies is not None:
             bodies = self.bright_bodies.evaluate(q_SN, epoch, r_sc_gcrs_m=r_sc_gcrs_m)
         return Frame(
-            np.asarray(q_SN, float), epoch, time_tag_ns, stars, scr_out, det_out, self.aberration, bodies
+            np.asarray(q_SN, float), epoch, time_tag_ns, stars, scr_out, det_out, self.aberration, bodies,
+            1 if path is None else path[1],
         )

@@ -146,3 +146,13 @@ def test_the_link_checker_catches_a_broken_link(tmp_path, monkeypatch):
     assert len(bad) == 4, bad
     assert any("c.md" in b for b in bad) and any("#nope" in b for b in bad)
     assert any("stand/missing.py" in b for b in bad) and any("outside" in b for b in bad)
+
+
+def test_ci_runs_the_readme_test_command_character_for_character():
+    readme = (ROOT / "README.md").read_text()
+    ci = ROOT / ".ci" / "run"
+    if not ci.exists():
+        pytest.skip("no .ci/run in this copy")
+    commands = [line[4:] for line in readme.splitlines() if line.startswith("    ") and "pytest" in line]
+    assert commands, "the README has no indented test command"
+    assert commands[0] in ci.read_text().splitlines()

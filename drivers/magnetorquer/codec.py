@@ -145,9 +145,10 @@ class MagnetorquerCodec:
     """Encode and decode magnetorquer-board messages, from the DBC at ``dbc_path`` (default: the ICD).
 
     ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message``. ``encode``
-    raises :class:`~drivers.errors.EncodeError` (a ValueError) naming the field, the value and the
-    DBC's range; ``decode`` raises :class:`~drivers.errors.ProtocolError` (frame in hex) for an
-    unknown id, a wrong length or an enum value outside its table.
+    raises :class:`~drivers.errors.EncodeError` (a ValueError), and nothing else, naming the field,
+    the value and the DBC's range (or the message types it knows); ``decode`` raises
+    :class:`~drivers.errors.ProtocolError` (frame in hex) for an unknown id, a wrong length or an
+    enum value outside its table.
     """
 
     def __init__(self, dbc_path: str | Path | None = None) -> None:
@@ -215,7 +216,7 @@ class MagnetorquerCodec:
         try:
             encoder = self._encoders[type(msg)]
         except KeyError:
-            raise TypeError(
+            raise EncodeError(
                 f"Cannot encode {type(msg).__name__}: expected one of "
                 f"{', '.join(t.__name__ for t in self._encoders)}."
             ) from None
@@ -223,7 +224,7 @@ class MagnetorquerCodec:
             return encoder(msg)
         except EncodeError as exc:
             raise EncodeError(f"Cannot encode {msg!r}: {exc}") from exc
-        except (TypeError, ValueError) as exc:  # wrong shapes: a 2-vector, a string for a number
+        except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
             raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
 
     def _encode_dipole(self, msg: DipoleCommand) -> tuple[int, bytes]:

@@ -39,6 +39,7 @@ from typing import Any
 import can
 import numpy as np
 
+from drivers.can_bus import loops_back
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
@@ -198,6 +199,7 @@ class MagnetorquerEmulator(BusEndpoint):
         self._temperature = min(max(config.temperature_C, t_lo), t_hi)
 
         self._accept = codec.board_rx_ids
+        self._own_ids = codec.board_tx_ids if loops_back(bus) else frozenset()
         self._lengths = codec.lengths
         self._decode = codec.decode
         self._encode = codec.encode
@@ -214,6 +216,7 @@ class MagnetorquerEmulator(BusEndpoint):
             "watchdog_expiries": 0,
             "mag_saturations": 0,
             "samples_skipped": 0,
+            "echoes": 0,
         }
         # On-board counters (MTQ_COUNTERS): zeroed by reset_counters.
         self._board = {"rejected_frames": 0, "watchdog_expiries": 0, "saturations": 0, "commands_accepted": 0}
@@ -325,6 +328,11 @@ class MagnetorquerEmulator(BusEndpoint):
             self._reject("rejected_other")
             return
         if msg.is_extended_id or frame_id not in self._accept:
+            if not msg.is_extended_id and frame_id in self._own_ids:
+                # A frame of our own coming back (udp_multicast loops every frame back to its sender): not traffic
+                # from another node, and not an error.
+                self.counters["echoes"] += 1
+                return
             self._reject("rejected_unknown_id")
             return
         data = msg.data

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
+from drivers.can_bus import loops_back
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
@@ -80,6 +81,7 @@ class MagnetorquerBoard(BusEndpoint):
             "rejected_length": 0,
             "rejected_other": 0,
             "samples": 0,
+            "echoes": 0,
         }
         self.latest_sample: MagSample | None = None
         self.latest_status: Status | None = None
@@ -88,6 +90,7 @@ class MagnetorquerBoard(BusEndpoint):
         self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
         self._mode_seq = 0
         self._accept = self.codec.board_tx_ids
+        self._echo_ids = self.codec.board_rx_ids if loops_back(bus) else frozenset()
         self._lengths = self.codec.lengths
         self._decode = self.codec.decode
         self._encode = self.codec.encode
@@ -183,6 +186,9 @@ class MagnetorquerBoard(BusEndpoint):
             counters["rejected_other"] += 1
             return
         if msg.is_extended_id or frame_id not in self._accept:
+            if not msg.is_extended_id and frame_id in self._echo_ids:
+                counters["echoes"] += 1  # our own command looped back (udp_multicast), not another node's frame
+                return
             counters["rejected_unknown_id"] += 1
             return
         data = msg.data

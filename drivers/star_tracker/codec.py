@@ -247,6 +247,8 @@ class MessageSpec:
     fmt: str
     payload_len: int
     cls: type
+    #: ``(attr, tolerance)`` of tuple attributes that must have unit norm (the ICD's ``unit_norm``).
+    norms: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -373,8 +375,15 @@ class StarTrackerCodec:
                 f"{sorted(attrs)}."
             )
         fmt = "<" + "".join(_TYPES[s.type][0] for s in specs)
+        norms = []
+        for un in ([m["unit_norm"]] if isinstance(m.get("unit_norm"), dict) else m.get("unit_norm", [])):
+            tol = float(un["tolerance"])
+            if un["attr"] not in {x.attr for x in specs if x.index is not None} or not 0 < tol < 1:
+                raise ValueError(f"star tracker ICD: message {name} unit_norm {un} must name a tuple attribute and a "
+                                 "tolerance in (0, 1).")
+            norms.append((un["attr"], tol))
         return MessageSpec(int(m["id"]), name, m["direction"], bool(m.get("telemetry", False)), m.get("doc", ""),
-                           tuple(specs), fmt, struct.calcsize(fmt), cls)
+                           tuple(specs), fmt, struct.calcsize(fmt), cls, tuple(norms))
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -406,17 +415,28 @@ class StarTrackerCodec:
         try:
             return self._by_cls[type(msg)]
         except KeyError:
-            raise TypeError(
+            raise EncodeError(
                 f"Cannot encode {type(msg).__name__}: expected one of "
                 f"{', '.join(c.__name__ for c in CLASSES.values())}."
             ) from None
 
     def payload(self, msg: Message) -> bytes:
-        """The payload bytes of ``msg`` (no address, id or CRC)."""
+        """The payload bytes of ``msg`` (no address, id or CRC); EncodeError for anything the ICD refuses."""
         spec = self.spec_of(msg)
         values = []
         for f in spec.fields:
-            values.append(self._wire_value(spec, f, msg))
+            try:
+                values.append(self._wire_value(spec, f, msg))
+            except EncodeError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - any odd object (an array as a flag, a huge int) names its field
+                raise EncodeError(f"{spec.name}.{f.name}: {f.attr} = {getattr(msg, f.attr, None)!r} cannot be "
+                                  f"encoded ({type(exc).__name__}: {exc}).") from None
+        for attr, tol in spec.norms:
+            norm = math.sqrt(sum(float(x) ** 2 for x in getattr(msg, attr)))
+            if not abs(norm - 1.0) <= tol:
+                raise EncodeError(f"{spec.name}.{attr} = {getattr(msg, attr)!r} has norm {norm!r}; it must be a unit "
+                                  f"quaternion within {tol:g}.")
         return struct.pack(spec.fmt, *values)
 
     def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Message) -> int | float:
@@ -424,7 +444,10 @@ class StarTrackerCodec:
         if f.bits is not None:
             v = 0
             for i, bit in enumerate(f.bits):
-                if getattr(msg, bit):
+                flag = getattr(msg, bit)
+                if not isinstance(flag, bool | int) and type(flag).__name__ != "bool_":
+                    raise EncodeError(f"{where}: {bit} = {flag!r} is not a flag; allowed: True or False.")
+                if flag:
                     v |= 1 << i
             return v
         value = getattr(msg, f.attr)
@@ -450,11 +473,13 @@ class StarTrackerCodec:
         wire = value / f.scale if f.scale != 1.0 else value
         unit = f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
         if f.is_float:
+            if not isinstance(wire, float):
+                wire = float(wire)  # a huge int overflows here, and is reported as outside the field
             if not math.isfinite(wire) or not (f.lo <= wire <= f.hi):
                 raise EncodeError(f"{where} = {wire!r}{unit} is outside the field: allowed a finite number from "
                                   f"{f.lo:g} to {f.hi:g}.")
             return float(wire)
-        if not math.isfinite(wire):
+        if isinstance(wire, float) and not math.isfinite(wire):
             raise EncodeError(f"{where} = {wire!r}{unit} is not finite; allowed: {f.lo} to {f.hi}.")
         n = round(wire)
         if not (f.lo <= n <= f.hi):
@@ -524,10 +549,10 @@ class StarTrackerCodec:
                                         computed=v)
                 val: Any = f.enum[v]
             elif f.is_float:
-                if not math.isfinite(v):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} is not finite",
-                                        frame_hex=hx or payload.hex().upper(), expected="a finite number",
-                                        computed=v)
+                if not (math.isfinite(v) and f.lo <= v <= f.hi):
+                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v!r} is outside its range",
+                                        frame_hex=hx or payload.hex().upper(),
+                                        expected=f"a finite number from {f.lo:g} to {f.hi:g}", computed=v)
                 val = v * f.scale if f.scale != 1.0 else v
             elif f.scale != 1.0:
                 val = v * f.scale
@@ -542,4 +567,10 @@ class StarTrackerCodec:
                 kw[f.attr] = val
         for attr, items in tuples.items():
             kw[attr] = tuple(items[i] for i in range(len(items)))
+        for attr, tol in spec.norms:
+            norm = math.sqrt(sum(x * x for x in kw[attr]))
+            if not abs(norm - 1.0) <= tol:
+                raise FrameRejected("value", f"{spec.name}.{attr} has norm {norm:.9g}, not a unit quaternion",
+                                    frame_hex=hx or payload.hex().upper(), expected=f"1 within {tol:g}",
+                                    computed=f"{norm:.9g}")
         return spec.cls(**kw)

@@ -35,11 +35,17 @@ reads no clock there; :meth:`StarTrackerEmulator.run` is the stand-alone wall-cl
   (0 = each new solution). Parameters from the ICD table are set and read by SET/GET_PARAM.
 - Frames with bad CRC, another address, unknown id, wrong length, bad escapes or oversize are
   counted, never raised; frames for another address are ignored silently (a shared bus).
+- Never blocks the caller's thread: each :meth:`StarTrackerEmulator.service` reads at most
+  ``max_read_bytes`` (a flood waits for the next call), and replies go through a transmit queue of
+  at most ``max_tx_bytes`` written only as far as the port takes them at once
+  (:func:`drivers.serial_port.write_available`). A frame that does not fit in the queue is dropped
+  whole and counted (``tx_dropped``), as a real device's UART buffer overflows when nobody reads
+  the line; ``sent`` counts frames written completely.
 
 ``counters``: ``bytes_received``, ``frames_received`` (good, for this address), ``sent``,
 ``rejected_crc``, ``rejected_address``, ``rejected_unknown_id``, ``rejected_length``,
 ``rejected_other`` (short, bad escape, oversize, bad value), ``commands_nacked``, ``solutions``,
-``exposures_skipped``, ``published``.
+``exposures_skipped``, ``published``, ``tx_dropped``.
 """
 
 from __future__ import annotations
@@ -53,8 +59,8 @@ from typing import Any
 
 import numpy as np
 
-from drivers.errors import DriverError
-from drivers.serial_port import SerialEndpoint, open_port, port_name
+from drivers.errors import DriverError, EncodeError
+from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
     HOST_TO_DEVICE,
     Ack,
@@ -228,6 +234,8 @@ class StarTrackerEmulator(SerialEndpoint):
         rng: a ``numpy.random.Generator`` or a seed.
         codec: a :class:`StarTrackerCodec` (default: the ICD in ``fixtures/``).
         baudrate: for URL ports.
+        max_read_bytes: most bytes read per :meth:`service`.
+        max_tx_bytes: most bytes waiting to be written; a reply that does not fit is dropped.
     """
 
     def __init__(
@@ -240,8 +248,17 @@ class StarTrackerEmulator(SerialEndpoint):
         *,
         baudrate: int = 115200,
         name: str = "star tracker emulator",
+        max_read_bytes: int = 4096,
+        max_tx_bytes: int = 4096,
     ) -> None:
         self._closed = True
+        for arg, v in (("max_read_bytes", max_read_bytes), ("max_tx_bytes", max_tx_bytes)):
+            if not (isinstance(v, int) and v >= 256):
+                raise ValueError(f"{name}: {arg} = {v!r} is not allowed; allowed: an int >= 256.")
+        self.max_read_bytes = max_read_bytes
+        self.max_tx_bytes = max_tx_bytes
+        self._tx: deque[bytes] = deque()  # whole frames (the head possibly part-written) waiting for the port
+        self._tx_bytes = 0
         self.port = None
         self._owns_port = False
         self.name = name
@@ -269,7 +286,7 @@ class StarTrackerEmulator(SerialEndpoint):
         self.counters: dict[str, int] = {
             "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_address": 0,
             "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0, "commands_nacked": 0,
-            "solutions": 0, "exposures_skipped": 0, "published": 0,
+            "solutions": 0, "exposures_skipped": 0, "published": 0, "tx_dropped": 0,
         }
         self._dev = {"frames_received": 0, "frames_sent": 0, "rejected_crc": 0, "rejected_other": 0,
                      "commands_nacked": 0, "solutions": 0}
@@ -289,8 +306,14 @@ class StarTrackerEmulator(SerialEndpoint):
         self._subs: dict[int, list[float]] = {}  # telemetry id -> [period_s, next_due_s]
         self._new_solution = False
         self._now = 0.0
-        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=0.0, name=name)
+        # A short write timeout: only ports without a descriptor (loop://) use the port's own write.
+        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=0.0, name=name, write_timeout=0.05)
         self._closed = False
+        try:  # a configuration the ICD cannot carry is refused now, not at the first STATUS
+            codec.encode(self.status(0.0), self.address)
+        except EncodeError as exc:
+            self.close()
+            raise ValueError(f"EmulatorConfig gives a value the star tracker ICD does not allow: {exc}") from None
 
     def __repr__(self) -> str:
         return f"StarTrackerEmulator({port_name(self.port)!r}, mode={self.mode!r}, counters={self.counters})"
@@ -320,6 +343,7 @@ class StarTrackerEmulator(SerialEndpoint):
             self._t_on = t_s
             if self.config.auto_boot:
                 self._start_boot(t_s)
+        self._flush()
         self._advance(t_s)
         self._receive(t_s)
         self._publish(t_s)
@@ -369,10 +393,13 @@ class StarTrackerEmulator(SerialEndpoint):
             rate = math.sqrt(wx * wx + wy * wy + wz * wz)
             if not math.isfinite(rate):
                 raise ValueError
+            for sigma in (truth.sigma_cross_rad, truth.sigma_roll_rad):
+                if sigma is not None and not (math.isfinite(float(sigma)) and 0.0 <= float(sigma) <= math.pi):
+                    raise ValueError
         except (TypeError, ValueError, AttributeError):
             raise ValueError(
-                f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers) "
-                f"and a finite omega_TN_T (3 numbers, rad/s); got {truth!r}."
+                f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers), "
+                f"a finite omega_TN_T (3 numbers, rad/s) and sigmas from 0 to pi rad (or None); got {truth!r}."
             ) from None
         sun = self._in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
         moon = self._in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
@@ -449,7 +476,7 @@ class StarTrackerEmulator(SerialEndpoint):
         port = self.port
         try:
             n = port.in_waiting
-            return port.read(n) if n else b""
+            return port.read(min(n, self.max_read_bytes)) if n else b""
         except (OSError, ValueError) as exc:
             raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
         except Exception as exc:  # serial.SerialException (kept lazy)
@@ -610,12 +637,35 @@ class StarTrackerEmulator(SerialEndpoint):
         if self.silent:
             return
         frame = self.codec.encode(msg, self.address)
-        try:
-            self.port.write(frame)
-        except Exception as exc:
-            raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
-        self.counters["sent"] += 1
-        self._dev["frames_sent"] += 1
+        if self._tx_bytes + len(frame) > self.max_tx_bytes:
+            self._flush()
+            if self._tx_bytes + len(frame) > self.max_tx_bytes:
+                self.counters["tx_dropped"] += 1
+                return
+        self._tx.append(frame)
+        self._tx_bytes += len(frame)
+        self._flush()
+
+    @property
+    def tx_pending(self) -> int:
+        """Bytes queued for the port and not yet written."""
+        return self._tx_bytes
+
+    def _flush(self) -> None:
+        """Write queued frames as far as the port takes them now (never blocks)."""
+        while self._tx:
+            head = self._tx[0]
+            try:
+                n = write_available(self.port, head)
+            except Exception as exc:
+                raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
+            self._tx_bytes -= n
+            if n < len(head):
+                self._tx[0] = head[n:]
+                return
+            self._tx.popleft()
+            self.counters["sent"] += 1
+            self._dev["frames_sent"] += 1
 
     # -- stand-alone loop -----------------------------------------------------------------------
 
@@ -654,6 +704,6 @@ class StarTrackerEmulator(SerialEndpoint):
             if duration_s is not None:
                 wait = min(wait, max(duration_s - (clock() - t0), 0.0))
             if fd is not None:
-                select.select([fd], [], [], wait)
+                select.select([fd], [fd] if self._tx else [], [], wait)
             elif wait > 0:
                 time.sleep(min(wait, 0.001))

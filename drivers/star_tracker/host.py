@@ -17,7 +17,13 @@ In a single-threaded loop that also services the emulator, never block on a repl
 :meth:`StarTrackerHost.take_solution` after ``emulator.service(t)``.
 
 Receiving never raises on bad traffic: frames with a bad CRC, another address, an unknown id, a
-wrong length, bad escapes or oversize are counted in :attr:`StarTrackerHost.counters` and dropped.
+wrong length, bad escapes, oversize, or a value outside the ICD's range (a quaternion that is not
+unit, a negative sigma, a temperature below absolute zero) are counted in
+:attr:`StarTrackerHost.counters`, one counter per reason, and dropped; the newest reason is in
+``last_rejected``. A flood is read in bounded chunks: :meth:`StarTrackerHost.poll` reads at most
+``max_read_bytes`` per call and leaves the rest for the next. A write that the port cannot take by
+its deadline (``write_timeout_s``) raises :class:`~drivers.errors.DeviceTimeoutError`: the driver
+never hangs on a device that stopped reading.
 A request that gets no reply by its monotonic deadline raises
 :class:`~drivers.errors.DeviceTimeoutError` naming the device and what was awaited; the driver
 marks itself offline, and the next good frame brings it back (``recoveries``). If the port itself
@@ -54,6 +60,10 @@ from drivers.star_tracker.slip import SlipDecoder
 __all__ = ["StarTrackerHost"]
 
 _PORT_ERRORS = (OSError, ValueError)
+#: Why a received frame is dropped: the codec's FrameRejected kinds, then the SLIP decoder's.
+#: Bytes asked of the port per read.
+_READ_CHUNK = 4096
+REJECT_REASONS = ("crc", "address", "unknown_id", "length", "value", "short", "direction", "oversize", "bad_escape")
 
 
 def _is_port_error(exc: BaseException) -> bool:
@@ -73,15 +83,19 @@ class StarTrackerHost(SerialEndpoint):
         timeout_s: default reply timeout of requests.
         name: how errors name this device.
         poll_s: the port's read timeout slice (a read returns as soon as a byte arrives).
+        write_timeout_s: longest a command's write may take (the port's ``write_timeout``).
+        max_read_bytes: most bytes one :meth:`poll` reads (a babbling device cannot hold the caller).
 
     Attributes:
         latest_solution, latest_status: the newest decoded message of each kind, or None.
         online: False after a timeout until the next good frame.
         counters: ``sent``, ``bytes_received``, ``frames_received`` (good, for this address),
-            ``rejected_crc``, ``rejected_address``, ``rejected_unknown_id``, ``rejected_length``,
-            ``rejected_other`` (short, bad escape, oversize, bad value, wrong direction),
-            ``solutions``, ``status``, ``acks``, ``nacks``, ``timeouts``, ``recoveries``,
-            ``reconnects``.
+            one ``rejected_<reason>`` per reason a frame is dropped: ``crc``, ``address``,
+            ``unknown_id``, ``length``, ``value`` (a field outside the ICD's range), ``short``,
+            ``direction`` (a command sent by a device), ``oversize``, ``bad_escape``;
+            ``solutions``, ``status``, ``acks``, ``nacks``, ``timeouts``, ``write_timeouts``,
+            ``recoveries``, ``reconnects``.
+        last_rejected: why the newest dropped frame was dropped (a sentence with the frame in hex).
     """
 
     def __init__(
@@ -94,6 +108,8 @@ class StarTrackerHost(SerialEndpoint):
         timeout_s: float = 0.5,
         name: str = "star tracker",
         poll_s: float = 0.05,
+        write_timeout_s: float = 1.0,
+        max_read_bytes: int = 16384,
     ) -> None:
         self._closed = True
         self.port = None
@@ -108,10 +124,19 @@ class StarTrackerHost(SerialEndpoint):
         self.timeout_s = float(timeout_s)
         self.baudrate = baudrate
         self.poll_s = poll_s
+        if not (isinstance(write_timeout_s, (int, float)) and 0 < write_timeout_s < 3600):
+            raise ValueError(f"{name}: write_timeout_s = {write_timeout_s!r} is not allowed; allowed: 0 to 3600 s.")
+        if not (isinstance(max_read_bytes, int) and max_read_bytes >= 64):
+            raise ValueError(f"{name}: max_read_bytes = {max_read_bytes!r} is not allowed; allowed: an int >= 64.")
+        self.write_timeout_s = float(write_timeout_s)
+        self.max_read_bytes = max_read_bytes
         self._url = port if isinstance(port, str) else None
-        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=poll_s, name=name)
+        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=poll_s, name=name,
+                                               write_timeout=self.write_timeout_s)
         if not self._owns_port and hasattr(self.port, "timeout"):
             self.port.timeout = poll_s
+        if not self._owns_port and hasattr(self.port, "write_timeout"):
+            self.port.write_timeout = self.write_timeout_s
         self._closed = False
         self._broken = False
         self._decoder = SlipDecoder(codec.max_body)
@@ -121,10 +146,11 @@ class StarTrackerHost(SerialEndpoint):
         self._solution_taken = True
         self._last_rx: float | None = None
         self._inbox: list[Message] = []  # replies collected while a transaction waits
+        self.last_rejected = ""
         self.counters: dict[str, int] = {
-            "sent": 0, "bytes_received": 0, "frames_received": 0, "rejected_crc": 0, "rejected_address": 0,
-            "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0, "solutions": 0, "status": 0,
-            "acks": 0, "nacks": 0, "timeouts": 0, "recoveries": 0, "reconnects": 0,
+            "sent": 0, "bytes_received": 0, "frames_received": 0, **{f"rejected_{r}": 0 for r in REJECT_REASONS},
+            "solutions": 0, "status": 0, "acks": 0, "nacks": 0, "timeouts": 0, "write_timeouts": 0,
+            "recoveries": 0, "reconnects": 0,
         }
 
     def __repr__(self) -> str:
@@ -146,7 +172,8 @@ class StarTrackerHost(SerialEndpoint):
             self.port.close()
         except Exception:  # noqa: BLE001 - the port is already broken
             pass
-        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name)
+        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name,
+                                 write_timeout=self.write_timeout_s)
         self._broken = False
         self._decoder.reset()
         self.counters["reconnects"] += 1
@@ -161,26 +188,37 @@ class StarTrackerHost(SerialEndpoint):
         frame = self.codec.encode(msg, self.address)
         try:
             self.port.write(frame)
+        except DeviceTimeoutError:
+            self.counters["write_timeouts"] += 1
+            raise
         except Exception as exc:
+            if type(exc).__name__ == "SerialTimeoutException":  # pyserial's write_timeout ran out
+                self.counters["write_timeouts"] += 1
+                raise DeviceTimeoutError(
+                    f"{self.name}: writing {len(frame)} bytes to {port_name(self.port)} did not finish within "
+                    f"{self.write_timeout_s:g} s; the line is not being read (is the device stalled?).",
+                    device=self.name, awaited="the port to take a command", timeout_s=self.write_timeout_s,
+                ) from None
             if _is_port_error(exc):
                 raise self._port_failed("write to", exc) from exc
             raise
         self.counters["sent"] += 1
 
-    def _read(self, block: bool) -> int:
-        """Read what is there (``block``: wait up to one poll slice for the first byte); decode it.
-        Returns the number of bytes read."""
+    def _read(self, block: bool, limit: int = _READ_CHUNK) -> int:
+        """Read what is there, at most ``limit`` bytes (``block``: wait up to one poll slice for the
+        first byte); decode it. Returns the number of bytes read."""
         port = self.port
+        chunk = max(1, min(limit, _READ_CHUNK))
         try:
             n = port.in_waiting
             if n:
-                data = port.read(n)
+                data = port.read(min(n, chunk))
             elif block:
                 data = port.read(1)
                 if data:
                     more = port.in_waiting
                     if more:
-                        data += port.read(more)
+                        data += port.read(min(more, chunk))
             else:
                 return 0
         except Exception as exc:
@@ -195,17 +233,19 @@ class StarTrackerHost(SerialEndpoint):
 
     def _feed(self, data: bytes) -> int:
         dec = self._decoder
-        before = dec.counters["oversize"] + dec.counters["bad_escape"]
+        before = {k: dec.counters[k] for k in ("oversize", "bad_escape")}
         bodies = dec.feed(data)
-        self.counters["rejected_other"] += dec.counters["oversize"] + dec.counters["bad_escape"] - before
+        for k, v in before.items():
+            if dec.counters[k] != v:
+                self.counters[f"rejected_{k}"] += dec.counters[k] - v
+                self.last_rejected = f"{dec.counters[k] - v} SLIP chunk(s) dropped as {k.replace('_', ' ')}."
         n = 0
         for body in bodies:
             try:
                 msg = self.codec.decode_body(body, self.address, DEVICE_TO_HOST)
             except FrameRejected as exc:
-                key = {"crc": "rejected_crc", "address": "rejected_address", "unknown_id": "rejected_unknown_id",
-                       "length": "rejected_length"}.get(exc.kind, "rejected_other")
-                self.counters[key] += 1
+                self.counters[f"rejected_{exc.kind}"] += 1
+                self.last_rejected = str(exc)
                 continue
             n += 1
             self._accept(msg)
@@ -239,9 +279,12 @@ class StarTrackerHost(SerialEndpoint):
         """Decode everything that has arrived, without waiting; returns the good frames decoded."""
         self._check_open()
         before = self.counters["frames_received"]
-        for _ in range(256):  # bounded: a babbling port cannot hold the caller here
-            if not self._read(block=False):
+        budget = self.max_read_bytes  # bounded: a babbling port cannot hold the caller here
+        while budget > 0:
+            n = self._read(block=False, limit=budget)
+            if not n:
                 break
+            budget -= n
         self._inbox.clear()
         return self.counters["frames_received"] - before
 

@@ -45,7 +45,8 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         f"- At most {p['max_body_bytes']} body bytes; longer frames are dropped as oversize.",
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- Every frame the device cannot accept (bad CRC, bad escape, oversize, short) is counted and dropped; "
-        "a command with an unknown id, a wrong length or a value outside its table gets a NACK.",
+        "a command with an unknown id, a wrong length or a value outside its table gets a NACK. The host "
+        "drops a reply with a value outside its range (below) and counts it per reason.",
         "",
         "## Messages",
         "",
@@ -67,7 +68,8 @@ def render(codec: StarTrackerCodec | None = None) -> str:
             elif f.bits is not None:
                 rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
             elif f.is_float:
-                rng = "finite"
+                rng = "finite" if (f.lo, f.hi) == (-3.4028234663852886e38, 3.4028234663852886e38) else \
+                    f"finite, {f.lo:g}..{f.hi:g}"
             else:
                 rng = f"{f.lo}..{f.hi}"
             attr = f.attr if f.index is None else f"{f.attr}[{f.index}]"
@@ -76,6 +78,9 @@ def render(codec: StarTrackerCodec | None = None) -> str:
             out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr} | {rng} | {f.doc} |")
             offset += struct.calcsize("<" + {"u8": "B", "u16": "H", "u32": "I", "u64": "Q", "i16": "h",
                                              "i32": "i", "f32": "f"}[f.type])
+        for attr, tol in s.norms:
+            out.append("")
+            out.append(f"`{attr}` must have unit norm within {tol:g}; a frame outside it is rejected as a bad value.")
     out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
     for name, values in c.enums.items():
         out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")

@@ -26,6 +26,7 @@ BENCHES = {
     "tracker": "stand.benches.tracker:bench_tracker",
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
     "shadow": "stand.benches.shadow:bench_shadow",
+    "cage": "stand.benches.cage:bench_cage",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
@@ -77,6 +78,12 @@ def _timed_run(sc, out: Path, devices: bool):
     return result, wall, load(out)
 
 
+def _sent(counters: dict) -> int:
+    """Frames sent by every endpoint in the (nested) device counters."""
+    return sum(_sent(v) if isinstance(v, dict) else v for k, v in counters.items()
+               if isinstance(v, dict) or k == "sent")
+
+
 def bench_loop(quick: bool = False) -> list[dict]:
     """The default scenario afap: wall time against real time, with every measurement and command
     through the CAN codec on python-can's virtual bus, and the same dynamics without devices."""
@@ -97,7 +104,7 @@ def bench_loop(quick: bool = False) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         result, wall, tel = _timed_run(sc, Path(tmp) / "full", devices=True)
         n = result.ticks
-        frames = sum(v for c in result.counters.values() for k, v in c.items() if k in ("sent",))
+        frames = _sent(result.counters)
         rows.append({"name": "loop.full_chain.realtime_factor", "value": round(result.sim_duration_s / wall, 1),
                      "unit": "x", "anchor": f"{anchor:g} ({note}, no device I/O)",
                      "note": f"{result.sim_duration_s:g} s simulated in {wall:.2f} s, {frames} CAN frames sent"})

@@ -6,6 +6,7 @@ terminal can be wired to it.
                   [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
                   [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
                   [--interval-s S] [--delay-s S]
+    stand emulate cage --port tcp://127.0.0.1:PORT | SERIAL [--duration S] [--baud B] [--seed N]
 
 The star tracker is the truth-plus-noise emulator (``drivers.star_tracker.emulator``) with a
 built-in measurement source: the boresight (+z of the tracker frame) at right ascension ``--ra``
@@ -13,6 +14,9 @@ and declination ``--dec`` (GCRS), rolled by ``--roll`` about it (roll 0: celesti
 tracker -y, east along -x: north up and east left on the image), spinning at ``--rate-deg-s``
 (tracker axes; default at rest). No Sun, Moon or Earth in the field. Sim time is wall time since
 start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its counters as one JSON line.
+The cage is the Helmholtz cage controller (``drivers.cage.emulator``, register map
+``docs/cage_register_map.md``) on Modbus TCP (``tcp://HOST:PORT``) or Modbus RTU (a serial port),
+running its coils in wall time with the nominal bench configuration.
 Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error.
 """
 
@@ -29,18 +33,26 @@ import numpy as np
 
 from star_screen.attitude import q_SN_from_radec_roll
 
-DEVICES = ("star-tracker", "magnetorquer")
+DEVICES = ("star-tracker", "magnetorquer", "cage")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "emulate",
-        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN)",
+        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN, cage on Modbus)",
         description=__doc__.split("\n\n")[0],
     )
     p.add_argument("device", help="device to emulate: " + ", ".join(DEVICES))
+    p.add_argument("--scenario", default=None,
+                   help="feed the device from this scenario's truth (closed loop: the stand runs the scenario paced "
+                        "with this device served on --port and the flight computer outside); without it the "
+                        "emulator runs open loop")
+    p.add_argument("--name", default=None, help="with --scenario: which device of that kind (default: the first)")
+    p.add_argument("--speed", default=None, help="with --scenario: realtime (default) or a factor")
+    p.add_argument("--out", default=None, help="with --scenario: the run's output directory")
     p.add_argument("--port", required=True, help="star tracker: a serial URL or path (/dev/ttyUSB0, a pty or socat "
-                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs)")
+                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs); "
+                   "cage: tcp://127.0.0.1:PORT (Modbus TCP) or a serial port (Modbus RTU)")
     p.add_argument("--field-nT", default="20000,0,-40000",
                    help="magnetorquer: the field its magnetometer sees, sensor axes, nT, as X,Y,Z")
     p.add_argument("--address", type=lambda s: int(s, 0), default=None, help="device address (default 0x21)")
@@ -124,7 +136,7 @@ def run_magnetorquer(args) -> int:
     emu = MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed, owns_bus=True)
     with emu:
         print(f"stand emulate: magnetorquer board on CAN {interface}:{channel}"
-              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C"), flush=True)
+              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
         t0 = time.monotonic()
         try:
             while args.duration is None or time.monotonic() - t0 < args.duration:
@@ -139,13 +151,103 @@ def run_magnetorquer(args) -> int:
     return 0
 
 
+def run_cage(args) -> int:
+    """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time."""
+    from drivers.cage.emulator import CageEmulator
+    from drivers.cage.host import parse_url
+    from drivers.errors import DriverError
+
+    try:
+        kind, host, port = parse_url(args.port)
+    except ValueError as exc:
+        return _fail(str(exc))
+    emu = CageEmulator(rng=args.seed)
+    try:
+        if kind == "tcp":
+            emu.serve_tcp(host, port)
+        else:
+            emu.serve_rtu(host, baudrate=args.baud)
+    except DriverError as exc:
+        emu.close()
+        return _fail(str(exc))
+    old = _stop_on_sigterm()
+    status = 0
+    with emu:
+        print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
+                                                      " until Ctrl-C") + OPEN_LOOP, flush=True)
+        try:
+            emu.run(args.duration)
+        except KeyboardInterrupt:
+            pass
+        except DriverError as exc:
+            print(f"stand emulate: {exc}", file=sys.stderr)
+            status = 1
+        finally:
+            if old is not None:
+                signal.signal(signal.SIGTERM, old)
+        print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
+                          "counters": emu.counters}), flush=True)
+    return status
+
+
+OPEN_LOOP = "; open loop (no --scenario: a fixed source, not a simulated spacecraft)"
+#: Device names of this command -> device kinds of scenarios, and how --port becomes the link's port fields.
+SERVED_KINDS = {"star-tracker": "star_tracker", "magnetorquer": "magnetorquer"}
+
+
+def run_served(args) -> int:
+    """The closed-loop path: the scenario runs paced with this device served on --port (link = "served"), the
+    rest of the scenario as it is; the same path as ``stand run`` of a scenario with a served device."""
+    from stand import scenario as scenario_mod
+    from stand.cli import main as stand_main
+    from stand.errors import ScenarioError
+
+    kind = SERVED_KINDS.get(args.device)
+    if kind is None:
+        return _fail(f"--scenario is not available for {args.device!r} yet; closed loop: "
+                     + ", ".join(SERVED_KINDS) + ".")
+    try:
+        sc = scenario_mod.load(args.scenario)
+    except ScenarioError as exc:
+        return _fail(str(exc))
+    names = [d.name for d in sc.devices if d.kind == kind and (args.name is None or d.name == args.name)]
+    if not names:
+        return _fail(f"--scenario {args.scenario!r} has no {kind} device" + (f" named {args.name!r}" if args.name
+                                                                              else "") + ".")
+    name = names[0]
+    sets = [f"devices.{name}.link=served"]
+    if kind == "magnetorquer":
+        interface, _, channel = args.port.partition(":")
+        if not interface or not channel:
+            return _fail(f"--port {args.port!r} is not allowed for the magnetorquer; give INTERFACE:CHANNEL, "
+                         "e.g. socketcan:can0 or serial:/dev/ttyUSB0.")
+        sets += [f"devices.{name}.interface={interface}", f"devices.{name}.channel={channel}"]
+    else:
+        sets += [f"devices.{name}.port={args.port}", f"devices.{name}.baudrate={args.baud}"]
+    print(f"stand emulate: {args.device} {name!r} of scenario {sc.name}, served on {args.port} and fed by the "
+          "scenario's truth (closed loop with the flight computer on the other end)", flush=True)
+    argv = ["run", args.scenario, "--speed", args.speed or "realtime"]
+    for item in sets:
+        argv += ["--set", item]
+    if args.duration is not None:
+        argv += ["--duration", str(args.duration)]
+    if args.out:
+        argv += ["--out", args.out]
+    return stand_main(argv)
+
+
 def run(args) -> int:
     if args.device not in DEVICES:
         return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
+    if args.scenario is not None:
+        return run_served(args)
+
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         return _fail(f"--duration {args.duration!r} is not allowed; give a positive number of seconds.")
     if args.device == "magnetorquer":
         return run_magnetorquer(args)
+    if args.device == "cage":
+        return run_cage(args)
     if not -90.0 <= args.dec <= 90.0:
         return _fail(f"--dec {args.dec!r} is not allowed; give a declination from -90 to 90 deg.")
     try:
@@ -179,7 +281,7 @@ def run(args) -> int:
     status = 0
     with emu:
         print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port}"
-              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C"), flush=True)
+              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
         try:
             emu.run(args.duration)
         except KeyboardInterrupt:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any
 
@@ -44,6 +44,7 @@ KINDS = {
     "magnetorquer": "stand.devices.magnetorquer:KIND",
     "star_tracker": "stand.devices.star_tracker:KIND",
     "sun_sensor": "stand.devices.sun_sensor:KIND",
+    "cage": "stand.devices.cage:KIND",
 }
 
 #: Truth models a device may need, in the order ``stand check`` lists them.
@@ -95,6 +96,8 @@ class BuildContext:
     rng: np.random.Generator
     step_s: float
     speed: float | None = None
+    #: Stimulators built before this device (name -> Device): a magnetometer in a cage reads the cage's field.
+    stimuli: dict = field(default_factory=dict)
 
 
 class Device:
@@ -156,9 +159,16 @@ class DeviceKind:
     metrics: dict[str, str] = {}
     #: Metrics that need ``at_s``.
     metrics_at: tuple[str, ...] = ()
+    #: What a device of this kind stimulates for the others (a Helmholtz cage: "magnetic_field"); stimulators are
+    #: built, and step, before the devices that read them.
+    provides: tuple[str, ...] = ()
 
     def parse(self, t: Table, base: DeviceSpec, step_s: float) -> DeviceSpec:
         raise NotImplementedError
+
+    def refs(self, spec: DeviceSpec) -> dict[str, tuple[str, str]]:
+        """Other devices this one takes something from: scenario key -> (device name, what it must provide)."""
+        return {}
 
     def needs(self, spec: DeviceSpec) -> dict[str, str]:
         """Truth models this device needs (a key of TRUTH_MODELS -> why), for composition and ``stand check``."""

@@ -55,6 +55,7 @@ class MagnetorquerSpec(DeviceSpec):
     mag_bias_T: tuple = (0.0, 0.0, 0.0)
     coil_coupling_T_per_A_m2: tuple = (0.0, 0.0, 0.0)
     coil_area_turns_m2: tuple = (2.0, 2.0, 2.0)
+    field_source: str = "truth"  # or the name of a device that makes the field (a Helmholtz cage)
 
 
 def _codec():
@@ -89,12 +90,18 @@ class MagnetorquerKind(DeviceKind):
             coil_coupling_T_per_A_m2=tuple(t.vector("coil_coupling_nT_per_A_m2", 3, [0.0, 0.0, 0.0], lo=-1e6,
                                                     hi=1e6) * 1e-9),
             coil_area_turns_m2=tuple(t.vector("coil_area_turns_m2", 3, [2.0, 2.0, 2.0], lo=1e-3, hi=1e4)),
+            field_source=t.text("field_source", "truth"),
         )
         t.check_unknown()
         return spec
 
+    def refs(self, spec) -> dict[str, tuple[str, str]]:
+        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
+
     def needs(self, spec) -> dict[str, str]:
-        return {"magnetic_field": f"magnetometer of {spec.name}"} if spec.link != "hardware" else {}
+        if spec.link == "hardware" or spec.field_source != "truth":
+            return {}  # a real board's magnetometer, or one in a cage, reads the field where it is
+        return {"magnetic_field": f"magnetometer of {spec.name}"}
 
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
@@ -135,10 +142,16 @@ def _emulator(spec: MagnetorquerSpec, ctx: BuildContext, bus):
 
     truth = ctx.truth
     q_SB = tuple(float(x) for x in spec.q_SB)
+    if spec.field_source != "truth":
+        stimulus = ctx.stimuli[spec.field_source].stimulus_field_B
 
-    def field_S(_t_s):
-        # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
-        return rotate_to_body(q_SB, truth.b_B())
+        def field_S(_t_s):
+            # The board sits in the cage: it reads the cage's field (body axes) through its mount.
+            return rotate_to_body(q_SB, stimulus())
+    else:
+        def field_S(_t_s):
+            # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
+            return rotate_to_body(q_SB, truth.b_B())
 
     config = EmulatorConfig(
         max_dipole_A_m2=spec.max_dipole_A_m2, dipole_lsb_A_m2=spec.dipole_lsb_A_m2,

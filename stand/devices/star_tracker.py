@@ -539,12 +539,21 @@ class ImageSolver:
     def solve(self, t_s: float, q_TN, omega_TN_T, v_N) -> dict:
         """TrackerTruth fields measured from the exposure at ``t_s``: the solved q_TN, stars centroided
         and matched, 1-sigma errors (rad); an identity attitude and 0 stars matched when the solve fails."""
+        from star_screen.render import SmearTooLong
         from star_screen.tracking.noise import camera_noise
 
         w0 = time.perf_counter()
         epoch = self.epoch + t_s
         v = np.asarray(v_N, dtype=float)
-        frame = self.renderer.render(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T, screen=False, copy=False)
+        try:
+            frame = self.renderer.render(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T, screen=False,
+                                         copy=False)
+        except SmearTooLong:  # stars trailed past the renderer's cap: no tracker solves such an image
+            self.counts["frames"] += 1
+            self.counts["failed"] += 1
+            self.frame_ms.append((time.perf_counter() - w0) * 1e3)
+            self._last = self._before = None
+            return {"q_TN": (1.0, 0.0, 0.0, 0.0), "stars_matched": 0, "stars_in_field": 0}
         image = camera_noise(frame.detector, self.rng, **self.camera)
         sol = self.tracker.solve(image, self.optics, self._prior(t_s),
                                  observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))

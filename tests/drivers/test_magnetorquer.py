@@ -217,7 +217,7 @@ def test_codec_refuses_values_the_icd_cannot_carry_naming_the_field() -> None:
         CODEC.encode(MagSample((0.0, 0.0, 1e-3), False, True, 0))
     with pytest.raises(EncodeError, match="DipoleCommand"):
         CODEC.encode(DipoleCommand((0.0, 0.0), 1.0))  # type: ignore[arg-type]
-    with pytest.raises(TypeError, match="expected one of DipoleCommand"):
+    with pytest.raises(EncodeError, match="expected one of DipoleCommand"):
         CODEC.encode("MTQ_DIPOLE_CMD")  # type: ignore[arg-type]
 
 

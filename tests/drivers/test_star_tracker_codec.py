@@ -12,6 +12,7 @@ import re
 import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -116,12 +117,37 @@ def _wire_strategy(f):
     if f.enum is not None:
         return st.integers(0, len(f.enum) - 1)
     if f.is_float:
-        return st.floats(width=32, allow_nan=False, allow_infinity=False)
+        return st.floats(f.lo, f.hi, width=32, allow_nan=False, allow_infinity=False)
     return st.integers(int(f.lo), int(f.hi))
 
 
+def _unit_quaternion():
+    # A unit quaternion as a device sends it: normalised, then rounded to f32 (norm within 2e-7).
+    comp = st.floats(-1.0, 1.0, allow_nan=False)
+    return st.tuples(comp, comp, comp, comp).filter(lambda v: math.hypot(*v) > 0.1).map(
+        lambda v: tuple(float(x) for x in np.float32(np.asarray(v) / math.hypot(*v))))
+
+
+def _wire_values(spec):
+    """Wire values of every field, in range, with unit-norm groups drawn as unit quaternions."""
+    grouped = {attr for attr, _ in spec.norms}
+    parts = [(_unit_quaternion() if f.index == 0 else st.just(None)) if f.attr in grouped else _wire_strategy(f)
+             for f in spec.fields]
+
+    def spread(values):
+        out, q = [], None
+        for f, v in zip(spec.fields, values, strict=True):
+            if f.attr in grouped:
+                q = v if f.index == 0 else q
+                v = q[f.index]
+            out.append(v)
+        return tuple(out)
+
+    return st.tuples(*parts).map(spread)
+
+
 def _payload_strategy(spec):
-    return st.tuples(*[_wire_strategy(f) for f in spec.fields]).map(lambda v: struct.pack(spec.fmt, *v))
+    return _wire_values(spec).map(lambda v: struct.pack(spec.fmt, *v))
 
 
 ALL_SPECS = list(CODEC.messages.values())
@@ -148,7 +174,7 @@ def test_every_message_round_trips_bytes_to_message_to_bytes(spec, data):
 @given(data=st.data())
 def test_every_message_round_trips_message_to_bytes_to_message(spec, data):
     # Build the message from SI values: decode(encode(x)) == x up to one LSB (exact for ints, enums, flags).
-    wire = data.draw(st.tuples(*[_wire_strategy(f) for f in spec.fields]))
+    wire = data.draw(_wire_values(spec))
     x = CODEC.decode_payload(spec, struct.pack(spec.fmt, *wire))
     kw = {}
     for f in spec.fields:  # perturb every float below half an LSB of its field
@@ -297,3 +323,78 @@ def test_decoder_survives_arbitrary_bytes_and_serves_the_next_good_frame(junk, c
             CODEC.decode_body(body, ADDR)
         except ProtocolError:
             pass
+
+
+# -- physical ranges from the ICD -------------------------------------------------------------------
+
+
+def _raw_solution(q=(0.5, 0.5, -0.5, 0.5), sigmas_arcsec=(2.0, 10.0), temperature_cC=2125) -> bytes:
+    """A SOLUTION body with a valid CRC, its values packed as given (bypassing the encoder's checks)."""
+    spec = CODEC.messages["SOLUTION"]
+    head = bytes((ADDR, spec.id)) + struct.pack(spec.fmt, 5, *q, *sigmas_arcsec, 12, 11, 2, 1, 9, temperature_cC, 3)
+    return head + crc16(head).to_bytes(2, "little")
+
+
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        (_raw_solution(q=(0.5, 0.0, 0.0, 0.0)), "norm 0.5"),  # the issue's case: aborted the whole run
+        (_raw_solution(q=(1.0, 2e-3, 0.0, 0.0)), "norm 1.000002"),
+        (_raw_solution(q=(2.0, 0.0, 0.0, 0.0)), "q_w = 2.0"),
+        (_raw_solution(sigmas_arcsec=(-1.0, 10.0)), "sigma_cross_arcsec = -1.0"),
+        (_raw_solution(sigmas_arcsec=(2.0, 1e9)), "sigma_roll_arcsec"),
+        (_raw_solution(temperature_cC=-30000), "temperature_cC = -30000"),  # -300 degC
+        (_raw_solution(temperature_cC=20000), "temperature_cC = 20000"),
+    ],
+)
+def test_decode_refuses_values_outside_the_icd_ranges(body, words):
+    with pytest.raises(FrameRejected) as ei:
+        CODEC.decode_body(body, ADDR)
+    assert ei.value.kind == "value" and words in str(ei.value) and body.hex().upper() in str(ei.value)
+
+
+def test_icd_ranges_admit_what_a_device_sends():
+    q = np.array([0.1, 0.7, -0.7, 0.1])
+    sol = CODEC.decode_body(_raw_solution(q=tuple(np.float32(q / np.linalg.norm(q)))), ADDR)
+    assert abs(math.hypot(*sol.q_TN) - 1.0) < 5e-7
+    sol = CODEC.decode_body(_raw_solution(sigmas_arcsec=(0.0, 0.0), temperature_cC=-10000), ADDR)
+    assert sol.temperature_C == -100.0 and sol.sigma_cross_rad == 0.0
+    with pytest.raises(EncodeError, match="norm"):
+        CODEC.encode(_solution(q_TN=(0.5, 0.0, 0.0, 0.0)))
+    with pytest.raises(EncodeError, match="sigma_cross"):
+        CODEC.encode(_solution(sigma_cross_rad=-1e-6))
+    with pytest.raises(EncodeError, match="temperature_cC"):
+        CODEC.encode(_solution(temperature_C=-300.0))
+
+
+class _Weird:
+    def __float__(self):
+        raise ArithmeticError("no float here")
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        "not a message",
+        RequestTelemetry(2**80),
+        RequestTelemetry("0x90"),
+        RequestTelemetry(_Weird()),
+        Subscribe(0x90, 10**400),
+        Subscribe(0x90, float("inf")),
+        Action("SET_TIME", -1),
+        Action(None),
+        SetParam(1, 10**400),
+        SetParam(1, "fast"),
+        _solution(q_TN=(1.0, 0.0, 0.0)),
+        _solution(q_TN=None),
+        _solution(q_TN={"w": 1.0}),
+        _solution(valid=np.array([True, False])),
+        _solution(valid="yes please"),
+        _solution(time_us=-1),
+        _solution(stable_count=1.5e20),
+    ],
+)
+def test_encode_raises_only_encode_error(msg):
+    # Item 12 of the hardening issue: the encoder's only exception is EncodeError (a ValueError).
+    with pytest.raises(EncodeError):
+        CODEC.encode(msg)

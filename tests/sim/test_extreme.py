@@ -346,3 +346,51 @@ def test_euler_313_at_identity_is_refused_at_once():
     # The identity has nutation 0: the 3-1-3 singularity itself (the first step enters the band).
     with pytest.raises(EulerSingularityError, match="313"):
         compare_with_quaternion([10.0, 20.0, 30.0], Q0, [0.01, 0.5, 0.01], 10.0, 0.1, "313")
+
+
+# -- D: reaction wheels with stiff friction at long steps ---------------------------------------------
+
+def test_stiff_viscous_wheel_at_a_step_a_hundred_times_its_time_constant_is_exact():
+    from sim.actuators import ReactionWheel, WheelMotor, WheelState
+
+    J, c, u = 1e-6, 1e-3, 1e-3  # J / c = 1 ms; explicit RK4 would need h < 2.8 ms
+    motor = WheelMotor(ReactionWheel(J, 0.0, viscous_nms=c), max_torque_Nm=2e-3, max_speed_rad_s=1e4)
+    assert motor.wheel.max_explicit_step_s < 0.1
+    state = WheelState(-50.0, 0.0)
+    for k in range(1, 31):
+        state, _, fr = motor.step(state, u, 0.1)
+        t = 0.1 * k
+        assert state.omega_rad_s == pytest.approx(u / c + (-50.0 - u / c) * math.exp(-c / J * t), rel=1e-12, abs=1e-12)
+        assert fr >= 0.0
+
+
+def test_coulomb_wheel_at_one_second_steps_sticks_breaks_away_and_never_chatters():
+    from sim.actuators import ReactionWheel, WheelMotor, WheelState
+
+    motor = WheelMotor(ReactionWheel(1e-6, 1e-3, static_nm=1.2e-3), max_torque_Nm=4e-3, max_speed_rad_s=1e4)
+    state = WheelState(0.0, 0.0)
+    for _ in range(10):  # below breakaway: stuck at exactly zero, the body feels nothing
+        state, body, _ = motor.step(state, 1.1e-3, 1.0)
+        assert state.omega_rad_s == 0.0 and body == 0.0
+    state, _, _ = motor.step(state, -2e-3, 1.0)  # above: slides at (u + tau_c) / J
+    assert state.omega_rad_s == pytest.approx(-1e-3 / 1e-6 * 1.0, rel=1e-12)
+    speeds = []
+    for _ in range(10):  # unpowered: Coulomb stops it within the first step and it stays at zero
+        state, _, _ = motor.step(state, 0.0, 1.0)
+        speeds.append(state.omega_rad_s)
+    assert speeds == [0.0] * 10
+
+
+@pytest.mark.parametrize("h", [0.001, 1.0])
+def test_speed_mode_to_zero_against_coulomb_friction_never_crosses_zero(h):
+    from sim.actuators import ReactionWheel, WheelMotor, WheelState
+
+    motor = WheelMotor(ReactionWheel(2e-5, 5e-4, viscous_nms=1e-6), max_torque_Nm=4e-3, max_speed_rad_s=600.0,
+                       time_constant_s=1e-5)
+    state = WheelState(100.0, 0.0)
+    speeds = []
+    for _ in range(int(round(5.0 / h))):
+        state, _, _ = motor.step_speed(state, 0.0, h)
+        speeds.append(state.omega_rad_s)
+    assert np.all(np.diff(speeds) <= 0.0) and min(speeds) >= 0.0  # no chatter round zero, no reversal
+    assert speeds[-1] < 1e-5  # seven orders below the start

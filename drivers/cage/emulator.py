@@ -1,0 +1,253 @@
+"""Emulator: the stand *being* the Helmholtz cage controller, a pymodbus server (Modbus TCP on
+127.0.0.1, or Modbus RTU on a serial port) in front of :class:`~drivers.cage.model.CageModel`.
+
+The server is pymodbus's own (``ModbusTcpServer`` / ``ModbusSerialServer`` on a ``SimDevice``), run
+on an asyncio loop in a thread of its own. Every request goes through one ``action`` hook that asks
+the model: reads are answered from the model's state at that instant, writes are checked against
+the register map and applied atomically (or refused with a Modbus exception and not applied at all).
+Requests for other unit ids get no answer (a shared RS-485 line).
+
+Two ways time passes:
+
+- ``clock`` given (default ``time.monotonic``): the cage runs in wall time. Before every request,
+  and every ``tick_s`` on the server loop, the model is advanced to ``clock() - start``.
+- ``clock=None``: sim time. Only :meth:`CageEmulator.step` moves the model (the stand calls it once
+  per tick); requests see the cage as of the last step.
+
+``counters``: ``received`` and ``sent`` (Modbus frames), ``rejected`` (requests answered with an
+exception), ``ignored_other_id`` (requests for another unit id, not answered).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.server import ModbusSerialServer, ModbusTcpServer
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from drivers.cage.model import EXC_ILLEGAL_FUNCTION, CageConfig, CageModel, LabField
+from drivers.cage.registers import RegisterMap
+from drivers.endpoint import Endpoint
+from drivers.errors import ConnectError, DriverError
+
+__all__ = ["CageEmulator"]
+
+_READ = {3: "holding", 4: "input"}
+_WRITE = (6, 16)
+_START_TIMEOUT_S = 5.0
+_STOP_TIMEOUT_S = 5.0
+
+
+def _blocks() -> tuple[list[SimData], list[SimData], list[SimData], list[SimData]]:
+    # The whole address space exists for pymodbus, so every request reaches the action hook, which
+    # answers from the register map (and counts what it refuses).
+    bits = [SimData(0, values=[False] * 65536, datatype=DataType.BITS)]
+    regs = [SimData(0, count=65536, values=0, datatype=DataType.REGISTERS)]
+    return bits, list(bits), regs, list(regs)
+
+
+class CageEmulator(Endpoint):
+    """The cage behind a Modbus server.
+
+    Args:
+        config: the bench (:class:`~drivers.cage.model.CageConfig`; default the nominal cage).
+        rng: seed or Generator of the magnetometer noise.
+        clock: a monotonic clock in seconds for wall-time running, or None for sim time (:meth:`step`).
+        lab_field: optional ``lab_field(t_s) -> 3 floats`` (T, cage axes), a moving lab field.
+        regmap: the register map (default: the ICD).
+        tick_s: in wall time, how often the server loop advances the model with no request coming.
+        name: how errors name this device.
+    """
+
+    def __init__(self, config: CageConfig | None = None, *, rng: int | np.random.Generator | None = 0,
+                 clock: Callable[[], float] | None = time.monotonic, lab_field: LabField | None = None,
+                 regmap: RegisterMap | None = None, tick_s: float = 0.01, name: str = "cage emulator") -> None:
+        self.model = CageModel(config, rng=rng, lab_field=lab_field, regmap=regmap)
+        self.config = self.model.config
+        self.name = name
+        self._clock = clock
+        self._t0 = clock() if clock is not None else 0.0
+        self._tick_s = float(tick_s)
+        self._lock = threading.Lock()
+        self.counters: dict[str, int] = {"received": 0, "sent": 0, "rejected": 0, "ignored_other_id": 0}
+        self.where: str | None = None
+        self.address: tuple[str, int] | None = None
+        self._thread: threading.Thread | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stop_event: asyncio.Event | None = None
+        self._closed = False
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else (f"serving {self.where}" if self.where else "not serving")
+        return f"CageEmulator({state}, t={self.model.t_s:g} s, counters={self.counters})"
+
+    # -- time ------------------------------------------------------------------------------------
+
+    @property
+    def t_s(self) -> float:
+        """The cage's time, s since power-up."""
+        return self.model.t_s
+
+    def step(self, t_s: float) -> None:
+        """Advance the cage to sim time ``t_s`` (s since power-up); only for ``clock=None``."""
+        if self._clock is not None:
+            raise DriverError(f"{self.name}: step() drives a cage in sim time, but this one runs on its own clock; "
+                              "build it with clock=None to step it.")
+        with self._lock:
+            self.model.advance(t_s)
+
+    def _sync(self) -> None:
+        if self._clock is not None:
+            self.model.advance(self._clock() - self._t0)
+
+    def cage_field_T(self) -> np.ndarray:
+        """The noiseless field at the test position now (T, cage axes): what a magnetometer there sees."""
+        with self._lock:
+            self._sync()
+            return self.model.cage_field_T()
+
+    def currents_A(self) -> tuple[float, float, float]:
+        """Coil currents now, signed (A)."""
+        with self._lock:
+            self._sync()
+            return self.model.currents_A()
+
+    # -- the Modbus side -------------------------------------------------------------------------
+
+    async def _action(self, function_code: int, start_address: int, address: int, count: int,
+                      registers: list[int], set_values: Sequence[int] | Sequence[bool] | None) -> ExcCodes | None:
+        with self._lock:
+            self._sync()
+            if function_code in _READ:
+                words = self.model.read(_READ[function_code], address, count)
+                if isinstance(words, list):
+                    registers[address - start_address : address - start_address + count] = words
+                    return None
+                code = words
+            elif function_code in _WRITE and set_values is not None:
+                code = self.model.write(address, [int(v) for v in set_values])
+            else:
+                code = EXC_ILLEGAL_FUNCTION
+        if code:
+            self.counters["rejected"] += 1
+            return ExcCodes(code)
+        return None
+
+    async def _other_id(self, *_args: Any) -> None:
+        self.counters["ignored_other_id"] += 1
+        raise NoSuchIdException("not this cage")  # with ignore_missing_devices: no answer at all
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        self.counters["sent" if sending else "received"] += 1
+        return data
+
+    def _devices(self) -> list[SimDevice]:
+        return [SimDevice(id=self.config.device_id, simdata=_blocks(), action=self._action),
+                SimDevice(id=0, simdata=_blocks(), action=self._other_id)]
+
+    def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
+        """Serve Modbus TCP on ``host:port`` (port 0: a free one); returns the address bound."""
+        devices = self._devices()
+
+        def make():
+            return ModbusTcpServer(devices, address=(host, port), ignore_missing_devices=True,
+                                   trace_packet=self._trace)
+
+        server = self._start(make, f"tcp://{host}:{port}")
+        sock = server.transport.sockets[0].getsockname()
+        self.address = (sock[0], sock[1])
+        self.where = f"tcp://{sock[0]}:{sock[1]}"
+        return self.address
+
+    def serve_rtu(self, port: str, *, baudrate: int = 115200, parity: str = "N", stopbits: int = 1) -> None:
+        """Serve Modbus RTU on the serial ``port`` (a device path, a pty, or any pyserial URL)."""
+        devices = self._devices()
+
+        def make():
+            return ModbusSerialServer(devices, port=port, baudrate=baudrate, parity=parity, stopbits=stopbits,
+                                      ignore_missing_devices=True, trace_packet=self._trace, reconnect_delay=0.5)
+
+        self._start(make, port)
+        self.where = f"rtu:{port}@{baudrate}"
+
+    def _start(self, make: Callable[[], Any], where: str) -> Any:
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        if self._thread is not None:
+            raise DriverError(f"{self.name}: already serving {self.where}; one emulator serves one port.")
+        ready = threading.Event()
+        box: dict[str, Any] = {}
+        self._thread = threading.Thread(target=self._thread_main, args=(make, ready, box), daemon=True,
+                                        name=f"cage-emulator {where}")
+        self._thread.start()
+        if not ready.wait(_START_TIMEOUT_S):
+            self._release()
+            raise ConnectError(f"{self.name}: the Modbus server on {where} did not start within "
+                               f"{_START_TIMEOUT_S:g} s.", where=where, reason="timeout")
+        if "error" in box:
+            self._thread.join(_STOP_TIMEOUT_S)
+            self._thread = None
+            exc = box["error"]
+            raise ConnectError(f"{self.name}: cannot serve Modbus on {where}: {exc}", where=where,
+                               reason=str(exc)) from exc
+        return box["server"]
+
+    def _thread_main(self, make, ready: threading.Event, box: dict) -> None:
+        asyncio.run(self._main(make, ready, box))
+
+    async def _main(self, make, ready: threading.Event, box: dict) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._stop_event = asyncio.Event()
+        try:
+            server = make()
+            await server.serve_forever(background=True)
+        except Exception as exc:  # noqa: BLE001 - reported to the caller of serve_*
+            box["error"] = exc if str(exc) else RuntimeError("the port could not be opened")
+            ready.set()
+            return
+        box["server"] = server
+        ready.set()
+        ticker = asyncio.create_task(self._tick()) if self._clock is not None else None
+        try:
+            await self._stop_event.wait()
+        finally:
+            if ticker is not None:
+                ticker.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await ticker
+            await server.shutdown()
+
+    async def _tick(self) -> None:
+        while True:
+            await asyncio.sleep(self._tick_s)
+            with self._lock:
+                self._sync()
+
+    # -- running alone ---------------------------------------------------------------------------
+
+    def run(self, duration_s: float | None = None, stop: Callable[[], bool] | None = None) -> None:
+        """Block while serving, until ``duration_s`` (wall seconds) passed or ``stop()`` is true."""
+        if self._thread is None:
+            raise DriverError(f"{self.name}: not serving; call serve_tcp() or serve_rtu() first.")
+        end = None if duration_s is None else time.monotonic() + duration_s
+        while (end is None or time.monotonic() < end) and not (stop is not None and stop()):
+            if not self._thread.is_alive():
+                raise DriverError(f"{self.name}: the Modbus server on {self.where} stopped.")
+            time.sleep(0.05 if end is None else max(0.0, min(0.05, end - time.monotonic())))
+
+    def _release(self) -> None:
+        loop, ev, thread = self._loop, self._stop_event, self._thread
+        if loop is not None and ev is not None:
+            with contextlib.suppress(RuntimeError):  # the loop has already ended
+                loop.call_soon_threadsafe(ev.set)
+        if thread is not None:
+            thread.join(_STOP_TIMEOUT_S)
+        self._thread = None

@@ -1,0 +1,794 @@
+"""Fixed-length binary datagrams on a serial line, defined by a TOML ICD: the shared part of the
+gyro and the sun sensor drivers.
+
+A datagram is ``identifier u8 | payload | CRC-16/CCITT-FALSE u16``, the CRC over identifier and
+payload. There are no framing bytes: each identifier has one fixed length, and a receiver finds the
+datagrams in a byte stream by their identifier and their CRC (the way inertial sensors such as the
+Safran STIM series stream: a datagram starts with an identifier byte and ends with a CRC). This
+module holds, for every device built on it:
+
+- :class:`DatagramCodec`: the pure codec built from the TOML (field types, scaling, ranges, enum
+  tables, flag bits), checked at load time against the device's dataclasses so the ICD and the code
+  cannot drift apart; ``encode(msg) -> bytes`` and ``decode(datagram) -> msg``;
+- :func:`take_datagram` and :class:`DatagramDecoder`: sans-I/O stream decoding (feed bytes, get
+  messages; a false start or a corrupted datagram costs one dropped byte, never an exception);
+- :class:`DatagramHost` and :class:`DatagramEmulator`: the port handling, counters and the
+  wall-clock serving loop that the device hosts and emulators share; each device fills small hooks;
+- :func:`render_icd`: the ICD document as Markdown, generated from the TOML.
+
+No clock is read outside :meth:`DatagramEmulator.run` and the host's monotonic deadlines.
+"""
+
+from __future__ import annotations
+
+import binascii
+import math
+import struct
+import time
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+from drivers.serial_port import SerialEndpoint, open_port, port_name
+
+__all__ = [
+    "DEVICE_TO_HOST",
+    "HOST_TO_DEVICE",
+    "DatagramCodec",
+    "DatagramDecoder",
+    "DatagramEmulator",
+    "DatagramHost",
+    "DatagramRejected",
+    "FieldSpec",
+    "MessageSpec",
+    "crc16",
+    "render_icd",
+    "take_datagram",
+]
+
+HOST_TO_DEVICE = "host->device"
+DEVICE_TO_HOST = "device->host"
+
+
+def crc16(data: bytes | bytearray | memoryview) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+class DatagramRejected(ProtocolError):
+    """A datagram cannot be accepted; ``kind`` says why (``short``, ``crc``, ``unknown_id``,
+    ``direction``, ``length``, ``value``)."""
+
+    def __init__(self, kind: str, reason: str, **kw: Any) -> None:
+        super().__init__(reason, **kw)
+        self.kind = kind
+
+
+#: Wire type -> (struct code or None for 24-bit, size, min, max).
+_TYPES: dict[str, tuple[str | None, int, float, float]] = {
+    "u8": ("B", 1, 0, 0xFF),
+    "i8": ("b", 1, -0x80, 0x7F),
+    "u16": ("H", 2, 0, 0xFFFF),
+    "i16": ("h", 2, -0x8000, 0x7FFF),
+    "i24": (None, 3, -0x80_0000, 0x7F_FFFF),
+    "u32": ("I", 4, 0, 0xFFFF_FFFF),
+    "i32": ("i", 4, -0x8000_0000, 0x7FFF_FFFF),
+    "u64": ("Q", 8, 0, 0xFFFF_FFFF_FFFF_FFFF),
+    "f32": ("f", 4, -3.4028234663852886e38, 3.4028234663852886e38),
+}
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    name: str
+    type: str
+    attr: str
+    index: int | None
+    scale: float
+    lo: float
+    hi: float
+    enum: tuple[str, ...] | None
+    bits: tuple[str, ...] | None
+    unit: str
+    doc: str
+
+    @property
+    def is_float(self) -> bool:
+        return self.type == "f32"
+
+    @property
+    def size(self) -> int:
+        return _TYPES[self.type][1]
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    id: int
+    name: str
+    direction: str
+    doc: str
+    fields: tuple[FieldSpec, ...]
+    fmt: str
+    payload_len: int
+    cls: type
+
+    @property
+    def length(self) -> int:
+        """Whole datagram: identifier, payload, CRC."""
+        return self.payload_len + 3
+
+
+def load_icd(path: str | Path) -> dict[str, Any]:
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+class DatagramCodec:
+    """Encode and decode the datagrams of one device, from its TOML ICD.
+
+    Args:
+        icd_path: the TOML file.
+        classes: message name in the ICD -> dataclass (SI units).
+        device: how messages name the device ("gyro", "sun sensor").
+
+    Attributes:
+        icd (the TOML as a dict), messages (name -> :class:`MessageSpec`), by_id, enums,
+        byte_order ("big" or "little"), ids_to_host / ids_to_device (identifier bytes by direction),
+        max_length (the longest datagram).
+    """
+
+    def __init__(self, icd_path: str | Path, classes: dict[str, type], device: str) -> None:
+        self.device = device
+        icd = self.icd = load_icd(icd_path)
+        proto = icd["protocol"]
+        order = proto.get("byte_order")
+        if order not in ("big", "little"):
+            raise ValueError(f"{device} ICD: byte_order must be 'big' or 'little'; got {order!r}.")
+        self.byte_order: str = order
+        self._prefix = ">" if order == "big" else "<"
+        crc = proto["crc"]
+        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
+            raise ValueError(f"{device} ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}.")
+        self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd.get("enums", {}).items()}
+        self._classes = classes
+        self.messages: dict[str, MessageSpec] = {}
+        self.by_id: dict[int, MessageSpec] = {}
+        for m in icd["messages"]:
+            spec = self._message_spec(m)
+            if spec.id in self.by_id:
+                raise ValueError(f"{device} ICD: identifier 0x{spec.id:02X} is used twice.")
+            self.messages[spec.name] = spec
+            self.by_id[spec.id] = spec
+        if set(self.messages) != set(classes):
+            raise ValueError(
+                f"{device} ICD: messages {sorted(self.messages)} differ from the codec's {sorted(classes)}."
+            )
+        self._by_cls = {spec.cls: spec for spec in self.messages.values()}
+        self.ids_to_host = frozenset(s.id for s in self.messages.values() if s.direction == DEVICE_TO_HOST)
+        self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
+        self.max_length = max(s.length for s in self.messages.values())
+        self._struct = {s.id: struct.Struct(s.fmt) for s in self.messages.values()}
+
+    def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
+        name = m["name"]
+        where = f"{self.device} ICD: message {name}"
+        cls = self._classes.get(name)
+        if cls is None:
+            raise ValueError(f"{where} has no dataclass in the codec.")
+        if m["direction"] not in (HOST_TO_DEVICE, DEVICE_TO_HOST):
+            raise ValueError(f"{where}: direction must be host->device or device->host; got {m['direction']!r}.")
+        if not 0 <= int(m["id"]) <= 0xFF:
+            raise ValueError(f"{where}: identifier must be 0..255; got {m['id']!r}.")
+        specs = []
+        covered: set[str] = set()
+        for f in m.get("fields", []):
+            if f["type"] not in _TYPES:
+                raise ValueError(f"{where}: field {f['name']} has type {f['type']!r}; allowed: {', '.join(_TYPES)}.")
+            _, _, tlo, thi = _TYPES[f["type"]]
+            enum = tuple(self.enums[f["enum"]]) if "enum" in f else None
+            bits = tuple(f["bits"]) if "bits" in f else None
+            if f["type"] == "f32":
+                lo, hi = float(f.get("min", tlo)), float(f.get("max", thi))
+            else:
+                lo, hi = int(f.get("min", tlo)), int(f.get("max", thi))
+                if not tlo <= lo <= hi <= thi:
+                    raise ValueError(f"{where}: field {f['name']} range {lo}..{hi} does not fit {f['type']}.")
+            if enum is not None:
+                hi = len(enum) - 1
+            if bits is not None:
+                hi = (1 << len(bits)) - 1
+                covered.update(bits)
+            else:
+                covered.add(f["attr"])
+            specs.append(FieldSpec(f["name"], f["type"], f.get("attr", ""), f.get("index"), float(f.get("scale", 1.0)),
+                                   lo, hi, enum, bits, f.get("unit", ""), f.get("doc", "")))
+        attrs = {x.name for x in fields(cls)}
+        if covered != attrs:
+            raise ValueError(f"{where} maps fields to {sorted(covered)}, but {cls.__name__} has {sorted(attrs)}.")
+        fmt = self._prefix + "".join(_TYPES[s.type][0] or "3s" for s in specs)
+        return MessageSpec(int(m["id"]), name, m["direction"], m.get("doc", ""), tuple(specs), fmt,
+                           struct.calcsize(fmt), cls)
+
+    # -- encode ---------------------------------------------------------------------------------
+
+    def spec_of(self, msg: Any) -> MessageSpec:
+        try:
+            return self._by_cls[type(msg)]
+        except KeyError:
+            raise TypeError(f"Cannot encode {type(msg).__name__} as a {self.device} datagram: expected one of "
+                            f"{', '.join(c.__name__ for c in self._classes.values())}.") from None
+
+    def encode(self, msg: Any) -> bytes:
+        """The whole datagram of ``msg``: identifier, payload, CRC."""
+        spec = self.spec_of(msg)
+        values = [self._wire_value(spec, f, msg) for f in spec.fields]
+        head = bytes((spec.id,)) + self._struct[spec.id].pack(*values)
+        return head + crc16(head).to_bytes(2, self.byte_order)
+
+    def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Any) -> Any:
+        if f.bits is not None:
+            v = 0
+            for i, bit in enumerate(f.bits):
+                if getattr(msg, bit):
+                    v |= 1 << i
+            return v
+        value = getattr(msg, f.attr)
+        if f.index is not None:
+            try:
+                value = value[f.index]
+            except (TypeError, IndexError):
+                raise EncodeError(f"{self._where(spec, f)}: {f.attr} must be a sequence with an element {f.index}; "
+                                  f"got {value!r}.") from None
+        if f.enum is not None:
+            if isinstance(value, str) and value.upper() in f.enum:
+                return f.enum.index(value.upper())
+            if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
+                return value
+            allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
+            raise EncodeError(f"{self._where(spec, f)} = {value!r} is not allowed; allowed: {allowed}.")
+        t = type(value)
+        if t is not int and t is not float:
+            try:
+                value = float(value) if not isinstance(value, int) or isinstance(value, bool) else int(value)
+            except (TypeError, ValueError):
+                raise EncodeError(f"{self._where(spec, f)} = {value!r} is not a number.") from None
+        wire = value / f.scale if f.scale != 1.0 else value
+        if f.is_float:
+            if not (math.isfinite(wire) and f.lo <= wire <= f.hi):
+                raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
+                                  f"allowed a finite number from {f.lo:g} to {f.hi:g}.")
+            return float(wire)
+        if not math.isfinite(wire):
+            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is not finite; allowed: "
+                              f"{f.lo} to {f.hi} {f.unit}.".rstrip())
+        n = round(wire)
+        if not f.lo <= n <= f.hi:
+            extra = f"; in SI {f.lo * f.scale:.6g} to {f.hi * f.scale:.6g}" if f.scale != 1.0 else ""
+            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
+                              f"allowed {f.lo} to {f.hi} ({f.type}{extra}).")
+        if f.type == "i24":
+            return n.to_bytes(3, self.byte_order, signed=True)
+        return n
+
+    def _where(self, spec: MessageSpec, f: FieldSpec) -> str:
+        return f"{self.device} {spec.name}.{f.name}"
+
+    @staticmethod
+    def _si(f: FieldSpec, value: Any) -> str:
+        return f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
+
+    # -- decode ---------------------------------------------------------------------------------
+
+    def decode(self, datagram: bytes | bytearray, direction: str | None = None) -> Any:
+        """Decode one whole datagram; ``direction``: accept only messages sent that way (None = both).
+
+        Raises :class:`DatagramRejected` with the datagram in hex, a ``kind`` and expected vs got.
+        """
+        data = bytes(datagram)
+        hx = data.hex().upper()
+        if len(data) < 3:
+            raise DatagramRejected("short", f"{self.device} datagram too short", frame_hex=hx,
+                                   expected=">= 3 bytes", computed=f"{len(data)} bytes")
+        spec = self.by_id.get(data[0])
+        if spec is None:
+            raise DatagramRejected("unknown_id", f"unknown {self.device} identifier 0x{data[0]:02X}", frame_hex=hx,
+                                   expected=f"one of {', '.join(f'0x{i:02X}' for i in sorted(self.by_id))}",
+                                   computed=f"0x{data[0]:02X}")
+        if direction is not None and spec.direction != direction:
+            raise DatagramRejected("direction", f"{self.device} {spec.name} is sent {spec.direction}, not {direction}",
+                                   frame_hex=hx)
+        if len(data) != spec.length:
+            raise DatagramRejected("length", f"{self.device} {spec.name} datagram of the wrong length", frame_hex=hx,
+                                   expected=f"{spec.length} bytes", computed=f"{len(data)} bytes")
+        got = int.from_bytes(data[-2:], self.byte_order)
+        calc = crc16(data[:-2])
+        if got != calc:
+            raise DatagramRejected("crc", f"{self.device} {spec.name} datagram with a bad CRC-16", frame_hex=hx,
+                                   expected=f"0x{got:04X} (received)", computed=f"0x{calc:04X}")
+        return self.decode_payload(spec, data[1:-2], hx)
+
+    def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Any:
+        raw = self._struct[spec.id].unpack(payload)
+        kw: dict[str, Any] = {}
+        tuples: dict[str, dict[int, Any]] = {}
+        for f, v in zip(spec.fields, raw, strict=True):
+            if f.type == "i24":
+                v = int.from_bytes(v, self.byte_order, signed=True)
+            if f.bits is not None:
+                if v >> len(f.bits):
+                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = 0x{v:X} has undefined "
+                                           "bits set", frame_hex=hx, expected=f"<= 0x{f.hi:X}", computed=f"0x{v:X}")
+                for i, bit in enumerate(f.bits):
+                    kw[bit] = bool(v >> i & 1)
+                continue
+            if f.enum is not None:
+                if v >= len(f.enum):
+                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is not in its table",
+                                           frame_hex=hx, expected=f"0..{len(f.enum) - 1}", computed=v)
+                val: Any = f.enum[v]
+            else:
+                if f.is_float and not math.isfinite(v):
+                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} is not finite",
+                                           frame_hex=hx, expected="a finite number", computed=v)
+                if not f.lo <= v <= f.hi:
+                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is outside its range",
+                                           frame_hex=hx, expected=f"{f.lo}..{f.hi}", computed=v)
+                val = v * f.scale if f.scale != 1.0 else v
+            if f.index is not None:
+                tuples.setdefault(f.attr, {})[f.index] = val
+            else:
+                kw[f.attr] = val
+        for attr, items in tuples.items():
+            kw[attr] = tuple(items[i] for i in range(len(items)))
+        return spec.cls(**kw)
+
+    def lsb(self, message: str, field: str) -> float:
+        """One wire step of a field, in SI."""
+        for f in self.messages[message].fields:
+            if f.name == field:
+                return f.scale
+        raise KeyError(f"{self.device} ICD: message {message} has no field {field!r}.")
+
+    def si_range(self, message: str, field: str) -> tuple[float, float]:
+        """What a field can carry, in SI."""
+        for f in self.messages[message].fields:
+            if f.name == field:
+                return f.lo * f.scale, f.hi * f.scale
+        raise KeyError(f"{self.device} ICD: message {message} has no field {field!r}.")
+
+
+# -- stream decoding ------------------------------------------------------------------------------
+
+
+def take_datagram(buf: bytes | bytearray, lengths: dict[int, int], byte_order: str) -> tuple[int, bytes | None]:
+    """Look for one datagram at the start of ``buf``; ``lengths`` maps accepted identifiers to lengths.
+
+    Returns ``(consumed, datagram)``:
+
+    - ``(0, None)``: ``buf`` starts with an identifier but is shorter than its datagram (or is
+      empty): feed more bytes;
+    - ``(n, datagram)``: a datagram whose CRC checks; ``n`` is its length;
+    - ``(n, None)``: ``n`` bytes to drop: everything before the next identifier byte, or the one
+      identifier byte of a datagram whose CRC fails (so a real datagram starting inside it is found).
+    """
+    if not buf:
+        return 0, None
+    n = lengths.get(buf[0])
+    if n is None:
+        for i in range(1, len(buf)):
+            if buf[i] in lengths:
+                return i, None
+        return len(buf), None
+    if len(buf) < n:
+        return 0, None
+    if int.from_bytes(buf[n - 2:n], byte_order) == crc16(memoryview(buf)[:n - 2]):
+        return n, bytes(buf[:n])
+    return 1, None
+
+
+class DatagramDecoder:
+    """Streaming decoder of one direction's datagrams: :meth:`feed` bytes, get messages; bad input
+    is counted, never raised.
+
+    ``counters``: ``datagrams`` (decoded), ``crc_errors`` (an identifier byte whose datagram failed
+    its CRC: a corrupted datagram or a false start), ``value_errors`` (CRC good, a field outside its
+    table), ``bytes_dropped``.
+    """
+
+    def __init__(self, codec: DatagramCodec, direction: str) -> None:
+        self.codec = codec
+        self.direction = direction
+        ids = codec.ids_to_host if direction == DEVICE_TO_HOST else codec.ids_to_device
+        self._lengths = {i: codec.by_id[i].length for i in ids}
+        self._buf = bytearray()
+        self.counters = {"datagrams": 0, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0}
+
+    def reset(self) -> None:
+        """Forget any partial datagram (after a reconnect)."""
+        self.counters["bytes_dropped"] += len(self._buf)
+        self._buf.clear()
+
+    @property
+    def pending(self) -> int:
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Any]:
+        buf = self._buf
+        buf += data
+        out: list[Any] = []
+        c = self.counters
+        lengths, order = self._lengths, self.codec.byte_order
+        while buf:
+            consumed, datagram = take_datagram(buf, lengths, order)
+            if consumed == 0:
+                break
+            if datagram is None:
+                if buf[0] in lengths:
+                    c["crc_errors"] += 1
+                c["bytes_dropped"] += consumed
+            else:
+                spec = self.codec.by_id[datagram[0]]
+                try:
+                    out.append(self.codec.decode_payload(spec, datagram[1:-2], datagram.hex().upper()))
+                    c["datagrams"] += 1
+                except DatagramRejected:
+                    c["value_errors"] += 1
+                    c["bytes_dropped"] += consumed
+            del buf[:consumed]
+        return out
+
+
+# -- endpoints ------------------------------------------------------------------------------------
+
+
+def _is_port_error(exc: BaseException) -> bool:
+    return isinstance(exc, (OSError, ValueError)) or type(exc).__name__.endswith("SerialException")
+
+
+class DatagramHost(SerialEndpoint):
+    """Generic host side of a datagram device: the port (a URL it reopens after a failure, or an
+    open object the caller keeps), sending commands, and receiving without ever raising on bad
+    traffic. A device's host sets ``_kind`` (its device name) and fills :meth:`_accept_message`.
+
+    ``counters``: ``sent``, ``bytes_received``, ``frames_received`` (good datagrams),
+    ``rejected_crc``, ``rejected_other`` (a field outside its table), ``bytes_dropped``,
+    ``timeouts``, ``recoveries``, ``reconnects``; a device adds its own.
+    """
+
+    _kind = "device"
+
+    def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, timeout_s: float, name: str,
+                 poll_s: float) -> None:
+        self._closed = True
+        self.port = None
+        self._owns_port = False
+        if not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"{name}: timeout_s = {timeout_s!r} is not allowed; allowed: a number of seconds > 0.")
+        self.codec = codec
+        self.name = name
+        self.timeout_s = float(timeout_s)
+        self.baudrate = baudrate
+        self.poll_s = poll_s
+        self._url = port if isinstance(port, str) else None
+        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=poll_s, name=name)
+        if not self._owns_port and hasattr(self.port, "timeout"):
+            self.port.timeout = poll_s
+        self._closed = False
+        self._broken = False
+        self._decoder = DatagramDecoder(codec, DEVICE_TO_HOST)
+        self.online = True
+        self._last_rx: float | None = None
+        self.counters: dict[str, int] = {
+            "sent": 0, "bytes_received": 0, "frames_received": 0, "rejected_crc": 0, "rejected_other": 0,
+            "bytes_dropped": 0, "timeouts": 0, "recoveries": 0, "reconnects": 0,
+        }
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({port_name(self.port)!r}, online={self.online}, counters={self.counters})"
+
+    # -- port -----------------------------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        if self._broken:
+            self._reopen()
+
+    def _reopen(self) -> None:
+        if self._url is None or not self._owns_port:
+            raise DriverError(f"{self.name}: the port {port_name(self.port)} failed and was not opened by the "
+                              "driver, so it cannot be reopened; open it again and create a new driver.")
+        try:
+            self.port.close()
+        except Exception:  # noqa: BLE001 - the port is already broken
+            pass
+        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name)
+        self._broken = False
+        self._decoder.reset()
+        self.counters["reconnects"] += 1
+
+    def _port_failed(self, what: str, exc: BaseException) -> DriverError:
+        self._broken = True
+        self.online = False
+        return ConnectError(f"{self.name}: cannot {what} {port_name(self.port)}: {exc}; the port will be reopened on "
+                            "the next call.", where=port_name(self.port), reason=str(exc))
+
+    def send(self, msg: Any) -> None:
+        """Encode and send one command (EncodeError naming the field before anything is sent)."""
+        self._check_open()
+        frame = self.codec.encode(msg)
+        if self.codec.spec_of(msg).direction != HOST_TO_DEVICE:
+            raise EncodeError(f"{self.name}: {type(msg).__name__} is sent by the device, not by the host.")
+        try:
+            self.port.write(frame)
+        except Exception as exc:
+            if _is_port_error(exc):
+                raise self._port_failed("write to", exc) from exc
+            raise
+        self.counters["sent"] += 1
+
+    def _read(self, block: bool) -> int:
+        port = self.port
+        try:
+            n = port.in_waiting
+            if n:
+                data = port.read(n)
+            elif block:
+                data = port.read(1)
+                if data:
+                    more = port.in_waiting
+                    if more:
+                        data += port.read(more)
+            else:
+                return 0
+        except Exception as exc:
+            if _is_port_error(exc):
+                raise self._port_failed("read from", exc) from exc
+            raise
+        if not data:
+            return 0
+        self.counters["bytes_received"] += len(data)
+        dec = self._decoder
+        before = dict(dec.counters)
+        messages = dec.feed(data)
+        c = self.counters
+        c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
+        c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
+        c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
+        for msg in messages:
+            c["frames_received"] += 1
+            self._last_rx = time.monotonic()
+            if not self.online:
+                self.online = True
+                c["recoveries"] += 1
+            self._accept_message(msg)
+        return len(data)
+
+    def _accept_message(self, msg: Any) -> None:  # pragma: no cover - every device overrides it
+        """Store one decoded message (the device's hook)."""
+
+    def poll(self) -> int:
+        """Decode everything that has arrived, without waiting; returns the good datagrams decoded."""
+        self._check_open()
+        before = self.counters["frames_received"]
+        for _ in range(256):  # bounded: a babbling port cannot hold the caller here
+            if not self._read(block=False):
+                break
+        return self.counters["frames_received"] - before
+
+    def _wait(self, ready: Callable[[], bool], awaited: str, timeout_s: float | None) -> None:
+        """Read until ``ready()`` or the monotonic deadline (DeviceTimeoutError naming what was awaited)."""
+        timeout = self.timeout_s if timeout_s is None else timeout_s
+        self._check_open()
+        deadline = time.monotonic() + timeout
+        self.poll()
+        while not ready():
+            if time.monotonic() >= deadline:
+                self.counters["timeouts"] += 1
+                self.online = False
+                last = ("nothing has been received yet" if self._last_rx is None
+                        else f"the last good datagram came {time.monotonic() - self._last_rx:.3g} s ago")
+                raise DeviceTimeoutError(
+                    f"{self.name}: no {awaited} within {timeout:g} s on {port_name(self.port)}; {last}. Is the "
+                    f"{self._kind} powered, on this port and at {self.baudrate} baud?",
+                    device=self.name, awaited=awaited, timeout_s=timeout,
+                )
+            self._read(block=True)
+
+
+class DatagramEmulator(SerialEndpoint):
+    """Generic device side of a datagram device: the port, receiving commands (bad traffic counted,
+    never raised), sending, a device clock that SET_TIME sets, and the wall-clock serving loop.
+
+    A device's emulator calls :meth:`_receive` and its own publishing from ``service(t_s)``, fills
+    :meth:`_apply` (one decoded command) and :meth:`next_due_s` (for :meth:`run`).
+
+    ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
+    ``rejected_other``, ``bytes_dropped``; a device adds its own.
+    """
+
+    def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, name: str,
+                 clock_offset_s: float = 0.0) -> None:
+        self._closed = True
+        self.port = None
+        self._owns_port = False
+        self.name = name
+        self.codec = codec
+        self._decoder = DatagramDecoder(codec, HOST_TO_DEVICE)
+        self.counters: dict[str, int] = {
+            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_other": 0,
+            "bytes_dropped": 0,
+        }
+        self._clock_offset_s = float(clock_offset_s)
+        self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
+        #: Sends dropped silently while True (a device that went quiet; for tests and fault injection).
+        self.silent = False
+        self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=0.0, name=name)
+        self._closed = False
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({port_name(self.port)!r}, counters={self.counters})"
+
+    # -- device clock ---------------------------------------------------------------------------
+
+    @property
+    def time_synced(self) -> bool:
+        return self._clock_ref is not None
+
+    def set_time(self, t_s: float, device_time_us: int) -> None:
+        """SET_TIME applied at sim time ``t_s``: the device clock reads ``device_time_us`` then."""
+        self._clock_ref = (t_s, device_time_us * 1e-6)
+
+    def device_time_us(self, t_s: float) -> int:
+        """The device clock at sim time ``t_s`` (us, never negative)."""
+        if self._clock_ref is None:
+            s = self._clock_offset_s + t_s
+        else:
+            t_ref, dev_ref = self._clock_ref
+            s = dev_ref + (t_s - t_ref)
+        return max(round(s * 1e6), 0)
+
+    # -- receive and send -----------------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+
+    def _receive(self, t_s: float) -> int:
+        port = self.port
+        try:
+            n = port.in_waiting
+            data = port.read(n) if n else b""
+        except Exception as exc:
+            if _is_port_error(exc):
+                raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
+            raise
+        if not data:
+            return 0
+        c = self.counters
+        c["bytes_received"] += len(data)
+        dec = self._decoder
+        before = dict(dec.counters)
+        messages = dec.feed(data)
+        c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
+        c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
+        c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
+        for msg in messages:
+            c["frames_received"] += 1
+            self._apply(msg, t_s)
+        return len(messages)
+
+    def _apply(self, msg: Any, t_s: float) -> None:  # pragma: no cover - every device overrides it
+        """Apply one decoded command at sim time ``t_s`` (the device's hook)."""
+
+    def _send(self, msg: Any) -> None:
+        if self.silent:
+            return
+        frame = self.codec.encode(msg)
+        try:
+            self.port.write(frame)
+        except Exception as exc:
+            raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
+        self.counters["sent"] += 1
+
+    def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def next_due_s(self) -> float | None:
+        """Sim time of the next datagram the device will publish unasked, or None."""
+        return None
+
+    def run(self, duration_s: float | None = None, *, stop: Callable[[], bool] | None = None,
+            clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.02) -> None:
+        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
+        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
+        import select
+
+        fileno = getattr(self.port, "fileno", None)
+        try:
+            fd = fileno() if fileno is not None else None
+        except Exception:  # loop:// and socket:// objects without a usable descriptor
+            fd = None
+        t0 = clock()
+        while True:
+            t = clock() - t0
+            if duration_s is not None and t >= duration_s:
+                break
+            if stop is not None and stop():
+                break
+            self.service(t)
+            wait = max_wait_s
+            due = self.next_due_s()
+            now = clock() - t0
+            if due is not None:
+                wait = min(wait, max(due - now, 0.0))
+            if duration_s is not None:
+                wait = min(wait, max(duration_s - now, 0.0))
+            if fd is not None:
+                select.select([fd], [], [], wait)
+            elif wait > 0:
+                time.sleep(min(wait, 0.001))
+
+
+# -- document ---------------------------------------------------------------------------------------
+
+
+def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str, intro: str,
+               exchanges: list[str]) -> str:
+    """The ICD of a datagram device as Markdown (every message, field, offset, scale and range)."""
+    p = codec.icd["protocol"]
+    crc = p["crc"]
+    out = [
+        f"# {title}",
+        "",
+        f"<!-- Generated from {source} by `python -m {generator}`; do not edit by hand (a test compares them). -->",
+        "",
+        f"**{p['name']} {p['version']}.** {intro}",
+        "",
+        "## Link and datagram",
+        "",
+        f"- Physical: {p['physical']}.",
+        "- Datagram: `identifier u8 | payload | CRC u16`, one fixed length per identifier; no framing bytes. A "
+        "receiver finds datagrams by their identifier and their CRC: when the CRC fails it drops the identifier "
+        "byte and looks again from the next byte.",
+        f"- Checksum: {crc['name']} (poly 0x{crc['poly']:04X}, init 0x{crc['init']:04X}, no reflection, "
+        f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.",
+        f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
+        "- A datagram the receiver cannot accept (bad CRC, a field outside its table) is counted and dropped; "
+        "nothing is answered to it.",
+        "",
+        "## Datagrams",
+        "",
+        "| identifier | datagram | direction | length (bytes) | description |",
+        "|---|---|---|---|---|",
+    ]
+    for s in codec.messages.values():
+        out.append(f"| 0x{s.id:02X} | {s.name} | {s.direction} | {s.length} | {s.doc} |")
+    for s in codec.messages.values():
+        out += ["", f"### {s.name} (0x{s.id:02X}, {s.direction})", "",
+                "| offset | field | type | wire unit | scale to SI | SI attribute | range / values | description |",
+                "|---|---|---|---|---|---|---|---|",
+                f"| 0 | identifier | u8 | | | | 0x{s.id:02X} | datagram identifier |"]
+        offset = 1
+        for f in s.fields:
+            if f.enum is not None:
+                rng = ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
+            elif f.bits is not None:
+                rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
+            elif f.is_float:
+                rng = "finite"
+            else:
+                rng = f"{f.lo}..{f.hi}"
+            attr = ", ".join(f.bits) if f.bits is not None else (f.attr if f.index is None else f"{f.attr}[{f.index}]")
+            out.append(f"| {offset} | {f.name} | {f.type} | {f.unit} | {f.scale:.10g} | {attr} | {rng} | {f.doc} |")
+            offset += f.size
+        out.append(f"| {offset} | crc | u16 | | | | | CRC-16 of bytes 0..{offset - 1} |")
+    if codec.enums:
+        out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
+        for name, values in codec.enums.items():
+            out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+    out += ["", "## Behaviour", ""] + [f"- {line}" for line in exchanges] + [""]
+    return "\n".join(out)

@@ -1,0 +1,282 @@
+"""Pure codec of a reaction wheel: CAN payloads <-> messages in SI units (no bus, no clock).
+
+The frame layout, scaling, ranges, enum names and directions come from the ICD
+``fixtures/devices/reaction_wheel.dbc`` through :class:`drivers.dbc.DbcCodec`; this module adds the
+node numbering (wheel ``n`` of 0..15, node ``0x20 + n``, uses every DBC id plus ``n``) and the
+conversions to SI (N m, rad/s, s).
+
+================  ==========  =========  ===========================================================
+message           id (n = 0)  direction  content
+================  ==========  =========  ===========================================================
+RW_TORQUE_CMD     0x0B0 + n   host->RW   :class:`TorqueCommand`: motor torque, seq, timeout
+RW_SPEED_CMD      0x0C0 + n   host->RW   :class:`SpeedCommand`: wheel speed, seq, timeout
+RW_MODE_CMD       0x0D0 + n   host->RW   :class:`ModeCommand`: IDLE / TORQUE / SPEED, reset, seq
+RW_SPEED_TLM      0x1B0 + n   RW->host   :class:`WheelSpeed`: speed, motor torque, flags, seq
+RW_STATUS         0x2B0 + n   RW->host   :class:`Status`: mode, counters, seq ack, temperature
+RW_HEARTBEAT      0x720 + n   RW->host   :class:`Heartbeat`: uptime, state, counter
+================  ==========  =========  ===========================================================
+
+Round trip: ``codec.decode(*codec.encode(x)) == x`` for values on the DBC's grid (exactly for the
+integer and enum fields).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers.dbc import DbcCodec
+from drivers.errors import EncodeError, ProtocolError, frame_hex
+
+__all__ = [
+    "HEARTBEAT_STATES",
+    "MAX_WHEELS",
+    "MODES",
+    "NODE_BASE",
+    "Heartbeat",
+    "Message",
+    "ModeCommand",
+    "ReactionWheelCodec",
+    "SpeedCommand",
+    "Status",
+    "TorqueCommand",
+    "WheelSpeed",
+    "default_dbc_path",
+]
+
+#: Wheel modes, in the order of the DBC's VAL_ table (checked when the codec loads the DBC).
+MODES: tuple[str, ...] = ("IDLE", "TORQUE", "SPEED")
+HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
+#: Node id of wheel 0; wheel n is node NODE_BASE + n.
+NODE_BASE = 0x20
+#: Wheels one DBC can number (the low four bits of every id).
+MAX_WHEELS = 16
+_MS = 1e-3
+
+
+def _enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
+    if isinstance(value, str) and value.upper() in names:
+        return value.upper()
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(names):
+        return names[value]
+    allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
+    raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
+
+
+@dataclass(frozen=True, slots=True)
+class TorqueCommand:
+    """Drive ``torque_Nm`` on the rotor (TORQUE mode); dropped ``timeout_s`` after it (0 = held)."""
+
+    torque_Nm: float
+    seq: int = 0
+    timeout_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SpeedCommand:
+    """Hold the wheel at ``speed_rad_s`` (SPEED mode); dropped ``timeout_s`` after it (0 = held)."""
+
+    speed_rad_s: float
+    seq: int = 0
+    timeout_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ModeCommand:
+    """Set the mode: a name from :data:`MODES` or its number (stored as the name)."""
+
+    mode: str | int
+    reset_counters: bool = False
+    seq: int = 0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "ModeCommand.mode"))
+
+
+@dataclass(frozen=True, slots=True)
+class WheelSpeed:
+    """Measured wheel speed (rad/s about the spin axis), motor torque applied (N m), flags, counter."""
+
+    speed_rad_s: float
+    torque_Nm: float
+    valid: bool
+    speed_limited: bool
+    torque_limited: bool
+    seq: int
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """Wheel status: mode, counters (each wraps at its DBC width), seq of the last command, temperature."""
+
+    mode: str | int
+    rejected_frames: int = 0
+    commands_accepted: int = 0
+    seq_ack: int = 0
+    watchdog_expiries: int = 0
+    saturations: int = 0
+    temperature_C: float = 20.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "Status.mode"))
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """Whole seconds since boot, state (name from :data:`HEARTBEAT_STATES`), counter."""
+
+    uptime_s: int
+    state: str | int
+    counter: int
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "state", _enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
+
+
+Message = TorqueCommand | SpeedCommand | ModeCommand | WheelSpeed | Status | Heartbeat
+
+
+def default_dbc_path() -> Path:
+    """``fixtures/devices/reaction_wheel.dbc``."""
+    from drivers import fixture_path
+
+    return fixture_path("devices/reaction_wheel.dbc")
+
+
+class ReactionWheelCodec:
+    """Encode and decode the messages of wheel ``wheel`` (0..15, node 0x20 + wheel).
+
+    ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message`` for this
+    wheel's ids. ``encode`` raises :class:`~drivers.errors.EncodeError` naming the field, the value
+    and the DBC's range; ``decode`` raises :class:`~drivers.errors.ProtocolError` (frame in hex) for
+    an id that is not this wheel's, a wrong length or an enum value outside its table.
+
+    Attributes: ``wheel``, ``node``, ``ids`` (name -> this wheel's id), ``wheel_tx_ids`` /
+    ``wheel_rx_ids`` (ids the wheel sends / receives), ``all_wheel_ids`` (every id of every wheel:
+    frames of the wheel's siblings on a shared bus), ``lengths``, ``torque_range_Nm``,
+    ``speed_range_rad_s`` (what the commands carry), ``speed_lsb_rad_s``, ``torque_lsb_Nm``,
+    ``cycle_time_s``.
+    """
+
+    def __init__(self, wheel: int = 0, dbc_path: str | Path | None = None, *, dbc: DbcCodec | None = None) -> None:
+        if not (isinstance(wheel, int) and not isinstance(wheel, bool) and 0 <= wheel < MAX_WHEELS):
+            raise ValueError(f"reaction wheel number = {wheel!r} is not allowed; allowed: an int from 0 to "
+                             f"{MAX_WHEELS - 1} (node 0x{NODE_BASE:02X} + number).")
+        self.wheel = wheel
+        self.node = NODE_BASE + wheel
+        self.dbc = dbc if dbc is not None else DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
+        d = self.dbc
+        for msg, sig, names in (("RW_MODE_CMD", "mode", MODES), ("RW_STATUS", "mode", MODES),
+                                ("RW_HEARTBEAT", "state", HEARTBEAT_STATES)):
+            table = d.choices(msg, sig)
+            if table != dict(enumerate(names)):
+                raise ValueError(f"{d.path.name}: the value table of {msg}.{sig} is {table}; this codec expects "
+                                 f"{dict(enumerate(names))}.")
+        for name in d.names:
+            if d.frame_id(name) & 0xF:
+                raise ValueError(f"{d.path.name}: {name} has id 0x{d.frame_id(name):03X}; wheel 0's ids must end in "
+                                 "a zero hex digit (the wheel number is added to them).")
+        self.ids: dict[str, int] = {name: d.frame_id(name) + wheel for name in d.names}
+        self._names = {fid: name for name, fid in self.ids.items()}
+        self.wheel_tx_ids = frozenset(self.ids[n] for n in d.names if "RW" in d.senders(n))
+        self.wheel_rx_ids = frozenset(self.ids[n] for n in d.names if "HOST" in d.senders(n))
+        self.all_wheel_ids = frozenset(d.frame_id(n) + k for n in d.names for k in range(MAX_WHEELS))
+        self.lengths: dict[int, int] = {self.ids[n]: d.length(n) for n in d.names}
+        self.torque_range_Nm: tuple[float, float] = d.signal_range("RW_TORQUE_CMD", "torque")
+        self.speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_CMD", "speed")
+        #: What RW_SPEED_TLM can carry.
+        self.tlm_speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "speed")
+        self.tlm_torque_range_Nm: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "torque")
+        self.speed_lsb_rad_s: float = d.signal_scale("RW_SPEED_TLM", "speed")
+        self.torque_lsb_Nm: float = d.signal_scale("RW_SPEED_TLM", "torque")
+        self.cycle_time_s: dict[str, float | None] = {n: d.cycle_time_s(n) for n in d.names}
+        self._encoders = {
+            TorqueCommand: self._encode_torque,
+            SpeedCommand: self._encode_speed,
+            ModeCommand: self._encode_mode,
+            WheelSpeed: self._encode_tlm,
+            Status: self._encode_status,
+            Heartbeat: self._encode_heartbeat,
+        }
+        self._decoders = {
+            "RW_TORQUE_CMD": lambda v: TorqueCommand(v["torque"], v["seq"], v["timeout_ms"] * _MS),
+            "RW_SPEED_CMD": lambda v: SpeedCommand(v["speed"], v["seq"], v["timeout_ms"] * _MS),
+            "RW_MODE_CMD": lambda v: ModeCommand(v["mode"], v["reset_counters"] == 1, v["seq"]),
+            "RW_SPEED_TLM": lambda v: WheelSpeed(v["speed"], v["torque"], v["valid"] == 1, v["speed_limited"] == 1,
+                                                 v["torque_limited"] == 1, v["seq"]),
+            "RW_STATUS": lambda v: Status(v["mode"], v["rejected_frames"], v["commands_accepted"], v["seq_ack"],
+                                          v["watchdog_expiries"], v["saturations"], v["temperature"]),
+            "RW_HEARTBEAT": lambda v: Heartbeat(v["uptime_s"], v["state"], v["counter"]),
+        }
+
+    def wheel_of(self, frame_id: int) -> int | None:
+        """The wheel number a wheel id belongs to, or None for an id that is no wheel's."""
+        return (frame_id & 0xF) if frame_id in self.all_wheel_ids else None
+
+    # -- encode ---------------------------------------------------------------------------------
+
+    def encode(self, msg: Message) -> tuple[int, bytes]:
+        """Encode one message for this wheel: returns (frame id, 8-byte payload)."""
+        try:
+            encoder = self._encoders[type(msg)]
+        except KeyError:
+            raise TypeError(f"Cannot encode {type(msg).__name__}: expected one of "
+                            f"{', '.join(t.__name__ for t in self._encoders)}.") from None
+        try:
+            name, values = encoder(msg)
+            frame_id, payload = self.dbc.encode(name, values)
+        except EncodeError as exc:
+            raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {exc}") from exc
+        except (TypeError, ValueError) as exc:
+            raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {type(exc).__name__}: {exc}") from exc
+        return frame_id + self.wheel, payload
+
+    @staticmethod
+    def _encode_torque(msg: TorqueCommand) -> tuple[str, dict[str, Any]]:
+        return "RW_TORQUE_CMD", {"torque": msg.torque_Nm, "seq": msg.seq, "timeout_ms": msg.timeout_s / _MS}
+
+    @staticmethod
+    def _encode_speed(msg: SpeedCommand) -> tuple[str, dict[str, Any]]:
+        return "RW_SPEED_CMD", {"speed": msg.speed_rad_s, "seq": msg.seq, "timeout_ms": msg.timeout_s / _MS}
+
+    @staticmethod
+    def _encode_mode(msg: ModeCommand) -> tuple[str, dict[str, Any]]:
+        return "RW_MODE_CMD", {"mode": MODES.index(msg.mode), "reset_counters": bool(msg.reset_counters),
+                               "seq": msg.seq}
+
+    @staticmethod
+    def _encode_tlm(msg: WheelSpeed) -> tuple[str, dict[str, Any]]:
+        return "RW_SPEED_TLM", {"speed": msg.speed_rad_s, "torque": msg.torque_Nm, "seq": msg.seq,
+                                "valid": bool(msg.valid), "speed_limited": bool(msg.speed_limited),
+                                "torque_limited": bool(msg.torque_limited)}
+
+    @staticmethod
+    def _encode_status(msg: Status) -> tuple[str, dict[str, Any]]:
+        return "RW_STATUS", {"mode": MODES.index(msg.mode), "rejected_frames": msg.rejected_frames,
+                             "commands_accepted": msg.commands_accepted, "seq_ack": msg.seq_ack,
+                             "watchdog_expiries": msg.watchdog_expiries, "saturations": msg.saturations,
+                             "temperature": msg.temperature_C}
+
+    @staticmethod
+    def _encode_heartbeat(msg: Heartbeat) -> tuple[str, dict[str, Any]]:
+        return "RW_HEARTBEAT", {"uptime_s": msg.uptime_s, "state": HEARTBEAT_STATES.index(msg.state),
+                                "counter": msg.counter}
+
+    # -- decode ---------------------------------------------------------------------------------
+
+    def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
+        """Decode one payload of this wheel (ProtocolError for another id / length / enum)."""
+        name = self._names.get(frame_id)
+        if name is None:
+            raise ProtocolError(
+                f"frame id 0x{frame_id:03X} is not one of wheel {self.wheel}'s (node 0x{self.node:02X})",
+                frame_hex=frame_hex(frame_id, data, extended=frame_id > 0x7FF),
+                expected="one of " + ", ".join(f"0x{i:03X}" for i in sorted(self._names)),
+                computed=f"0x{frame_id:03X}",
+            )
+        _, v = self.dbc.decode(frame_id - self.wheel, data)
+        try:
+            return self._decoders[name](v)
+        except ValueError as exc:  # an enum value outside its table
+            raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc

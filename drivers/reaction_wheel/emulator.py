@@ -1,0 +1,337 @@
+"""Emulator: the stand *being* one reaction wheel, on any python-can bus.
+
+The emulator speaks the ICD (``fixtures/devices/reaction_wheel.dbc``) for wheel ``n`` through the
+same codec as the host driver. It knows no physics: it holds what was commanded, which the stand
+reads with :meth:`ReactionWheelEmulator.command_at` and turns into motor torque and speed with
+its wheel model (:class:`sim.actuators.WheelMotor`), and it reports the speed the stand hands it
+through ``speed_source(t_s)``.
+
+Behaviour (times are sim seconds passed in by the caller; the emulator never reads a clock):
+
+- RW_TORQUE_CMD puts the wheel in mode TORQUE holding the torque, clipped to ``max_torque_Nm``
+  keeping its sign (``torque_limited`` and one ``saturations`` count); RW_SPEED_CMD puts it in mode
+  SPEED holding the speed, clipped to ``max_speed_rad_s``. RW_MODE_CMD sets the mode with a zero
+  command (IDLE: motor off). A command with a timeout is dropped that long after it: the wheel
+  goes IDLE (motor off, it coasts), with one ``watchdog_expiries`` count. The wheel boots in
+  ``initial_mode`` with a zero command.
+- RW_SPEED_TLM every ``telemetry_period_s``: the speed from ``speed_source(t)`` (a float, rad/s,
+  or a ``(speed_rad_s, motor_torque_Nm)`` pair; with a float the held torque command is reported as
+  the motor torque in TORQUE mode, 0 otherwise), quantised by the wire; ``speed_limited`` at or
+  beyond ``max_speed_rad_s``; a speed the field cannot carry is clipped with ``valid`` = 0.
+- RW_STATUS every ``status_period_s``, RW_HEARTBEAT every ``heartbeat_period_s``, on the grid
+  ``t0 + k * period`` (``t0`` = the first service time); a late call sends one message and counts the
+  missed telemetry slots in ``samples_skipped``.
+- Frames of this wheel's siblings on a shared bus are counted in ``other_wheels`` and ignored;
+  unknown ids, wrong lengths and undecodable values are counted, never raised.
+
+``counters``: ``sent``, ``received``, ``rejected_unknown_id``, ``rejected_length``,
+``rejected_other``, ``other_wheels``, ``commands_accepted``, ``saturations``,
+``watchdog_expiries``, ``samples_skipped``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import can
+
+from drivers.endpoint import BusEndpoint
+from drivers.errors import DriverError, ProtocolError
+from drivers.reaction_wheel.codec import (
+    MODES,
+    Heartbeat,
+    ModeCommand,
+    ReactionWheelCodec,
+    SpeedCommand,
+    Status,
+    TorqueCommand,
+    WheelSpeed,
+)
+
+__all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulatorConfig"]
+
+SpeedSource = Callable[[float], Any]
+_EPS_S = 1e-6
+
+
+class WheelCommand(NamedTuple):
+    """What the wheel holds: ``mode`` (IDLE, TORQUE, SPEED), ``torque_Nm`` (TORQUE mode, clipped),
+    ``speed_rad_s`` (SPEED mode, clipped); the other value is 0."""
+
+    mode: str
+    torque_Nm: float
+    speed_rad_s: float
+
+
+@dataclass(frozen=True)
+class WheelEmulatorConfig:
+    """Knobs of the emulated wheel; defaults are a small CubeSat wheel.
+
+    Attributes:
+        max_torque_Nm: rated motor torque (4 mN m, the class of the RW-0.003 wheel).
+        max_speed_rad_s: rated speed (628 rad/s = 6000 rpm).
+        telemetry_period_s, status_period_s, heartbeat_period_s: publication periods (the DBC's
+            GenMsgCycleTime: 100 ms, 1000 ms, 1000 ms).
+        temperature_C: reported in RW_STATUS.
+        initial_mode: mode at boot ("TORQUE", with a zero command).
+    """
+
+    max_torque_Nm: float = 4e-3
+    max_speed_rad_s: float = 6000.0 * math.pi / 30.0
+    telemetry_period_s: float = 0.1
+    status_period_s: float = 1.0
+    heartbeat_period_s: float = 1.0
+    temperature_C: float = 20.0
+    initial_mode: str = "TORQUE"
+
+    def __post_init__(self) -> None:
+        for name in ("max_torque_Nm", "max_speed_rad_s", "telemetry_period_s", "status_period_s",
+                     "heartbeat_period_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"WheelEmulatorConfig.{name} must be a finite number > 0; got {v!r}.")
+        if self.initial_mode not in MODES:
+            raise ValueError(f"WheelEmulatorConfig.initial_mode must be one of {', '.join(MODES)}; "
+                             f"got {self.initial_mode!r}.")
+
+
+class ReactionWheelEmulator(BusEndpoint):
+    """Wheel ``wheel`` (0..15), emulated on ``bus`` (see the module docstring for the behaviour).
+
+    Args:
+        bus: an open :class:`can.BusABC` (shut down by :meth:`close` only if ``owns_bus``).
+        speed_source: ``speed_source(t_s) -> speed_rad_s`` or ``(speed_rad_s, motor_torque_Nm)``.
+        config: :class:`WheelEmulatorConfig`.
+        codec: a :class:`ReactionWheelCodec` (default: the ICD in ``fixtures/`` for ``wheel``).
+        wheel: the wheel number (node 0x20 + wheel); must match the codec's when both are given.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        speed_source: SpeedSource,
+        config: WheelEmulatorConfig | None = None,
+        codec: ReactionWheelCodec | None = None,
+        *,
+        wheel: int = 0,
+        owns_bus: bool = False,
+        name: str | None = None,
+    ) -> None:
+        self.config = cfg = config if config is not None else WheelEmulatorConfig()
+        self.codec = codec = codec if codec is not None else ReactionWheelCodec(wheel)
+        if codec.wheel != wheel:
+            raise ValueError(f"reaction wheel emulator: wheel = {wheel} but the codec is for wheel {codec.wheel}.")
+        if cfg.max_torque_Nm > codec.torque_range_Nm[1] or cfg.max_speed_rad_s > codec.speed_range_rad_s[1]:
+            raise ValueError(
+                f"WheelEmulatorConfig max_torque_Nm = {cfg.max_torque_Nm!r} / max_speed_rad_s = "
+                f"{cfg.max_speed_rad_s!r} exceed what the commands carry ({codec.torque_range_Nm[1]!r} N m, "
+                f"{codec.speed_range_rad_s[1]!r} rad/s)."
+            )
+        self.bus = bus
+        self.source = speed_source
+        self.name = name or f"rw{wheel} emulator"
+        self._owns_bus = owns_bus
+        self._closed = False
+        self.counters: dict[str, int] = {
+            "sent": 0, "received": 0, "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0,
+            "other_wheels": 0, "commands_accepted": 0, "saturations": 0, "watchdog_expiries": 0,
+            "samples_skipped": 0,
+        }
+        self._board = {"rejected_frames": 0, "commands_accepted": 0, "watchdog_expiries": 0, "saturations": 0}
+        self.mode = cfg.initial_mode
+        self._torque = 0.0
+        self._speed = 0.0
+        self._torque_limited = False
+        self._expires_s = math.inf
+        self._seq_ack = 0
+        self._t0: float | None = None
+        self._k_tlm = self._k_status = self._k_heartbeat = 0
+        self._tlm_seq = 0
+        self._heartbeat_counter = 0
+        t_lo, t_hi = codec.dbc.signal_range("RW_STATUS", "temperature")
+        self._temperature = min(max(cfg.temperature_C, t_lo), t_hi)
+        self._tlm_speed_max = codec.tlm_speed_range_rad_s[1]
+        self._tlm_torque_max = codec.tlm_torque_range_Nm[1]
+
+    def __repr__(self) -> str:
+        return f"ReactionWheelEmulator(wheel={self.codec.wheel}, mode={self.mode!r}, counters={self.counters})"
+
+    # -- what the stand reads ---------------------------------------------------------------------
+
+    def command_at(self, t_s: float) -> WheelCommand:
+        """The command the wheel holds at ``t_s`` (after a command's timeout: IDLE, motor off)."""
+        if t_s >= self._expires_s:
+            return WheelCommand("IDLE", 0.0, 0.0)
+        return WheelCommand(self.mode, self._torque, self._speed)
+
+    def torque_command_Nm(self, t_s: float) -> float:
+        """The held motor torque at ``t_s`` in mode TORQUE, else 0."""
+        return self.command_at(t_s).torque_Nm
+
+    # -- service ----------------------------------------------------------------------------------
+
+    def service(self, t_s: float) -> None:
+        """``receive(t_s)`` then ``publish(t_s)``."""
+        self.receive(t_s)
+        self.publish(t_s)
+
+    def receive(self, t_s: float) -> int:
+        """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        self._watchdog(t_s)
+        n = 0
+        try:
+            while (msg := self.bus.recv(0.0)) is not None:
+                self._handle(msg, t_s)
+                n += 1
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        return n
+
+    def _watchdog(self, t_s: float) -> None:
+        if t_s >= self._expires_s:
+            self.mode, self._torque, self._speed = "IDLE", 0.0, 0.0
+            self._expires_s = math.inf
+            self.counters["watchdog_expiries"] += 1
+            self._board["watchdog_expiries"] += 1
+
+    def _reject(self, key: str) -> None:
+        self.counters[key] += 1
+        self._board["rejected_frames"] += 1
+
+    def _handle(self, msg: can.Message, t_s: float) -> None:
+        c = self.counters
+        c["received"] += 1
+        fid = msg.arbitration_id
+        if msg.is_error_frame or msg.is_remote_frame:
+            self._reject("rejected_other")
+            return
+        if msg.is_extended_id or fid not in self.codec.wheel_rx_ids:
+            if not msg.is_extended_id and fid in self.codec.all_wheel_ids:
+                c["other_wheels"] += 1  # a sibling's traffic on a shared bus: not an error
+            else:
+                self._reject("rejected_unknown_id")
+            return
+        if len(msg.data) != self.codec.lengths[fid]:
+            self._reject("rejected_length")
+            return
+        try:
+            cmd = self.codec.decode(fid, msg.data)
+        except ProtocolError:
+            self._reject("rejected_other")
+            return
+        self._apply(cmd, t_s)
+
+    def _apply(self, cmd: Any, t_s: float) -> None:
+        cfg = self.config
+        if isinstance(cmd, TorqueCommand):
+            u = cmd.torque_Nm
+            self._torque_limited = abs(u) > cfg.max_torque_Nm
+            if self._torque_limited:
+                u = math.copysign(cfg.max_torque_Nm, u)
+                self._saturated()
+            self.mode, self._torque, self._speed = "TORQUE", u, 0.0
+            self._expires_s = t_s + cmd.timeout_s if cmd.timeout_s > 0 else math.inf
+        elif isinstance(cmd, SpeedCommand):
+            w = cmd.speed_rad_s
+            if abs(w) > cfg.max_speed_rad_s:
+                w = math.copysign(cfg.max_speed_rad_s, w)
+                self._saturated()
+            self._torque_limited = False
+            self.mode, self._torque, self._speed = "SPEED", 0.0, w
+            self._expires_s = t_s + cmd.timeout_s if cmd.timeout_s > 0 else math.inf
+        elif isinstance(cmd, ModeCommand):
+            self.mode, self._torque, self._speed = cmd.mode, 0.0, 0.0
+            self._torque_limited = False
+            self._expires_s = math.inf
+            if cmd.reset_counters:
+                for k in self._board:
+                    self._board[k] = 0
+        else:  # pragma: no cover - wheel_rx_ids only holds the three commands
+            return
+        self._seq_ack = cmd.seq
+        self.counters["commands_accepted"] += 1
+        self._board["commands_accepted"] += 1
+
+    def _saturated(self) -> None:
+        self.counters["saturations"] += 1
+        self._board["saturations"] += 1
+
+    def publish(self, t_s: float) -> int:
+        """Send what is due at ``t_s``; returns the number of frames sent."""
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        if self._t0 is None:
+            self._t0 = t_s
+        cfg = self.config
+        since = t_s - self._t0 + _EPS_S
+        sent = 0
+        if since >= self._k_tlm * cfg.telemetry_period_s:
+            self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
+            self._send(self.telemetry(t_s))
+            sent += 1
+        if since >= self._k_status * cfg.status_period_s:
+            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
+            self._send(self.status())
+            sent += 1
+        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
+            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
+            self._send(self.heartbeat(t_s))
+            sent += 1
+        return sent
+
+    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
+        nxt = max(math.floor(since / period) + 1, k + 1)
+        if count_skips and nxt > k + 1:
+            self.counters["samples_skipped"] += nxt - k - 1
+        return nxt
+
+    def _send(self, msg: Any) -> None:
+        frame_id, payload = self.codec.encode(msg)
+        try:
+            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot send on {self.bus.channel_info}: {exc}") from exc
+        self.counters["sent"] += 1
+
+    # -- messages ---------------------------------------------------------------------------------
+
+    def telemetry(self, t_s: float) -> WheelSpeed:
+        """The RW_SPEED_TLM the wheel reports at ``t_s`` (advances the sample counter)."""
+        got = self.source(t_s)
+        try:
+            if isinstance(got, (int, float)) or getattr(got, "shape", None) == ():
+                speed, torque = float(got), self.command_at(t_s).torque_Nm
+            else:
+                s, tq = got
+                speed, torque = float(s), float(tq)
+            if not (math.isfinite(speed) and math.isfinite(torque)):
+                raise ValueError
+        except (TypeError, ValueError):
+            raise ValueError(f"speed_source({t_s!r}) must return a finite speed (rad/s) or a pair (speed rad/s, "
+                             f"motor torque N m); got {got!r}.") from None
+        valid = abs(speed) <= self._tlm_speed_max
+        if not valid:
+            speed = math.copysign(self._tlm_speed_max, speed)
+        torque = min(max(torque, -self._tlm_torque_max), self._tlm_torque_max)
+        seq = self._tlm_seq
+        self._tlm_seq = (seq + 1) & 0xFF
+        return WheelSpeed(speed, torque, valid, abs(speed) >= self.config.max_speed_rad_s - 1e-9,
+                          self._torque_limited, seq)
+
+    def status(self) -> Status:
+        """The RW_STATUS the wheel reports (counters wrapped at their DBC width)."""
+        b = self._board
+        return Status(self.mode, b["rejected_frames"] & 0xFFFF, b["commands_accepted"] & 0xFF, self._seq_ack,
+                      b["watchdog_expiries"] & 0xFF, b["saturations"] & 0xFF, self._temperature)
+
+    def heartbeat(self, t_s: float) -> Heartbeat:
+        """The RW_HEARTBEAT at ``t_s`` (advances the heartbeat counter)."""
+        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
+        counter = self._heartbeat_counter
+        self._heartbeat_counter = (counter + 1) & 0xFF
+        return Heartbeat(uptime, "NOMINAL", counter)

@@ -1,0 +1,144 @@
+"""The command line's promises: exit codes 0 / 1 / 2 / 3 / 130 (3 is in test_links.py: a plug-in that raises),
+signals at any time leave a summary and an end event, scenarios are found by name, name.toml or path, and a full
+disk ends a run "aborted" with what was written kept."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from stand import telemetry
+from stand.cli import main
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _env():
+    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def _events(out: Path) -> list[dict]:
+    return [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+
+
+def test_exit_0_when_the_criteria_hold_and_1_when_one_fails(tmp_path, capsys):
+    assert main(["run", "--duration", "5677", "--out", str(tmp_path / "pass"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    # Criteria print with their units and readable limits.
+    assert "PASS  detumbled: 0.197" in out and "deg/s <= 0.5 deg/s" in out
+    assert main(["run", "--duration", "60", "--out", str(tmp_path / "fail"), "--no-progress"]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL  detumbled:" in out and "FAIL: detumble" in out
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["run", "detumbel"], "did you mean 'detumble'"),
+    (["check", "detumble_star_trackr"], "did you mean"),
+    (["run", "--duration", "-5"], "--duration"),
+])
+def test_exit_2_for_usage_and_scenario_errors_with_one_sentence(tmp_path, capsys, argv, needle):
+    argv = argv + (["--out", str(tmp_path / "x")] if argv[0] == "run" else [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and len(err.strip().splitlines()) == 1
+
+
+def test_scenarios_are_found_by_name_by_name_with_toml_and_by_path_even_beside_a_folder_of_that_name(
+        tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "detumble").mkdir()  # a folder named like the scenario must not hide it
+    for arg in ("detumble", "detumble.toml", str(REPO / "fixtures" / "scenarios" / "detumble.toml")):
+        assert main(["check", arg]) == 0, arg
+        assert capsys.readouterr().out.startswith("detumble: valid")
+    assert main(["scenarios"]) == 0
+    out = capsys.readouterr().out
+    assert "detumble_external" in out and "B-dot detumble from 10 deg/s" in out
+
+
+def _start(args, tmp_path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "stand.cli", *args], cwd=tmp_path, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_rows(out: Path, timeout_s: float = 60.0) -> None:
+    rows = out / "telemetry" / "rows.f64"
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and (not rows.exists() or rows.stat().st_size == 0):
+        time.sleep(0.05)
+    assert rows.exists() and rows.stat().st_size > 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_run_exits_130_with_a_summary_and_an_end_event(tmp_path, sig):
+    out = tmp_path / "run"
+    proc = _start(["run", "--speed", "20", "--out", str(out), "--no-progress"], tmp_path)
+    try:
+        _wait_for_rows(out)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "stopped" and not summary["pass"]
+    events = _events(out)
+    assert events[-1]["kind"] == "end" and events[-1]["message"] == "stopped"
+    assert (out / "report.md").exists() and len(telemetry.load(out)["t_s"]) > 0
+
+
+def test_a_signal_before_the_run_starts_exits_130_and_leaves_no_empty_folder(tmp_path):
+    out = tmp_path / "early"
+    # The image tracker's pattern database takes a second to build: the signal lands during composition.
+    proc = _start(["run", "detumble_star_tracker_image", "--out", str(out), "--no-progress"], tmp_path)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "Traceback" not in err
+    assert not out.exists() or (out / "summary.json").exists()
+
+
+def test_a_full_disk_ends_the_run_aborted_and_keeps_a_whole_summary(tmp_path, monkeypatch):
+    """The telemetry writer hits ENOSPC mid-run: the run ends "aborted" (exit 3), the rows written before stay
+    readable, and summary.json is whole JSON."""
+    import errno
+
+    from stand import telemetry as tel_mod
+
+    real_write = tel_mod.Recorder._writer
+    calls = {"n": 0}
+
+    class FullFile:
+        def __init__(self, f):
+            self.f = f
+
+        def write(self, data):
+            calls["n"] += 1
+            if calls["n"] > 3:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return self.f.write(data)
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+    def writer(self):
+        self._file = FullFile(self._file)
+        real_write(self)
+
+    monkeypatch.setattr(tel_mod.Recorder, "_writer", writer)
+    monkeypatch.setattr(tel_mod, "BATCH_ROWS", 64)
+    out = tmp_path / "full"
+    assert main(["run", "--duration", "600", "--out", str(out), "--no-progress"]) == 3
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "aborted" and "telemetry" in summary["error"] and not summary["pass"]
+    rows = telemetry.load(out)["t_s"]
+    assert 64 * 3 <= len(rows) < 6000
+    assert any(e["kind"] == "aborted" for e in _events(out))
