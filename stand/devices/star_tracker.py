@@ -108,6 +108,7 @@ class StarTrackerSpec(DeviceSpec):
     emulator: dict = field(default_factory=dict)  # keyword arguments of the emulator's EmulatorConfig
     optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
     camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
+    screen: dict | None = None  # a hardware tracker looking at the stand's star screen (star_screen_link)
 
 
 class StarTrackerKind(DeviceKind):
@@ -155,8 +156,10 @@ class StarTrackerKind(DeviceKind):
         else:
             port = check_serial_url(t, "port", t.text("port"))
         baud = int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True))
+        from stand.devices.star_screen_link import parse_screen
+
         spec = StarTrackerSpec(**base.__dict__, port=port, baudrate=baud, address=address, source=source,
-                               emulator=settings, optics=optics, camera=camera)
+                               emulator=settings, optics=optics, camera=camera, screen=parse_screen(t, base.link))
         t.check_unknown()
         return spec
 
@@ -178,6 +181,11 @@ class StarTrackerKind(DeviceKind):
     def describe(self, spec) -> str:
         what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
         every = f"a solution every {spec.emulator['output_interval_s']:g} s"
+        if spec.screen is not None:
+            scr = spec.screen
+            return (f"star tracker on serial {spec.port} at {spec.baudrate} Bd looking at the stand's star screen "
+                    f"(state every tick to udp://{scr['host']}:{scr['port']}, frames for {scr['latency_s'] * 1e3:g} ms "
+                    "ahead; the stand reads its solutions and sets its clock)")
         return {"emulated": f"star tracker emulated on an in-process serial pty pair, {what}, {every}",
                 "hardware": f"star tracker on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads "
                             "its solutions and sets its clock)",
@@ -185,6 +193,10 @@ class StarTrackerKind(DeviceKind):
                           f"{every}"}[spec.link]
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
+        if spec.screen is not None:
+            from stand.devices.star_screen_link import ScreenTracker
+
+            return ScreenTracker(spec, ctx)
         return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
 
     def metric(self, metric, at_s, tel, names):
