@@ -1,9 +1,10 @@
 """A hardware star tracker that looks at the stand's star screen: the screen is driven every tick.
 
-A tracker on a ``hardware`` link with ``screen = "state"`` in its table gets, besides its serial host,
-a screen: every tick the stand sends a display node (``stand display-node`` on a screen PC, or
-``stand emulate star-tracker --source screen``, which is display node and camera in one) the
-time-tagged state of the frame it must show (``star_screen.state_message``), over UDP::
+A tracker on a ``hardware`` link with ``screen = "window"`` gets a window on this PC that the stand
+renders into every tick (``screen_display``, ``screen_size_px``, ``screen_fullscreen``; pygame-ce).
+With ``screen = "state"`` every tick the stand instead sends a display node (``stand display-node``
+on a screen PC, or ``stand emulate star-tracker --source screen``, which is display node and camera
+in one) the time-tagged state of the frame it must show (``star_screen.state_message``), over UDP::
 
     screen = "state"
     screen_port = "udp://127.0.0.1:5600"   # the display node's --bind / --screen-bind
@@ -48,28 +49,52 @@ from sim.truth import compose_floats, rotate_to_body
 from stand.devices import LOCAL_HOSTS
 from stand.devices.star_tracker import HardwareTracker
 
-SCREEN_MODES = ("state",)
-SCREEN_KEYS = ("screen", "screen_port", "screen_latency_s")
+SCREEN_MODES = ("state", "window")
+WINDOW_KEYS = ("screen_display", "screen_size_px", "screen_fullscreen")
+SCREEN_KEYS = ("screen", "screen_port", "screen_latency_s", *WINDOW_KEYS)
 #: Frames kept for the frame-to-solution latency (a solution is never older than a few seconds).
 _FRAMES_KEPT = 512
 
 
 def parse_screen(t, link: str) -> dict | None:
-    """The ``screen*`` keys of a star-tracker table: None without ``screen``, else
-    ``{"mode", "host", "port", "latency_s"}``. Only a hardware tracker looks at a screen."""
+    """The ``screen*`` keys of a star-tracker table: None without ``screen``, else ``{"mode", "latency_s", ...}``
+    with ``host`` and ``port`` for ``state``, ``display``, ``size_px`` and ``fullscreen`` for ``window``. Only a
+    hardware tracker looks at a screen."""
     if not t.has("screen"):
         for key in SCREEN_KEYS[1:]:
             if t.has(key):
-                raise t.error(key, t.raw(key), "a setting of trackers with a screen; set screen = 'state' too")
+                raise t.error(key, t.raw(key), "a setting of trackers with a screen; set screen = 'state' or "
+                              "'window' too")
         return None
     mode = t.choice("screen", SCREEN_MODES)
     if link != "hardware":
         raise t.error("screen", mode, f"a screen only for link = 'hardware' (a real or emulated tracker outside looks "
                       f"at it); this tracker has link = {link!r}")
-    url = t.text("screen_port")
-    host, port = _udp_url(t, url)
-    latency = float(t.number("screen_latency_s", 0.02, lo=0.0, hi=1.0))
-    return {"mode": mode, "host": host, "port": port, "latency_s": latency}
+    out = {"mode": mode, "latency_s": float(t.number("screen_latency_s", 0.02, lo=0.0, hi=1.0))}
+    other = WINDOW_KEYS if mode == "state" else ("screen_port",)
+    for key in other:
+        if t.has(key):
+            raise t.error(key, t.raw(key), f"not a setting of screen = {mode!r}")
+    if mode == "state":
+        out["host"], out["port"] = _udp_url(t, t.text("screen_port"))
+        return out
+    from stand.scenario import pair
+
+    out["display"] = int(t.number("screen_display", 0, lo=0, hi=15, integer=True))
+    out["size_px"] = tuple(int(v) for v in pair(t, "screen_size_px", (1920, 1080), 64, 7680, True))
+    out["fullscreen"] = t.flag("screen_fullscreen", True)
+    return out
+
+
+def describe_screen(scr: dict) -> str:
+    """One phrase for ``stand check``: where the screen is and how far ahead its frames are drawn."""
+    if scr["mode"] == "state":
+        where = f"state every tick to the display node at udp://{scr['host']}:{scr['port']}"
+    else:
+        w, h = scr["size_px"]
+        where = (f"rendered by the stand every tick in a {'fullscreen ' if scr['fullscreen'] else ''}window on display "
+                 f"{scr['display']}, {w} x {h}")
+    return f"{where}, frames for {scr['latency_s'] * 1e3:g} ms ahead"
 
 
 def _udp_url(t, url: str) -> tuple[str, int]:
@@ -113,6 +138,7 @@ class _StateStream:
         import secrets
 
         self.address = (host, port)
+        self.where = f"udp://{host}:{port}"
         self.epoch = epoch
         self.stream_id = secrets.randbits(32)
         self.sequence = self.sent = self.refused = self.send_errors = 0
@@ -145,6 +171,49 @@ class _StateStream:
         self._sock.close()
 
 
+class _LocalWindow:
+    """The screen as a window on this PC: the stand renders each frame itself (default bench at the window's
+    size, apparent places) and shows it, logging the clock right after the flip."""
+
+    def __init__(self, scr: dict, epoch):
+        from star_screen.geometry import default_bench
+        from star_screen.render import Renderer
+        from star_screen.window import ScreenWindow
+
+        w, h = scr["size_px"]
+        bench = default_bench(w, h)
+        problems = bench.check_fits()
+        if problems:
+            raise ValueError(f"screen_size_px = {[w, h]}: the tracker field does not fit: " + "; ".join(problems))
+        self.epoch = epoch
+        self.renderer = Renderer(bench, aberration=True)
+        self.window = ScreenWindow((w, h), display=scr["display"], fullscreen=scr["fullscreen"],
+                                   clock=time.monotonic_ns)
+        self.where = f"window on display {scr['display']} ({w} x {h})"
+        self.sent = self.refused = self.send_errors = 0
+        self.last_error = ""
+        self.show_ms: list[float] = []
+
+    def send(self, q_SN, sim_time_ns: int, v_N, omega_SN_S) -> bool:
+        from star_screen.render import SmearTooLong
+
+        w0 = time.monotonic_ns()
+        try:
+            frame = self.renderer.render(q_SN, self.epoch.add_ns(sim_time_ns), v_sc_gcrs_m_s=v_N,
+                                         omega_SN_S=omega_SN_S, time_tag_ns=sim_time_ns, detector=False, copy=False)
+        except SmearTooLong as exc:  # a tumble faster than the screen can draw: the frame is dropped, counted
+            self.refused += 1
+            self.last_error = str(exc)
+            return False
+        rec = self.window.show(frame)
+        self.show_ms.append((rec.clock - w0) * 1e-6)
+        self.sent += 1
+        return True
+
+    def close(self) -> None:
+        self.window.close()
+
+
 def _percentiles(values, scale: float = 1.0, digits: int = 4) -> dict:
     v = np.asarray(values, float) * scale
     if not len(v):
@@ -171,20 +240,23 @@ class ScreenTracker(HardwareTracker):
         self.exposure_to_solution: list[float] = []
         self.t_lit = self.lead = math.nan
         try:
-            self.stream = _StateStream(scr["host"], scr["port"], ctx.epoch)
-        except OSError as exc:
+            if scr["mode"] == "state":
+                self.stream = _StateStream(scr["host"], scr["port"], ctx.epoch)
+            else:
+                self.stream = _LocalWindow(scr, ctx.epoch)
+        except (OSError, ValueError, RuntimeError) as exc:
             self.close()
-            from drivers.errors import DeviceConnectError
+            from drivers.errors import ConnectError
 
-            raise DeviceConnectError(f"{self.name}: cannot open the screen's UDP socket to {scr['host']}:"
-                                     f"{scr['port']} ({exc}).", device=self.name) from None
+            where = f"UDP socket to {scr['host']}:{scr['port']}" if scr["mode"] == "state" else "window"
+            raise ConnectError(f"{self.name}: cannot open the screen's {where}: {exc}", where=where,
+                               reason=str(exc)) from None
 
     def start(self, events) -> None:
         self._wall_set = time.monotonic()
         super().start(events)
-        events.log("screen", f"{self.name}: screen state to udp://{self.stream.address[0]}:"
-                   f"{self.stream.address[1]} every tick, frames for {self.latency_s * 1e3:g} ms after sending",
-                   device=self.name, latency_s=self.latency_s)
+        events.log("screen", f"{self.name}: screen ({self.stream.where}) driven every tick, each frame for "
+                   f"{self.latency_s * 1e3:g} ms after the tick's start", device=self.name, latency_s=self.latency_s)
 
     def publish(self, t_s: float) -> None:
         now = time.monotonic()
@@ -246,11 +318,13 @@ class ScreenTracker(HardwareTracker):
 
     def summary(self):
         s = self.stream
-        screen = {"mode": self.spec.screen["mode"], "to": f"udp://{s.address[0]}:{s.address[1]}",
+        screen = {"mode": self.spec.screen["mode"], "to": s.where,
                   "latency_s": self.latency_s, "frames_sent": s.sent, "frames_dropped": s.refused + s.send_errors,
                   "frames_late": self.frames_late, "send_lateness_ms": _percentiles(self._lateness, 1e3, 3),
                   "exposure_to_solution_s": _percentiles(self.exposure_to_solution),
                   "frame_to_solution_s": _percentiles(self.frame_to_solution)}
+        if getattr(s, "show_ms", None):
+            screen["render_to_display_ms"] = _percentiles(s.show_ms, 1.0, 3)
         if s.last_error:
             screen["last_error"] = s.last_error
         return {**super().summary(), "screen": screen}

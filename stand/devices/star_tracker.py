@@ -165,7 +165,11 @@ class StarTrackerKind(DeviceKind):
 
     def needs(self, spec) -> dict[str, str]:
         if spec.link == "hardware":
-            return {}
+            if spec.screen is None:
+                return {}
+            from stand.devices.star_screen_link import describe_screen
+
+            return {"star_screen": f"the screen {spec.name} looks at: {describe_screen(spec.screen)}"}
         why = f"exclusion of {spec.name}"
         out = {"sun": why, "moon": why}
         if spec.source == "image":
@@ -182,10 +186,10 @@ class StarTrackerKind(DeviceKind):
         what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
         every = f"a solution every {spec.emulator['output_interval_s']:g} s"
         if spec.screen is not None:
-            scr = spec.screen
+            from stand.devices.star_screen_link import describe_screen
+
             return (f"star tracker on serial {spec.port} at {spec.baudrate} Bd looking at the stand's star screen "
-                    f"(state every tick to udp://{scr['host']}:{scr['port']}, frames for {scr['latency_s'] * 1e3:g} ms "
-                    "ahead; the stand reads its solutions and sets its clock)")
+                    f"({describe_screen(spec.screen)}; the stand reads its solutions and sets its clock)")
         return {"emulated": f"star tracker emulated on an in-process serial pty pair, {what}, {every}",
                 "hardware": f"star tracker on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads "
                             "its solutions and sets its clock)",

@@ -113,7 +113,8 @@ def _scenario(tmp_path, **changes):
     ({"link": "emulated", "port": "pty"}, "screen"),
     ({"screen_port": "udp://8.8.8.8:5600"}, "screen_port"),
     ({"screen_port": "tcp://127.0.0.1:5600"}, "screen_port"),
-    ({"screen": "window"}, "screen"),
+    ({"screen": "pixels"}, "screen"),
+    ({"screen": "window"}, "screen_port"),  # a window is drawn by the stand: no display node to send to
     ({"screen_latency_s": 2.0}, "screen_latency_s"),
 ])
 def test_a_screen_the_stand_cannot_drive_is_refused_naming_the_key(tmp_path, changes, field):
@@ -219,3 +220,48 @@ def test_the_tracker_in_another_process_solves_the_screen_and_pre_distortion_rem
         # the solution comes after the camera's work and the output delay (0.1 s).
         f2s, e2s = scr["frame_to_solution_s"], scr["exposure_to_solution_s"]
         assert 0.1 < e2s["median"] <= f2s["median"] < 1.0 and f2s["p95"] < 2.0
+
+
+def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_when_it_is_lit(
+        pty_pair, tmp_path, monkeypatch):
+    monkeypatch.setenv("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    pytest.importorskip("pygame")
+    import tomllib
+
+    from stand import telemetry
+
+    from .conftest import to_toml
+
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    stand_end, tracker_end = pty_pair
+    data = tomllib.loads((scenario.SCENARIO_DIR / "detumble_star_tracker_screen.toml").read_text())
+    st = data["devices"][1]
+    del st["screen_port"]
+    st.update(port=stand_end, screen="window", screen_fullscreen=False, screen_latency_s=0.03)
+    data["devices"][0]["channel"] = f"screen-window-{tmp_path.name}"
+    data["criteria"] = [c for c in data["criteria"] if c["metric"] == "frames_rejected"]
+    path = tmp_path / "window.toml"
+    path.write_text(to_toml(data))
+    # The tracker here is the open-loop emulator (it does not look at the window): this is the screen's side.
+    emu = subprocess.Popen([sys.executable, "-m", "stand.cli", "emulate", "star-tracker", "--port", tracker_end,
+                            "--duration", "60", "--boot-time-s", "0.5"], env=_env(), cwd=tmp_path,
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = tmp_path / "run"
+    try:
+        assert "star tracker at address" in emu.stdout.readline()
+        code = main(["run", str(path), "--speed", "1", "--duration", "3", "--out", str(out), "--no-progress"])
+    finally:
+        emu.terminate()
+        emu.communicate(timeout=20)
+    assert code == 0
+    scr = json.loads((out / "summary.json").read_text())["device_counters"]["st1"]["screen"]
+    assert scr["mode"] == "window" and scr["to"].startswith("window on display 0 (1920 x 1080)")
+    assert 30 <= scr["frames_sent"] <= 31 and scr["frames_dropped"] == 0  # one per tick, t = 0 to 3 s
+    assert 0 < scr["render_to_display_ms"]["median"] < 100
+    tel = telemetry.load(out)
+    t, t_lit, lead = tel["t_s"], tel["st1.screen_t_lit_s"], tel["st1.screen_lead_s"]
+    # Each frame is drawn for the middle of its time on the panel: lit 30 ms after its tick starts (plus the
+    # tick's own lateness), held one tick (0.1 s).
+    assert np.all(np.diff(t_lit) > 0.05)
+    assert np.all(lead >= 0.03 + 0.05 - 1e-6) and np.median(lead) < 0.03 + 0.05 + 0.01
+    assert np.allclose(t_lit - t, lead)
