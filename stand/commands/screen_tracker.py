@@ -25,8 +25,9 @@ The rate the tracker reports (for its rate flag) is the one in the state (the sk
 screen). When no frame is lit yet the screen is dark and the exposure matches no star.
 
 At the end it prints one JSON line: serial counters, display-node counters (received, superseded,
-refused), and the camera's figures: exposures, dark frames, lost-in-space / tracking / failed
-solves, the age of the lit frame at each exposure, render-to-display and the camera's work per
+refused), and the camera's figures: exposures, dark frames (none lit yet), stale frames (lit more
+than a second before: the stand stopped), lost-in-space / tracking / failed solves, the age of the
+lit frame at each exposure, render-to-display and the camera's work per
 exposure (ms: median, p95, max), and the calibration residual.
 """
 
@@ -47,6 +48,8 @@ from stand.commands.display import DisplayNode
 
 #: Frames kept on the panel model: an exposure looks back at most a few frames.
 _FRAMES_KEPT = 8
+#: A lit frame older than this at an exposure means the stand stopped sending: counted as stale, not as latency.
+STALE_NS = 1_000_000_000
 
 
 class LitScreen:
@@ -120,7 +123,7 @@ class ScreenCamera:
         self.base_ns: int | None = None
         self.epoch0 = None
         self._last = self._before = None  # (t_s, q_SN) of the last two valid solutions
-        self.counts = {"exposures": 0, "dark": 0, "lis": 0, "tracking": 0, "failed": 0}
+        self.counts = {"exposures": 0, "dark": 0, "stale": 0, "lis": 0, "tracking": 0, "failed": 0}
         self.frame_age_ms: list[float] = []
         self.camera_ms: list[float] = []
         self.errors: list[str] = []
@@ -171,7 +174,10 @@ class ScreenCamera:
             return dark
         w0 = time.perf_counter()
         lit_ns, frame = lit
-        self.frame_age_ms.append((t_ns - lit_ns) * 1e-6)
+        if t_ns - lit_ns > STALE_NS:  # the stand stopped driving the screen; the tracker still sees the last frame
+            self.counts["stale"] += 1
+        else:
+            self.frame_age_ms.append((t_ns - lit_ns) * 1e-6)
         state = frame.state
         omega = state.omega_SN_S if state.omega_SN_S is not None else (0.0, 0.0, 0.0)
         if self.epoch0 is None:
