@@ -8,6 +8,8 @@
   row ``latency_mismatch`` is the median send -> lit minus the 20 ms of
   ``detumble_star_tracker_screen``, and ``timing_error_arcsec`` what that mismatch costs at the
   scenario's rate (0.017 deg/s);
+* **window**: ``screen = "window"``, the stand rendering and flipping each frame itself (render +
+  show, median and p95; SDL's dummy driver unless a display is set);
 * **camera per exposure**: screen pixels through the collimator to the detector
   (``star_screen.collimated.screen_to_detector``), camera noise, and the tracking solve, median and
   p95, on the frames the node rendered.
@@ -92,6 +94,42 @@ def bench_screen_loop(quick: bool = False) -> list[dict]:
         rows += [_row("camera_per_exposure_median", np.median(ms), "ms",
                       note=f"screen -> collimator -> detector, noise, solve; {solved} of {len(exposures)} solved"),
                  _row("camera_per_exposure_p95", np.percentile(ms, 95), "ms")]
+    rows += _window_rows(30 if quick else 300, epoch, q0, w)
     if len(log) < 0.9 * n:
         rows.append(_row("frames_rendered", len(log), "frames", limit=f">= {0.9 * n:g}", **{"pass": False}))
     return rows
+
+
+def _window_rows(n: int, epoch, q0, w) -> list[dict]:
+    """``screen = "window"``: the stand renders and flips each frame itself (SDL's dummy driver unless a display
+    is set, so this times the render and the copy to the window surface, not a real panel's scan-out)."""
+    import os
+
+    from stand.devices.star_screen_link import extrapolate
+    from star_screen.geometry import default_bench
+    from star_screen.render import Renderer
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    try:
+        from star_screen.window import ScreenWindow
+
+        window = ScreenWindow((1920, 1080), fullscreen=False, clock=time.monotonic_ns)
+    except (RuntimeError, ValueError) as exc:
+        return [_row("window_render_to_display_median", math.nan, "ms", note=f"skipped: {exc}")]
+    renderer = Renderer(default_bench(), aberration=True)
+    ms = []
+    try:
+        for k in range(n):
+            t_ns = round(k * TICK_S * 1e9)
+            w0 = time.monotonic_ns()
+            frame = renderer.render(extrapolate(tuple(q0), w, k * TICK_S), epoch.add_ns(t_ns),
+                                    v_sc_gcrs_m_s=(0.0, 7600.0, 0.0), omega_SN_S=w, time_tag_ns=t_ns, detector=False,
+                                    copy=False)
+            ms.append((window.show(frame).clock - w0) * 1e-6)
+    finally:
+        window.close()
+    driver = os.environ.get("SDL_VIDEODRIVER", "")
+    return [_row("window_render_to_display_median", np.median(ms), "ms",
+                 note=f"render 1920x1080 + show, SDL driver {driver or 'default'}, vsync {window.vsync_note}"),
+            _row("window_render_to_display_p95", np.percentile(ms, 95), "ms")]
