@@ -47,7 +47,7 @@ import numpy as np
 from stand.commands.display import DisplayNode
 
 #: Frames kept on the panel model: an exposure looks back at most a few frames.
-_FRAMES_KEPT = 8
+_FRAMES_KEPT = 16
 #: A lit frame older than this at an exposure means the stand stopped sending: counted as stale, not as latency.
 STALE_NS = 1_000_000_000
 

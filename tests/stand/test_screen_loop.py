@@ -265,3 +265,21 @@ def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_whe
     assert np.all(np.diff(t_lit) > 0)
     assert np.all(lead >= 0.03 + 0.05 - 1e-6) and np.median(lead) < 0.03 + 0.05 + 0.05
     assert np.allclose(t_lit - t, lead)
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["--collimator-shift-px", "1"], "--collimator-shift-px"),
+    (["--collimator-k1", "nan"], "--collimator-k1"),
+    (["--panel-latency-s", "-0.1"], "--panel-latency-s"),
+    (["--screen-bind", "nowhere"], "--screen-bind"),
+    (["--collimator-k1", "0.6"], "--collimator-k1"),
+])
+def test_a_screen_tracker_with_impossible_optics_is_a_usage_error_naming_the_option(capsys, extra, needle):
+    code = main(["emulate", "star-tracker", "--source", "screen", "--port", "/nonexistent-tty", *extra])
+    assert code == 2 and needle in capsys.readouterr().err
+
+
+def test_a_screen_tracker_on_a_port_that_cannot_be_opened_says_so(capsys):
+    code = main(["emulate", "star-tracker", "--source", "screen", "--port", "/nonexistent-tty",
+                 "--screen-bind", "127.0.0.1:0", "--pre-distortion", "off"])
+    assert code == 2 and "/nonexistent-tty" in capsys.readouterr().err
