@@ -1,7 +1,9 @@
 """A hardware star tracker that looks at the stand's star screen: the screen is driven every tick.
 
 A tracker on a ``hardware`` link with ``screen = "window"`` gets a window on this PC that the stand
-renders into every tick (``screen_display``, ``screen_size_px``, ``screen_fullscreen``; pygame-ce).
+renders into every tick (``screen_display``, ``screen_size_px``, ``screen_fullscreen``; pygame-ce),
+pre-distorted for the collimator its calibration found (``screen_collimator_focal_m``,
+``screen_collimator_distortion`` = OpenCV's k1 k2 p1 p2 k3, ``screen_axis_px``).
 With ``screen = "state"`` every tick the stand instead sends a display node (``stand display-node``
 on a screen PC, or ``stand emulate star-tracker --source screen``, which is display node and camera
 in one) the time-tagged state of the frame it must show (``star_screen.state_message``), over UDP::
@@ -50,7 +52,8 @@ from stand.devices import LOCAL_HOSTS
 from stand.devices.star_tracker import HardwareTracker
 
 SCREEN_MODES = ("state", "window")
-WINDOW_KEYS = ("screen_display", "screen_size_px", "screen_fullscreen")
+WINDOW_KEYS = ("screen_display", "screen_size_px", "screen_fullscreen", "screen_collimator_focal_m",
+               "screen_collimator_distortion", "screen_axis_px")
 SCREEN_KEYS = ("screen", "screen_port", "screen_latency_s", *WINDOW_KEYS)
 #: Frames kept for the frame-to-solution latency (a solution is never older than a few seconds).
 _FRAMES_KEPT = 512
@@ -83,7 +86,35 @@ def parse_screen(t, link: str) -> dict | None:
     out["display"] = int(t.number("screen_display", 0, lo=0, hi=15, integer=True))
     out["size_px"] = tuple(int(v) for v in pair(t, "screen_size_px", (1920, 1080), 64, 7680, True))
     out["fullscreen"] = t.flag("screen_fullscreen", True)
+    # Pre-distortion: the bench's ChArUco calibration (star_screen.calibration.calibrate_screen) as numbers.
+    w, h = out["size_px"]
+    out["focal_m"] = float(t.number("screen_collimator_focal_m", 1.1, lo=0.05, hi=20.0))
+    out["distortion"] = tuple(float(v) for v in t.vector("screen_collimator_distortion", 5, [0.0] * 5, lo=-10.0,
+                                                         hi=10.0))
+    out["axis_px"] = tuple(float(v) for v in t.vector("screen_axis_px", 2, [w / 2, h / 2], lo=0.0, hi=max(w, h)))
+    try:
+        window_bench(out)
+    except ValueError as exc:
+        raise t.error("screen_size_px", list(out["size_px"]), f"a screen the tracker's field fits on ({exc})") from None
     return out
+
+
+def window_bench(scr: dict):
+    """The bench a ``window`` screen is drawn for: the default bench at the window's size with the calibrated
+    collimator (focal length, OpenCV distortion) and axis, so the frames are pre-distorted. ValueError when the
+    tracker's field does not fit the screen."""
+    import dataclasses
+
+    from star_screen.geometry import BrownConrady, Collimator, default_bench
+
+    w, h = scr["size_px"]
+    bench = default_bench(w, h)
+    bench = dataclasses.replace(bench, collimator=Collimator(scr["focal_m"], BrownConrady(*scr["distortion"])),
+                                sx0=scr["axis_px"][0], sy0=scr["axis_px"][1])
+    problems = bench.check_fits()
+    if problems:
+        raise ValueError("; ".join(problems))
+    return bench
 
 
 def describe_screen(scr: dict) -> str:
@@ -93,7 +124,8 @@ def describe_screen(scr: dict) -> str:
     else:
         w, h = scr["size_px"]
         where = (f"rendered by the stand every tick in a {'fullscreen ' if scr['fullscreen'] else ''}window on display "
-                 f"{scr['display']}, {w} x {h}")
+                 f"{scr['display']}, {w} x {h}, pre-distorted for a collimator of {scr['focal_m']:g} m, distortion "
+                 f"{list(scr['distortion'])}, axis at screen px {list(scr['axis_px'])}")
     return f"{where}, frames for {scr['latency_s'] * 1e3:g} ms ahead"
 
 
@@ -176,17 +208,12 @@ class _LocalWindow:
     size, apparent places) and shows it, logging the clock right after the flip."""
 
     def __init__(self, scr: dict, epoch):
-        from star_screen.geometry import default_bench
         from star_screen.render import Renderer
         from star_screen.window import ScreenWindow
 
         w, h = scr["size_px"]
-        bench = default_bench(w, h)
-        problems = bench.check_fits()
-        if problems:
-            raise ValueError(f"screen_size_px = {[w, h]}: the tracker field does not fit: " + "; ".join(problems))
         self.epoch = epoch
-        self.renderer = Renderer(bench, aberration=True)
+        self.renderer = Renderer(window_bench(scr), aberration=True)
         self.window = ScreenWindow((w, h), display=scr["display"], fullscreen=scr["fullscreen"],
                                    clock=time.monotonic_ns)
         self.where = f"window on display {scr['display']} ({w} x {h})"

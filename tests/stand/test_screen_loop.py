@@ -283,3 +283,34 @@ def test_a_screen_tracker_on_a_port_that_cannot_be_opened_says_so(capsys):
     code = main(["emulate", "star-tracker", "--source", "screen", "--port", "/nonexistent-tty",
                  "--screen-bind", "127.0.0.1:0", "--pre-distortion", "off"])
     assert code == 2 and "/nonexistent-tty" in capsys.readouterr().err
+
+
+def test_a_window_screen_is_pre_distorted_with_the_calibration_numbers_the_scenario_gives(tmp_path):
+    import tomllib
+
+    from stand.commands.screen_tracker import benches
+    from stand.devices.star_screen_link import window_bench
+
+    from .conftest import to_toml
+
+    _, calibrated, _ = benches(0.05, (2.0, -1.5), pre_distortion=True)
+    col = calibrated.collimator
+    data = tomllib.loads((scenario.SCENARIO_DIR / "detumble_star_tracker_screen.toml").read_text())
+    st = data["devices"][1]
+    del st["screen_port"]
+    # What an operator copies from calibrate_screen's result into the scenario.
+    st.update(screen="window", screen_collimator_focal_m=float(col.focal_length_m),
+              screen_collimator_distortion=[float(v) for v in col.distortion.as_opencv()],
+              screen_axis_px=[float(calibrated.sx0), float(calibrated.sy0)])
+    path = tmp_path / "w.toml"
+    path.write_text(to_toml(data))
+    spec = next(d for d in scenario.load(path).devices if d.name == "st1")
+    bench = window_bench(spec.screen)
+    t = bench.tracker
+    d = t.unproject(np.random.default_rng(3).uniform([0, 0], [t.width, t.height], (500, 2)))
+    assert np.abs(bench.direction_to_screen(d)[0] - calibrated.direction_to_screen(d)[0]).max() < 1e-9
+    st["screen_collimator_distortion"] = [0.05, 0.0, 0.0, 0.0]
+    path.write_text(to_toml(data))
+    with pytest.raises(ScenarioError) as info:
+        scenario.load(path)
+    assert info.value.field == "devices[1].screen_collimator_distortion"
