@@ -314,3 +314,39 @@ def test_a_window_screen_is_pre_distorted_with_the_calibration_numbers_the_scena
     with pytest.raises(ScenarioError) as info:
         scenario.load(path)
     assert info.value.field == "devices[1].screen_collimator_distortion"
+
+
+def test_a_display_node_draws_for_the_calibration_its_command_line_gives(tmp_path):
+    import socket
+    import threading
+
+    from stand.commands.display import StateSender
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "frames"
+    argv = ["display-node", "--bind", f"127.0.0.1:{port}", "--out", str(out), "--max-frames", "1", "--timeout", "10",
+            "--collimator-focal-m", "1.105", "--collimator-distortion", "0.05,0.1,1e-4,-2e-4,0", "--axis-px",
+            "962.5,537.25"]
+    codes = []
+    node = threading.Thread(target=lambda: codes.append(main(argv)))
+    node.start()
+    try:
+        with StateSender("127.0.0.1", port, scenario_epoch=EPOCH) as sender:
+            for _ in range(100):  # until the node is listening and has drawn one frame
+                sender.send(q_SN_from_radec_roll(80.0, 30.0, 10.0), 0)
+                node.join(0.1)
+                if not node.is_alive():
+                    break
+    finally:
+        node.join(20)
+    assert codes == [0]
+    truth = json.loads((out / "000000" / "truth.json").read_text())
+    assert truth["collimator"] == {"focal_length_m": 1.105, "distortion": [0.05, 0.1, 1e-4, -2e-4, 0.0]}
+    assert truth["screen_axis_px"] == [962.5, 537.25]
+
+
+def test_a_display_node_calibration_that_is_not_five_numbers_is_a_usage_error(capsys):
+    assert main(["display-node", "--bind", "127.0.0.1:0", "--collimator-distortion", "0.05,0.1"]) == 2
+    assert "--collimator-distortion '0.05,0.1'" in capsys.readouterr().err
