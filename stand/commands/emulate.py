@@ -263,7 +263,12 @@ def run_served(args) -> int:
 def run(args) -> int:
     if args.device not in DEVICES:
         return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
+    if args.source != "spin" and args.device != "star-tracker":
+        return _fail(f"--source {args.source} is for the star tracker only.")
     if args.scenario is not None:
+        if args.source == "screen":
+            return _fail("--source screen does not take --scenario: the tracker looks at the screen of a scenario "
+                         "that `stand run` drives (screen = 'state' in its table), on --screen-bind.")
         return run_served(args)
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):

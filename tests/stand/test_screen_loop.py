@@ -350,3 +350,12 @@ def test_a_display_node_draws_for_the_calibration_its_command_line_gives(tmp_pat
 def test_a_display_node_calibration_that_is_not_five_numbers_is_a_usage_error(capsys):
     assert main(["display-node", "--bind", "127.0.0.1:0", "--collimator-distortion", "0.05,0.1"]) == 2
     assert "--collimator-distortion '0.05,0.1'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["star-tracker", "--source", "screen", "--scenario", "detumble_star_tracker_screen"], "does not take --scenario"),
+    (["magnetorquer", "--source", "screen"], "star tracker only"),
+])
+def test_source_screen_is_refused_where_it_has_no_meaning(capsys, argv, needle):
+    assert main(["emulate", *argv, "--port", "/nonexistent-tty"]) == 2
+    assert needle in capsys.readouterr().err
