@@ -27,6 +27,7 @@ BENCHES = {
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
     "shadow": "stand.benches.shadow:bench_shadow",
     "cage": "stand.benches.cage:bench_cage",
+    "screen-loop": "stand.benches.screen_loop:bench_screen_loop",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.

@@ -32,6 +32,10 @@ where other users can read it in the process list.
     stand display-node --bind 127.0.0.1:PORT [--window [--display N] [--windowed] | --out DIR]
                        [--screen WxH] [--max-frames N] [--timeout S] [--aberration on|off]
                        [--allow ADDR[/PREFIX] | --allow any ...] [--key-file PATH]
+                       [--collimator-focal-m F] [--collimator-distortion K1,K2,P1,P2,K3] [--axis-px X,Y]
+
+The collimator and axis options pre-distort the frames for the bench's calibration
+(``star_screen.calibration.calibrate_screen``); without them the nominal bench is drawn.
 
 Exit codes: 0 after a normal stop (max frames, idle timeout, window closed), 2 for a usage error.
 """
@@ -40,6 +44,7 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import math
 import os
 import secrets
 import socket
@@ -472,6 +477,11 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--no-corner-code", action="store_true", help="with --window: do not draw the frame counter")
     p.add_argument("--screen", default="1920x1080", help="screen resolution WxH (default 1920x1080)")
     p.add_argument("--aberration", choices=("on", "off"), default="on", help="apparent places (default) or not")
+    cal = p.add_argument_group("pre-distortion: the bench's ChArUco calibration (star_screen.calibration)")
+    cal.add_argument("--collimator-focal-m", type=float, default=None, help="calibrated collimator focal length, m")
+    cal.add_argument("--collimator-distortion", default=None, metavar="K1,K2,P1,P2,K3",
+                     help="calibrated collimator distortion (OpenCV's 5 terms)")
+    cal.add_argument("--axis-px", default=None, metavar="X,Y", help="screen pixel on the collimator axis")
     p.add_argument("--max-frames", type=int, default=None, help="stop after N rendered frames")
     p.add_argument("--timeout", type=float, default=None,
                    help="stop after S seconds without a new state (default: run until stopped)")
@@ -483,6 +493,35 @@ def register(subparsers) -> argparse.ArgumentParser:
                         f"or set {KEY_ENV}")
     p.set_defaults(func=run)
     return p
+
+
+def _numbers(text, flag: str, n: int) -> list[float]:
+    try:
+        values = [float(v) for v in str(text).split(",")]
+    except ValueError:
+        values = []
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{flag} {text!r} is not {n} numbers separated by commas.")
+    return values
+
+
+def _calibrated(bench, args):
+    """The bench with the calibration the command line gives (collimator and axis), so frames are pre-distorted."""
+    import dataclasses
+
+    from star_screen.geometry import BrownConrady, Collimator
+
+    focal = getattr(args, "collimator_focal_m", None)
+    dist = getattr(args, "collimator_distortion", None)
+    axis = getattr(args, "axis_px", None)
+    if focal is not None and not (math.isfinite(focal) and 0.05 <= focal <= 20.0):
+        raise ValueError(f"--collimator-focal-m {focal!r} is not allowed; give 0.05 to 20 m.")
+    col = bench.collimator
+    if focal is not None or dist is not None:
+        k = BrownConrady(*_numbers(dist, "--collimator-distortion", 5)) if dist is not None else col.distortion
+        col = Collimator(col.focal_length_m if focal is None else focal, k)
+    sx0, sy0 = (bench.sx0, bench.sy0) if axis is None else _numbers(axis, "--axis-px", 2)
+    return dataclasses.replace(bench, collimator=col, sx0=sx0, sy0=sy0)
 
 
 def run(args) -> int:
@@ -502,7 +541,7 @@ def run(args) -> int:
         from star_screen.outputs import FrameQueue
         from star_screen.render import Renderer
 
-        bench = default_bench(width, height)
+        bench = _calibrated(default_bench(width, height), args)
         problems = bench.check_fits()
         if problems:
             raise ValueError(f"--screen {args.screen}: the default tracker field does not fit: " + "; ".join(problems))

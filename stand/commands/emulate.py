@@ -6,13 +6,19 @@ terminal can be wired to it.
                   [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
                   [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
                   [--interval-s S] [--delay-s S]
+    stand emulate star-tracker --source screen --port URL --screen-bind HOST:PORT
+                  [--pre-distortion on|off] [--collimator-k1 K] [--collimator-shift-px DX,DY]
+                  [--panel-latency-s S] [--defocus-sigma-px S] [--read-noise-e E] [--background-e E]
     stand emulate cage --port tcp://127.0.0.1:PORT | SERIAL [--duration S] [--baud B] [--seed N]
 
 The star tracker is the truth-plus-noise emulator (``drivers.star_tracker.emulator``) with a
 built-in measurement source: the boresight (+z of the tracker frame) at right ascension ``--ra``
 and declination ``--dec`` (GCRS), rolled by ``--roll`` about it (roll 0: celestial north along
 tracker -y, east along -x: north up and east left on the image), spinning at ``--rate-deg-s``
-(tracker axes; default at rest). No Sun, Moon or Earth in the field. Sim time is wall time since
+(tracker axes; default at rest). No Sun, Moon or Earth in the field. With ``--source screen`` the
+tracker instead looks at the stand's star screen: it is the display node for the state a
+scenario's ``screen = "state"`` tracker sends, and sees the rendered screen through a collimator
+model (``stand.commands.screen_tracker``). Sim time is wall time since
 start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its counters as one JSON line.
 The cage is the Helmholtz cage controller (``drivers.cage.emulator``, register map
 ``docs/cage_register_map.md``) on Modbus TCP (``tcp://HOST:PORT``) or Modbus RTU (a serial port),
@@ -68,6 +74,24 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--boot-time-s", type=float, default=None, help="boot time, s (default 1)")
     p.add_argument("--interval-s", type=float, default=None, help="time between exposures, s (default 0.2)")
     p.add_argument("--delay-s", type=float, default=None, help="output delay after mid-exposure, s (default 0.1)")
+    scr = p.add_argument_group("star tracker looking at the star screen (--source screen)")
+    scr.add_argument("--source", choices=("spin", "screen"), default="spin",
+                     help="star tracker: spin (built-in attitude, truth plus noise; default) or screen (display "
+                          "node for the stand's screen state, collimator, camera, image solver)")
+    scr.add_argument("--screen-bind", default="127.0.0.1:5600",
+                     help="HOST:PORT the display node listens on for the stand's state (default 127.0.0.1:5600)")
+    scr.add_argument("--pre-distortion", choices=("on", "off"), default="on",
+                     help="render for the ChArUco-calibrated bench (on, default) or the nominal one (off)")
+    scr.add_argument("--collimator-k1", type=float, default=0.0,
+                     help="radial distortion k1 of the physical collimator (OpenCV model; default 0)")
+    scr.add_argument("--collimator-shift-px", default="0,0",
+                     help="physical collimator axis off the nominal one, screen px, as DX,DY (default 0,0)")
+    scr.add_argument("--panel-latency-s", type=float, default=0.016,
+                     help="from a rendered frame to its light on the panel, s (default 0.016: one 60 Hz frame)")
+    scr.add_argument("--defocus-sigma-px", type=float, default=0.8,
+                     help="tracker defocus blur, detector px (default 0.8)")
+    scr.add_argument("--read-noise-e", type=float, default=10.0, help="camera read noise, e- rms (default 10)")
+    scr.add_argument("--background-e", type=float, default=20.0, help="camera background, e- per pixel (default 20)")
     p.set_defaults(func=run)
     return p
 
@@ -239,7 +263,12 @@ def run_served(args) -> int:
 def run(args) -> int:
     if args.device not in DEVICES:
         return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
+    if args.source != "spin" and args.device != "star-tracker":
+        return _fail(f"--source {args.source} is for the star tracker only.")
     if args.scenario is not None:
+        if args.source == "screen":
+            return _fail("--source screen does not take --scenario: the tracker looks at the screen of a scenario "
+                         "that `stand run` drives (screen = 'state' in its table), on --screen-bind.")
         return run_served(args)
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -258,6 +287,11 @@ def run(args) -> int:
         return _fail(f"--rate-deg-s {args.rate_deg_s!r} is not allowed; give three numbers X,Y,Z in deg/s.")
     if args.address is not None and not 0 <= args.address <= 255:
         return _fail(f"--address {args.address!r} is not allowed; give a number from 0 to 255.")
+
+    if args.source == "screen":
+        from stand.commands.screen_tracker import run_screen
+
+        return run_screen(args, _fail)
 
     from drivers.errors import DriverError
     from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator

@@ -108,6 +108,7 @@ class StarTrackerSpec(DeviceSpec):
     emulator: dict = field(default_factory=dict)  # keyword arguments of the emulator's EmulatorConfig
     optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
     camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
+    screen: dict | None = None  # a hardware tracker looking at the stand's star screen (star_screen_link)
 
 
 class StarTrackerKind(DeviceKind):
@@ -155,14 +156,20 @@ class StarTrackerKind(DeviceKind):
         else:
             port = check_serial_url(t, "port", t.text("port"))
         baud = int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True))
+        from stand.devices.star_screen_link import parse_screen
+
         spec = StarTrackerSpec(**base.__dict__, port=port, baudrate=baud, address=address, source=source,
-                               emulator=settings, optics=optics, camera=camera)
+                               emulator=settings, optics=optics, camera=camera, screen=parse_screen(t, base.link))
         t.check_unknown()
         return spec
 
     def needs(self, spec) -> dict[str, str]:
         if spec.link == "hardware":
-            return {}
+            if spec.screen is None:
+                return {}
+            from stand.devices.star_screen_link import describe_screen
+
+            return {"star_screen": f"the screen {spec.name} looks at: {describe_screen(spec.screen)}"}
         why = f"exclusion of {spec.name}"
         out = {"sun": why, "moon": why}
         if spec.source == "image":
@@ -178,6 +185,11 @@ class StarTrackerKind(DeviceKind):
     def describe(self, spec) -> str:
         what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
         every = f"a solution every {spec.emulator['output_interval_s']:g} s"
+        if spec.screen is not None:
+            from stand.devices.star_screen_link import describe_screen
+
+            return (f"star tracker on serial {spec.port} at {spec.baudrate} Bd looking at the stand's star screen "
+                    f"({describe_screen(spec.screen)}; the stand reads its solutions and sets its clock)")
         return {"emulated": f"star tracker emulated on an in-process serial pty pair, {what}, {every}",
                 "hardware": f"star tracker on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads "
                             "its solutions and sets its clock)",
@@ -185,6 +197,10 @@ class StarTrackerKind(DeviceKind):
                           f"{every}"}[spec.link]
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
+        if spec.screen is not None:
+            from stand.devices.star_screen_link import ScreenTracker
+
+            return ScreenTracker(spec, ctx)
         return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
 
     def metric(self, metric, at_s, tel, names):
