@@ -84,6 +84,18 @@ class DeviceSpec:
     q_SB: np.ndarray  # device (sensor) frame relative to body, scalar-first
 
 
+@dataclass(frozen=True)
+class DeviceCost:
+    """What one device costs a run, for the estimate made before t = 0 (``stand.compose.budget``): how often it
+    publishes (None: every tick), the floats it adds to a telemetry row, the memory it holds for the whole run
+    (star databases, image buffers) and the computation of one publish beyond the usual codec round trip (s)."""
+
+    rate_hz: float | None = None
+    row_floats: int = 16
+    memory_bytes: int = 0
+    publish_s: float = 0.0
+
+
 @dataclass
 class BuildContext:
     """What a kind may use to build a device: the truth, the Sun and Moon tracks it asked for, the scenario
@@ -169,6 +181,10 @@ class DeviceKind:
 
     def build(self, spec: DeviceSpec, ctx: BuildContext) -> Device:
         raise NotImplementedError
+
+    def cost(self, spec: DeviceSpec) -> DeviceCost:
+        """What the device costs a run (the default assumes a publish every tick and a 16-float row)."""
+        return DeviceCost()
 
     def metric(self, metric: str, at_s: float | None, tel: dict, names: list[str]) -> float:
         """The value of one of ``metrics`` from the telemetry of this kind's devices ``names``."""

@@ -33,7 +33,7 @@ from sim.constants import R_EARTH
 from sim.environment import R_SUN
 from sim.rotations import axis_angle, compose, conjugate, dcm, quat_from_axis_angle
 from sim.truth import compose_floats, rotate_to_body
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_serial_url
 
 ARCSEC = math.pi / 180.0 / 3600.0
 #: Longest wall-clock wait for a frame to cross the in-process serial line before it counts as lost.
@@ -62,6 +62,8 @@ _UNIT_KEYS = {"ms": ("_s", 1e-3), "deg": ("_deg", 1.0), "deg/s": ("_deg_s", 1.0)
 #: Settings of the truth source only: with source = "image" the image is the noise.
 TRUTH_ONLY_SETTINGS = ("noise_cross_arcsec", "noise_roll_arcsec")
 TRACKER_SOURCES = ("truth", "image")
+#: Memory of an image-source tracker before its image buffers: star catalog and pattern database, bytes.
+IMAGE_BASE_BYTES = 300 << 20
 #: Image-source settings: key -> (default, lo, hi, integer). Pairs are [x, y] (image right, down).
 TRACKER_IMAGE_SETTINGS = {
     "mag_limit": (8.0, 4.0, 9.0, False),  # stars drawn and used, Hipparcos Hp (the catalog fixture reaches 9)
@@ -183,6 +185,17 @@ class StarTrackerKind(DeviceKind):
                             "its solutions and sets its clock)",
                 "served": f"star tracker served on serial {spec.port} for a flight computer outside, {what}, "
                           f"{every}"}[spec.link]
+
+    def cost(self, spec: StarTrackerSpec) -> DeviceCost:
+        rate_hz = 1.0 / spec.emulator["output_interval_s"]
+        if spec.source != "image" or spec.link == "hardware":
+            return DeviceCost(rate_hz=rate_hz, row_floats=10)
+        # Measured on the shipped image scenario (1024 x 768 px, Hp 8): the catalog and pattern database take
+        # about 270 MB, a frame (render, camera noise, detection, solve) about 25 ms; the image buffers grow
+        # with the detector (a dozen float64 frames alive at once).
+        px = spec.optics.width * spec.optics.height
+        return DeviceCost(rate_hz=rate_hz, row_floats=10, memory_bytes=IMAGE_BASE_BYTES + 12 * 8 * px,
+                          publish_s=5e-3 + 25e-9 * px)
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
