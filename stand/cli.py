@@ -152,9 +152,9 @@ def cmd_check(args) -> int:
         from . import scenario as scenario_mod
 
         check_controller(sc, scenario_mod.find(args.scenario).parent)
+        choices = plan(sc)
     except (ScenarioError, PluginError) as exc:
         return fail(str(exc))
-    choices = plan(sc)
     if args.json:
         print(json.dumps({"scenario": sc.name, "valid": True,
                           "built": [{"model": c.model, "reason": c.reason} for c in choices if c.built],

@@ -23,6 +23,7 @@ Links (``link = ...`` in a ``[[devices]]`` table):
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 from dataclasses import dataclass
@@ -54,8 +55,14 @@ _loaded: dict[str, DeviceKind] = {}
 
 def kind_names() -> tuple[str, ...]:
     """Every kind known: the shipped ones, then those of installed packages."""
-    extra = [ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS]
-    return (*KINDS, *sorted(extra))
+    return (*KINDS, *_installed_kinds())
+
+
+@functools.cache
+def _installed_kinds() -> tuple[str, ...]:
+    # Scanning the installed distributions takes milliseconds and validation asks for every device and criterion;
+    # packages installed while the process runs are seen by the next one.
+    return tuple(sorted(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS))
 
 
 def get(name: str) -> DeviceKind:

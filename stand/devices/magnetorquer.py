@@ -11,6 +11,7 @@ The coils act in body axes; the magnetometer reads in its sensor frame ``q_SB``.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -57,7 +58,9 @@ class MagnetorquerSpec(DeviceSpec):
     coil_area_turns_m2: tuple = (2.0, 2.0, 2.0)
 
 
+@functools.cache
 def _codec():
+    """The board's codec, for the limits its DBC sets (read only; built once, the DBC takes milliseconds to parse)."""
     from drivers.magnetorquer.codec import MagnetorquerCodec
 
     return MagnetorquerCodec()

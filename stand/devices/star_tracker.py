@@ -19,6 +19,7 @@ time at start, logs the offset it measures, and scores each solution against the
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import select
@@ -80,6 +81,11 @@ TRACKER_IMAGE_PAIRS = {
 def icd_settings() -> dict[str, tuple[float, float, float, bool]]:
     """Scenario settings that are ICD parameters: key -> (default, lo, hi, integer) in the scenario's units,
     read from the ICD's parameter table so scenario limits are the device's own."""
+    return dict(_icd_settings())
+
+
+@functools.cache
+def _icd_settings() -> dict[str, tuple[float, float, float, bool]]:
     from drivers.star_tracker.codec import load_icd
 
     out = {}

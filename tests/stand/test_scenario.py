@@ -173,5 +173,5 @@ def test_nul_byte_in_a_name_is_refused(scenario_dict, write_scenario, where, fie
     with pytest.raises(ScenarioError) as info:
         scenario.load(path)
     err = info.value
-    assert err.field == field and "plain name" in str(err) and "embedded null" not in str(err)
+    assert err.field == field and "without control characters" in str(err) and "embedded null" not in str(err)
     assert "\x00" not in str(err)
