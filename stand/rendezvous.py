@@ -177,7 +177,8 @@ def _body(t, vehicle: str, k: int) -> Occluder:
         q = _unit_quat(t, "q_XV", [1.0, 0.0, 0.0, 0.0])
         shape = Box(t.vector("center_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M), size / 2.0, dcm(q))
     else:
-        corner, u, v = t.vector("corner_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M), _nonzero(t, "edge_u_m"), _nonzero(t, "edge_v_m")
+        corner = t.vector("corner_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M)
+        u, v = _nonzero(t, "edge_u_m"), _nonzero(t, "edge_v_m")
         if np.linalg.norm(np.cross(u, v)) <= 1e-9 * np.linalg.norm(u) * np.linalg.norm(v):
             raise t.error("edge_v_m", v.tolist(), f"an edge not parallel to edge_u_m = {u.tolist()} "
                           "(the two edges span the panel)")
@@ -220,7 +221,8 @@ def _plate(t) -> PlateSpec:
         k = int(np.argmax(far))
         raise t.error("marks_m", marks[k].tolist(), f"marks that lie on the plate (radius_m = {radius:g}: this "
                       f"one reaches {far[k]:.4g} m from the centre)")
-    spec = PlateSpec(center_T_m=t.vector("center_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M), q_PT=_unit_quat(t, "q_PT", [1.0, 0.0, 0.0, 0.0]),
+    center = t.vector("center_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M)
+    spec = PlateSpec(center_T_m=center, q_PT=_unit_quat(t, "q_PT", [1.0, 0.0, 0.0, 0.0]),
                      radius_m=radius, marks_m=marks, mark_radius_m=mark_r,
                      mark_rings=int(t.number("mark_rings", 2, lo=0, hi=12, integer=True)))
     t.check_unknown()

@@ -43,7 +43,7 @@ REPLACEMENTS = [
     [], [1], [1.0, 2.0, 3.0], [1.0, 0.0, 0.0, 0.0, 0.0], ["a", "b", "c"], [[1.0, 0.0], [0.0, 1.0]], [[[[]]]],
     [math.nan, 0.0, 0.0], [1e308, 1e308, 1e308], [True, False, True],
     {}, {"a": 1}, {"x": {"y": [1, 2]}},
-    dt.datetime(2026, 3, 20, 12, 0, tzinfo=dt.timezone.utc), dt.datetime(2026, 3, 20, 12, 0), dt.date(2026, 3, 20),
+    dt.datetime(2026, 3, 20, 12, 0, tzinfo=dt.UTC), dt.datetime(2026, 3, 20, 12, 0), dt.date(2026, 3, 20),
     dt.time(12, 0),
 ]
 
@@ -132,7 +132,7 @@ def _at(data, path):
 
 toml_scalars = st.one_of(
     st.text(max_size=40), st.integers(min_value=-(2**80), max_value=2**80), st.floats(allow_nan=True),
-    st.booleans(), st.datetimes(timezones=st.just(dt.timezone.utc)), st.dates(), st.times(),
+    st.booleans(), st.datetimes(timezones=st.just(dt.UTC)), st.dates(), st.times(),
 )
 toml_values = st.recursive(toml_scalars, lambda inner: st.lists(inner, max_size=5)
                            | st.dictionaries(st.text(max_size=12), inner, max_size=4), max_leaves=20)
