@@ -112,15 +112,17 @@ def plan(sc: Scenario) -> list[Choice]:
 
 
 # --- what a run costs, estimated before t = 0 -------------------------------------------------------------------
-# Figures measured on this stand's loop (detumble, 2-core machine): a tick of the truth alone about 25 us, a
-# device's publish (codec round trip) and a controller update about 50 us each, a telemetry row about 5 us; an
+# Figures measured on this stand's loop (detumble, 2-core machine): a tick of the truth alone about 25 us, a device
+# looking for what arrived about 35 us every tick, a device's publish (codec round trip) and a controller update
+# about 30 us each, a telemetry row about 5 us (the default run: about 130 us a tick); an
 # orbit node about 50 us with point-mass or J2 gravity and about 1.2 ms with JGM-3 to degree 20 (the cost grows
 # with the square of the degree). Memory: the interpreter with numpy, python-can and matplotlib about 150 MB, a
 # point of the orbit track's chunk about 1.5 KB (12 KB with the IGRF field's temporaries), a telemetry row loaded
 # for the report and its plots three times over.
 TICK_S = 25e-6
-PUBLISH_S = 50e-6
-CONTROL_S = 50e-6
+RECEIVE_S = 35e-6
+PUBLISH_S = 30e-6
+CONTROL_S = 30e-6
 ROW_S = 5e-6
 NODE_S = 50e-6
 NODE_JGM3_S = 1.2e-3
@@ -169,11 +171,20 @@ def _duration(s: float) -> str:
 
 
 def machine_memory_bytes() -> int | None:
-    """Physical memory of this machine (None where the system does not say)."""
+    """Memory this process may use: the physical memory, or the container's (cgroup v2) limit when smaller; None
+    where the system does not say."""
+    sizes = []
     try:
-        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        sizes.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):
-        return None
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit.isdigit():
+            sizes.append(int(limit))
+    except OSError:
+        pass
+    return min(sizes) if sizes else None
 
 
 def free_disk_bytes(folder: Path) -> tuple[Path, int | None]:
@@ -214,7 +225,7 @@ def budget(sc: Scenario, duration_s: float | None = None) -> Budget:
     for d, c in zip(sc.devices, costs, strict=True):
         if c.memory_bytes:
             parts[f"device {d.name}"] = c.memory_bytes
-    compute = ticks * TICK_S + rows * ROW_S
+    compute = ticks * (TICK_S + RECEIVE_S * len(costs)) + rows * ROW_S
     node_s = NODE_JGM3_S * (o.gravity_degree / 20) ** 2 if o.gravity == "jgm3" else NODE_S
     compute += duration / o.step_s * node_s
     for c in costs:
@@ -243,10 +254,10 @@ def check_budget(sc: Scenario, duration_s: float | None = None, out_dir: Path | 
     ram = machine_memory_bytes() if memory_bytes is None else memory_bytes
     if ram is not None and b.memory_bytes > MEMORY_FRACTION * ram:
         largest = max(b.parts, key=b.parts.get)
-        raise ScenarioError("scenario.duration_s" if largest.startswith("the telemetry") else "devices"
-                            if largest.startswith("device") else "dynamics.step_s",
-                            b.duration_s if largest.startswith("the telemetry") else sc.step_s,
-                            f"a run whose estimated peak memory (about {_size(b.memory_bytes)}; "
+        field, value = (("recording.rate_hz", sc.record_rate_hz) if largest.startswith("the telemetry") else
+                        ("devices", [d.name for d in sc.devices]) if largest.startswith("device") else
+                        ("dynamics.step_s", sc.step_s))
+        raise ScenarioError(field, value, f"a run whose estimated peak memory (about {_size(b.memory_bytes)}; "
                             f"{largest} {_size(b.parts[largest])}) fits in {MEMORY_FRACTION:.0%} of this machine's "
                             f"{_size(ram)}; {how}", src)
     folder, free = free_disk_bytes(Path("runs") if out_dir is None else Path(out_dir))

@@ -42,7 +42,7 @@ from sim.constants import R_EARTH
 from sim.time import Epoch
 
 from .devices import DeviceSpec
-from .errors import MISSING, ScenarioError
+from .errors import MISSING, ScenarioError, shown
 
 FIXTURES = fixtures.ROOT
 SCENARIO_DIR = FIXTURES / "scenarios"
@@ -61,6 +61,8 @@ MAX_STEPS_PER_PERIOD = 1e13
 MAX_FILE_BYTES = 1 << 20
 #: Run names become folder names under the output folder: a plain name, no path.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+#: Keys printed as they are in an error; any other key is quoted and cut.
+KEY_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,100}")
 #: Control characters (C0 but tab, DEL, C1): refused in text that reaches a console or a report.
 CONTROL = re.compile("[\x00-\x08\x0a-\x1f\x7f-\x9f]")
 #: Metrics of the run itself; device kinds add theirs (stand.devices.DeviceKind.metrics).
@@ -99,6 +101,10 @@ class Table:
         self.used: set[str] = set()
 
     def _name(self, key: str) -> str:
+        # A key is any string in TOML: one with a line break or a megabyte of text is quoted and cut, so the
+        # error stays one short line.
+        if not KEY_PATTERN.fullmatch(key):
+            key = shown(key)
         return f"{self.path}.{key}" if self.path else key
 
     def error(self, key: str, value, allowed: str) -> ScenarioError:

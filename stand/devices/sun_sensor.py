@@ -96,7 +96,9 @@ class SunSensorKind(DeviceKind):
         return f"{spec.type} sun sensor sampled from the truth at {spec.rate_hz:g} Hz, eclipse-aware (no bus)"
 
     def cost(self, spec: SunSensorSpec) -> DeviceCost:
-        return DeviceCost(rate_hz=spec.rate_hz, row_floats=(len(FACE_NORMALS) if spec.type == "coarse" else 2) + 2)
+        # A sample evaluates the Sun's position and the Earth's shadow: about 50 us.
+        return DeviceCost(rate_hz=spec.rate_hz, row_floats=(len(FACE_NORMALS) if spec.type == "coarse" else 2) + 2,
+                          publish_s=50e-6)
 
     def build(self, spec: SunSensorSpec, ctx: BuildContext) -> Device:
         return SunSensor(spec, ctx)

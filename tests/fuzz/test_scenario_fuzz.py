@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import datetime as dt
 import math
+import os
 import subprocess
 import sys
 import tomllib
@@ -136,7 +137,9 @@ toml_scalars = st.one_of(
 )
 toml_values = st.recursive(toml_scalars, lambda inner: st.lists(inner, max_size=5)
                            | st.dictionaries(st.text(max_size=12), inner, max_size=4), max_leaves=20)
-FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+#: Examples per Hypothesis test; STAND_FUZZ_EXAMPLES raises it for a longer local hunt.
+FUZZ = settings(max_examples=int(os.environ.get("STAND_FUZZ_EXAMPLES", "150")), deadline=None,
+                suppress_health_check=[HealthCheck.too_slow])
 
 
 @FUZZ
@@ -298,3 +301,25 @@ def test_accepted_mutants_build_and_run(tmp_path):
         assert result.ticks >= 1 and result.sim_duration_s > 0, (name, where, value, result)
         if summary["pass"]:
             assert result.status == "completed" and summary["sim_duration_s"] > 0, (name, where, value)
+
+
+# --- overrides from the command line (--set KEY=VALUE) -------------------------------------------------------------
+
+set_keys = st.lists(st.sampled_from(["scenario", "dynamics", "orbit", "devices", "mtq", "controller", "criteria",
+                                     "name", "step_s", "rate_hz", "", "0", "x"]) | st.text(max_size=6),
+                    min_size=1, max_size=4).map(".".join)
+set_values = st.text(max_size=30) | st.sampled_from(["nan", "inf", "-inf", "1e999", "[1, [2]]", "{a = 1}", "true",
+                                                     '"\\u0000"', "1979-05-27T07:32:00Z", "[[[[[[]]]]]]"])
+
+
+@FUZZ
+@given(items=st.lists(st.tuples(set_keys, set_values), min_size=1, max_size=3))
+def test_random_overrides(items):
+    data = shipped_data(scenario.DEFAULT_SCENARIO)
+    try:
+        for key, value in items:
+            scenario.set_value(data, f"{key}={value}")
+    except ScenarioError as exc:
+        assert "\n" not in str(exc)
+        return
+    parse_or_refuse(data)
