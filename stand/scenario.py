@@ -38,7 +38,7 @@ import numpy as np
 
 import fixtures
 from sim.attitude import check_inertia
-from sim.constants import R_EARTH
+from sim.constants import MU_EARTH, R_EARTH
 from sim.time import Epoch
 
 from .devices import DeviceSpec
@@ -57,6 +57,9 @@ MAX_INERTIA_KG_M2 = 1e10
 #: Longest period of a rate, in dynamics steps: whole numbers of steps stay exact in a float below 2**53, and a
 #: period of 30 days at the smallest step (1e-6 s) is 2.6e12 steps.
 MAX_STEPS_PER_PERIOD = 1e13
+#: Strongest geomagnetic field at the Earth's surface, T (IGRF: about 66 uT south of Australia; the centred
+#: dipole's pole field is 61 uT); it falls with the cube of the distance.
+MAX_FIELD_T = 6.7e-5
 #: A scenario file larger than this is refused before it is parsed (the shipped ones are under 5 KiB).
 MAX_FILE_BYTES = 1 << 20
 #: Run names become folder names under the output folder: a plain name, no path.
@@ -410,6 +413,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
         raise root.error("devices", names, "device names must be unique")
 
     controller = _controller(root.table("controller", required=False), step_s, devices)
+    _check_torque_reach(spacecraft, orbit, devices, torques, controller, step_s, integrator, source)
     crit_raw = root.raw("criteria", [])
     if not isinstance(crit_raw, list):
         raise root.error("criteria", crit_raw, "an array of [[criteria]] tables is expected")
@@ -562,6 +566,30 @@ def _numbers(value, n: int) -> bool:
     """A list of n finite numbers (booleans are not numbers here)."""
     return isinstance(value, list) and len(value) == n and all(
         isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+
+
+def _check_torque_reach(spacecraft: SpacecraftSpec, orbit: OrbitSpec, devices, torques, controller: ControllerSpec,
+                        step_s: float, integrator: str, source: str | None) -> None:
+    """Refuse a body that the largest torque could spin, within one control period (the zero-order hold), past the
+    rate the dynamics step integrates accurately: such a run would pass check and abort in its first seconds."""
+    from sim.integrators import max_angle_rad
+
+    moments = np.linalg.eigvalsh(spacecraft.inertia_kg_m2)
+    r_p = orbit.a_m * (1.0 - orbit.e) if orbit.a_m is not None else orbit.p_m / (1.0 + orbit.e)
+    dipole = math.sqrt(3.0) * sum(getattr(d, "max_dipole_A_m2", 0.0) for d in devices)
+    magnetic = dipole * MAX_FIELD_T * (R_EARTH / r_p) ** 3 if "magnetic" in torques else 0.0
+    # |r x I r| over unit vectors r is at most (I_max - I_min) / 2.
+    gravity = 1.5 * MU_EARTH / r_p**3 * (moments[-1] - moments[0]) if "gravity_gradient" in torques else 0.0
+    hold_s = 1.0 / controller.rate_hz
+    reach = float(np.linalg.norm(spacecraft.omega_BN_B)) + (magnetic + gravity) / moments[0] * hold_s
+    limit = max_angle_rad(integrator) / step_s
+    if reach > limit:
+        raise ScenarioError("spacecraft.inertia_kg_m2", spacecraft.inertia_kg_m2.tolist(),
+                            f"a body the torques cannot spin past what dynamics.step_s = {step_s:g} s integrates "
+                            f"({limit:.4g} rad/s) within one control period ({hold_s:g} s): the largest torque "
+                            f"({magnetic + gravity:.3g} N m, from dipoles of {dipole:.3g} A m^2 in fields up to "
+                            f"{MAX_FIELD_T * (R_EARTH / r_p) ** 3:.3g} T and gravity gradient) over the smallest "
+                            f"principal moment ({moments[0]:.3g} kg m^2) reaches {reach:.4g} rad/s", source)
 
 
 def _environment(t: Table, epoch: Epoch) -> EnvironmentSpec:

@@ -175,3 +175,14 @@ def test_nul_byte_in_a_name_is_refused(scenario_dict, write_scenario, where, fie
     err = info.value
     assert err.field == field and "without control characters" in str(err) and "embedded null" not in str(err)
     assert "\x00" not in str(err)
+
+
+def test_a_body_the_torquers_spin_past_the_step_is_refused(scenario_dict, write_scenario):
+    # Found by the fuzzer: a 1e-8 kg m^2 axis passed check, then the saturated torquers spun it to 885 deg/s and the
+    # run aborted at t = 0.1 s.
+    scenario_dict["spacecraft"]["inertia_kg_m2"] = [0.02, 0.02, 1e-8]
+    err = refused(scenario_dict, write_scenario, "spacecraft.inertia_kg_m2", "control period (0.1 s)",
+                  "dynamics.step_s = 0.1 s")
+    assert "1e-08 kg m^2" in str(err)
+    scenario_dict["spacecraft"]["inertia_kg_m2"] = [0.02, 0.02, 1e-3]  # 10x smaller than shipped: still fine
+    scenario.load(write_scenario(scenario_dict))
