@@ -197,12 +197,12 @@ class StarTrackerKind(DeviceKind):
         rate_hz = 1.0 / spec.emulator["output_interval_s"]
         if spec.source != "image" or spec.link == "hardware":
             return DeviceCost(rate_hz=rate_hz, row_floats=10, publish_s=1.2e-3)
-        # Measured on the shipped image scenario (1024 x 768 px, Hp 8): the catalog and pattern database take
-        # about 270 MB, a frame (render, camera noise, detection, solve) about 25 ms; the image buffers grow
-        # with the detector (a dozen float64 frames alive at once).
+        # Measured: the catalog and pattern database take about 270 MB; the frame buffers about 14 bytes a
+        # detector pixel (235 MB at 4096 x 4096); a frame (render, camera noise, detection, solve) 25 ms at
+        # 1024 x 768 and Hp 8, 1.2 s at 4096 x 4096 with a 60 deg field and Hp 9.
         px = spec.optics.width * spec.optics.height
-        return DeviceCost(rate_hz=rate_hz, row_floats=10, memory_bytes=IMAGE_BASE_BYTES + 12 * 8 * px,
-                          publish_s=1.2e-3 + 5e-3 + 25e-9 * px)
+        return DeviceCost(rate_hz=rate_hz, row_floats=10, memory_bytes=IMAGE_BASE_BYTES + 16 * px,
+                          publish_s=1.2e-3 + 5e-3 + 70e-9 * px)
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
