@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import datetime as dt
+import json
 import math
 import os
 import subprocess
@@ -127,6 +128,48 @@ def _at(data, path):
     for key in path:
         data = data[key]
     return data
+
+
+# --- the same mutations written as files, through stand.scenario.load ---------------------------------------------
+
+def toml_value(v) -> str:
+    """A value in TOML syntax (inline tables and arrays): enough to write any mutant as a file."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(v, dt.datetime | dt.date | dt.time):
+        return v.isoformat()
+    if isinstance(v, list):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    return "{" + ", ".join(f"{json.dumps(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
+
+
+def toml_text(data: dict) -> str:
+    return "".join(f"{json.dumps(k)} = {toml_value(v)}\n" for k, v in data.items())
+
+
+def test_toml_writer_round_trips_the_shipped_scenarios():
+    for path in SHIPPED:
+        data = shipped_data(path)
+        assert tomllib.loads(toml_text(data)) == data
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_mutated_files_through_load(path, tmp_path):
+    data = shipped_data(path)
+    target = tmp_path / "fuzz.toml"
+    for i, where in enumerate(leaf_paths(data)):
+        for value in REPLACEMENTS[i % 4::4]:  # a quarter of the table per field, a different quarter each time
+            target.write_text(toml_text(replaced(data, where, value)), encoding="utf-8")
+            try:
+                scenario.load(target)
+            except ScenarioError as exc:
+                assert "\n" not in str(exc) and "fuzz.toml" in str(exc)
 
 
 # --- random structure (Hypothesis) ---------------------------------------------------------------------------------
