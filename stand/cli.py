@@ -106,11 +106,9 @@ def cmd_run(args) -> int:
                 if out.exists() and (not out.is_dir() or any(out.iterdir())):
                     raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
                 from . import scenario as scenario_mod
-                from .compose import check_budget
 
-                check_budget(sc, args.duration, out)
                 base = scenario_mod.find(args.scenario).parent if args.scenario else None
-                scene = build(sc, speed, base)
+                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
             except (KeyboardInterrupt, Stopped):

@@ -47,8 +47,9 @@ def device_needs(sc: Scenario) -> dict[str, list[str]]:
     return needs
 
 
-def plan(sc: Scenario) -> list[Choice]:
-    """Every model the stand knows, built or left out, with the reason."""
+def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = None) -> list[Choice]:
+    """Every model the stand knows, built or left out, with the reason, and the run's estimated cost (refused with a
+    ScenarioError past the machine's limits: ``check_budget`` for a run of ``duration_s`` into ``out_dir``)."""
     o, env = sc.orbit, sc.environment
     dev = device_needs(sc)
     field_why = dev["magnetic_field"] + (["magnetic torque"] if "magnetic" in sc.torques else [])
@@ -107,7 +108,7 @@ def plan(sc: Scenario) -> list[Choice]:
                            + ", ".join(d.name for d in sc.devices if d.link == "served") + "); the run is paced"}
     choices.append(Choice(f"controller.{ctl.kind}", ctl.kind not in ("none", "external"),
                           ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
-    choices.append(Choice("estimate", True, check_budget(sc).text()))
+    choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
     return choices
 
 
@@ -338,11 +339,13 @@ def initial_state(sc: Scenario):
     return np.asarray(r, dtype=float), np.asarray(v, dtype=float)
 
 
-def build(sc: Scenario, speed: float | None = None, base: Path | None = None) -> Scene:
+def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
+          out_dir: Path | None = None) -> Scene:
     """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
     (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
-    relative to (the scenario's)."""
-    choices = plan(sc)
+    relative to (the scenario's); ``duration_s`` and ``out_dir``, the run's length (default the scenario's) and
+    folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``)."""
+    choices = plan(sc, duration_s, out_dir)
     built = {c.model for c in choices if c.built}
     r0, v0 = initial_state(sc)
     env = sc.environment

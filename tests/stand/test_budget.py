@@ -108,3 +108,19 @@ def test_run_refuses_before_writing_anything(scenario_dict, write_scenario, tmp_
 def test_free_disk_is_taken_from_the_nearest_existing_folder(tmp_path):
     folder, free = compose.free_disk_bytes(tmp_path / "a" / "b")
     assert folder == tmp_path and free > 0
+
+
+def test_run_checks_the_disk_of_its_own_output_folder(scenario_dict, write_scenario, tmp_path, monkeypatch, capsys):
+    real = compose.free_disk_bytes
+
+    def free(folder):
+        where, n = real(folder)
+        return (where, 1000) if "tight" in str(folder) else (where, n)
+
+    monkeypatch.setattr(compose, "free_disk_bytes", free)
+    path = str(write_scenario(scenario_dict))
+    assert main(["run", path, "--out", str(tmp_path / "tight" / "run"), "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "recording.rate_hz" in err and "free" in err and err.count("\n") == 1
+    # the --duration is what is estimated: one second of telemetry is 11 rows
+    assert compose.budget(scenario.load(path), 1.0).rows == 11
