@@ -314,10 +314,14 @@ def load(path: str | Path, overrides: list[str] | None = None) -> Scenario:
     path = find(path)
     try:
         size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
+        # The size a file reports is not always what it holds (procfs says 0): read no more than the limit allows.
+        with path.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+        if size > MAX_FILE_BYTES or len(raw) > MAX_FILE_BYTES:
             raise ScenarioError("SCENARIO", str(path), f"a scenario file under {MAX_FILE_BYTES >> 10} KiB "
-                                f"(this one has {size} bytes)")
-        text = path.read_bytes().decode("utf-8")
+                                f"(this one has {max(size, len(raw))}{'' if size > MAX_FILE_BYTES else ' or more'} "
+                                "bytes)")
+        text = raw.decode("utf-8")
     except OSError as exc:
         raise ScenarioError("SCENARIO", str(path), f"a readable TOML file is required ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
