@@ -275,8 +275,7 @@ CLI_CASES = {
         'name = "detumble"', 'name = "a\\u0000b"').encode(),
     "tiny_step": (scenario.SCENARIO_DIR / "detumble.toml").read_text().replace(
         "duration_s = 5677.0", "duration_s = 2592000.0").replace("step_s = 0.1\n", "step_s = 1e-6\n", 1).replace(
-        "[recording]\nrate_hz = 10.0", "[recording]\nrate_hz = 0.1").replace(
-        "sample_rate_hz = 10.0", "sample_rate_hz = 10.0").encode(),
+        "[recording]\nrate_hz = 10.0", "[recording]\nrate_hz = 0.1").encode(),
 }
 
 
@@ -289,6 +288,12 @@ def test_cli_check_exits_2_with_one_line(tmp_path, case):
     assert done.returncode == 2, (done.stdout, done.stderr)
     assert "Traceback" not in done.stderr and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("stand: error: ")
+    assert CLI_NAMED[case] in done.stderr, done.stderr
+
+
+#: What each command-line case's sentence names.
+CLI_NAMED = {"random_bytes": "UTF-8", "utf16": "UTF-8", "deep": "nested", "nan": "spacecraft.mass_kg = nan",
+             "nul_name": "scenario.name", "tiny_step": "dynamics.step_s = 1e-06"}
 
 
 # --- accepted mutants build and run, and never pass with nothing simulated -----------------------------------------
