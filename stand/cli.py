@@ -108,7 +108,7 @@ def cmd_run(args) -> int:
                 from . import scenario as scenario_mod
 
                 base = scenario_mod.find(args.scenario).parent if args.scenario else None
-                scene = build(sc, speed, base)
+                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
             except (KeyboardInterrupt, Stopped):
@@ -150,9 +150,9 @@ def cmd_check(args) -> int:
         from . import scenario as scenario_mod
 
         check_controller(sc, scenario_mod.find(args.scenario).parent)
+        choices = plan(sc)
     except (ScenarioError, PluginError) as exc:
         return fail(str(exc))
-    choices = plan(sc)
     if args.json:
         print(json.dumps({"scenario": sc.name, "valid": True,
                           "built": [{"model": c.model, "reason": c.reason} for c in choices if c.built],
