@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[2]
 EXTERNAL = REPO / "examples" / "external_bdot.py"
 #: The in-process default run's |omega| (deg/s): what the external flight program must reproduce within 10 %.
 CHECKPOINTS_S = (600, 1800, 3600)
-SPEED = 30  # the external runs' pacing: 3600 s of sim time in 2 minutes of wall time
+SPEED = 20  # the external runs' pacing: 3600 s of sim time in 3 minutes of wall time
 
 
 def _env():
