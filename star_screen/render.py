@@ -19,6 +19,11 @@ Per frame (``Renderer.render``), with no per-star Python loop:
    number of stars, not the screen size);
 7. detector: the same spots at the tracker's own PSF sigma, in electrons (noise-free float32).
 
+``Renderer.detector_signal`` is step 7 alone, as lit pixels and their values instead of an image
+(what an emulated tracker needs, see :class:`star_screen.tracking.exposure.SparseExposure`): one
+stamp per star covering its whole smeared path (the samples' separable spots summed by one small
+matrix product per star) instead of one stamp per sample.
+
 Dynamic-range policy (screen, see docs/star_screen.md):
 
 * A star of magnitude ``mag_full`` centred on a pixel has a peak of full scale at the nominal
@@ -115,6 +120,32 @@ def splat_gaussians(x, y, flux, sigma, width: int, height: int, truncate: float 
         idx_parts.append(flat[ok])
         val_parts.append(stamp[ok].astype(np.float32))
     return np.concatenate(idx_parts), np.concatenate(val_parts), peak
+
+
+def _path_stamps(x, y, flux, sigma: float, width: int, height: int, truncate: float = 4.0):
+    """Spots of :func:`splat_gaussians` at samples ``x, y`` ``(n, k)`` along each star's path (``flux``
+    (n,) per sample), summed per star on one stamp: ``(flat pixel indices, values)``, one entry per
+    star and pixel (stars may share pixels). Each sample's spot is truncated exactly as there."""
+    R = int(math.ceil(truncate * sigma))
+    inv = 1.0 / (_SQRT2 * sigma)
+    edges = np.arange(2 * R + 2) - R
+
+    def factors(centre):
+        """Each sample's pixel integrals over its own 2R + 1 pixels, placed on the star's stamp."""
+        first = np.floor(centre).astype(np.int64)  # (n, k) pixel holding the sample
+        origin = first.min(axis=1) - R  # (n,) stamp corner
+        size = int((first.max(axis=1) - first.min(axis=1)).max()) + 2 * R + 1
+        f = 0.5 * np.diff(erf((first[:, :, None] + edges - centre[:, :, None]) * inv), axis=2)
+        out = np.zeros(centre.shape + (size,))
+        np.put_along_axis(out, (first - R - origin[:, None])[:, :, None] + np.arange(2 * R + 1), f, axis=2)
+        return out, origin[:, None] + np.arange(size)
+
+    fx, cols = factors(x)
+    fy, rows = factors(y)
+    stamp = np.matmul((fy * flux[:, None, None]).transpose(0, 2, 1), fx)  # (n, rows, cols)
+    ok = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :] & (stamp > 0.0)
+    flat = rows[:, :, None] * width + cols[:, None, :]
+    return flat[ok], stamp[ok]
 
 
 @dataclass
@@ -295,6 +326,53 @@ class Renderer:
         kxd = np.cross(axis, d)[:, None, :]
         kdd = (d @ axis)[:, None, None] * axis
         return d[:, None, :] * c + kxd * s + kdd * (1 - c), k
+
+    def detector_signal(
+        self,
+        q_SN,
+        epoch: Epoch,
+        *,
+        v_sc_gcrs_m_s=None,
+        omega_SN_S=None,
+        exposure_s: float | None = None,
+    ) -> tuple[StarsInField, np.ndarray, np.ndarray]:
+        """The ideal detector image of :meth:`render` as ``(stars, idx, e)``: the raster indices of
+        the pixels that receive light (each once) and their signal in electrons (float64; the image
+        holds the same values rounded to float32). Same arguments as :meth:`render`; no screen."""
+        t = self.bench.tracker
+        stars = self.stars_in_field(q_SN, epoch, v_sc_gcrs_m_s)
+        exposure = t.exposure_s if exposure_s is None else float(exposure_s)
+        path = self._smear_offsets(stars, omega_SN_S, exposure)
+        det_flux = t.flux_mag0_e * 10.0 ** (-0.4 * stars.mag.astype(float))
+        stars.detector_flux_e = det_flux
+        n = len(stars)
+        if n == 0:
+            return stars, np.empty(0, np.int64), np.empty(0)
+        if path is not None:
+            dirs, k = path
+            xy = t.project(dirs.reshape(-1, 3))[0].reshape(n, k, 2)
+        else:
+            k = 1
+            xy = stars.detector_xy[:, None, :]
+        idx, val = _path_stamps(xy[..., 0], xy[..., 1], det_flux / k, t.psf_sigma_px, t.width, t.height,
+                                self.photometry.truncate_sigmas)
+        return stars, *self._sum_duplicates(idx, val, t.width * t.height)
+
+    def _sum_duplicates(self, idx: np.ndarray, val: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """Each raster index once with the sum of its values (where stars' stamps overlap), without
+        sorting: a persistent marker array names one entry per pixel."""
+        if getattr(self, "_mark", None) is None or self._mark.size != size:
+            self._mark = np.zeros(size, np.int32)
+        mark = self._mark
+        order = np.arange(len(idx), dtype=np.int32)
+        mark[idx] = order
+        keep = mark[idx] == order  # one entry per pixel (the last writer's)
+        u, total = idx[keep], val[keep]
+        if len(u) < len(idx):
+            mark[u] = np.arange(len(u), dtype=np.int32)
+            rest = ~keep
+            np.add.at(total, mark[idx[rest]], val[rest])
+        return u, total
 
     def render(
         self,
