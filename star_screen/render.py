@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.special import erf, erfinv
@@ -122,28 +123,65 @@ def splat_gaussians(x, y, flux, sigma, width: int, height: int, truncate: float 
     return np.concatenate(idx_parts), np.concatenate(val_parts), peak
 
 
+#: Sub-pixel phases per pixel in the tables of :func:`_pixel_integral_table`.
+_PHASES = 512
+
+
+@lru_cache(maxsize=8)
+def _pixel_integral_table(sigma: float, R: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel integrals of a unit 1-D Gaussian of ``sigma`` over the 2R + 1 pixels around the one
+    holding its centre, tabulated against the centre's phase in that pixel (0..1, ``_PHASES``
+    steps), with their derivatives in the phase: ``(g, dg)`` of shape ``(_PHASES + 1, 2R + 1)``.
+
+    ``scipy.special.erf`` costs about 35 ns a value, 50 times an ``exp``; cubic Hermite
+    interpolation in this table (exact values and slopes at the nodes) is within 1e-12 of the
+    erf differences (per unit flux; 4e-14 at sigma 1 px), far below the float32 the detector holds."""
+    inv = 1.0 / (_SQRT2 * sigma)
+    phase = np.arange(_PHASES + 1) / _PHASES
+    z = (np.arange(2 * R + 2)[None, :] - R - phase[:, None]) * inv  # pixel edges, (phases, 2R + 2)
+    g = 0.5 * np.diff(erf(z), axis=1)
+    dg = np.diff(-inv / math.sqrt(math.pi) * np.exp(-z * z), axis=1)
+    return g, dg
+
+
+def _pixel_integrals(centre: np.ndarray, sigma: float, R: int) -> np.ndarray:
+    """``0.5 (erf((e + 1 - c) / (sqrt 2 sigma)) - erf((e - c) / (sqrt 2 sigma)))`` for the pixels e of
+    ``floor(c) - R .. floor(c) + R``: shape ``centre.shape + (2R + 1,)``, from the phase table."""
+    g, dg = _pixel_integral_table(float(sigma), int(R))
+    u = (centre - np.floor(centre)) * _PHASES
+    i = np.minimum(u.astype(np.int64), _PHASES - 1)
+    t = (u - i)[..., None]
+    t2 = t * t
+    t3 = t2 * t
+    h = 1.0 / _PHASES
+    return ((2 * t3 - 3 * t2 + 1) * g[i] + (t3 - 2 * t2 + t) * (h * dg[i])
+            + (3 * t2 - 2 * t3) * g[i + 1] + (t3 - t2) * (h * dg[i + 1]))
+
+
 def _path_stamps(x, y, flux, sigma: float, width: int, height: int, truncate: float = 4.0):
     """Spots of :func:`splat_gaussians` at samples ``x, y`` ``(n, k)`` along each star's path (``flux``
     (n,) per sample), summed per star on one stamp: ``(flat pixel indices, values)``, one entry per
     star and pixel (stars may share pixels). Each sample's spot is truncated exactly as there."""
     R = int(math.ceil(truncate * sigma))
-    inv = 1.0 / (_SQRT2 * sigma)
-    edges = np.arange(2 * R + 2) - R
+    n, k = x.shape
+    span = np.arange(2 * R + 1)
 
     def factors(centre):
         """Each sample's pixel integrals over its own 2R + 1 pixels, placed on the star's stamp."""
         first = np.floor(centre).astype(np.int64)  # (n, k) pixel holding the sample
         origin = first.min(axis=1) - R  # (n,) stamp corner
         size = int((first.max(axis=1) - first.min(axis=1)).max()) + 2 * R + 1
-        f = 0.5 * np.diff(erf((first[:, :, None] + edges - centre[:, :, None]) * inv), axis=2)
-        out = np.zeros(centre.shape + (size,))
-        np.put_along_axis(out, (first - R - origin[:, None])[:, :, None] + np.arange(2 * R + 1), f, axis=2)
+        out = np.zeros((n, k, size))
+        start = np.arange(n * k).reshape(n, k) * size + (first - R - origin[:, None])
+        out.reshape(-1)[start[:, :, None] + span] = _pixel_integrals(centre, sigma, R)
         return out, origin[:, None] + np.arange(size)
 
     fx, cols = factors(x)
     fy, rows = factors(y)
     stamp = np.matmul((fy * flux[:, None, None]).transpose(0, 2, 1), fx)  # (n, rows, cols)
-    ok = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :] & (stamp > 0.0)
+    ok = stamp > 0.0
+    if rows.min() < 0 or rows.max() >= height or cols.min() < 0 or cols.max() >= width:
+        ok &= ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
     flat = rows[:, :, None] * width + cols[:, None, :]
     return flat[ok], stamp[ok]
 

@@ -14,11 +14,11 @@ import math
 
 import numpy as np
 import pytest
-from scipy.special import ndtr
+from scipy.special import erf, ndtr
 
 from sim.rotations import quat_from_axis_angle
 from star_screen.geometry import default_bench
-from star_screen.render import Renderer, _path_stamps, splat_gaussians
+from star_screen.render import Renderer, _path_stamps, _pixel_integrals, splat_gaussians
 from star_screen.tracking import StarTracker
 from star_screen.tracking.exposure import SparseExposure
 from star_screen.tracking.extract import extract_stars
@@ -46,6 +46,15 @@ def _field(rng, n=30):
 
 
 # ------------------------------------------------------------------------------- renderer signal
+@pytest.mark.parametrize(("sigma", "R"), [(1.0, 4), (0.6, 3), (1.7, 7)])
+def test_tabulated_pixel_integrals_match_erf(sigma, R):
+    rng = np.random.default_rng(3)
+    c = np.concatenate([rng.uniform(-50.0, 50.0, 5000), [0.0, 1e-12, 1.0 - 1e-12, 3.5, -2.0, 17.999999]])
+    edges = np.floor(c)[:, None] + np.arange(2 * R + 2) - R
+    ref = 0.5 * np.diff(erf((edges - c[:, None]) / (math.sqrt(2.0) * sigma)), axis=1)
+    assert np.abs(_pixel_integrals(c, sigma, R) - ref).max() < 1e-12
+
+
 def test_path_stamps_equal_the_sum_of_the_sample_spots():
     rng = np.random.default_rng(1)
     n, k = 12, 6
