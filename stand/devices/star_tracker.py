@@ -557,6 +557,7 @@ class ImageSolver:
         self.tracker = StarTracker(catalog=self.renderer.catalog, mag_limit=optics.mag_limit, epoch=epoch)
         self.tracker.database(optics)  # the pattern database (about 1 s), now rather than on the first tick
         self.tracker.places(epoch, parallax=True)  # apparent places at the scenario epoch, cached
+        self.exposure = self.tracker.sparse_exposure(optics, **self.camera)  # noise drawn where extraction looks
         self._last: tuple[float, np.ndarray] | None = None  # (t_s, q) of the previous exposure if valid
         self._before: tuple[float, np.ndarray] | None = None  # the valid one before it
         self.counts = {"frames": 0, "lis": 0, "tracking": 0, "failed": 0}
@@ -576,23 +577,20 @@ class ImageSolver:
         """TrackerTruth fields measured from the exposure at ``t_s``: the solved q_TN, stars centroided
         and matched, 1-sigma errors (rad); an identity attitude and 0 stars matched when the solve fails."""
         from star_screen.render import SmearTooLong
-        from star_screen.tracking.noise import camera_noise
 
         w0 = time.perf_counter()
         epoch = self.epoch + t_s
         v = np.asarray(v_N, dtype=float)
         try:
-            frame = self.renderer.render(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T, screen=False,
-                                         copy=False)
+            _, lit, signal_e = self.renderer.detector_signal(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T)
         except SmearTooLong:  # stars trailed past the renderer's cap: no tracker solves such an image
             self.counts["frames"] += 1
             self.counts["failed"] += 1
             self.frame_ms.append((time.perf_counter() - w0) * 1e3)
             self._last = self._before = None
             return {"q_TN": (1.0, 0.0, 0.0, 0.0), "stars_matched": 0, "stars_in_field": 0}
-        image = camera_noise(frame.detector, self.rng, **self.camera)
-        sol = self.tracker.solve(image, self.optics, self._prior(t_s),
-                                 observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))
+        sol = self.tracker.solve_stars(self.exposure.stars(lit, signal_e, self.rng), self.optics, self._prior(t_s),
+                                       observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))
         self.counts["frames"] += 1
         self.frame_ms.append((time.perf_counter() - w0) * 1e3)
         seen = {"stars_in_field": int(sol.stars_centroided)}
