@@ -20,10 +20,11 @@ from sim.time import Epoch
 from . import state
 
 FRAMES = {"body": "B", "gcrs": "N", "lvlh": "O", "itrs": "E"}
-COLORS = {"sun": (1.0, 200 / 255, 0.0), "moon": (190 / 255, 196 / 255, 210 / 255), "valid": (60 / 255, 220 / 255, 90 / 255),
-          "sun_flag": (1.0, 60 / 255, 60 / 255), "moon_flag": (1.0, 150 / 255, 40 / 255),
-          "earth_flag": (80 / 255, 160 / 255, 1.0), "rate": (200 / 255, 110 / 255, 1.0), "none": (0.55, 0.55, 0.55),
-          "acquiring": (230 / 255, 200 / 255, 60 / 255)}
+#: The page's colours (view.js COLORS), 0-255.
+_RGB = {"sun": (255, 200, 0), "moon": (190, 196, 210), "valid": (60, 220, 90), "sun_flag": (255, 60, 60),
+        "moon_flag": (255, 150, 40), "earth_flag": (80, 160, 255), "rate": (200, 110, 255), "none": (140, 140, 140),
+        "acquiring": (230, 200, 60)}
+COLORS = {k: tuple(c / 255 for c in v) for k, v in _RGB.items()}
 AXIS_COLORS = ("#ff5555", "#55e678", "#5a96ff")
 FLAG_BITS = ((1, "Sun", "sun_flag"), (2, "Moon", "moon_flag"), (4, "Earth", "earth_flag"), (8, "rate", "rate"))
 
@@ -85,7 +86,8 @@ def _boundary(fov: dict, n: int = 96) -> np.ndarray:
         tx, ty = (math.tan(math.radians(a) / 2) for a in fov["fov_deg"])
         corners = np.array([[-tx, -ty], [tx, -ty], [tx, ty], [-tx, ty], [-tx, -ty]])
         f = np.linspace(0, 1, n // 4, endpoint=False)[:, None]
-        pts = np.concatenate([c0 + f * (c1 - c0) for c0, c1 in zip(corners[:-1], corners[1:], strict=True)] + [corners[:1]])
+        edges = [c0 + f * (c1 - c0) for c0, c1 in zip(corners[:-1], corners[1:], strict=True)]
+        pts = np.concatenate([*edges, corners[:1]])
         u = np.column_stack((pts, np.ones(len(pts))))
     else:
         a = np.asarray(fov["axis_S"], dtype=float)
@@ -116,7 +118,9 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
     ax.set_ylim(H, 0)
     ax.set_aspect("equal")
     ax.axis("off")
-    ax.add_patch(__import__("matplotlib.patches", fromlist=["Rectangle"]).Rectangle((0, 0), W, H, color="#03050a"))
+    from matplotlib.patches import Rectangle
+
+    ax.add_patch(Rectangle((0, 0), W, H, color="#03050a", zorder=0))
     where = {}
 
     def at(u_N):
@@ -141,7 +145,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
         sel = mag <= mag_limit
         p = at(u_N[sel])
         size = np.maximum(0.7, 3.2 - 0.42 * mag[sel])
-        ax.scatter(p[:, 0], p[:, 1], s=size ** 2 * 0.9, c="white", marker="s", linewidths=0, alpha=0.9)
+        ax.scatter(p[:, 0], p[:, 1], s=size ** 2 * 0.35, c="white", marker="s", linewidths=0, alpha=0.9)
     # the Earth, per pixel at half resolution
     ys, xs = np.mgrid[0:H:2, 0:W:2] + 1.0
     u, ok = inverse(kind, xs, ys, W, H)
@@ -159,7 +163,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
     rgba[..., 0] = (12 + day * 40) * shade / 255
     rgba[..., 1] = (22 + day * 95) * shade / 255
     rgba[..., 2] = (45 + day * 170) * shade / 255
-    rgba[..., 3] = np.where(hit, 0.92, 0.0)
+    rgba[..., 3] = np.where(hit, 1.0, 0.0)
     ax.imshow(rgba, extent=(0, W, H, 0), interpolation="bilinear", zorder=2)
     # Sun, Moon, body axes, velocity, nadir, field
     earth_half = math.asin(min(1.0, R_EARTH / rn))

@@ -274,3 +274,40 @@ class ViewServer:
         except (ValueError, AttributeError) as exc:
             return web.json_response({"error": str(exc)}, status=400)
         return web.json_response({"status": status})
+
+
+class LiveSession:
+    """``stand run --view``: the live feed (the loop's observer) and its server, for one run."""
+
+    def __init__(self, host: str, port: int, token: str | None):
+        self.host, self.port, self.token = host, port, token
+        if host != LOCAL and not token:
+            raise ViewError(f"--view {host}:{port} is not allowed without a token: pass --view-token or set "
+                            "STAND_VIEW_TOKEN (anyone who can reach the page could otherwise stop the run); "
+                            "127.0.0.1 needs none.")
+        self.feed: state.LiveFeed | None = None
+        self.server: ViewServer | None = None
+
+    @classmethod
+    def from_args(cls, bind: str, token: str | None) -> LiveSession:
+        host, port = parse_bind(bind)
+        return cls(host, port, token)
+
+    def start(self, sc, run_dir) -> str:
+        """Write ``view.json``, start the feed and the server; returns the page's URL."""
+        state.write_view_json(sc, run_dir)
+        self.feed = state.LiveFeed(run_dir, state.describe(sc))
+        self.server = ViewServer(self.feed, self.host, self.port, self.token)
+        url = self.server.start()
+        self.feed.start()
+        return url
+
+    @property
+    def observer(self):
+        return self.feed
+
+    def close(self, run_status: str = "finished", linger_s: float = 1.0) -> None:
+        if self.feed is not None:
+            self.feed.finish(run_status)
+        if self.server is not None:
+            self.server.close(linger_s=linger_s if self.server.sockets else 0.0)

@@ -263,6 +263,8 @@ class LiveFeed:
     websockets). Control requests from the page arrive through :meth:`request`.
     """
 
+    mode = "live"
+
     def __init__(self, run_dir, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES):
         self.run_dir = Path(run_dir)
         self.meta = meta

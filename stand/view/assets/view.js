@@ -346,7 +346,6 @@
     const cosR = Math.cos(Math.asin(Math.min(1, R_EARTH / rn))), nadir = scale(r, -1 / rn);
     const nadirF = mv(M, nadir), rF = mv(M, r), sunF = mv(M, sunN);
     const CEN = S.store.has("q_EN") ? dcm(S.store.get("q_EN", i)) : null;
-    const CEF = CEN ? mm(CEN, mT(M)) : null;  // F -> ITRS, for the latitude-longitude net
     for (let yy = 0; yy < h; yy++) {
       for (let xx = 0; xx < w; xx++) {
         const u = P.inv((xx + 0.5) * sc, (yy + 0.5) * sc, W, H);
@@ -359,23 +358,22 @@
         const day = Math.max(0, Math.min(1, (lit + 0.05) / 0.1));  // a 6 deg twilight band
         const shade = 0.55 + 0.45 * limb;
         let R = (12 + day * 40) * shade, G = (22 + day * 95) * shade, B = (45 + day * 170) * shade;
-        if (CEF) {
-          const e = mv(CEF, n), lat = Math.asin(Math.max(-1, Math.min(1, e[2]))) * R2D, lon = Math.atan2(e[1], e[0]) * R2D;
-          const grid = Math.min(Math.abs(lat / 30 - Math.round(lat / 30)) * 30, Math.abs(lon / 30 - Math.round(lon / 30)) * 30 * Math.cos(lat * D2R));
-          if (grid < 0.6) { R += 25; G += 25; B += 25; }
-        }
         const o = 4 * (yy * w + xx);
-        px[o] = R; px[o + 1] = G; px[o + 2] = B; px[o + 3] = 235;
+        px[o] = R; px[o + 1] = G; px[o + 2] = B; px[o + 3] = 255;
       }
     }
     pano.earthCtx.putImageData(img, 0, 0);
     ctx.imageSmoothingEnabled = true;
     ctx.drawImage(pano.earth, 0, 0, W, H);
-    // coastlines on the visible side
-    if (S.land && CEN) {
-      const CFE = mm(M, mT(CEN));
-      ctx.strokeStyle = "rgba(140,220,150,0.75)"; ctx.lineWidth = 1;
-      for (const ring of S.land) {
+    // coastlines and the 30 deg latitude-longitude net, on the visible side
+    if (CEN) {
+      const CFE = mm(M, mT(CEN)), net = [];
+      for (let lat = -60; lat <= 60; lat += 30) { const r1 = []; for (let lon = -180; lon <= 180; lon += 4) r1.push(lon, lat); net.push(r1); }
+      for (let lon = -180; lon < 180; lon += 30) { const r1 = []; for (let lat = -88; lat <= 88; lat += 4) r1.push(lon, lat); net.push(r1); }
+      const rings = [[net, "rgba(200,220,255,0.22)"], [S.land || [], "rgba(140,220,150,0.8)"]];
+      for (const [set, col] of rings) {
+        ctx.strokeStyle = col; ctx.lineWidth = 1;
+        for (const ring of set) {
         const pts = [];
         for (let k = 0; k < ring.length; k += 2) {
           const lat = ring[k + 1] * D2R, lon = ring[k] * D2R;
@@ -384,6 +382,7 @@
           pts.push(dot(d, pF) < 0 ? P.fwd(unit(d), W, H) : null);
         }
         polyline(ctx, pts, W);
+        }
       }
     }
   }
@@ -459,29 +458,40 @@
     const X = (lon) => (lon + 180) / 360 * W, Y = (lat) => (90 - lat) / 180 * H;
     ctx.fillStyle = "#0b1a2e"; ctx.fillRect(0, 0, W, H);
     if (i < 0) return;
-    // night side by the sub-solar point
-    const CEN = dcm(st.get("q_EN", i)), sE = mv(CEN, st.get("sun_N", i));
-    const img = ctx.getImageData(0, 0, W, H), px = img.data;
-    for (let y = 0; y < H; y += 2) {
-      const lat = (90 - (y + 1) / H * 180) * D2R;
-      for (let x = 0; x < W; x += 2) {
-        const lon = ((x + 1) / W * 360 - 180) * D2R;
-        const c = Math.cos(lat) * Math.cos(lon) * sE[0] + Math.cos(lat) * Math.sin(lon) * sE[1] + Math.sin(lat) * sE[2];
-        const k = c < -0.05 ? 0.45 : c < 0.05 ? 0.45 + 0.55 * (c + 0.05) / 0.1 : 1;
-        for (let dy = 0; dy < 2; dy++) for (let dx = 0; dx < 2; dx++) {
-          const o = 4 * ((y + dy) * W + x + dx); px[o] *= k; px[o + 1] *= k; px[o + 2] *= k;
+    if (S.land) {
+      ctx.fillStyle = "rgb(52,84,62)"; ctx.strokeStyle = "rgba(140,200,150,0.8)"; ctx.lineWidth = 0.8;
+      for (const ring of S.land) {
+        // Rings crossing the date line are unwrapped and drawn again one turn to each side (the canvas clips).
+        const xs = [], ys = [];
+        let lon0 = ring[0];
+        for (let k = 0; k < ring.length; k += 2) {
+          let lon = ring[k];
+          while (lon - lon0 > 180) lon -= 360;
+          while (lon - lon0 < -180) lon += 360;
+          lon0 = lon; xs.push(X(lon)); ys.push(Y(ring[k + 1]));
+        }
+        for (const shift of [-W, 0, W]) {
+          ctx.beginPath();
+          xs.forEach((x, k) => (k ? ctx.lineTo(x + shift, ys[k]) : ctx.moveTo(x + shift, ys[k])));
+          ctx.fill(); ctx.stroke();
         }
       }
     }
-    ctx.putImageData(img, 0, 0);
-    if (S.land) {
-      ctx.fillStyle = "rgba(70,110,80,0.55)"; ctx.strokeStyle = "rgba(140,200,150,0.8)"; ctx.lineWidth = 0.8;
-      for (const ring of S.land) {
-        ctx.beginPath();
-        for (let k = 0; k < ring.length; k += 2) { const x = X(ring[k]), y = Y(ring[k + 1]); k ? ctx.lineTo(x, y) : ctx.moveTo(x, y); }
-        ctx.fill(); ctx.stroke();
+    // night by the sub-solar point, as a translucent layer
+    const CEN = dcm(st.get("q_EN", i)), sE = mv(CEN, st.get("sun_N", i)), nw = W >> 2, nh = H >> 2;
+    if (!S.night || S.night.width !== nw) { S.night = document.createElement("canvas"); S.night.width = nw; S.night.height = nh; }
+    const nctx = S.night.getContext("2d"), img = nctx.createImageData(nw, nh), px = img.data;
+    for (let y = 0; y < nh; y++) {
+      const lat = (90 - (y + 0.5) / nh * 180) * D2R;
+      for (let x = 0; x < nw; x++) {
+        const lon = ((x + 0.5) / nw * 360 - 180) * D2R;
+        const c = Math.cos(lat) * Math.cos(lon) * sE[0] + Math.cos(lat) * Math.sin(lon) * sE[1] + Math.sin(lat) * sE[2];
+        px[4 * (y * nw + x) + 3] = 150 * Math.max(0, Math.min(1, (0.05 - c) / 0.1));
       }
     }
+    nctx.putImageData(img, 0, 0);
+    ctx.imageSmoothingEnabled = true;
+    ctx.drawImage(S.night, 0, 0, W, H);
     ctx.strokeStyle = "rgba(255,255,255,0.12)"; ctx.lineWidth = 1;
     for (let lon = -150; lon < 180; lon += 30) { ctx.beginPath(); ctx.moveTo(X(lon), 0); ctx.lineTo(X(lon), H); ctx.stroke(); }
     for (let lat = -60; lat <= 60; lat += 30) { ctx.beginPath(); ctx.moveTo(0, Y(lat)); ctx.lineTo(W, Y(lat)); ctx.stroke(); }
@@ -490,9 +500,8 @@
     ctx.lineWidth = 2;
     for (let k = 1; k < st.n; k++) {
       if (Math.abs(lon[k] - lon[k - 1]) > 180) continue;
-      const lit = !nu || nu[k] > 0.5;
-      ctx.strokeStyle = lit ? "rgba(255,204,51," : "rgba(90,107,140,";
-      ctx.strokeStyle += k <= i ? "1)" : "0.35)";
+      const lit = !nu || nu[k] > 0.5, alpha = k <= i ? 1 : 0.3;
+      ctx.strokeStyle = lit ? `rgba(255,204,51,${alpha})` : `rgba(120,140,185,${alpha})`;
       ctx.beginPath(); ctx.moveTo(X(lon[k - 1]), Y(lat[k - 1])); ctx.lineTo(X(lon[k]), Y(lat[k])); ctx.stroke();
     }
     const x = X(lon[i]), y = Y(lat[i]);
@@ -540,7 +549,7 @@
       const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
       const X = (t) => L + (t - t0) / (t1 - t0) * pw, Y = (v) => T + (hi - v) / (hi - lo) * ph;
       ctx.strokeStyle = "#222a33"; ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui"; ctx.lineWidth = 1;
-      for (const v of ticks(lo, hi, 4)) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(this.opts.log ? `1e${v}` : fmt(v), 2, Y(v) + 3); }
+      for (const v of ticks(lo, hi, 4)) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
       for (const t of ticks(t0, t1, 6)) { ctx.beginPath(); ctx.moveTo(X(t), T); ctx.lineTo(X(t), T + ph); ctx.stroke(); ctx.fillText(fmt(t) + " s", X(t) - 10, H - 5); }
       for (const s of series) {
         ctx.strokeStyle = s.color; ctx.lineWidth = 1.3; ctx.beginPath();
@@ -623,8 +632,9 @@
     const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c));
     for (const c of pointing) knowledge.push({ col: c, label: c, color: "#63e6be" });
     plots.push(new Plot("pointing and knowledge error (arcsec)", knowledge, { log: true }));
-    const dip = cols.filter((c) => c.endsWith(".dipole_B") || c === "dipole_cmd_B");
-    plots.push(new Plot("dipole (A m²)", dip.flatMap((c, n) => comp.map((a, j) => ({ col: c, idx: j, label: `${c} ${a}`, color: n ? ["#c92a2a", "#2b8a3e", "#1864ab"][j] : ccol[j] })))));
+    // What the coils produced (the commanded dipole when no device reports one).
+    const produced = cols.filter((c) => c.endsWith(".dipole_B")), dip = produced.length ? produced : cols.filter((c) => c === "dipole_cmd_B");
+    plots.push(new Plot(`dipole ${dip.join(", ")} (A m²)`, dip.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
     const wheels = cols.filter((c) => /(wheel|rw).*(speed|omega)|\.speed/.test(c));
     plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
@@ -761,6 +771,7 @@
     S.live = S.meta.mode === "live"; S.status = S.meta.status;
     $("scenario").textContent = S.meta.scenario;
     $("mode").textContent = S.live ? "LIVE" : "REPLAY"; $("mode").className = "badge " + (S.live ? "live" : "");
+    $("status").hidden = !S.live;
     $("control").hidden = !S.live; $("token").hidden = !S.meta.token_required;
     $("follow").parentElement.hidden = !S.live;
     const [samples] = await Promise.all([getJSON("/api/samples"), loadStars(),
