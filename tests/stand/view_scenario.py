@@ -93,7 +93,7 @@ earth_exclusion_deg = 20.0
 name = "fss"
 kind = "sun_sensor"
 type = "fine"
-q_SB = [0.70710678118654752, 0.0, 0.70710678118654752, 0.0]
+q_SB = [0.86602540378443865, 0.0, 0.5, 0.0]  # boresight 30 deg from the tracker's, toward body +z
 rate_hz = 1.0
 fov_half_deg = 60.0
 
