@@ -131,13 +131,14 @@ def cmd_run(args) -> int:
                         print(f"stand: live view at {live.start(sc, out)} (Ctrl-C stops the run)", flush=True)
                     except ViewError as exc:
                         return fail(str(exc))
+                result = None
                 try:
                     result = run(scene, out, speed=speed, duration_s=args.duration,
                                  progress=args.progress if args.progress is not None else sys.stderr.isatty(),
                                  observer=live.observer if live is not None else None)
                 finally:
                     if live is not None:
-                        live.close()
+                        live.close(result.status if result is not None else "aborted")
                 signals.defer()
             summary = write_summary(scene, result, out)
     except OSError as exc:

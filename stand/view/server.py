@@ -16,11 +16,13 @@ from __future__ import annotations
 import asyncio
 import hmac
 import json
+import os
 import socket
 import threading
 import time
 from pathlib import Path
 
+import numpy as np
 from aiohttp import WSMsgType, web
 
 from . import state
@@ -276,17 +278,79 @@ class ViewServer:
         return web.json_response({"status": status})
 
 
+class PipeLink:
+    """The feed's end of the pipe to the server process (used from the feed's sender thread only)."""
+
+    def __init__(self, conn):
+        self.conn = conn
+
+    def send(self, message) -> None:
+        kind, rows = message
+        self.conn.send_bytes(b"R" + np.ascontiguousarray(rows, dtype="<f8").tobytes())
+
+    def receive(self) -> list:
+        out = []
+        while self.conn.poll(0):
+            out.append(self.conn.recv())
+        return out
+
+
+def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
+    """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``F`` + the
+    run's status when it ended, ``C`` to end the process; control commands go back as Python objects."""
+    lock = threading.Lock()
+
+    def control(command):
+        with lock:
+            conn.send(command)
+
+    source = state.LiveSource(run_dir, meta, control)
+    try:
+        view = ViewServer(source, host, port, token)
+        url = view.start()
+    except ViewError as exc:
+        conn.send_bytes(b"error " + str(exc).encode())
+        return
+    conn.send_bytes(b"ready " + url.encode())
+    width = None
+    try:
+        while True:
+            if not conn.poll(1.0):
+                if os.getppid() == 1:  # the run's process is gone
+                    break
+                continue
+            data = conn.recv_bytes()
+            tag, data = data[:1], data[1:]
+            if tag == b"F":
+                source.finished(data.decode())
+                continue
+            if tag == b"C":
+                break
+            if width is None:
+                cols = source._schema()
+                width = sum(int(c["width"]) for c in cols) if cols else None
+            if width:
+                source.ingest(np.frombuffer(data, dtype="<f8").reshape(-1, width))
+    except (EOFError, OSError):
+        pass
+    finally:
+        view.close(linger_s=0.5 if view.sockets else 0.0)
+
+
 class LiveSession:
-    """``stand run --view``: the live feed (the loop's observer) and its server, for one run."""
+    """``stand run --view``: the live feed (the loop's observer) in the run's process and the server in a process
+    of its own, joined by a pipe, so deriving, encoding and serving never take the run's interpreter lock."""
 
     def __init__(self, host: str, port: int, token: str | None):
-        self.host, self.port, self.token = host, port, token
         if host != LOCAL and not token:
             raise ViewError(f"--view {host}:{port} is not allowed without a token: pass --view-token or set "
                             "STAND_VIEW_TOKEN (anyone who can reach the page could otherwise stop the run); "
                             "127.0.0.1 needs none.")
+        self.host, self.port, self.token = host, port, token
         self.feed: state.LiveFeed | None = None
-        self.server: ViewServer | None = None
+        self.process = None
+        self.conn = None
+        self.url: str | None = None
 
     @classmethod
     def from_args(cls, bind: str, token: str | None) -> LiveSession:
@@ -294,20 +358,52 @@ class LiveSession:
         return cls(host, port, token)
 
     def start(self, sc, run_dir) -> str:
-        """Write ``view.json``, start the feed and the server; returns the page's URL."""
+        """Write ``view.json``, start the server process and the feed; returns the page's URL."""
+        import multiprocessing
+
         state.write_view_json(sc, run_dir)
-        self.feed = state.LiveFeed(run_dir, state.describe(sc))
-        self.server = ViewServer(self.feed, self.host, self.port, self.token)
-        url = self.server.start()
+        meta = state.describe(sc)
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process whose buses have threads
+        self.conn, child = ctx.Pipe(duplex=True)
+        self.process = ctx.Process(target=serve_live, name="stand-view",
+                                   args=(child, str(run_dir), meta, self.host, self.port, self.token), daemon=True)
+        self.process.start()
+        child.close()
+        if not self.conn.poll(START_TIMEOUT_S * 3):
+            self._end()
+            raise ViewError(f"the view server did not start within {START_TIMEOUT_S * 3:g} s.")
+        try:
+            reply = self.conn.recv_bytes().decode()
+        except (EOFError, OSError):
+            reply = "error the view server's process ended before it could serve (see its error above)."
+        if not reply.startswith("ready "):
+            self._end()
+            raise ViewError(reply.split(" ", 1)[1])
+        self.url = reply.split(" ", 1)[1]
+        self.feed = state.LiveFeed(PipeLink(self.conn), meta)
         self.feed.start()
-        return url
+        return self.url
 
     @property
     def observer(self):
         return self.feed
 
-    def close(self, run_status: str = "finished", linger_s: float = 1.0) -> None:
-        if self.feed is not None:
-            self.feed.finish(run_status)
-        if self.server is not None:
-            self.server.close(linger_s=linger_s if self.server.sockets else 0.0)
+    def close(self, run_status: str = "completed") -> None:
+        """Send what is left, tell the pages the run ended, and stop the server process (bounded waits)."""
+        try:
+            if self.feed is not None:
+                self.feed.finish()
+                self.conn.send_bytes(b"F" + run_status.encode())
+                self.conn.send_bytes(b"C")
+        except (OSError, EOFError, ValueError):
+            pass  # the server process already went away
+        self._end()
+
+    def _end(self) -> None:
+        if self.process is not None:
+            self.process.join(timeout=10.0)
+            if self.process.is_alive():
+                self.process.terminate()
+                self.process.join(timeout=5.0)
+        if self.conn is not None:
+            self.conn.close()

@@ -254,37 +254,29 @@ def split_rows(rows, columns: list[dict]) -> dict:
 
 
 class LiveFeed:
-    """The loop's observer during ``stand run --view``, and the page's source of samples.
+    """The loop's observer during ``stand run --view``: the loop's side of the live page.
 
     The loop calls :meth:`record` for every telemetry row (it appends a reference to the row and returns: no
-    copy, no lock, no numpy) and :meth:`poll_control` a few times per second. A sender thread wakes
-    ``push_hz`` times a second, takes the rows appended since, keeps those at least ``duration / max_samples``
-    apart (and the newest), derives the sky for them and hands the batch to the listeners (the server's
-    websockets). Control requests from the page arrive through :meth:`request`.
+    copy, no lock, no numpy) and :meth:`poll_control` a few times per second. A sender thread wakes ``push_hz``
+    times a second, keeps the rows appended since that are at least ``duration / max_samples`` apart (and the
+    newest), and hands them as one array to ``link.send(("rows", array))``; ``link.receive()`` returns the control
+    commands that arrived from the page since the last call. Deriving the sky, encoding and serving happen at the
+    other end of the link (:class:`LiveSource`, in the server's own process for ``stand run --view``), so they
+    never hold this process's interpreter lock while the loop runs.
     """
 
-    mode = "live"
-
-    def __init__(self, run_dir, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES):
-        self.run_dir = Path(run_dir)
-        self.meta = meta
-        self.sky = Sky(meta)
+    def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES):
+        self.link = link
         self.rows: list = []
         self.push_period_s = 1.0 / push_hz
         self.spacing_s = max(meta["duration_s"] / max_samples, 1.0 / meta.get("record_rate_hz", 10.0))
         self._control: str | None = None
-        self.status = "starting"
-        self._columns: list[dict] | None = None
         self._taken = 0
         self._next_t = -math.inf
-        self._history: list[dict] = []  # derived batches, in order
-        self._events: list[dict] = []
-        self._events_pos = 0
-        self.listeners: list = []  # callables(message dict), called on the sender thread
         self.pushes = 0
+        self.error: str | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._lock = threading.Lock()
 
     # -- the loop's side (hot path: keep it to an append) -------------------------------------------------
     def record(self, t_s: float, row: tuple) -> None:
@@ -293,43 +285,90 @@ class LiveFeed:
     def poll_control(self) -> str | None:
         return self._control
 
-    # -- the page's side ---------------------------------------------------------------------------------
-    def request(self, command: str) -> str:
-        """``pause``, ``resume`` or ``stop`` from the page; returns the new status."""
-        if command not in ("pause", "resume", "stop"):
-            raise ValueError(f"control command {command!r} is not one of pause, resume, stop.")
-        if self.status in ("finished",):
-            return self.status
-        if command == "stop":
-            self._control, self.status = "stop", "stopping"
-        elif command == "pause" and self._control != "stop":
-            self._control, self.status = "pause", "paused"
-        elif command == "resume" and self._control == "pause":
-            self._control, self.status = None, "running"
-        self._notify({"type": "status", "status": self.status})
-        return self.status
-
+    # -- the sender ----------------------------------------------------------------------------------------
     def start(self) -> None:
-        self.status = "running"
         self._thread = threading.Thread(target=self._run, name="view-sender", daemon=True)
         self._thread.start()
 
-    def finish(self, status: str = "finished") -> None:
-        """The run ended: push what is left, then stop the sender (bounded wait)."""
+    def finish(self) -> None:
+        """The run ended: stop the sender (bounded wait) and send what is left."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10.0)
-        self._push()
-        self.status = "finished"
-        self._notify({"type": "status", "status": "finished", "run_status": status})
+        self.push()
 
     def _run(self) -> None:
         while not self._stop.wait(self.push_period_s):
             try:
-                self._push()
-            except Exception as exc:  # the page must never end the run; say what went wrong once
-                self._notify({"type": "error", "message": f"live view: {type(exc).__name__}: {exc}"})
-                self._stop.wait(1.0)
+                self.push()
+            except (OSError, EOFError, ValueError) as exc:  # the page's end went away: the run goes on without it
+                self.error = f"live view stopped: {type(exc).__name__}: {exc}"
+                return
+
+    def push(self) -> None:
+        for command in self.link.receive():
+            self._control = command
+        n = len(self.rows)
+        new, self._taken = self.rows[self._taken:n], n
+        if not new:
+            return
+        keep = []
+        nxt = self._next_t
+        for row in new:
+            if row[0] >= nxt:
+                keep.append(row)
+                nxt = row[0] + self.spacing_s
+        if keep and keep[-1] is not new[-1]:
+            keep.append(new[-1])  # the newest row is always shown
+        self._next_t = nxt
+        self.link.send(("rows", np.asarray(keep, dtype=float)))
+        self.pushes += 1
+
+
+class LiveSource:
+    """The page's side of a live run: derives what the page draws from the rows the feed sends, keeps the history
+    for pages that open mid-run, tails the event log, and turns the page's pause, resume and stop into control
+    commands (``control(command)``, sent back to the feed)."""
+
+    mode = "live"
+
+    def __init__(self, run_dir, meta: dict, control=None):
+        self.run_dir = Path(run_dir)
+        self.meta = meta
+        self.sky = Sky(meta)
+        self.control = control or (lambda command: None)
+        self.status = "running"
+        self._columns: list[dict] | None = None
+        self._history: list[dict] = []
+        self._events: list[dict] = []
+        self._events_pos = 0
+        self.listeners: list = []  # callables(message dict)
+        self.pushes = 0
+        self._lock = threading.Lock()
+
+    def request(self, command: str) -> str:
+        """``pause``, ``resume`` or ``stop`` from the page; returns the new status."""
+        if command not in ("pause", "resume", "stop"):
+            raise ValueError(f"control command {command!r} is not one of pause, resume, stop.")
+        if self.status in ("finished", "stopping"):
+            return self.status
+        if command == "stop":
+            self.status = "stopping"
+            self.control("stop")
+        elif command == "pause":
+            self.status = "paused"
+            self.control("pause")
+        elif command == "resume" and self.status == "paused":
+            self.status = "running"
+            self.control(None)
+        self._notify({"type": "status", "status": self.status})
+        return self.status
+
+    def finished(self, run_status: str = "completed") -> None:
+        events = self._new_events()
+        self.status = "finished"
+        self._notify({"type": "status", "status": "finished", "run_status": run_status,
+                      **({"events": events} if events else {})})
 
     def _schema(self) -> list[dict] | None:
         if self._columns is None:
@@ -338,26 +377,16 @@ class LiveFeed:
                 self._columns = json.loads(path.read_text())["columns"]
         return self._columns
 
-    def _push(self) -> None:
+    def ingest(self, rows: np.ndarray) -> None:
+        """New rows (already thinned by the feed): derive, keep, and push to the pages."""
+        cols = self._schema()
+        if cols is None or not len(rows):
+            return
         with self._lock:
-            n = len(self.rows)
-            new, self._taken = self.rows[self._taken:n], n
-            events = self._new_events()
-            cols = self._schema()
-            if not new or cols is None:
-                if events:
-                    self._notify({"type": "events", "events": events})
-                return
-            keep = []
-            for i, row in enumerate(new):
-                if row[0] >= self._next_t or i == len(new) - 1:
-                    keep.append(row)
-                    if row[0] >= self._next_t:
-                        self._next_t = row[0] + self.spacing_s
-            # The newest row is always shown; it stays in the history only if it falls on the spacing.
-            derived = self.sky.derive(split_rows(keep, cols))
+            derived = self.sky.derive(split_rows(rows, cols))
             self._history.append(derived)
             self.pushes += 1
+            events = self._new_events()
         self._notify({"type": "samples", "samples": encode(derived), "status": self.status,
                       **({"events": events} if events else {})})
 
@@ -384,10 +413,30 @@ class LiveFeed:
             listener(message)
 
     def snapshot(self) -> tuple[dict, list[dict]]:
-        """Every sample pushed so far (one table) and every event, for a page that opens mid-run."""
+        """Every sample so far (one table) and every event, for a page that opens mid-run."""
         with self._lock:
+            self._new_events()
             if not self._history:
                 return {}, list(self._events)
             keys = self._history[0].keys()
             merged = {k: np.concatenate([np.asarray(h[k]) for h in self._history]) for k in keys}
             return merged, list(self._events)
+
+
+class LocalLink:
+    """Feed and source in one process (tests, the bench's in-process comparison): rows go straight to the
+    source; the source's control commands come straight back."""
+
+    def __init__(self, source: LiveSource):
+        self.source = source
+        self.inbox: list = []
+        source.control = self.inbox.append
+
+    def send(self, message) -> None:
+        kind, rows = message
+        self.source.ingest(rows)
+
+    def receive(self) -> list:
+        out = list(self.inbox)
+        self.inbox.clear()
+        return out

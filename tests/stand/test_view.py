@@ -94,30 +94,41 @@ def test_inverse_projection_round_trips(kind):
     assert np.max(np.linalg.norm(back - u, axis=1)) < 1e-9
 
 
-def test_live_feed_decimates_and_controls(run_dir):
+def test_live_feed_decimates_and_the_source_controls(run_dir):
     meta = state.load_meta(run_dir)
     tel = load(run_dir)
     schema = json.loads((run_dir / "telemetry" / "schema.json").read_text())["columns"]
-    width = sum(c["width"] for c in schema)
     flat = np.column_stack([np.asarray(tel[c["name"]]).reshape(len(tel["t_s"]), -1) for c in schema])
-    assert flat.shape[1] == width
-    feed = state.LiveFeed(run_dir, {**meta, "duration_s": 60.0}, max_samples=120)  # one sample per 0.5 s
+    assert flat.shape[1] == sum(c["width"] for c in schema)
+    source = state.LiveSource(run_dir, meta)
+    feed = state.LiveFeed(state.LocalLink(source), {**meta, "duration_s": 60.0}, max_samples=120)  # 0.5 s apart
     got = []
-    feed.listeners.append(got.append)
-    for row in flat[:301]:
+    source.listeners.append(got.append)
+    for row in flat[:150]:
         feed.record(row[0], tuple(row))
-    feed._push()
-    samples, _ = feed.snapshot()
+    feed.push()
+    for row in flat[150:301]:
+        feed.record(row[0], tuple(row))
+    feed.push()
+    samples, events = source.snapshot()
     assert samples["t_s"][0] == 0.0 and samples["t_s"][-1] == pytest.approx(30.0)
-    assert np.allclose(np.diff(samples["t_s"]), 0.5)
-    assert got[-1]["type"] == "samples" and got[-1]["samples"]["t_s"]["shape"] == [61, 1]
+    # every 0.5 s, plus the newest row of the first push (14.9 s) shown at once
+    assert np.allclose(samples["t_s"], np.sort(np.append(np.arange(0.0, 30.01, 0.5), 14.9)))
+    assert got[-1]["type"] == "samples" and got[-1]["samples"]["t_s"]["shape"] == [31, 1]
+    assert events[0]["kind"] == "start"
     assert feed.poll_control() is None
-    assert feed.request("pause") == "paused" and feed.poll_control() == "pause"
-    assert feed.request("resume") == "running" and feed.poll_control() is None
-    assert feed.request("stop") == "stopping" and feed.poll_control() == "stop"
-    assert feed.request("resume") == "stopping"  # a stop is not taken back
+    assert source.request("pause") == "paused"
+    feed.push()
+    assert feed.poll_control() == "pause"
+    assert source.request("resume") == "running"
+    feed.push()
+    assert feed.poll_control() is None
+    assert source.request("stop") == "stopping"
+    feed.push()
+    assert feed.poll_control() == "stop"
+    assert source.request("resume") == "stopping"  # a stop is not taken back
     with pytest.raises(ValueError, match="not one of pause, resume, stop"):
-        feed.request("reboot")
+        source.request("reboot")
 
 
 class _Stopper:
@@ -187,21 +198,22 @@ def test_replay_server_serves_the_page_and_its_data(run_dir):
 def test_live_control_from_the_bound_host_only_or_with_the_token(run_dir):
     meta = state.load_meta(run_dir)
     js = {"Content-Type": "application/json"}
-    feed = state.LiveFeed(run_dir, meta)
+    feed = state.LiveSource(run_dir, meta)
     with server.ViewServer(feed) as view:
         assert _get(view.url + "api/control", b'{"command": "pause"}', js) == (200, b'{"status": "paused"}')
         evil = _get(view.url + "api/control", b'{"command": "stop"}', {**js, "Origin": "http://example.org"})
         assert evil[0] == 403 and b"Origin" in evil[1]
         assert _get(view.url + "api/control", b'{"command": "stop"}', {"Content-Type": "text/plain"})[0] == 403
     with pytest.raises(server.ViewError, match="without a token"):
-        server.ViewServer(state.LiveFeed(run_dir, meta), host="127.0.0.2")
-    feed = state.LiveFeed(run_dir, meta)
+        server.ViewServer(state.LiveSource(run_dir, meta), host="127.0.0.2")
+    commands = []
+    feed = state.LiveSource(run_dir, meta, control=commands.append)
     with server.ViewServer(feed, host="127.0.0.2", token="s3cret") as view:
         assert view.url.startswith("http://127.0.0.2:")
         assert _get(view.url + "api/control", b'{"command": "pause"}', js)[0] == 403
         assert _get(view.url + "api/control", b'{"command": "pause"}', {**js, "X-Stand-Token": "wrong"})[0] == 403
         assert _get(view.url + "api/control", b'{"command": "pause"}', {**js, "X-Stand-Token": "s3cret"})[0] == 200
-        assert feed.poll_control() == "pause"
+        assert commands == ["pause"]
 
 
 def test_run_view_elsewhere_needs_a_token(tmp_path, capsys):

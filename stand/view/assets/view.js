@@ -337,7 +337,7 @@
   }
 
   function drawEarth(ctx, M, P, W, H, r, sunN, i) {
-    const sc = 2, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
+    const sc = 3, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
     if (!pano.earth || pano.earth.width !== w || pano.earth.height !== h) {
       pano.earth = document.createElement("canvas"); pano.earth.width = w; pano.earth.height = h;
       pano.earthCtx = pano.earth.getContext("2d");
@@ -459,23 +459,28 @@
     ctx.fillStyle = "#0b1a2e"; ctx.fillRect(0, 0, W, H);
     if (i < 0) return;
     if (S.land) {
-      ctx.fillStyle = "rgb(52,84,62)"; ctx.strokeStyle = "rgba(140,200,150,0.8)"; ctx.lineWidth = 0.8;
-      for (const ring of S.land) {
-        // Rings crossing the date line are unwrapped and drawn again one turn to each side (the canvas clips).
-        const xs = [], ys = [];
-        let lon0 = ring[0];
-        for (let k = 0; k < ring.length; k += 2) {
-          let lon = ring[k];
-          while (lon - lon0 > 180) lon -= 360;
-          while (lon - lon0 < -180) lon += 360;
-          lon0 = lon; xs.push(X(lon)); ys.push(Y(ring[k + 1]));
-        }
-        for (const shift of [-W, 0, W]) {
-          ctx.beginPath();
-          xs.forEach((x, k) => (k ? ctx.lineTo(x + shift, ys[k]) : ctx.moveTo(x + shift, ys[k])));
-          ctx.fill(); ctx.stroke();
+      if (!S.landLayer || S.landLayer.width !== W) {  // the continents do not move: drawn once
+        const layer = S.landLayer = document.createElement("canvas"); layer.width = W; layer.height = H;
+        const lc = layer.getContext("2d");
+        lc.fillStyle = "rgb(52,84,62)"; lc.strokeStyle = "rgba(140,200,150,0.8)"; lc.lineWidth = 0.8;
+        for (const ring of S.land) {
+          // Rings crossing the date line are unwrapped and drawn again one turn to each side (the canvas clips).
+          const xs = [], ys = [];
+          let lon0 = ring[0];
+          for (let k = 0; k < ring.length; k += 2) {
+            let lon = ring[k];
+            while (lon - lon0 > 180) lon -= 360;
+            while (lon - lon0 < -180) lon += 360;
+            lon0 = lon; xs.push(X(lon)); ys.push(Y(ring[k + 1]));
+          }
+          for (const shift of [-W, 0, W]) {
+            lc.beginPath();
+            xs.forEach((x, k) => (k ? lc.lineTo(x + shift, ys[k]) : lc.moveTo(x + shift, ys[k])));
+            lc.fill(); lc.stroke();
+          }
         }
       }
+      ctx.drawImage(S.landLayer, 0, 0);
     }
     // night by the sub-solar point, as a translucent layer
     const CEN = dcm(st.get("q_EN", i)), sE = mv(CEN, st.get("sun_N", i)), nw = W >> 2, nh = H >> 2;
@@ -486,7 +491,7 @@
       for (let x = 0; x < nw; x++) {
         const lon = ((x + 0.5) / nw * 360 - 180) * D2R;
         const c = Math.cos(lat) * Math.cos(lon) * sE[0] + Math.cos(lat) * Math.sin(lon) * sE[1] + Math.sin(lat) * sE[2];
-        px[4 * (y * nw + x) + 3] = 150 * Math.max(0, Math.min(1, (0.05 - c) / 0.1));
+        px[4 * (y * nw + x) + 3] = 175 * Math.max(0, Math.min(1, (0.05 - c) / 0.1));
       }
     }
     nctx.putImageData(img, 0, 0);
@@ -498,16 +503,21 @@
     // the track, sunlit or in the Earth's shadow; past solid, future faint
     const lat = st.cols.lat_deg.data, lon = st.cols.lon_deg.data, nu = st.cols.sun_fraction ? st.cols.sun_fraction.data : null;
     ctx.lineWidth = 2;
-    for (let k = 1; k < st.n; k++) {
-      if (Math.abs(lon[k] - lon[k - 1]) > 180) continue;
-      const lit = !nu || nu[k] > 0.5, alpha = k <= i ? 1 : 0.3;
-      ctx.strokeStyle = lit ? `rgba(255,204,51,${alpha})` : `rgba(120,140,185,${alpha})`;
-      ctx.beginPath(); ctx.moveTo(X(lon[k - 1]), Y(lat[k - 1])); ctx.lineTo(X(lon[k]), Y(lat[k])); ctx.stroke();
+    for (const [lit, past, col] of [[true, false, "rgba(255,204,51,0.3)"], [false, false, "rgba(120,140,185,0.3)"],
+      [true, true, "rgb(255,204,51)"], [false, true, "rgb(120,140,185)"]]) {
+      ctx.strokeStyle = col; ctx.beginPath();
+      for (let k = 1; k < st.n; k++) {
+        if (Math.abs(lon[k] - lon[k - 1]) > 180 || (!nu || nu[k] > 0.5) !== lit || (k <= i) !== past) continue;
+        ctx.moveTo(X(lon[k - 1]), Y(lat[k - 1])); ctx.lineTo(X(lon[k]), Y(lat[k]));
+      }
+      ctx.stroke();
     }
     const x = X(lon[i]), y = Y(lat[i]);
     ctx.fillStyle = "#fff"; ctx.strokeStyle = "#000"; ctx.lineWidth = 2;
     ctx.beginPath(); ctx.arc(x, y, 6, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-    label(ctx, `${lat[i].toFixed(2)}°, ${lon[i].toFixed(2)}°`, x + 9, y - 6, "#fff");
+    const text = `${lat[i].toFixed(2)}°, ${lon[i].toFixed(2)}°`;
+    ctx.font = "12px system-ui, sans-serif";
+    label(ctx, text, x + 9 + ctx.measureText(text).width > W - 4 ? x - 13 - ctx.measureText(text).width : x + 9, y - 6, "#fff");
     const subsolar = [Math.asin(sE[2]) * R2D, Math.atan2(sE[1], sE[0]) * R2D];
     ctx.fillStyle = COLORS.sun; ctx.beginPath(); ctx.arc(X(subsolar[1]), Y(subsolar[0]), 5, 0, 2 * Math.PI); ctx.fill();
   }
@@ -534,11 +544,25 @@
       return v * (s.scale || 1);
     }
     draw() {
-      const cv = this.canvas, ctx = cv.getContext("2d"), W = cv.width, H = cv.height, st = S.store;
+      // The data layer is drawn again only when samples arrived; moving in time only moves the cursor.
+      const st = S.store, key = `${st.n}`;
+      if (!this.layer || this.key !== key) {
+        this.layer = this.layer || document.createElement("canvas");
+        this.layer.width = this.canvas.width; this.layer.height = this.canvas.height;
+        this.key = key; this.drawData(this.layer);
+      }
+      const ctx = this.canvas.getContext("2d");
+      ctx.drawImage(this.layer, 0, 0);
+      if (S.i >= 0 && this.X) { ctx.strokeStyle = "#f0f6fc"; ctx.lineWidth = 1; ctx.beginPath(); ctx.moveTo(this.X(S.t), 8); ctx.lineTo(this.X(S.t), this.canvas.height - 20); ctx.stroke(); }
+      const series = this.series.filter((s) => st.cols[s.col]);
+      this.val.textContent = series.map((s) => `${s.label} ${fmt(this.value(s, Math.max(0, S.i)))}`).join("  ");
+    }
+    drawData(cv) {
+      const ctx = cv.getContext("2d"), W = cv.width, H = cv.height, st = S.store;
       const L = 46, Rm = 10, T = 8, B = 20, pw = W - L - Rm, ph = H - T - B;
       ctx.fillStyle = "#0b0f14"; ctx.fillRect(0, 0, W, H);
       const series = this.series.filter((s) => st.cols[s.col]);
-      if (!st.n || !series.length) { ctx.fillStyle = "#555"; ctx.font = "12px system-ui"; ctx.fillText("not recorded in this run", L + 10, H / 2); return; }
+      if (!st.n || !series.length) { this.X = null; ctx.fillStyle = "#555"; ctx.font = "12px system-ui"; ctx.fillText("not recorded in this run", L + 10, H / 2); return; }
       const t0 = st.t(0), t1 = Math.max(st.t(st.n - 1), this.opts.tEnd || 0, t0 + 1e-6);
       this.t0 = t0; this.t1 = t1;
       let lo = Infinity, hi = -Infinity;
@@ -548,6 +572,7 @@
       if (hi - lo < 1e-12) { hi += 0.5; lo -= 0.5; }
       const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
       const X = (t) => L + (t - t0) / (t1 - t0) * pw, Y = (v) => T + (hi - v) / (hi - lo) * ph;
+      this.X = X;
       ctx.strokeStyle = "#222a33"; ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui"; ctx.lineWidth = 1;
       for (const v of ticks(lo, hi, 4)) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
       for (const t of ticks(t0, t1, 6)) { ctx.beginPath(); ctx.moveTo(X(t), T); ctx.lineTo(X(t), T + ph); ctx.stroke(); ctx.fillText(fmt(t) + " s", X(t) - 10, H - 5); }
@@ -569,12 +594,9 @@
         ctx.strokeStyle = "rgba(255,90,90,0.7)"; ctx.setLineDash([5, 4]); ctx.beginPath(); ctx.moveTo(L, Y(yv)); ctx.lineTo(W - Rm, Y(yv)); ctx.stroke(); ctx.setLineDash([]);
         ctx.fillStyle = "rgba(255,120,120,0.9)"; ctx.fillText(text, W - Rm - ctx.measureText(text).width - 2, Y(yv) - 3);
       }
-      // the cursor and the legend
-      if (S.i >= 0) { ctx.strokeStyle = "#f0f6fc"; ctx.beginPath(); ctx.moveTo(X(S.t), T); ctx.lineTo(X(S.t), T + ph); ctx.stroke(); }
       let lx = L + 6;
       ctx.font = "11px system-ui";
       for (const s of series) { ctx.fillStyle = s.color; ctx.fillText(s.label, lx, T + 12); lx += ctx.measureText(s.label).width + 12; }
-      this.val.textContent = series.map((s) => `${s.label} ${fmt(this.value(s, Math.max(0, S.i)))}`).join("  ");
     }
   }
 
@@ -587,19 +609,33 @@
       box.appendChild(this.canvas); $("plots").appendChild(box);
     }
     draw() {
-      const cv = this.canvas, ctx = cv.getContext("2d"), W = cv.width, H = cv.height, st = S.store, L = 46, pw = W - L - 10;
+      const st = S.store, ctx = this.canvas.getContext("2d");
+      if (!this.layer || this.key !== st.n) {
+        this.layer = this.layer || document.createElement("canvas");
+        this.layer.width = this.canvas.width; this.layer.height = this.canvas.height;
+        this.key = st.n; this.drawData(this.layer);
+      }
+      ctx.drawImage(this.layer, 0, 0);
+      if (this.X) { ctx.strokeStyle = "#f0f6fc"; ctx.lineWidth = 1; ctx.beginPath(); ctx.moveTo(this.X(S.t), 2); ctx.lineTo(this.X(S.t), this.canvas.height - 14); ctx.stroke(); }
+    }
+    drawData(cv) {
+      const ctx = cv.getContext("2d"), W = cv.width, H = cv.height, st = S.store, L = 46, pw = W - L - 10;
       ctx.fillStyle = "#0b0f14"; ctx.fillRect(0, 0, W, H);
       if (!st.n) return;
       const t0 = st.t(0), t1 = Math.max(st.t(st.n - 1), t0 + 1e-6), X = (t) => L + (t - t0) / (t1 - t0) * pw;
+      this.X = X;
       this.devs.forEach((dev, r) => {
         const y = 6 + 22 * r;
         ctx.fillStyle = "#7d8590"; ctx.font = "11px system-ui"; ctx.fillText(dev.name, 2, y + 13);
-        for (let k = 0; k < st.n; k++) {
-          const x0 = X(st.t(k)), x1 = k + 1 < st.n ? X(st.t(k + 1)) : x0 + 1;
-          ctx.fillStyle = deviceState(dev, k).color; ctx.fillRect(x0, y, Math.max(1, x1 - x0), 16);
+        let k0 = 0, c0 = deviceState(dev, 0).color;  // runs of one state as one rectangle
+        for (let k = 1; k <= st.n; k++) {
+          const c = k < st.n ? deviceState(dev, k).color : null;
+          if (c === c0) continue;
+          const x0 = X(st.t(k0)), x1 = k < st.n ? X(st.t(k)) : X(st.t(st.n - 1)) + 1;
+          ctx.fillStyle = c0; ctx.fillRect(x0, y, Math.max(1, x1 - x0), 16);
+          k0 = k; c0 = c;
         }
       });
-      ctx.strokeStyle = "#f0f6fc"; ctx.beginPath(); ctx.moveTo(X(S.t), 2); ctx.lineTo(X(S.t), H - 4); ctx.stroke();
       ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui";
       for (const t of ticks(t0, t1, 6)) ctx.fillText(fmt(t) + " s", X(t) - 10, H - 4);
     }
@@ -672,10 +708,11 @@
     const t0 = performance.now();
     S.i = S.store.index(S.t);
     if (S.i >= 0) S.t = Math.max(S.t, S.store.t(S.i));
-    drawPanorama(); drawAttitude(); drawGround();
-    for (const p of S.plots || []) p.draw();
-    if (S.strip) S.strip.draw();
-    drawEvents(false);
+    const parts = S.stats.parts = {};
+    const timed = (name, fn) => { const a = performance.now(); fn(); parts[name] = +(performance.now() - a).toFixed(1); };
+    timed("panorama", drawPanorama); timed("attitude", drawAttitude); timed("ground", drawGround);
+    timed("plots", () => { for (const p of S.plots || []) p.draw(); if (S.strip) S.strip.draw(); });
+    timed("events", () => drawEvents(false));
     header();
     const now = performance.now();
     S.stats.draws++; S.stats.lastDrawMs = now - t0;

@@ -1,0 +1,206 @@
+"""``stand bench view``: what the operator page costs and how fast it answers.
+
+* the loop's speed with and without an open live page: the default scenario as fast as possible, alternately
+  with no observer and with ``--view``'s live feed and server and a page open in headless Chromium (or, where
+  Chromium is not installed, a websocket client that decodes every push, and the row says so); the best of
+  several runs each, since this machine's load moves single runs by 10-30 %;
+* the page's update rate during a live run (pushes received and redraws per second of wall time);
+* the time to first draw of a replay of the default run (from the page's navigation start to its first full
+  drawing, the server deriving the sky for the whole run included).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import shutil
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+#: The slowdown the page may cost the loop, percent (the issue's limit).
+LIMIT_PERCENT = 5.0
+
+
+class Browser:
+    """Headless Chromium through selenium, or None when either is missing."""
+
+    @staticmethod
+    def open():
+        chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+        driver = shutil.which("chromedriver")
+        if not (chromium and driver):
+            return None
+        try:
+            from selenium import webdriver
+            from selenium.webdriver.chrome.service import Service
+        except ImportError:
+            return None
+        profile = tempfile.mkdtemp(prefix="stand-bench-chromium-")
+        opts = webdriver.ChromeOptions()
+        opts.binary_location = chromium
+        for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                     "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
+                     "--window-size=1600,1400"):
+            opts.add_argument(flag)
+        d = webdriver.Chrome(service=Service(driver), options=opts)
+        d.set_page_load_timeout(60)
+        d._stand_profile = profile
+        return d
+
+    @staticmethod
+    def close(d) -> None:
+        if d is not None:
+            d.quit()
+            shutil.rmtree(d._stand_profile, ignore_errors=True)
+
+
+def _wait(d, script: str, timeout_s: float = 60.0):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        v = d.execute_script(script)
+        if v:
+            return v
+        time.sleep(0.05)
+    raise TimeoutError(f"the page did not answer {script!r} within {timeout_s:g} s")
+
+
+class SocketPage:
+    """Stands in for a page where there is no browser: a websocket client that decodes every push."""
+
+    def __init__(self, url: str):
+        self.url = url.replace("http://", "ws://") + "ws"
+        self.messages = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._run()), daemon=True)
+        self._thread.start()
+
+    async def _run(self):
+        import aiohttp
+
+        async with aiohttp.ClientSession() as s, s.ws_connect(self.url) as ws:
+            while not self._stop.is_set():
+                try:
+                    msg = await ws.receive(timeout=0.2)
+                except TimeoutError:
+                    continue
+                if msg.type != aiohttp.WSMsgType.TEXT:
+                    break
+                json.loads(msg.data)
+                self.messages += 1
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def _run_once(sc, out: Path, browser, with_page: bool) -> tuple[float, dict]:
+    from stand.compose import build
+    from stand.loop import run
+    from stand.view.server import LiveSession
+
+    stats: dict = {}
+    with build(sc) as scene:
+        out.mkdir(parents=True)
+        live = page = None
+        if with_page:
+            live = LiveSession("127.0.0.1", 0, None)
+            url = live.start(sc, out)
+            if browser is not None:
+                browser.get(url)
+                _wait(browser, "return !!(window.standView && window.standView.loaded)")
+            else:
+                page = SocketPage(url)
+                time.sleep(0.5)
+        t0 = time.perf_counter()
+        try:
+            run(scene, out, progress=False, observer=live.observer if live else None)
+        finally:
+            wall = time.perf_counter() - t0
+            if live is not None:
+                live.close()
+                stats["pushes_sent"] = live.feed.pushes
+                if browser is not None:
+                    s = browser.execute_script("const s = window.standView.stats; return {pushes: s.pushes, "
+                                               "draws: s.draws, last_draw_ms: s.lastDrawMs}")
+                    stats.update(s)
+                else:
+                    stats["pushes"] = page.messages
+                    page.close()
+    return wall, stats
+
+
+def bench_view(quick: bool = False) -> list[dict]:
+    import dataclasses
+
+    from stand.scenario import DEFAULT_SCENARIO, load
+
+    sc = load(DEFAULT_SCENARIO)
+    duration = 600.0 if quick else sc.duration_s
+    sc = dataclasses.replace(sc, duration_s=duration)
+    reps = 2 if quick else 4
+    browser = Browser.open()
+    rows: list[dict] = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            walls: dict[bool, list[float]] = {False: [], True: []}
+            stats: list[dict] = []
+            for k in range(reps):
+                for with_page in (False, True) if k % 2 == 0 else (True, False):
+                    wall, st = _run_once(sc, Path(tmp) / f"r{k}-{int(with_page)}", browser, with_page)
+                    walls[with_page].append(wall)
+                    if with_page:
+                        stats.append({**st, "wall_s": wall})
+            base, page = min(walls[False]), min(walls[True])
+            slow = 100.0 * (page / base - 1.0)
+            who = "a page open in headless Chromium" if browser is not None else \
+                "a websocket client decoding every push (no Chromium here)"
+            rows += [
+                {"name": "view.loop.without_page.realtime_factor", "value": round(duration / base, 1), "unit": "x",
+                 "note": f"{duration:g} s of the default scenario in {base:.2f} s (best of {reps})"},
+                {"name": "view.loop.with_page.realtime_factor", "value": round(duration / page, 1), "unit": "x",
+                 "note": f"with --view's feed and server and {who}; {page:.2f} s (best of {reps})"},
+                {"name": "view.loop.slowdown", "value": round(slow, 2), "unit": "%", "limit": f"<= {LIMIT_PERCENT:g}",
+                 "pass": slow <= LIMIT_PERCENT,
+                 "note": "all runs: without " + ", ".join(f"{w:.2f}" for w in walls[False]) + " s; with "
+                         + ", ".join(f"{w:.2f}" for w in walls[True]) + " s"},
+            ]
+            best = min(stats, key=lambda s: s["wall_s"])
+            rows.append({"name": "view.live.pushes_per_s", "value": round(best.get("pushes", 0) / best["wall_s"], 2),
+                         "unit": "1/s", "note": f"{best.get('pushes', 0)} pushes received by the page over "
+                         f"{best['wall_s']:.2f} s (the feed sends at most 10 per second)"})
+            if browser is not None:
+                rows.append({"name": "view.live.redraws_per_s", "value": round(best["draws"] / best["wall_s"], 2),
+                             "unit": "1/s", "note": f"last full redraw took {best['last_draw_ms']:.1f} ms"})
+            rows += _first_draw(sc, Path(tmp), browser)
+    finally:
+        Browser.close(browser)
+    return rows
+
+
+def _first_draw(sc, tmp: Path, browser) -> list[dict]:
+    from stand.compose import build
+    from stand.loop import run
+    from stand.view.server import ReplaySource, ViewServer
+    from stand.view.state import write_view_json
+
+    out = tmp / "replay"
+    with build(sc) as scene:
+        out.mkdir()
+        write_view_json(sc, out)
+        run(scene, out, progress=False)
+    if browser is None:
+        return [{"name": "view.replay.first_draw_ms", "value": "n/a", "unit": "ms",
+                 "note": "needs Chromium and chromium-driver"}]
+    times = []
+    for _ in range(3):
+        with ViewServer(ReplaySource(out)) as view:
+            browser.get("about:blank")
+            browser.get(view.url)
+            ms = _wait(browser, "return window.standView && window.standView.stats.firstDrawMs")
+            n = browser.execute_script("return window.standView.store.n")
+            times.append(ms)
+    return [{"name": "view.replay.first_draw_ms", "value": round(min(times), 0), "unit": "ms",
+             "note": f"replay of {sc.duration_s:g} s of the default scenario ({n} samples), navigation start to "
+                     f"the first full drawing; runs " + ", ".join(f"{t:.0f}" for t in times) + " ms"}]
