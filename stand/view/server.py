@@ -206,7 +206,15 @@ class ViewServer:
 
     async def _meta(self, request):
         src = self.source
-        return web.json_response({**src.meta, "mode": src.mode, "status": src.status,
+        summary = None
+        path = src.run_dir / "summary.json"
+        if src.mode == "replay" and path.is_file():
+            try:
+                summary = {k: v for k, v in json.loads(path.read_text()).items()
+                           if k in ("pass", "status", "error", "criteria")}
+            except json.JSONDecodeError:
+                summary = None
+        return web.json_response({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
                                   "run_dir": str(src.run_dir), "token_required": bool(self.token),
                                   "control_from": None if self.token else self.host})
 
@@ -298,6 +306,8 @@ class PipeLink:
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``F`` + the
     run's status when it ended, ``C`` to end the process; control commands go back as Python objects."""
+    # Under contention the run's loop comes first; the page can wait a few milliseconds.
+    os.nice(5)
     lock = threading.Lock()
 
     def control(command):

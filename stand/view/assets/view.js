@@ -337,7 +337,7 @@
   }
 
   function drawEarth(ctx, M, P, W, H, r, sunN, i) {
-    const sc = 3, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
+    const sc = 2, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
     if (!pano.earth || pano.earth.width !== w || pano.earth.height !== h) {
       pano.earth = document.createElement("canvas"); pano.earth.width = w; pano.earth.height = h;
       pano.earthCtx = pano.earth.getContext("2d");
@@ -574,7 +574,8 @@
       const X = (t) => L + (t - t0) / (t1 - t0) * pw, Y = (v) => T + (hi - v) / (hi - lo) * ph;
       this.X = X;
       ctx.strokeStyle = "#222a33"; ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui"; ctx.lineWidth = 1;
-      for (const v of ticks(lo, hi, 4)) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
+      const yt = this.opts.log ? logTicks(lo, hi) : ticks(lo, hi, 4);
+      for (const v of yt) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
       for (const t of ticks(t0, t1, 6)) { ctx.beginPath(); ctx.moveTo(X(t), T); ctx.lineTo(X(t), T + ph); ctx.stroke(); ctx.fillText(fmt(t) + " s", X(t) - 10, H - 5); }
       for (const s of series) {
         ctx.strokeStyle = s.color; ctx.lineWidth = 1.3; ctx.beginPath();
@@ -647,6 +648,12 @@
     for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9 * step; v += step) out.push(Math.abs(v) < step * 1e-9 ? 0 : v);
     return out;
   }
+  function logTicks(lo, hi) {  // whole decades, every other one when there are many
+    const a = Math.ceil(lo), b = Math.floor(hi), out = [];
+    const step = b - a > 5 ? 2 : 1;
+    for (let v = a; v <= b; v += step) out.push(v);
+    return out.length ? out : ticks(lo, hi, 3);
+  }
   function fmt(v) {
     if (!Number.isFinite(v)) return "–";
     const a = Math.abs(v);
@@ -680,6 +687,24 @@
   }
 
   // ------------------------------------------------------------------------------------------ events
+  function drawVerdict() {
+    const sum = S.meta.summary;
+    if (!sum) return;
+    const box = $("verdict");
+    box.textContent = "";
+    const head = document.createElement("div");
+    head.className = sum.pass ? "pass" : "fail";
+    head.textContent = `${sum.pass ? "PASS" : "FAIL"} (${sum.status})` + (sum.error ? `: ${sum.error}` : "");
+    box.appendChild(head);
+    for (const c of sum.criteria || []) {
+      const div = document.createElement("div");
+      div.className = c.pass ? "pass" : "fail";
+      const lim = Object.entries(c.limit || {}).map(([k, v]) => `${k} ${v}`).join(", ");
+      div.textContent = `${c.pass ? "✓" : "✗"} ${c.name}: ${fmt(c.value)} ${c.unit || ""} (${lim})`;
+      box.appendChild(div);
+    }
+  }
+
   function drawEvents(force) {
     const box = $("events");
     if (force || box.childElementCount !== S.events.length) {
@@ -844,6 +869,7 @@
     document.addEventListener("keydown", (ev) => { if (ev.key === " " && ev.target === document.body) { ev.preventDefault(); $("play").click(); } });
     drawAll();
     drawEvents(true);
+    drawVerdict();
     requestAnimationFrame(tick);
   }
   S.seek = seek; S.project = (u, kind, W, H) => proj[kind].fwd(u, W, H); S.eulerFromDcm = eulerFromDcm; S.quatFromDcm = quatFromDcm;
