@@ -108,6 +108,33 @@ def _polyline(ax, pts: np.ndarray, width: float, **kw) -> None:
             ax.plot(seg[:, 0], seg[:, 1], **kw)
 
 
+def _land() -> list[np.ndarray]:
+    """The land outlines the page draws (assets/land-110m.json), as (n, 2) lon-lat arrays in degrees."""
+    import json
+
+    rings = json.loads((Path(__file__).with_name("assets") / "land-110m.json").read_text())["rings"]
+    return [np.asarray(r, dtype=float).reshape(-1, 2) for r in rings]
+
+
+def _earth_lines(ax, samples, i, M, r, kind, W, H) -> None:
+    """Coastlines and the 30 deg net on the side of the Earth the spacecraft sees."""
+    C_EN = dcm(samples["q_EN"][i])
+    net = [np.column_stack((np.arange(-180, 181, 4.0), np.full(91, lat))) for lat in (-60, -30, 0, 30, 60)]
+    net += [np.column_stack((np.full(45, lon), np.arange(-88, 89, 4.0))) for lon in range(-180, 180, 30)]
+    for rings, colour in ((net, (0.78, 0.86, 1.0, 0.22)), (_land(), (0.55, 0.86, 0.59, 0.8))):
+        for ring in rings:
+            lon, lat = np.radians(ring[:, 0]), np.radians(ring[:, 1])
+            e = R_EARTH * np.column_stack((np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)))
+            p_N = e @ C_EN  # ITRS -> GCRS, as row vectors
+            d = p_N - r
+            seen = np.sum(d * p_N, axis=1) < 0
+            pts = state.project(d @ M.T, kind, W, H)
+            pts[~seen] = np.nan
+            jumps = np.flatnonzero(np.hypot(*np.diff(pts, axis=0).T) > 0.25 * W) + 1
+            for seg in np.split(pts, jumps):
+                ax.plot(seg[:, 0], seg[:, 1], color=colour, lw=0.7, zorder=3)
+
+
 def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", kind: str = "equirectangular",
                   width: int = 1200, height: int = 600, mag_limit: float = 6.0, stars=None) -> dict:
     """Draw the panorama of sample ``i`` on a matplotlib axes in pixel coordinates; returns what was drawn
@@ -147,7 +174,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
         size = np.maximum(0.7, 3.2 - 0.42 * mag[sel])
         ax.scatter(p[:, 0], p[:, 1], s=size ** 2 * 0.35, c="white", marker="s", linewidths=0, alpha=0.9)
     # the Earth, per pixel at half resolution
-    ys, xs = np.mgrid[0:H:2, 0:W:2] + 1.0
+    ys, xs = np.mgrid[0:H, 0:W] + 0.5
     u, ok = inverse(kind, xs, ys, W, H)
     u_N = u @ M  # frame F -> N
     b = u_N @ r
@@ -165,6 +192,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
     rgba[..., 2] = (45 + day * 170) * shade / 255
     rgba[..., 3] = np.where(hit, 1.0, 0.0)
     ax.imshow(rgba, extent=(0, W, H, 0), interpolation="bilinear", zorder=2)
+    _earth_lines(ax, samples, i, M, r, kind, W, H)
     # Sun, Moon, body axes, velocity, nadir, field
     earth_half = math.asin(min(1.0, R_EARTH / rn))
     for body in ("sun", "moon"):
@@ -205,6 +233,12 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
             bound = _boundary(fov) @ C_SB @ C_BN  # sensor -> body -> N, as row vectors
             _polyline(ax, at(bound), W, color=col, lw=0.8 if fov.get("head") else 1.8,
                       ls="--" if fov.get("head") else "-", zorder=4)
+            for body, colour_key in (("sun", "sun_flag"), ("moon", "moon_flag"), ("earth", "earth_flag")):
+                half = dev.get("exclusion_deg", {}).get(body)
+                if half and not fov.get("head"):
+                    cone = _boundary({"shape": "cone", "axis_S": fov["axis_S"], "half_deg": half})
+                    _polyline(ax, at(cone @ C_SB @ C_BN), W, color=(*COLORS[colour_key], 0.55), lw=0.8, ls=":",
+                              zorder=4)
             if not fov.get("head"):
                 pb = at(np.asarray(fov["axis_S"], dtype=float) @ C_SB @ C_BN)
                 ax.annotate(f"{dev['name']}: {text}", pb, xytext=(6, 6), textcoords="offset points", color=col,
@@ -219,6 +253,14 @@ def star_places(meta: dict, mag_limit: float):
     cat = Catalog.load(mag_limit=mag_limit)
     places = cat.places(Epoch.from_iso(meta["epoch"]), parallax=False)
     return places.u_N, np.asarray(places.mag, dtype=float)
+
+
+def _check_times(times_s, t) -> None:
+    lo, hi = float(np.min(t)), float(np.max(t))
+    bad = [x for x in times_s if not lo - 1e-9 <= x <= hi + 1e-9]
+    if bad:
+        raise ValueError(f"--times {', '.join(f'{x:g}' for x in bad)} is not allowed: times within the run, "
+                         f"{lo:g} to {hi:g} s.")
 
 
 def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "equirectangular",
@@ -236,29 +278,38 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
     if not -2.0 <= mag_limit <= 9.0:
         raise ValueError(f"--mag {mag_limit!r} is not allowed: a magnitude limit from -2 to 9 (the catalog's).")
     meta = meta or state.load_meta(run_dir)
-    samples = samples if samples is not None else state.replay_samples(run_dir, meta)
+    if samples is None:
+        from stand.telemetry import load
+
+        tel = load(run_dir)
+        t_all = np.asarray(tel["t_s"])
+        if len(t_all) == 0:
+            raise ValueError(f"{run_dir} has no telemetry rows to draw.")
+        if times_s is None:
+            times_s = (float(t_all[0]), float(t_all[len(t_all) // 2]), float(t_all[-1]))
+        _check_times(times_s, t_all)
+        # Only the rows drawn, at full resolution: the row at or before each time.
+        idx = np.clip(np.searchsorted(t_all, np.asarray(times_s) + 1e-9, side="right") - 1, 0, len(t_all) - 1)
+        samples = state.Sky(meta).derive({k: np.asarray(v)[idx] for k, v in tel.items()})
     t = np.asarray(samples["t_s"])
     if len(t) == 0:
         raise ValueError(f"{run_dir} has no telemetry rows to draw.")
     if times_s is None:
         times_s = (float(t[0]), float(t[len(t) // 2]), float(t[-1]))
-    bad = [x for x in times_s if not t[0] - 1e-9 <= x <= t[-1] + 1e-9]
-    if bad:
-        raise ValueError(f"--times {', '.join(f'{x:g}' for x in bad)} is not allowed: times within the run, "
-                         f"{t[0]:g} to {t[-1]:g} s.")
+    _check_times(times_s, t)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     stars = star_places(meta, mag_limit)
     written = []
     epoch = Epoch.from_iso(meta["epoch"])
     for ts in times_s:
-        i = int(np.clip(np.searchsorted(t, ts + 1e-9, side="right") - 1, 0, len(t) - 1))
+        i = int(np.argmin(np.where(t <= ts + 1e-9, ts - t, np.inf)))  # the sample at or before ts
         fig = plt.figure(figsize=(12, 6.4), dpi=100, facecolor="#0d1117")
         ax = fig.add_axes((0, 0, 1, 0.94))
         draw_panorama(ax, samples, meta, i, frame=FRAMES[frame], kind=kind, stars=stars, mag_limit=mag_limit)
         fig.text(0.01, 0.965, f"{meta['scenario']}: panorama in the {frame} frame ({kind}), t = {t[i]:.1f} s, "
                  f"{(epoch + float(t[i])).iso[:19]} UTC, stars to Hp {mag_limit:g}", color="#d8dee6", fontsize=10)
-        path = out_dir / f"panorama_{t[i]:.0f}s.png"
+        path = out_dir / f"panorama_{t[i]:g}s.png"
         fig.savefig(path, facecolor=fig.get_facecolor())
         plt.close(fig)
         written.append(path)
@@ -267,11 +318,12 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
 
 def report_panorama(run_dir) -> str | None:
     """``panorama.png`` at the end of a run, for its report (None when the run recorded nothing)."""
-    meta = state.load_meta(run_dir)
-    samples = state.replay_samples(run_dir, meta, max_samples=2)
-    if len(samples["t_s"]) == 0:
+    from stand.telemetry import load
+
+    t = load(run_dir)["t_s"]
+    if len(t) == 0:
         return None
-    path = export(run_dir, run_dir, (float(samples["t_s"][-1]),), samples=samples, meta=meta)[0]
+    path = export(run_dir, run_dir, (float(t[-1]),))[0]
     target = Path(run_dir) / "panorama.png"
     path.replace(target)
     return target.name
