@@ -184,7 +184,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     show = bar.update if progress else None
     record = recorder.record
     observe = observer.record if observer is not None else None
-    poll_every = ticks_per(POLL_S, sc.step_s)
+    poll_every = ticks_per(1.0 / POLL_S, sc.step_s)
     next_poll = 0.0
     wall0 = clock()
     pacer.begin()
