@@ -319,20 +319,50 @@
   }
 
   function drawStars(ctx, M, P, W, H) {
+    // Written straight into a pixel buffer: tens of thousands of fillRect calls with their colour strings
+    // would cost ten times as much.
     if (!S.stars) return;
     const lim = parseFloat($("mag").value), s = S.stars, n = s.count;
+    if (!pano.starImg || pano.starImg.width !== W || pano.starImg.height !== H) {
+      pano.starImg = new ImageData(W, H);
+      pano.starLayer = document.createElement("canvas"); pano.starLayer.width = W; pano.starLayer.height = H;
+    }
+    const key = [M.flat().join(), P === proj.hammer, lim, W, H].join("|");
+    if (pano.starKey === key) { ctx.drawImage(pano.starLayer, 0, 0); return; }  // the sky did not move
+    pano.starKey = key;
+    const img = pano.starImg, px = new Uint32Array(img.data.buffer);
+    px.fill(0);
     let shown = 0;
+    const hammer = P === proj.hammer, m = M.flat(), TWO_PI = 2 * Math.PI;
     for (let k = 0; k < n; k++) {
       const mag = s.mag[k];
       if (mag > lim) break;  // brightest first
       const x = s.u[3 * k], y = s.u[3 * k + 1], z = s.u[3 * k + 2];
-      const u = [M[0][0] * x + M[0][1] * y + M[0][2] * z, M[1][0] * x + M[1][1] * y + M[1][2] * z, M[2][0] * x + M[2][1] * y + M[2][2] * z];
-      const p = P.fwd(u, W, H);
-      const size = Math.max(0.7, 3.2 - 0.42 * mag), g = Math.round(Math.max(90, Math.min(255, 300 - 22 * mag)));
-      ctx.fillStyle = `rgb(${g},${g},${Math.min(255, g + 25)})`;
-      ctx.fillRect(p[0] - size / 2, p[1] - size / 2, size, size);
+      // P.fwd inlined (no arrays per star): the same formulas
+      const ux = m[0] * x + m[1] * y + m[2] * z, uy = m[3] * x + m[4] * y + m[5] * z, uz = m[6] * x + m[7] * y + m[8] * z;
+      const lon = Math.atan2(uy, ux), lat = Math.asin(uz > 1 ? 1 : uz < -1 ? -1 : uz);
+      let p0, p1;
+      if (hammer) {
+        const cl = Math.cos(lat), d = Math.sqrt(1 + cl * Math.cos(lon / 2));
+        p0 = W / 2 - cl * Math.sin(lon / 2) / d * W / 2; p1 = H / 2 - Math.sin(lat) / d * H / 2;
+      } else { p0 = W / 2 - lon / TWO_PI * W; p1 = H / 2 - lat / Math.PI * H; }
+      const p = [p0, p1];
+      const g = Math.round(Math.max(80, Math.min(255, 290 - 24 * mag)));
+      const colour = (255 << 24) | (Math.min(255, g + 25) << 16) | (g << 8) | g;  // little-endian ABGR
+      const r = mag < 1.5 ? 2 : mag < 3.5 ? 1 : 0;  // a 5, 3 or 1 pixel square
+      const cx = Math.round(p[0]), cy = Math.round(p[1]);
+      for (let dy = -r; dy <= r; dy++) {
+        const yy = cy + dy;
+        if (yy < 0 || yy >= H) continue;
+        for (let dx = -r; dx <= r; dx++) {
+          const xx = cx + dx;
+          if (xx >= 0 && xx < W && (r < 2 || Math.abs(dx) + Math.abs(dy) < 4)) px[yy * W + xx] = colour;
+        }
+      }
       shown++;
     }
+    pano.starLayer.getContext("2d").putImageData(img, 0, 0);
+    ctx.drawImage(pano.starLayer, 0, 0);
     $("star-count").textContent = `(${shown} stars)`;
   }
 
@@ -682,6 +712,7 @@
     plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
     S.plots = plots;
+    S.plotsHaveData = st.n > 0;
     const sensed = devs.filter((d) => d.kind === "star_tracker" || d.kind === "sun_sensor");
     S.strip = sensed.length ? new Strip(sensed) : null;
   }
@@ -799,6 +830,7 @@
     if (msg.events) S.events.push(...msg.events);
     if (msg.status) S.status = msg.status;
     if (added) {
+      if (!S.plotsHaveData) buildPlots();  // the columns are known only once samples arrive
       S.stats.pushes++; S.stats.pushTimes.push(performance.now());
       if (S.stats.pushTimes.length > 50) S.stats.pushTimes.shift();
       if (S.follow) S.t = S.store.t(S.store.n - 1);
