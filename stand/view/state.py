@@ -109,12 +109,15 @@ def load_meta(run_dir) -> dict:
     summary = run_dir / "summary.json"
     if not summary.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: it holds neither {VIEW_FILE} nor summary.json.")
-    from stand.scenario import load
+    from stand.errors import ScenarioError
+    from stand.scenario import find, load
 
     source = json.loads(summary.read_text()).get("source")
-    if not source or not Path(source).is_file():
-        raise FileNotFoundError(f"{run_dir} has no {VIEW_FILE} and its scenario {source!r} is not on this machine.")
-    return describe(load(source))
+    try:
+        return describe(load(find(source)))
+    except (ScenarioError, TypeError, OSError):
+        raise FileNotFoundError(f"{run_dir} has no {VIEW_FILE} and its scenario {source!r} is neither a file on this "
+                                "machine nor a shipped scenario.") from None
 
 
 # --------------------------------------------------------------------------------------------------- geometry

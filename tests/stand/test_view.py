@@ -260,3 +260,15 @@ def test_view_command_exports_and_refuses_bad_input(run_dir, tmp_path, capsys):
     assert "--frame 'moon' is not allowed" in capsys.readouterr().err
     assert main(["view", str(tmp_path / "nothing")]) == 2
     assert "is not a run folder" in capsys.readouterr().err
+
+
+def test_a_run_folder_without_view_json_is_described_from_its_scenario(tmp_path):
+    out = tmp_path / "run"
+    assert main(["run", "--out", str(out), "--duration", "2", "--no-progress"]) == 1  # not detumbled in 2 s
+    written = json.loads((out / "view.json").read_text())
+    (out / "view.json").unlink()
+    assert state.load_meta(out) == written  # the summary names the shipped scenario
+    summary = json.loads((out / "summary.json").read_text())
+    (out / "summary.json").write_text(json.dumps({**summary, "source": str(tmp_path / "gone.toml")}))
+    with pytest.raises(FileNotFoundError, match="neither a file on this machine nor a shipped scenario"):
+        state.load_meta(out)
