@@ -195,6 +195,19 @@ def test_tracker_field_turns_invalid_when_the_sun_enters_it(browser, replay, run
         state_text = browser.execute_script(
             "return window.standView.overlay.filter(o => o.name === 'st1').map(o => o.state)[0]")
         assert word in state_text
+    # inside the sphere, looking along the tracker's boresight: its field is centred, in the same colour
+    browser.execute_script("const e = document.getElementById('pano-proj'); e.value = 'inside'; "
+                           "e.dispatchEvent(new Event('change'))")
+    _wait(browser, "return window.standView.lookAxes && document.getElementById('look-at').value === 'dev:st1'")
+    t = _seek(browser, t_sun + 0.5)
+    img = _canvas(browser)
+    assert _colour_near(img, (W / 2, H / 2), SUN_FLAG_RGB)
+    # the 20 deg side of the field spans 2 tan(5 deg) / (2 tan(30 deg)) of the half width (stereographic, 120 deg)
+    half_px = 2 * math.tan(math.radians(5)) / (2 * math.tan(math.radians(30))) * W / 2
+    row = img[int(H / 2) + 2]
+    edges = np.flatnonzero(np.abs(row.astype(int) - SUN_FLAG_RGB).max(axis=-1) <= 6)
+    edges = edges[np.abs(edges - W / 2) < 1.5 * half_px]  # not the label's glyphs
+    assert abs((edges.max() - edges.min()) / 2 - half_px) < 2.0, (edges.min(), edges.max(), half_px)
 
 
 def test_slider_moves_time(browser, replay):

@@ -97,6 +97,48 @@
     },
   };
 
+  // A perspective from the centre of the sphere (stereographic, so circles stay circles): the look axes are set
+  // before every drawing (S.lookAxes: right, up, forward in the panorama's frame), the width of view in S.lookFov.
+  proj.inside = {
+    scale(W) { return (W / 2) / (2 * Math.tan(S.lookFov * D2R / 4)); },
+    fwd(u, W, H) {
+      const [rt, up, fw] = S.lookAxes, f = dot(u, fw), k = 2 / Math.max(1 + f, 1e-6), sc = this.scale(W);
+      return [W / 2 + k * dot(u, rt) * sc, H / 2 - k * dot(u, up) * sc];
+    },
+    inv(x, y, W, H) {
+      const sc = this.scale(W), X = (x - W / 2) / sc, Y = (H / 2 - y) / sc, r2 = X * X + Y * Y;
+      const f = (4 - r2) / (4 + r2), g = (1 + f) / 2, [rt, up, fw] = S.lookAxes;
+      return [0, 1, 2].map((j) => f * fw[j] + g * (X * rt[j] + Y * up[j]));
+    },
+  };
+
+  function lookAxes(i, M) {  // the axes of the inside view at sample i, in the panorama's frame
+    const st = S.store, target = $("look-at").value, C_BN = dcm(st.get("q_BN", i)), r = st.get("r_BN_N", i);
+    let fwN, upN = null;
+    if (target === "nadir") fwN = scale(r, -1 / norm(r));
+    else if (target === "zenith") fwN = unit(r);
+    else if (target === "velocity") fwN = unit(st.get("v_BN_N", i));
+    else if (target === "sun") fwN = st.get("sun_N", i);
+    else if (target.startsWith("axis:")) { const [a, sgn] = [+target[5], target[6] === "-" ? -1 : 1]; fwN = scale(C_BN[a], sgn); }
+    else {  // a device: its boresight, with its image axes (x right, y down) as the view's
+      const dev = S.meta.devices.find((d) => d.name === target.slice(4)), toN = (v) => mtv(C_BN, mtv(dcm(dev.q_SB), v));
+      fwN = toN(dev.fovs[0].axis_S);
+      if (dev.fovs[0].shape === "rect") upN = scale(toN([0, 1, 0]), -1);
+    }
+    const fw0 = mv(M, fwN);
+    let up0;
+    if (upN) up0 = mv(M, upN);
+    else { const ref = Math.abs(fw0[2]) > 0.98 ? [1, 0, 0] : [0, 0, 1]; up0 = unit(cross(cross(fw0, ref), fw0)); }
+    const rt0 = cross(fw0, up0);
+    // the drag offsets: yaw about the view's up, then pitch about its right
+    const yaw = S.lookYaw * D2R, pitch = S.lookPitch * D2R;
+    const fwY = [0, 1, 2].map((j) => Math.cos(yaw) * fw0[j] + Math.sin(yaw) * rt0[j]);
+    const rt = [0, 1, 2].map((j) => Math.cos(yaw) * rt0[j] - Math.sin(yaw) * fw0[j]);
+    const fw = [0, 1, 2].map((j) => Math.cos(pitch) * fwY[j] + Math.sin(pitch) * up0[j]);
+    const up = cross(rt, fw);
+    S.lookAxes = [rt, up, fw];
+  }
+
   // ------------------------------------------------------------------------------------------ the sample store
   class Store {
     constructor() { this.n = 0; this.cols = {}; }
@@ -178,7 +220,7 @@
     let pen = false, prev = null;
     ctx.beginPath();
     for (const p of pts) {
-      if (!p) { pen = false; prev = null; continue; }
+      if (!p || Math.abs(p[0]) > 20 * W || Math.abs(p[1]) > 20 * W) { pen = false; prev = null; continue; }
       if (prev && Math.hypot(p[0] - prev[0], p[1] - prev[1]) > W * 0.25) pen = false;
       if (pen) ctx.lineTo(p[0], p[1]); else ctx.moveTo(p[0], p[1]);
       pen = true; prev = p;
@@ -217,6 +259,8 @@
     S.overlay = [];
     if (i < 0) return;
     const M = frameOf(i, F);  // dcm_FN
+    if (P === proj.inside) lookAxes(i, M);
+    $("look").hidden = P !== proj.inside;
     const toF = (uN) => mv(M, uN), at = (uN) => P.fwd(toF(uN), W, H);
     const C_BN = dcm(st.get("q_BN", i)), r = st.get("r_BN_N", i), rn = norm(r);
     const sunN = st.get("sun_N", i), moonN = st.get("moon_N", i);
@@ -327,7 +371,8 @@
       pano.starImg = new ImageData(W, H);
       pano.starLayer = document.createElement("canvas"); pano.starLayer.width = W; pano.starLayer.height = H;
     }
-    const key = [M.flat().join(), P === proj.hammer, lim, W, H].join("|");
+    const key = [M.flat().join(), $("pano-proj").value, P === proj.inside ? S.lookAxes.flat().join() + S.lookFov : "",
+      lim, W, H].join("|");
     if (pano.starKey === key) { ctx.drawImage(pano.starLayer, 0, 0); return; }  // the sky did not move
     pano.starKey = key;
     const img = pano.starImg, px = new Uint32Array(img.data.buffer);
@@ -342,7 +387,10 @@
       const ux = m[0] * x + m[1] * y + m[2] * z, uy = m[3] * x + m[4] * y + m[5] * z, uz = m[6] * x + m[7] * y + m[8] * z;
       const lon = Math.atan2(uy, ux), lat = Math.asin(uz > 1 ? 1 : uz < -1 ? -1 : uz);
       let p0, p1;
-      if (hammer) {
+      if (P === proj.inside) {
+        [p0, p1] = P.fwd([ux, uy, uz], W, H);
+        if (p0 < -4 || p0 > W + 4 || p1 < -4 || p1 > H + 4) continue;
+      } else if (hammer) {
         const cl = Math.cos(lat), d = Math.sqrt(1 + cl * Math.cos(lon / 2));
         p0 = W / 2 - cl * Math.sin(lon / 2) / d * W / 2; p1 = H / 2 - Math.sin(lat) / d * H / 2;
       } else { p0 = W / 2 - lon / TWO_PI * W; p1 = H / 2 - lat / Math.PI * H; }
@@ -886,6 +934,7 @@
     const note = document.createElement("span");
     note.textContent = "filled square: + body axis, hollow: − axis; circled crosses: velocity, nadir, magnetic field B";
     $("pano-legend").appendChild(note);
+    setupLook();
     for (const id of ["pano-frame", "pano-proj", "true-size", "show-exclusion", "show-heads", "att-frame", "euler-seq"]) $(id).addEventListener("change", redraw);
     $("mag").addEventListener("input", () => { $("mag-value").textContent = $("mag").value; redraw(); });
     $("slider").addEventListener("input", () => {
@@ -903,6 +952,26 @@
     drawEvents(true);
     drawVerdict();
     requestAnimationFrame(tick);
+  }
+  S.lookYaw = 0; S.lookPitch = 0; S.lookFov = 120;
+  function setupLook() {
+    const sel = $("look-at"), opts = [];
+    for (const d of S.meta.devices) if (d.fovs.length && !d.fovs[0].head) opts.push([`dev:${d.name}`, `${d.name} boresight`]);
+    opts.push(["axis:0+", "body +X"], ["axis:1+", "body +Y"], ["axis:2+", "body +Z"], ["axis:2-", "body −Z"],
+      ["nadir", "nadir"], ["zenith", "zenith"], ["velocity", "velocity"], ["sun", "Sun"]);
+    sel.innerHTML = opts.map(([v, t]) => `<option value="${v}">${t}</option>`).join("");
+    sel.addEventListener("change", () => { S.lookYaw = S.lookPitch = 0; redraw(); });
+    $("look-fov").addEventListener("input", () => { S.lookFov = +$("look-fov").value; redraw(); });
+    let drag = null;
+    const cv = pano.canvas;
+    cv.addEventListener("pointerdown", (ev) => { if ($("pano-proj").value === "inside") { drag = [ev.clientX, ev.clientY, S.lookYaw, S.lookPitch]; cv.setPointerCapture(ev.pointerId); } });
+    cv.addEventListener("pointermove", (ev) => {
+      if (!drag) return;
+      const k = S.lookFov / cv.getBoundingClientRect().width;
+      S.lookYaw = drag[2] - (ev.clientX - drag[0]) * k; S.lookPitch = Math.max(-89, Math.min(89, drag[3] + (ev.clientY - drag[1]) * k));
+      redraw();
+    });
+    cv.addEventListener("pointerup", () => { drag = null; });
   }
   S.seek = seek; S.project = (u, kind, W, H) => proj[kind].fwd(u, W, H); S.eulerFromDcm = eulerFromDcm; S.quatFromDcm = quatFromDcm;
   S.control = control;
