@@ -123,12 +123,13 @@ def cmd_run(args) -> int:
                 out.mkdir(parents=True, exist_ok=True)
                 from .view.state import write_view_json
 
-                write_view_json(sc, out)
+                write_view_json(sc, out, args.duration)
                 if live is not None:
                     from .view.server import ViewError
 
                     try:
-                        print(f"stand: live view at {live.start(sc, out)} (Ctrl-C stops the run)", flush=True)
+                        print(f"stand: live view at {live.start(sc, out, args.duration)} (Ctrl-C stops the run)",
+                              flush=True)
                     except ViewError as exc:
                         return fail(str(exc))
                 result = None

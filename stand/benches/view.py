@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import shutil
 import tempfile
 import threading
@@ -95,7 +96,32 @@ class SocketPage:
         self._thread.join(timeout=5.0)
 
 
-def _run_once(sc, out: Path, browser, with_page: bool) -> tuple[float, dict]:
+def _descendants(pid: int) -> list[int]:
+    """``pid`` and every process below it (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo += children.get(p, [])
+    return out
+
+
+def _pin(pids, cpus: set[int]) -> None:
+    for p in pids:
+        try:
+            os.sched_setaffinity(p, cpus)
+        except OSError:
+            pass  # a process that already ended
+
+
+def _run_once(sc, out: Path, browser, with_page: bool, pin: bool = False) -> tuple[float, dict]:
     """Wall time of one run, and what the page saw; ``loop_cpu_s`` is the loop thread's own CPU time, which the
     other processes on a shared machine do not inflate."""
     from stand.compose import build
@@ -115,6 +141,10 @@ def _run_once(sc, out: Path, browser, with_page: bool) -> tuple[float, dict]:
             else:
                 page = SocketPage(url)
                 time.sleep(0.5)
+            if pin:  # the page on the second core, the loop on the first
+                _pin([live.process.pid], {1})
+                if browser is not None:
+                    _pin(_descendants(browser.service.process.pid), {1})
         t0, c0 = time.perf_counter(), time.thread_time()
         try:
             run(scene, out, progress=False, observer=live.observer if live else None)
@@ -134,6 +164,41 @@ def _run_once(sc, out: Path, browser, with_page: bool) -> tuple[float, dict]:
     return wall, stats
 
 
+def _compare(sc, tmp: Path, browser, reps: int, pin: bool, duration: float) -> tuple[list[dict], list[dict]]:
+    walls: dict[bool, list[float]] = {False: [], True: []}
+    cpus: dict[bool, list[float]] = {False: [], True: []}
+    stats: list[dict] = []
+    for k in range(reps):
+        for with_page in (False, True) if k % 2 == 0 else (True, False):
+            wall, st = _run_once(sc, tmp / f"r{int(pin)}-{k}-{int(with_page)}", browser, with_page, pin)
+            walls[with_page].append(wall)
+            cpus[with_page].append(st["loop_cpu_s"])
+            if with_page:
+                stats.append({**st, "wall_s": wall})
+    base, page = min(walls[False]), min(walls[True])
+    slow = 100.0 * (page / base - 1.0)
+    tag = "pinned" if pin else "shared"
+    where = ("the loop on core 0, the page's server and browser on core 1" if pin else
+             "every process on any core")
+    rows = [
+        {"name": f"view.loop.{tag}.without_page.realtime_factor", "value": round(duration / base, 1), "unit": "x",
+         "note": f"{where}; {duration:g} s of the default scenario in {base:.2f} s (best of {reps})"},
+        {"name": f"view.loop.{tag}.with_page.realtime_factor", "value": round(duration / page, 1), "unit": "x",
+         "note": f"{page:.2f} s (best of {reps})"},
+        {"name": f"view.loop.{tag}.slowdown", "value": round(slow, 2), "unit": "%", "limit": f"<= {LIMIT_PERCENT:g}",
+         "pass": slow <= LIMIT_PERCENT,
+         "note": "wall time, best of each; all runs: without " + ", ".join(f"{w:.2f}" for w in walls[False])
+                 + " s; with " + ", ".join(f"{w:.2f}" for w in walls[True]) + " s"},
+    ]
+    if not pin:
+        cpu_slow = 100.0 * (min(cpus[True]) / min(cpus[False]) - 1.0)
+        rows.append({"name": "view.loop.cpu_slowdown", "value": round(cpu_slow, 2), "unit": "%",
+                     "limit": f"<= {LIMIT_PERCENT:g}", "pass": cpu_slow <= LIMIT_PERCENT,
+                     "note": "the loop thread's own CPU time, best of each: " + f"{min(cpus[False]):.2f} s without, "
+                             f"{min(cpus[True]):.2f} s with the page"})
+    return rows, stats
+
+
 def bench_view(quick: bool = False) -> list[dict]:
     import dataclasses
 
@@ -147,35 +212,19 @@ def bench_view(quick: bool = False) -> list[dict]:
     rows: list[dict] = []
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            walls: dict[bool, list[float]] = {False: [], True: []}
-            cpus: dict[bool, list[float]] = {False: [], True: []}
-            stats: list[dict] = []
-            for k in range(reps):
-                for with_page in (False, True) if k % 2 == 0 else (True, False):
-                    wall, st = _run_once(sc, Path(tmp) / f"r{k}-{int(with_page)}", browser, with_page)
-                    walls[with_page].append(wall)
-                    cpus[with_page].append(st["loop_cpu_s"])
-                    if with_page:
-                        stats.append({**st, "wall_s": wall})
-            base, page = min(walls[False]), min(walls[True])
-            slow = 100.0 * (page / base - 1.0)
-            cpu_slow = 100.0 * (min(cpus[True]) / min(cpus[False]) - 1.0)
             who = "a page open in headless Chromium" if browser is not None else \
                 "a websocket client decoding every push (no Chromium here)"
-            rows += [
-                {"name": "view.loop.without_page.realtime_factor", "value": round(duration / base, 1), "unit": "x",
-                 "note": f"{duration:g} s of the default scenario in {base:.2f} s (best of {reps})"},
-                {"name": "view.loop.with_page.realtime_factor", "value": round(duration / page, 1), "unit": "x",
-                 "note": f"with --view's feed and server and {who}; {page:.2f} s (best of {reps})"},
-                {"name": "view.loop.slowdown", "value": round(slow, 2), "unit": "%", "limit": f"<= {LIMIT_PERCENT:g}",
-                 "pass": slow <= LIMIT_PERCENT,
-                 "note": "wall time, best of each; all runs: without " + ", ".join(f"{w:.2f}" for w in walls[False])
-                         + " s; with " + ", ".join(f"{w:.2f}" for w in walls[True]) + " s"},
-                {"name": "view.loop.cpu_slowdown", "value": round(cpu_slow, 2), "unit": "%",
-                 "limit": f"<= {LIMIT_PERCENT:g}", "pass": cpu_slow <= LIMIT_PERCENT,
-                 "note": "the loop thread's own CPU time, best of each: " + f"{min(cpus[False]):.2f} s without, "
-                         f"{min(cpus[True]):.2f} s with the page"},
-            ]
+            rows.append({"name": "view.page", "value": "chromium" if browser is not None else "websocket",
+                         "note": f"the loop runs with --view's feed and server and {who}"})
+            rows_shared, stats = _compare(sc, Path(tmp), browser, reps, False, duration)
+            rows += rows_shared
+            if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) >= 2:
+                mask = os.sched_getaffinity(0)
+                os.sched_setaffinity(0, {0})
+                try:
+                    rows += _compare(sc, Path(tmp), browser, reps, True, duration)[0]
+                finally:
+                    os.sched_setaffinity(0, mask)
             best = min(stats, key=lambda s: s["wall_s"])
             rows.append({"name": "view.live.pushes_per_s", "value": round(best.get("pushes", 0) / best["wall_s"], 2),
                          "unit": "1/s", "note": f"{best.get('pushes', 0)} pushes received by the page over "

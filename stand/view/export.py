@@ -101,11 +101,15 @@ def _boundary(fov: dict, n: int = 96) -> np.ndarray:
     return u / np.linalg.norm(u, axis=-1, keepdims=True)
 
 
-def _polyline(ax, pts: np.ndarray, width: float, **kw) -> None:
+def _broken(pts: np.ndarray, width: float) -> np.ndarray:
+    """The polyline with NaN rows where the projection wraps (one artist draws all its pieces)."""
     jumps = np.flatnonzero(np.hypot(*np.diff(pts, axis=0).T) > 0.25 * width) + 1
-    for seg in np.split(pts, jumps):
-        if len(seg) > 1:
-            ax.plot(seg[:, 0], seg[:, 1], **kw)
+    return np.insert(pts, jumps, np.nan, axis=0)
+
+
+def _polyline(ax, pts: np.ndarray, width: float, **kw) -> None:
+    b = _broken(pts, width)
+    ax.plot(b[:, 0], b[:, 1], **kw)
 
 
 def _land() -> list[np.ndarray]:
@@ -122,6 +126,7 @@ def _earth_lines(ax, samples, i, M, r, kind, W, H) -> None:
     net = [np.column_stack((np.arange(-180, 181, 4.0), np.full(91, lat))) for lat in (-60, -30, 0, 30, 60)]
     net += [np.column_stack((np.full(45, lon), np.arange(-88, 89, 4.0))) for lon in range(-180, 180, 30)]
     for rings, colour in ((net, (0.78, 0.86, 1.0, 0.22)), (_land(), (0.55, 0.86, 0.59, 0.8))):
+        pieces = []
         for ring in rings:
             lon, lat = np.radians(ring[:, 0]), np.radians(ring[:, 1])
             e = R_EARTH * np.column_stack((np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)))
@@ -130,9 +135,10 @@ def _earth_lines(ax, samples, i, M, r, kind, W, H) -> None:
             seen = np.sum(d * p_N, axis=1) < 0
             pts = state.project(d @ M.T, kind, W, H)
             pts[~seen] = np.nan
-            jumps = np.flatnonzero(np.hypot(*np.diff(pts, axis=0).T) > 0.25 * W) + 1
-            for seg in np.split(pts, jumps):
-                ax.plot(seg[:, 0], seg[:, 1], color=colour, lw=0.7, zorder=3)
+            pieces.append(_broken(pts, W))
+            pieces.append(np.full((1, 2), np.nan))
+        b = np.concatenate(pieces)
+        ax.plot(b[:, 0], b[:, 1], color=colour, lw=0.7, zorder=3)
 
 
 def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", kind: str = "equirectangular",
@@ -174,7 +180,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
         size = np.maximum(0.7, 3.2 - 0.42 * mag[sel])
         ax.scatter(p[:, 0], p[:, 1], s=size ** 2 * 0.35, c="white", marker="s", linewidths=0, alpha=0.9)
     # the Earth, per pixel at half resolution
-    ys, xs = np.mgrid[0:H, 0:W] + 0.5
+    ys, xs = np.mgrid[0:H:2, 0:W:2] + 1.0  # half resolution, smoothed: the limb stays clean at report size
     u, ok = inverse(kind, xs, ys, W, H)
     u_N = u @ M  # frame F -> N
     b = u_N @ r

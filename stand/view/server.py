@@ -367,12 +367,11 @@ class LiveSession:
         host, port = parse_bind(bind)
         return cls(host, port, token)
 
-    def start(self, sc, run_dir) -> str:
+    def start(self, sc, run_dir, duration_s: float | None = None) -> str:
         """Write ``view.json``, start the server process and the feed; returns the page's URL."""
         import multiprocessing
 
-        state.write_view_json(sc, run_dir)
-        meta = state.describe(sc)
+        meta = json.loads(state.write_view_json(sc, run_dir, duration_s).read_text())
         ctx = multiprocessing.get_context("spawn")  # no fork of a process whose buses have threads
         self.conn, child = ctx.Pipe(duplex=True)
         self.process = ctx.Process(target=serve_live, name="stand-view",

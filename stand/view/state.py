@@ -94,9 +94,13 @@ def describe(sc) -> dict:
     }
 
 
-def write_view_json(sc, run_dir) -> Path:
+def write_view_json(sc, run_dir, duration_s: float | None = None) -> Path:
+    """``view.json`` of a run (``duration_s``: the run's own when ``--duration`` changed it)."""
+    meta = describe(sc)
+    if duration_s is not None:
+        meta["duration_s"] = float(duration_s)
     path = Path(run_dir) / VIEW_FILE
-    path.write_text(json.dumps(describe(sc), indent=1) + "\n")
+    path.write_text(json.dumps(meta, indent=1) + "\n")
     return path
 
 

@@ -883,7 +883,16 @@
       if (S.stats.pushTimes.length > 50) S.stats.pushTimes.shift();
       if (S.follow) S.t = S.store.t(S.store.n - 1);
     }
-    redraw();
+    liveRedraw();
+  }
+  // A live run pushes ten times a second; the page redraws at most LIVE_FPS times, which is what an operator
+  // can follow and leaves the machine's cores to the run.
+  const LIVE_FPS = 5;
+  let liveTimer = null, lastLive = 0;
+  function liveRedraw() {
+    if (liveTimer !== null) return;
+    const wait = Math.max(0, lastLive + 1000 / LIVE_FPS - performance.now());
+    liveTimer = setTimeout(() => { liveTimer = null; lastLive = performance.now(); redraw(); }, wait);
   }
   function connect() {
     const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws`);
