@@ -116,9 +116,13 @@ def load_meta(run_dir) -> dict:
     from stand.errors import ScenarioError
     from stand.scenario import find, load
 
-    source = json.loads(summary.read_text()).get("source")
+    data = json.loads(summary.read_text())
+    source = data.get("source")
     try:
-        return describe(load(find(source)))
+        meta = describe(load(find(source)))
+        if data.get("status") == "completed" and data.get("sim_duration_s"):
+            meta["duration_s"] = float(data["sim_duration_s"])  # a --duration run
+        return meta
     except (ScenarioError, TypeError, OSError):
         raise FileNotFoundError(f"{run_dir} has no {VIEW_FILE} and its scenario {source!r} is neither a file on this "
                                 "machine nor a shipped scenario.") from None
