@@ -21,6 +21,7 @@ import base64
 import json
 import math
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -285,6 +286,7 @@ class LiveFeed:
         self._taken = 0
         self._next_t = -math.inf
         self.pushes = 0
+        self.cpu_s = 0.0
         self.error: str | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -309,12 +311,16 @@ class LiveFeed:
         self.push()
 
     def _run(self) -> None:
-        while not self._stop.wait(self.push_period_s):
-            try:
-                self.push()
-            except (OSError, EOFError, ValueError) as exc:  # the page's end went away: the run goes on without it
-                self.error = f"live view stopped: {type(exc).__name__}: {exc}"
-                return
+        c0 = time.thread_time()
+        try:
+            while not self._stop.wait(self.push_period_s):
+                try:
+                    self.push()
+                except (OSError, EOFError, ValueError) as exc:  # the page's end went away: the run goes on
+                    self.error = f"live view stopped: {type(exc).__name__}: {exc}"
+                    return
+        finally:
+            self.cpu_s = time.thread_time() - c0  # what the sender took from the run's process (stand bench view)
 
     def push(self) -> None:
         for command in self.link.receive():
