@@ -267,3 +267,28 @@ def test_a_live_run_updates_the_page_and_obeys_pause_and_stop(browser, tmp_path)
     events = (tmp_path / "live" / "events.jsonl").read_text().splitlines()
     kinds = [json.loads(line)["kind"] for line in events]
     assert "paused" in kinds and "resumed" in kinds and kinds[-1] == "end"
+
+
+@pytest.mark.parametrize("frame, seq", [("O", "321"), ("N", "312"), ("E", "313"), ("S", "123")])
+def test_attitude_panel_matches_the_rotations_module(browser, replay, run_dir, frame, seq):
+    from sim.frames import dcm_esd_gcrs, dcm_itrs_gcrs, dcm_lvlh_gcrs
+    from sim.rotations import euler_from_quat, quat_from_dcm
+
+    _open(browser, replay.url)
+    browser.execute_script(f"document.getElementById('att-frame').value = '{frame}'; "
+                           f"document.getElementById('euler-seq').value = '{seq}'")
+    t = _seek(browser, 33.3)
+    row = _truth(run_dir, t)
+    ep = Epoch.from_iso(state.load_meta(run_dir)["epoch"]) + float(t)
+    dcm_RN = {"O": lambda: dcm_lvlh_gcrs(row["r_BN_N"], row["v_BN_N"]), "N": lambda: np.eye(3),
+              "E": lambda: dcm_itrs_gcrs(ep), "S": lambda: dcm_esd_gcrs(row["r_BN_N"], ep)}[frame]()
+    C = dcm(row["q_BN"]) @ dcm_RN.T
+    q = quat_from_dcm(C)
+    page = browser.execute_script("return window.standView.attitude")
+    assert page["frame"] == frame and page["seq"] == seq
+    # the page works from float32 samples and the Earth's rotation without UT1 - UTC: 0.01 deg
+    assert np.allclose(page["euler_deg"], np.degrees(euler_from_quat(q, seq)), atol=0.01)
+    assert np.allclose(page["q"], q, atol=2e-4)
+    assert np.allclose(page["dcm"], C, atol=2e-4)
+    axis, angle = page["axis"], math.radians(page["angle_deg"])
+    assert np.allclose(np.asarray(page["q"]), [math.cos(angle / 2), *(np.sin(angle / 2) * np.asarray(axis))], atol=1e-9)
