@@ -114,6 +114,19 @@ def _descendants(pid: int) -> list[int]:
     return out
 
 
+def _cpu_s(pids) -> float:
+    """User plus system CPU seconds of these processes so far (Linux /proc; 0 for those gone)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0
+    for p in pids:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])
+    return total / tick
+
+
 def _pin(pids, cpus: set[int]) -> None:
     for p in pids:
         try:
@@ -146,12 +159,18 @@ def _run_once(sc, out: Path, browser, with_page: bool, pin: bool = False) -> tup
                 _pin([live.process.pid], {1})
                 if browser is not None:
                     _pin(_descendants(browser.service.process.pid), {1})
+        page_pids = []
+        if live is not None:
+            page_pids = [live.process.pid] + (_descendants(browser.service.process.pid) if browser is not None else [])
+        p0, s0 = _cpu_s(page_pids), _cpu_s(page_pids[:1])
         t0, c0 = time.perf_counter(), time.thread_time()
         try:
             run(scene, out, progress=False, observer=live.observer if live else None)
         finally:
             wall = time.perf_counter() - t0
             stats["loop_cpu_s"] = time.thread_time() - c0
+            stats["page_cpu_s"] = _cpu_s(page_pids) - p0
+            stats["server_cpu_s"] = _cpu_s(page_pids[:1]) - s0
             if live is not None:
                 live.close()
                 stats["pushes_sent"] = live.feed.pushes
@@ -233,6 +252,10 @@ def bench_view(quick: bool = False) -> list[dict]:
             rows.append({"name": "view.live.pushes_per_s", "value": round(best.get("pushes", 0) / best["wall_s"], 2),
                          "unit": "1/s", "note": f"{best.get('pushes', 0)} pushes received by the page over "
                          f"{best['wall_s']:.2f} s (the feed sends at most 10 per second)"})
+            rows.append({"name": "view.page.cpu_share", "value": round(100 * best["page_cpu_s"] / best["wall_s"], 1),
+                         "unit": "% core", "note": f"CPU of the server process and the browser during the run: "
+                         f"{best['page_cpu_s']:.2f} s over {best['wall_s']:.2f} s, of which the server "
+                         f"{best['server_cpu_s']:.2f} s"})
             if browser is not None:
                 rows.append({"name": "view.live.redraws_per_s", "value": round(best["draws"] / best["wall_s"], 2),
                              "unit": "1/s", "note": f"last full redraw took {best['last_draw_ms']:.1f} ms"})
