@@ -131,6 +131,9 @@ def cmd_run(args) -> int:
                         print(f"stand: live view at {live.start(sc, out, args.duration)} (Ctrl-C stops the run)",
                               flush=True)
                     except ViewError as exc:
+                        (out / "view.json").unlink(missing_ok=True)
+                        if not any(out.iterdir()):
+                            out.rmdir()  # nothing ran: leave no folder behind
                         return fail(str(exc))
                 result = None
                 try:

@@ -272,3 +272,17 @@ def test_a_run_folder_without_view_json_is_described_from_its_scenario(tmp_path)
     (out / "summary.json").write_text(json.dumps({**summary, "source": str(tmp_path / "gone.toml")}))
     with pytest.raises(FileNotFoundError, match="neither a file on this machine nor a shipped scenario"):
         state.load_meta(out)
+
+
+def test_run_view_on_a_busy_port_says_so_and_leaves_nothing(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code = main(["run", "--view", f"127.0.0.1:{port}", "--out", str(tmp_path / "o"), "--duration", "1"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"cannot listen on 127.0.0.1:{port}" in err
+    assert not (tmp_path / "o").exists()
