@@ -108,7 +108,7 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
             plots += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
         from .view.export import report_panorama
 
-        plots += [p for p in [report_panorama(out_dir)] if p]
+        plots += [p for p in [report_panorama(out_dir, sc)] if p]
         write_markdown(summary, plots, out_dir)
     except OSError as exc:  # a full disk: the summary above is what matters, and it is whole
         summary["report_error"] = f"plots or report.md not written: {exc.strerror or exc}"

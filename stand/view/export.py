@@ -322,14 +322,16 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
     return written
 
 
-def report_panorama(run_dir) -> str | None:
-    """``panorama.png`` at the end of a run, for its report (None when the run recorded nothing)."""
+def report_panorama(run_dir, sc=None) -> str | None:
+    """``panorama.png`` at the end of a run, for its report (None when the run recorded nothing).
+    ``sc``: the run's scenario (else ``view.json`` or the scenario the summary names)."""
     from stand.telemetry import load
 
     t = load(run_dir)["t_s"]
     if len(t) == 0:
         return None
-    path = export(run_dir, run_dir, (float(t[-1]),))[0]
+    meta = state.describe(sc) if sc is not None else state.load_meta(run_dir)
+    path = export(run_dir, run_dir, (float(t[-1]),), meta=meta)[0]
     target = Path(run_dir) / "panorama.png"
     path.replace(target)
     return target.name
