@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import importlib
 import json
+import os
 import signal
 import sys
 import time
@@ -21,7 +22,7 @@ from .errors import ScenarioError, fail
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
-                  "stand.commands.shadow")
+                  "stand.commands.shadow", "stand.commands.view")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
@@ -93,10 +94,14 @@ def cmd_run(args) -> int:
     from .loop import Stopped, run
     from .report import limit_text, write_summary
 
-    out = None
+    out = live = None
     try:
         with _Signals() as signals:
             try:
+                if getattr(args, "view", None) is not None:
+                    from .view.server import LiveSession
+
+                    live = LiveSession.from_args(args.view, args.view_token)
                 sc = _load_scenario(args.scenario, args.seed, args.set)
                 speed = _speed(args, sc)
                 if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
@@ -116,8 +121,28 @@ def cmd_run(args) -> int:
                 return EXIT_STOPPED
             with scene:
                 out.mkdir(parents=True, exist_ok=True)
-                result = run(scene, out, speed=speed, duration_s=args.duration,
-                             progress=args.progress if args.progress is not None else sys.stderr.isatty())
+                from .view.state import write_view_json
+
+                write_view_json(sc, out, args.duration)
+                if live is not None:
+                    from .view.server import ViewError
+
+                    try:
+                        print(f"stand: live view at {live.start(sc, out, args.duration)} (Ctrl-C stops the run)",
+                              flush=True)
+                    except ViewError as exc:
+                        (out / "view.json").unlink(missing_ok=True)
+                        if not any(out.iterdir()):
+                            out.rmdir()  # nothing ran: leave no folder behind
+                        return fail(str(exc))
+                result = None
+                try:
+                    result = run(scene, out, speed=speed, duration_s=args.duration,
+                                 progress=args.progress if args.progress is not None else sys.stderr.isatty(),
+                                 observer=live.observer if live is not None else None)
+                finally:
+                    if live is not None:
+                        live.close(result.status if result is not None else "aborted")
                 signals.defer()
             summary = write_summary(scene, result, out)
     except OSError as exc:
@@ -215,6 +240,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
+    r.add_argument("--view", nargs="?", const="", metavar="HOST:PORT",
+                   help="serve the operator page live while the run goes (default 127.0.0.1 and a free port, "
+                   "printed); another address needs --view-token")
+    r.add_argument("--view-token", default=os.environ.get("STAND_VIEW_TOKEN"),
+                   help="token the page must give to pause, resume or stop the run (default: $STAND_VIEW_TOKEN)")
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="validate a scenario; list the models built and left out, and why")

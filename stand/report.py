@@ -114,6 +114,9 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
         plots = write_plots(tel, out_dir, rate_limits=rate_limits(sc.criteria))
         for d in sc.devices:
             plots += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
+        from .view.export import report_panorama
+
+        plots += [p for p in [report_panorama(out_dir, sc)] if p]
         write_markdown(summary, plots, out_dir)
     except OSError as exc:  # a full disk: the summary above is what matters, and it is whole
         summary["report_error"] = f"plots or report.md not written: {exc.strerror or exc}"

@@ -28,6 +28,7 @@ BENCHES = {
     "shadow": "stand.benches.shadow:bench_shadow",
     "cage": "stand.benches.cage:bench_cage",
     "screen-loop": "stand.benches.screen_loop:bench_screen_loop",
+    "view": "stand.benches.view:bench_view",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
