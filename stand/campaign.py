@@ -221,7 +221,8 @@ class _Params:
         if arr is None or not (arr.shape == () or arr.shape == self.shape) or not np.all(np.isfinite(arr)):
             raise self.error(key, value, f"{n}, finite")
         if np.any(arr < lo) or (lo_open and np.any(arr == lo)):
-            raise self.error(key, value, f"{n}, each {'>' if lo_open else '>='} {lo:g}")
+            bound = f"{'>' if lo_open else '>='} {lo:g}"
+            raise self.error(key, value, f"a number {bound}" if not self.shape else f"{n}, each {bound}")
         return np.broadcast_to(arr, self.shape).astype(float)
 
 
