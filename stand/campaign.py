@@ -559,6 +559,14 @@ def run_case(task: dict) -> dict:
 
 
 # ------------------------------------------------------------------------------------------------ executors
+def warm() -> None:
+    """Import what a run needs once per worker process, so the first case's timings are its own."""
+    from . import compose, devices, loop, report  # noqa: F401
+
+    for name in devices.kind_names():
+        devices.get(name)
+
+
 class _LocalPool:
     """A process pool on this machine (spawned workers: nothing of the parent's threads or buses is inherited)."""
 
@@ -569,7 +577,8 @@ class _LocalPool:
         from concurrent.futures import ProcessPoolExecutor
 
         self.workers = workers
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=warm)
 
     def submit(self, task):
         return self.pool.submit(run_case, task)
@@ -626,6 +635,7 @@ class _Dask:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
         self.key = key
+        self.client.run(warm)
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address

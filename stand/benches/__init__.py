@@ -26,6 +26,7 @@ BENCHES = {
     "tracker": "stand.benches.tracker:bench_tracker",
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
     "shadow": "stand.benches.shadow:bench_shadow",
+    "campaign": "stand.benches.campaign:bench_campaign",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
