@@ -460,6 +460,10 @@ def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = No
     for item in overrides or []:
         scenario_mod.set_value(data, item)
     nominal = scenario_mod.parse(json.loads(json.dumps(data)), path.name)
+    if nominal.wall_time_links:
+        raise CampaignError(f"SCENARIO {path.name} is not allowed in a campaign: its devices "
+                            f"{', '.join(nominal.wall_time_links)} are on hardware or served links, which run in wall "
+                            "time on one bench; a campaign runs emulated devices (--set devices.NAME.link=emulated).")
     disp = parse_dispersions(dtext, data, dpath.name)
     if duration_s is not None and not (nominal.step_s <= duration_s <= 30 * 86400):
         raise CampaignError(str(ScenarioError("--duration", duration_s, f"seconds from the step "

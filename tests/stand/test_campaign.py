@@ -340,3 +340,8 @@ def test_the_campaign_command_runs_and_explains_its_errors(scenario_dict, write_
     rc = main(["run", "--campaign", str(tmp_path / "nowhere"), "--case", "0"])
     assert rc == 2 and "a campaign folder" in capsys.readouterr().err
     assert math.isfinite(data["execution"]["overhead_per_run_s"])
+
+
+def test_a_scenario_with_wall_time_devices_is_refused():
+    with pytest.raises(cm.CampaignError, match="hardware or served links"):
+        cm.make_spec("star_tracker_hardware", SHIPPED)
