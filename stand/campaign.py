@@ -956,7 +956,7 @@ def write_report(out: str | Path, result: dict) -> list[str]:
     made += _plot_scatter(result, records, out)
     made = [m for m in made if m]
     spec, ex = result["spec"], result["execution"]
-    lines = [f"# Campaign: {spec['scenario_name']}", "",
+    lines = [f"# Campaign: {Path(spec['scenario_name']).stem}", "",
              f"{result['finished']} of {result['runs']} runs finished, seed {spec['seed']}, dispersions "
              f"{spec['dispersions_source']}" + (f", {spec['duration_s']:g} s per run" if spec["duration_s"] else "")
              + ".", "",
@@ -971,13 +971,14 @@ def write_report(out: str | Path, result: dict) -> list[str]:
         lim = " and ".join(f"{k} {v:g}" for k, v in c["limit"].items())
         lines.append(f"| {name} | {lim} | {c['passed']}/{c['runs']} | {_pct(c['rate'])} | "
                      f"{_pct(c['ci95'][0])} to {_pct(c['ci95'][1])} |")
-    lines += ["", "## Metrics", "", "| metric | n | mean | std | min | p5 | p50 | p95 | max |",
-              "|---|---|---|---|---|---|---|---|---|"]
-    for name, s in {**result["metrics"], **result["inputs"]}.items():
-        if s.get("n"):
-            lines.append(f"| {name} | {s['n']} | " + " | ".join(f"{s[k]:.5g}" for k in
-                                                                ("mean", "std", "min", "p5", "p50", "p95", "max"))
-                         + " |")
+    for title, table in (("Metrics", result["metrics"]), ("Dispersed inputs", result["inputs"])):
+        lines += ["", f"## {title}", "", "| name | n | mean | std | min | p5 | p50 | p95 | max |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for name, s in table.items():
+            if s.get("n"):
+                lines.append(f"| {name} | {s['n']} | " + " | ".join(f"{s[k]:.5g}" for k in
+                                                                    ("mean", "std", "min", "p5", "p50", "p95", "max"))
+                             + " |")
     lines += ["", "## Worst cases", "", "| case | criterion | margin to the limit | error |", "|---|---|---|---|"]
     for w in result["worst_cases"]:
         m = "-" if w["margin"] is None else f"{w['margin']:+.5g}"

@@ -33,22 +33,28 @@ def bench_campaign(quick: bool = False) -> list[dict]:
     rows: list[dict] = []
     results = {}
     with tempfile.TemporaryDirectory(prefix="stand-bench-campaign-") as tmp:
+        load = {}
         for label, kw in (("local_1", {"workers": 1}), ("local_2", {"workers": 2})):
+            before = os.getloadavg()[0]
             results[label] = cm.run_campaign(spec, Path(tmp) / label, runs, plots=False, **kw)
+            load[label] = (before, os.getloadavg()[0])
         try:
             from distributed import LocalCluster
         except ImportError:
             LocalCluster = None
         if LocalCluster is not None:
+            before = os.getloadavg()[0]
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                               dashboard_address=None) as cluster:
                 results["dask_2"] = cm.run_campaign(spec, Path(tmp) / "dask_2", runs, plots=False,
                                                     scheduler=cluster.scheduler_address)
+            load["dask_2"] = (before, os.getloadavg()[0])
         for label, r in results.items():
             ex = r["execution"]
             rows.append({"name": f"campaign.{label}.runs_per_min", "value": ex["runs_per_min"], "unit": "runs/min",
                          "note": f"{what}; {ex['executor']} x{ex['workers']}, {ex['wall_s']:.1f} s wall "
-                                 f"(pool start included)"})
+                                 f"(pool start included); machine load {load[label][0]:.1f} -> {load[label][1]:.1f} "
+                                 f"on {os.cpu_count()} cores"})
         r1, r2 = results["local_1"]["execution"], results["local_2"]["execution"]
         rows.append({"name": "campaign.scaling_efficiency_1_to_2", "value": round(r2["runs_per_min"]
                                                                                    / (2 * r1["runs_per_min"]), 3),
@@ -65,6 +71,10 @@ def bench_campaign(quick: bool = False) -> list[dict]:
             rows.append({"name": f"campaign.{label}.overhead_parts", "value": round(sum(parts.values()), 4),
                          "unit": "s", "note": ", ".join(f"{k[:-2]} {v * 1e3:.1f} ms" for k, v in parts.items())
                          + " (mean per run; the rest is pool start, scheduling and validation)"})
+        v = results["local_1"]["execution"]["validate_s"]
+        rows.append({"name": "campaign.validation_before_first_run", "value": round(v, 2), "unit": "s",
+                     "note": f"every case's scenario parsed on the client ({1e3 * v / runs:.1f} ms per case), not "
+                             "counted in the rates above"})
         digests = {label: [c["digest"] for c in r["cases"]] for label, r in results.items()}
         same = all(d == digests["local_1"] for d in digests.values())
         rows.append({"name": "campaign.identical_per_run_results", "value": int(same), "unit": "",
