@@ -153,19 +153,18 @@ def cmd_run(args) -> int:
 
 def _campaign_case(args):
     """``stand run --campaign DIR --case K``: the case's scenario exactly as the campaign ran it."""
-    from .campaign import CampaignError, load_case
+    from .campaign import load_case
 
     if args.campaign is None or args.case is None:
-        raise ScenarioError("--campaign" if args.campaign is None else "--case", None,
+        from .errors import MISSING
+
+        raise ScenarioError("--campaign" if args.campaign is None else "--case", MISSING,
                             "--campaign DIR and --case K together")
     for flag, value in (("--seed", args.seed), ("--duration", args.duration), ("--set", args.set or None)):
         if value is not None:
             raise ScenarioError(flag, value, "nothing with --campaign: a case runs with the campaign's seed, "
                                 "duration and values")
-    try:
-        sc, base, case = load_case(args.campaign, args.case)
-    except CampaignError as exc:
-        raise ScenarioError("--campaign", args.campaign, str(exc).rstrip(".")) from None
+    sc, base, case = load_case(args.campaign, args.case)  # a CampaignError is a ValueError: one sentence, exit 2
     name = sc.source.split("#")[0]
     if args.scenario is not None and Path(args.scenario).name not in (name, name.removesuffix(".toml")):
         raise ScenarioError("SCENARIO", args.scenario, f"the campaign's scenario ({name}) or none with --campaign")

@@ -345,3 +345,19 @@ def test_the_campaign_command_runs_and_explains_its_errors(scenario_dict, write_
 def test_a_scenario_with_wall_time_devices_is_refused():
     with pytest.raises(cm.CampaignError, match="hardware or served links"):
         cm.make_spec("star_tracker_hardware", SHIPPED)
+
+
+def test_the_progress_line_counts_runs_passed_and_failed():
+    import io
+
+    stream = io.StringIO()
+    bar = cm.CampaignProgress(4, True, stream)
+    bar.add({"passed": True, "status": "completed"}, resumed=True)
+    bar.add({"passed": False, "status": "completed"})
+    bar.add({"passed": False, "status": "error"})
+    bar.show()
+    line = stream.getvalue().rsplit("\r", 1)[-1]
+    assert "3/4 runs  passed 1  failed 2 (1 errors)" in line
+    quiet = io.StringIO()
+    cm.CampaignProgress(4, False, quiet).show()
+    assert quiet.getvalue() == ""
