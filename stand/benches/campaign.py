@@ -70,7 +70,8 @@ def bench_campaign(quick: bool = False) -> list[dict]:
             parts = {k: r["overhead_s"][k].get("mean", 0.0) for k in ("build_s", "summary_s", "transfer_s", "write_s")}
             rows.append({"name": f"campaign.{label}.overhead_parts", "value": round(sum(parts.values()), 4),
                          "unit": "s", "note": ", ".join(f"{k[:-2]} {v * 1e3:.1f} ms" for k, v in parts.items())
-                         + " (mean per run; the rest is pool start, scheduling and validation)"})
+                         + " (means per run; transfer runs from the worker's end to the client's receipt, so it "
+                           "overlaps other work and the parts need not add up to the overhead)"})
         v = results["local_1"]["execution"]["validate_s"]
         rows.append({"name": "campaign.validation_before_first_run", "value": round(v, 2), "unit": "s",
                      "note": f"every case's scenario parsed on the client ({1e3 * v / runs:.1f} ms per case), not "

@@ -263,6 +263,7 @@ def test_a_campaign_writes_its_cases_aggregates_and_resumes(scenario_dict, write
         cm.run_campaign(other, out, 3, workers=0)
 
 
+@pytest.mark.slow
 def test_a_failing_run_is_recorded_and_the_others_go_on(scenario_dict, write_scenario, tmp_path):
     (tmp_path / "fragile.py").write_text(
         "class Fragile:\n"
@@ -287,6 +288,7 @@ def test_a_failing_run_is_recorded_and_the_others_go_on(scenario_dict, write_sce
     assert all("the flight code refused to start" in f["error"] for f in errors)
 
 
+@pytest.mark.slow
 def test_local_pool_and_dask_local_cluster_give_identical_cases(scenario_dict, write_scenario, tmp_path):
     distributed = pytest.importorskip("distributed")
     spec = _fast_spec(scenario_dict, write_scenario, tmp_path)
