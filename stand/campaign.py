@@ -553,7 +553,8 @@ def run_case(task: dict) -> dict:
             return {"record": rec, "files": files}
     t_end = time.time()
     rec.update(status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
-               criteria=[{k: c[k] for k in ("name", "metric", "value", "limit", "pass")} for c in summary["criteria"]],
+               criteria=[{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
+                         for c in summary["criteria"]],
                rate_deg_s_at=summary.get("rate_deg_s_at", {}),
                digest=digest(summary, files.get("telemetry/rows.f64", b"")),
                timing={"worker_start": t_start, "wait_s": t_lock - t_start, "build_s": t_built - t_lock,
@@ -871,7 +872,7 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
     criteria: dict[str, dict] = {}
     for r in records:
         for c in r.get("criteria", []):
-            criteria.setdefault(c["name"], {"metric": c["metric"], "limit": c["limit"]})
+            criteria.setdefault(c["name"], {"metric": c["metric"], "unit": c.get("unit") or "", "limit": c["limit"]})
     rates = {}
     for name, info in criteria.items():
         # A case with no value for a criterion (it raised before its summary) counts as failing it.
@@ -1032,7 +1033,8 @@ def _plot_metrics(result: dict, records: list[dict], out: Path) -> str | None:
         lim = result["criteria"].get(name, {}).get("limit", {})
         for v in lim.values():
             ax.axvline(v, color="black", linestyle="--")
-        ax.set_title(name, fontsize=9)
+        unit = result["criteria"].get(name, {}).get("unit") or ("deg/s" if name.startswith("rate_deg_s") else "")
+        ax.set_title(f"{name} ({unit})" if unit else name, fontsize=9)
         ax.set_ylabel("runs")
     fig.tight_layout()
     fig.savefig(out / "metrics.png", dpi=100)
@@ -1062,7 +1064,7 @@ def _plot_scatter(result: dict, records: list[dict], out: Path) -> list[str]:
             for v in info["limit"].values():
                 ax.axhline(v, color="black", linestyle="--", linewidth=0.8)
             ax.set_xlabel(label, fontsize=8)
-            ax.set_ylabel(name, fontsize=8)
+            ax.set_ylabel(f"{name} ({info['unit']})" if info.get("unit") else name, fontsize=8)
             ax.tick_params(labelsize=7)
         fig.tight_layout()
         fname = f"scatter_{k}.png"
