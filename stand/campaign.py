@@ -161,7 +161,7 @@ class Dispersion:
             mean, sigma = p["mean"], p["sigma"]
             lo = np.where(sigma > 0, ndtr((p["min"] - mean) / np.where(sigma > 0, sigma, 1.0)), 0.0)
             hi = np.where(sigma > 0, ndtr((p["max"] - mean) / np.where(sigma > 0, sigma, 1.0)), 1.0)
-            u = rng.random(shape)
+            u = np.clip(rng.random(shape), 1e-300, None)  # 0 would map to an infinite draw
             # Inverse CDF of the normal truncated to [min, max]: exact, one draw per axis, no rejection loop.
             x = mean + sigma * ndtri(lo + u * (hi - lo))
             return _to_python(np.clip(np.where(sigma > 0, x, mean), p["min"], p["max"]))
