@@ -22,7 +22,7 @@ from .errors import ScenarioError, fail
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
-                  "stand.commands.shadow", "stand.commands.view")
+                  "stand.commands.shadow", "stand.commands.view", "stand.commands.campaign")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
@@ -102,7 +102,11 @@ def cmd_run(args) -> int:
                     from .view.server import LiveSession
 
                     live = LiveSession.from_args(args.view, args.view_token)
-                sc = _load_scenario(args.scenario, args.seed, args.set)
+                case = None
+                if args.campaign is not None or args.case is not None:
+                    sc, base, case = _campaign_case(args)
+                else:
+                    sc = _load_scenario(args.scenario, args.seed, args.set)
                 speed = _speed(args, sc)
                 if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
                     raise ScenarioError("--duration", args.duration, f"seconds from the step ({sc.step_s:g} s) to "
@@ -112,7 +116,8 @@ def cmd_run(args) -> int:
                     raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
                 from . import scenario as scenario_mod
 
-                base = scenario_mod.find(args.scenario).parent if args.scenario else None
+                if case is None:
+                    base = scenario_mod.find(args.scenario).parent if args.scenario else None
                 scene = build(sc, speed, base, duration_s=args.duration, out_dir=out)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
@@ -159,11 +164,36 @@ def cmd_run(args) -> int:
     verdict = "PASS" if summary["pass"] else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(result.status, "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")
+    if case is not None:
+        from .campaign import compare_case
+
+        same, text = compare_case(case, out)
+        print(text, file=sys.stdout if same is not False else sys.stderr)
     if result.status == "aborted":
         return EXIT_ABORTED
     if result.status == "stopped":
         return EXIT_STOPPED
     return EXIT_PASS if summary["pass"] else EXIT_FAIL
+
+
+def _campaign_case(args):
+    """``stand run --campaign DIR --case K``: the case's scenario exactly as the campaign ran it."""
+    from .campaign import load_case
+
+    if args.campaign is None or args.case is None:
+        from .errors import MISSING
+
+        raise ScenarioError("--campaign" if args.campaign is None else "--case", MISSING,
+                            "--campaign DIR and --case K together")
+    for flag, value in (("--seed", args.seed), ("--duration", args.duration), ("--set", args.set or None)):
+        if value is not None:
+            raise ScenarioError(flag, value, "nothing with --campaign: a case runs with the campaign's seed, "
+                                "duration and values")
+    sc, base, case = load_case(args.campaign, args.case)  # a CampaignError is a ValueError: one sentence, exit 2
+    name = sc.source.split("#")[0]
+    if args.scenario is not None and Path(args.scenario).name not in (name, name.removesuffix(".toml")):
+        raise ScenarioError("SCENARIO", args.scenario, f"the campaign's scenario ({name}) or none with --campaign")
+    return sc, base, case
 
 
 def cmd_check(args) -> int:
@@ -245,6 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "printed); another address needs --view-token")
     r.add_argument("--view-token", default=os.environ.get("STAND_VIEW_TOKEN"),
                    help="token the page must give to pause, resume or stop the run (default: $STAND_VIEW_TOKEN)")
+    r.add_argument("--campaign", metavar="DIR", help="re-run one case of this campaign (with --case)")
+    r.add_argument("--case", type=int, metavar="K", help="the case index to re-run (with --campaign)")
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="validate a scenario; list the models built and left out, and why")

@@ -285,10 +285,11 @@ def shipped() -> dict[str, str]:
     out = {}
     for f in sorted(SCENARIO_DIR.glob("*.toml")):
         try:
-            desc = tomllib.loads(f.read_text(encoding="utf-8")).get("scenario", {}).get("description", "")
+            data = tomllib.loads(f.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, OSError):
-            desc = "(unreadable)"
-        out[f.stem] = desc
+            data = {"scenario": {"description": "(unreadable)"}}
+        if "scenario" in data:  # a campaign's dispersion file lives beside its scenario but is none
+            out[f.stem] = data["scenario"].get("description", "")
     return out
 
 

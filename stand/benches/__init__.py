@@ -29,6 +29,7 @@ BENCHES = {
     "cage": "stand.benches.cage:bench_cage",
     "screen-loop": "stand.benches.screen_loop:bench_screen_loop",
     "view": "stand.benches.view:bench_view",
+    "campaign": "stand.benches.campaign:bench_campaign",
 }
 
 #: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
