@@ -32,7 +32,8 @@ from stand.adcs import PluginError
 from stand.errors import ScenarioError
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = sorted(scenario.SCENARIO_DIR.glob("*.toml"))
+# The shipped scenarios (the folder also holds a campaign's dispersion file, which is not a scenario).
+SHIPPED = sorted(scenario.SCENARIO_DIR / f"{name}.toml" for name in scenario.shipped())
 #: Scenarios that run on emulated devices only (the others open real ports: they may fail, with a DriverError).
 EMULATED = ("detumble", "detumble_duty_cycled", "detumble_igrf", "detumble_star_tracker")
 
