@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from . import devices
-from .compose import Scene
-from .loop import RunResult
 from .adcs.metrics import METRICS as POINTING_METRICS
 from .adcs.metrics import value as pointing_metric
+from .compose import Scene
+from .loop import RunResult
 from .scenario import METRIC_UNITS, Criterion, all_metrics
 from .telemetry import load
 

@@ -229,6 +229,7 @@ class EmulatedWheel(_Wheel):
 
     def publish(self, t_s):
         self.emulator.publish(t_s)
+        self.host.poll()  # count what reached the stand, read by the flight code or not (take_speed stays theirs)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
