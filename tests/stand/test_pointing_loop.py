@@ -183,7 +183,7 @@ def pointing_dict() -> dict:
     k = next(_channel)
     for d in data["devices"]:
         if d["kind"] == "reaction_wheel":
-            d["channel"] = f"test-pointing-{k}"
+            d["channel"] = f"test-pointing-{k}-{d['name']}"
     return data
 
 
