@@ -69,7 +69,7 @@ def plan(sc: Scenario) -> list[Choice]:
     choices = [
         Choice("orbit", True, f"{gravity} gravity, RK4 at {o.step_s:g} s with the force re-evaluated at every "
                "stage, Hermite-interpolated to the dynamics steps"),
-        Choice("attitude", True, f"rigid body, {sc.integrator.upper()} at {sc.step_s:g} s"),
+        Choice("attitude", True, f"rigid body{_wheels_text(sc)}, {sc.integrator.upper()} at {sc.step_s:g} s"),
         Choice(f"magnetic_field.{env.magnetic_field}", needs_field,
                "needed by " + ", ".join(field_why) if needs_field
                else "no magnetometer, magnetorquer, cage or magnetic torque in the scene"),
@@ -105,6 +105,11 @@ def plan(sc: Scenario) -> list[Choice]:
     choices.append(Choice(f"controller.{ctl.kind}", ctl.kind not in ("none", "external"),
                           ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
     return choices
+
+
+def _wheels_text(sc: Scenario) -> str:
+    n = sum(devices.get(d.kind).momentum_wheel(d) is not None for d in sc.devices)
+    return f" with {n} momentum wheel{'s' if n > 1 else ''} in its state" if n else ""
 
 
 def _star_screen_choice(sc: Scenario, why: list[str]) -> Choice:

@@ -14,11 +14,15 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
     [spacecraft]   mass_kg, inertia_kg_m2 (3 principal moments or 3x3), q_BN, omega_BN_B_deg_s
     [environment]  magnetic_field = "igrf" | "dipole", igrf_degree, earth_rotation = "iau2006" | "uniform",
                    era0_deg, eop = "iers" | "none"
-    [[devices]]    name, kind = "magnetorquer" | "star_tracker" | "sun_sensor", q_SB, and per kind:
+    [[devices]]    name, kind = "magnetorquer" | "star_tracker" | "sun_sensor" | "cage" | "gyro" | "reaction_wheel",
+                   q_SB, and per kind:
                    magnetorquer: interface, channel, sample_rate_hz, max_dipole_A_m2, mag_noise_nT, ...
                    star_tracker: port, source = "truth" | "image", noise_cross_arcsec, fov_deg, ...
                    sun_sensor: type = "coarse" | "fine", rate_hz, noise_mA | noise_deg, fov_half_deg
+                   gyro: port, output_rate_hz, ideal, arw_deg_sqrt_h, bias_instability_deg_h, delay_s, ...
+                   reaction_wheel: interface, channel, wheel, spin_axis_B, inertia_kg_m2, max_torque_Nm, ...
     [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, ...
+                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name)
     [[criteria]]   name, metric, max | min, at_s
     [recording]    rate_hz
     [rendezvous]   shadows on a docking target during an approach (``stand shadow``; see stand.rendezvous)
