@@ -162,7 +162,8 @@ MIN_TRACKER_SIGMA_ARCSEC = 0.5
 def pointing_options(sc) -> dict:
     """The options of ``controller.kind = "pointing"`` with what the scenario already says filled in (an option
     the scenario gives wins): the spacecraft inertia, each device's mount, the wheels' axes, inertias and torque
-    limit, the tracker's noise and the gyro's random walks."""
+    limit, the tracker's noise, the gyro's random walks, the coarse sun heads' normals, and for nadir, target
+    and sun guidance the orbit at t = 0 and the epoch."""
     opts = dict(sc.controller.params["options"])
     specs = {d.name: d for d in sc.devices}
     opts.setdefault("inertia_kg_m2", np.asarray(sc.spacecraft.inertia_kg_m2, dtype=float).tolist())
@@ -186,6 +187,20 @@ def pointing_options(sc) -> dict:
     for key in ("magnetorquer", "sun_sensor"):
         if key in opts:
             opts.setdefault(f"{key}_q_SB", specs[opts[key]].q_SB.tolist())
+    if "sun_sensor" in opts and specs[opts["sun_sensor"]].type == "coarse":
+        from stand.devices.sun_sensor import FACE_NORMALS
+
+        # The controller solves for the Sun in the heads' own axes and then turns it through the mount.
+        opts.setdefault("sun_sensor_normals_B", FACE_NORMALS.tolist())
+    guidance = opts.get("guidance", "inertial")
+    if guidance in ("nadir", "target"):
+        from stand.compose import initial_state
+
+        r, v = initial_state(sc)
+        opts.setdefault("orbit_r_N_m", r.tolist())
+        opts.setdefault("orbit_v_N_m_s", v.tolist())
+    if guidance in ("sun", "target"):
+        opts.setdefault("epoch", sc.epoch.iso)
     return opts
 
 

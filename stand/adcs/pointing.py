@@ -381,7 +381,7 @@ class PointingController:
         s = self.sun_sensor.take_sun()
         if s is None or not getattr(s, "valid", False):
             return None
-        if hasattr(s, "angles_rad"):
+        if getattr(s, "angles_rad", None) is not None:  # the stand's reader carries both fields, one None
             a, b = s.angles_rad
             v = np.array([math.tan(a), math.tan(b), 1.0])
         elif self.sun_normals is not None:

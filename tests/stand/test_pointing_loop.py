@@ -18,6 +18,7 @@ from stand.compose import build
 from stand.devices import BuildContext
 from stand.errors import ScenarioError
 from stand.loop import run
+from stand.report import write_summary
 from stand.scenario import SCENARIO_DIR, Table
 
 ARCSEC = math.pi / 180.0 / 3600.0
@@ -213,10 +214,15 @@ def test_pointing_run_is_repeatable(write_scenario, tmp_path):
     tels = []
     for k in range(2):
         with build(sc) as scene:
-            assert run(scene, tmp_path / f"r{k}").status == "completed"
+            result = run(scene, tmp_path / f"r{k}")
+            assert result.status == "completed"
+            if k == 0:
+                write_summary(scene, result, tmp_path / "r0")
         tels.append(telemetry.load(tmp_path / f"r{k}"))
     for name in tels[0]:
         np.testing.assert_array_equal(tels[0][name], tels[1][name], err_msg=name)
+    for plot in ("pointing.png", "gyro_imu.png", "wheel_rw0.png", "wheel_rw3.png"):
+        assert (tmp_path / "r0" / plot).stat().st_size > 1000
 
 
 def test_pointing_star_tracker_points_within_its_budget(write_scenario, tmp_path):
