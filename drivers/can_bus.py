@@ -1,6 +1,7 @@
 """Opening CAN buses through python-can, with errors from :mod:`drivers.errors`.
 
-A CAN endpoint is an interface name plus a channel: ``("virtual", "adcs")`` in tests,
+A CAN endpoint is an interface name plus a channel: ``("virtual", "adcs")`` or
+``("stand_loopback", "adcs")`` (:mod:`drivers.can_loopback`, the fast in-process bus) in tests,
 ``("socketcan", "can0")`` on a bench. python-can is imported lazily, so importing this module
 costs nothing on a stand that has no CAN device.
 
@@ -10,6 +11,7 @@ the default route (see docs/architecture.md, "Cross-process tests on one machine
 
 from __future__ import annotations
 
+import importlib
 import socket
 from typing import TYPE_CHECKING, Any
 
@@ -18,11 +20,18 @@ from drivers.errors import ConnectError
 if TYPE_CHECKING:  # pragma: no cover
     import can
 
-__all__ = ["loops_back", "open_bus", "socketcan_available"]
+__all__ = ["OWN_INTERFACES", "loops_back", "open_bus", "socketcan_available"]
+
+#: Interfaces this package provides, name -> (module, class). They are registered with python-can
+#: through the ``can.interface`` entry-point group when the package is installed; ``open_bus``
+#: opens them from here either way, so a source checkout works too.
+OWN_INTERFACES: dict[str, tuple[str, str]] = {
+    "stand_loopback": ("drivers.can_loopback", "LoopbackBus"),
+}
 
 
 def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
-    """Open a python-can bus, e.g. ``open_bus("virtual", "adcs")`` or ``open_bus("socketcan", "can0")``.
+    """Open a python-can bus, e.g. ``open_bus("stand_loopback", "adcs")`` or ``open_bus("socketcan", "can0")``.
 
     Extra keyword arguments go to :class:`can.Bus` (``bitrate``, ``receive_own_messages``...).
     Any failure (python-can missing, unknown interface, missing vendor library, no such device,
@@ -40,8 +49,8 @@ def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
             where=where,
             reason=str(exc),
         ) from exc
-    valid = sorted(can.interfaces.VALID_INTERFACES)
-    if interface not in can.interfaces.VALID_INTERFACES:
+    valid = sorted(set(can.interfaces.VALID_INTERFACES) | set(OWN_INTERFACES))
+    if interface not in valid:
         raise ConnectError(
             f"Cannot open CAN bus ({where}): unknown interface {interface!r}. "
             f"python-can knows: {', '.join(valid)}.",
@@ -49,6 +58,10 @@ def open_bus(interface: str, channel: str, **kwargs: Any) -> can.BusABC:
             reason="unknown interface",
         )
     try:
+        if interface in OWN_INTERFACES:
+            # Straight to the class: the package need not be installed for its entry point to exist.
+            module, cls = OWN_INTERFACES[interface]
+            return getattr(importlib.import_module(module), cls)(channel=channel, **kwargs)
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except Exception as exc:  # every backend failure is a connect failure
         reason = f"{type(exc).__name__}: {exc}"

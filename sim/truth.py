@@ -6,6 +6,10 @@ What it computes and where:
   runs ahead of the attitude in chunks: RK4 with the J2 force re-evaluated at every stage at a
   coarse ``orbit_step_s`` (10 s: 0.44 m per day), then cubic Hermite interpolation from positions
   and velocities (0.3 mm at 10 s in LEO) onto the half-step grid the attitude RK4 samples.
+  A chunk is ``CHUNK_S`` of sim time but never more than ``CHUNK_POINTS`` grid points, so its memory does
+  not grow as the dynamics step shrinks (at 1e-6 s a 200 s chunk would be 4e8 points, tens of GB); the
+  orbit nodes of a propagation are kept until the chunks have used them, so short chunks do not
+  propagate the same orbit step again.
 * The geomagnetic field is evaluated vectorised for a whole chunk of that grid at once, so the
   attitude stages only rotate a precomputed inertial field into the body frame.
 * The attitude is RK4 on plain floats (``sim.rigid_body.RigidBody``) with magnetic and gravity-
@@ -38,6 +42,14 @@ from .wheels import WheelCluster, WheeledBody
 #: Length of one precomputed chunk of orbit and field, s. Long enough to amortise the vectorised
 #: calls, short enough that a stopped run wasted little.
 CHUNK_S = 200.0
+#: Most half-step grid points in one chunk (positions, velocities and field: about 1 KB a point with the
+#: vectorised field model's temporaries). The shipped scenarios' chunks (4001 points at 0.1 s) are under it.
+CHUNK_POINTS = 8192
+
+
+def chunk_points(half_step_s: float) -> int:
+    """Grid points in one chunk of the orbit track for a half-step of ``half_step_s``."""
+    return min(CHUNK_POINTS, max(2, int(round(CHUNK_S / half_step_s))))
 
 
 def rotate_to_body(q, v):
@@ -80,27 +92,22 @@ class OrbitTrack:
         self._pos: list = []
         self._vel: list = []
         self._field: list = []
+        self._nodes: tuple | None = None  # (t, r, v) of the latest propagation, reused while they reach far enough
         self.evaluations = 0  # field points evaluated (tests prove left-out models stay at 0)
 
     def _fill(self, idx: int) -> None:
         """Compute the chunk that contains half-step index ``idx``."""
         h_half = self.half_step_ns / NS_PER_S
-        per_chunk = max(2, int(round(CHUNK_S / h_half)))
+        per_chunk = chunk_points(h_half)
         start = (idx // per_chunk) * per_chunk
         t_start = start * h_half
         t_end = (start + per_chunk) * h_half
         # Propagate from wherever the orbit state is to cover [t_start, t_end].
         if t_start < self._t0_s - 1e-9:
             raise RuntimeError("the orbit track only runs forward in time.")
-        span = t_end - self._t0_s
-        n = max(1, int(math.ceil(span / self.orbit_step_s - 1e-9)))
-        if self.forces is None:
-            t, r, v = orbit_mod.propagate_j2(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
-                                             mu=self.mu, j2=self.j2, r_eq=R_EARTH)
-            t = t + self._t0_s
-        else:
-            t, r, v = orbit_mod.propagate_cowell(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
-                                                 self.forces, t0_s=self._t0_s)
+        if self._nodes is None or self._nodes[0][-1] < t_end - 1e-9:
+            self._nodes = self._propagate(t_end)
+        t, r, v = self._nodes
         ts = (np.arange(start, start + per_chunk + 1) * h_half)
         k = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, len(t) - 2)
         H = t[k + 1] - t[k]
@@ -127,6 +134,17 @@ class OrbitTrack:
         if self.field_N is not None:
             self._field = self.field_N(ts, pos).tolist()
             self.evaluations += len(ts)
+
+    def _propagate(self, t_end: float) -> tuple:
+        """Orbit nodes at the orbit step from the current node to at least ``t_end``."""
+        span = t_end - self._t0_s
+        n = max(1, int(math.ceil(span / self.orbit_step_s - 1e-9)))
+        if self.forces is None:
+            t, r, v = orbit_mod.propagate_j2(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
+                                             mu=self.mu, j2=self.j2, r_eq=R_EARTH)
+            return t + self._t0_s, r, v
+        return orbit_mod.propagate_cowell(self._r, self._v, n * self.orbit_step_s, self.orbit_step_s,
+                                          self.forces, t0_s=self._t0_s)
 
     def _index(self, idx: int) -> int:
         j = idx - self._chunk_start_idx

@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import importlib
 import json
+import os
 import signal
 import sys
 import time
@@ -21,7 +22,7 @@ from .errors import ScenarioError, fail
 
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
-                  "stand.commands.shadow")
+                  "stand.commands.shadow", "stand.commands.view", "stand.commands.campaign")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
@@ -93,11 +94,19 @@ def cmd_run(args) -> int:
     from .loop import Stopped, run
     from .report import limit_text, write_summary
 
-    out = None
+    out = live = None
     try:
         with _Signals() as signals:
             try:
-                sc = _load_scenario(args.scenario, args.seed, args.set)
+                if getattr(args, "view", None) is not None:
+                    from .view.server import LiveSession
+
+                    live = LiveSession.from_args(args.view, args.view_token)
+                case = None
+                if args.campaign is not None or args.case is not None:
+                    sc, base, case = _campaign_case(args)
+                else:
+                    sc = _load_scenario(args.scenario, args.seed, args.set)
                 speed = _speed(args, sc)
                 if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
                     raise ScenarioError("--duration", args.duration, f"seconds from the step ({sc.step_s:g} s) to "
@@ -107,8 +116,9 @@ def cmd_run(args) -> int:
                     raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
                 from . import scenario as scenario_mod
 
-                base = scenario_mod.find(args.scenario).parent if args.scenario else None
-                scene = build(sc, speed, base)
+                if case is None:
+                    base = scenario_mod.find(args.scenario).parent if args.scenario else None
+                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
             except (KeyboardInterrupt, Stopped):
@@ -116,8 +126,28 @@ def cmd_run(args) -> int:
                 return EXIT_STOPPED
             with scene:
                 out.mkdir(parents=True, exist_ok=True)
-                result = run(scene, out, speed=speed, duration_s=args.duration,
-                             progress=args.progress if args.progress is not None else sys.stderr.isatty())
+                from .view.state import write_view_json
+
+                write_view_json(sc, out, args.duration)
+                if live is not None:
+                    from .view.server import ViewError
+
+                    try:
+                        print(f"stand: live view at {live.start(sc, out, args.duration)} (Ctrl-C stops the run)",
+                              flush=True)
+                    except ViewError as exc:
+                        (out / "view.json").unlink(missing_ok=True)
+                        if not any(out.iterdir()):
+                            out.rmdir()  # nothing ran: leave no folder behind
+                        return fail(str(exc))
+                result = None
+                try:
+                    result = run(scene, out, speed=speed, duration_s=args.duration,
+                                 progress=args.progress if args.progress is not None else sys.stderr.isatty(),
+                                 observer=live.observer if live is not None else None)
+                finally:
+                    if live is not None:
+                        live.close(result.status if result is not None else "aborted")
                 signals.defer()
             summary = write_summary(scene, result, out)
     except OSError as exc:
@@ -134,11 +164,36 @@ def cmd_run(args) -> int:
     verdict = "PASS" if summary["pass"] else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(result.status, "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")
+    if case is not None:
+        from .campaign import compare_case
+
+        same, text = compare_case(case, out)
+        print(text, file=sys.stdout if same is not False else sys.stderr)
     if result.status == "aborted":
         return EXIT_ABORTED
     if result.status == "stopped":
         return EXIT_STOPPED
     return EXIT_PASS if summary["pass"] else EXIT_FAIL
+
+
+def _campaign_case(args):
+    """``stand run --campaign DIR --case K``: the case's scenario exactly as the campaign ran it."""
+    from .campaign import load_case
+
+    if args.campaign is None or args.case is None:
+        from .errors import MISSING
+
+        raise ScenarioError("--campaign" if args.campaign is None else "--case", MISSING,
+                            "--campaign DIR and --case K together")
+    for flag, value in (("--seed", args.seed), ("--duration", args.duration), ("--set", args.set or None)):
+        if value is not None:
+            raise ScenarioError(flag, value, "nothing with --campaign: a case runs with the campaign's seed, "
+                                "duration and values")
+    sc, base, case = load_case(args.campaign, args.case)  # a CampaignError is a ValueError: one sentence, exit 2
+    name = sc.source.split("#")[0]
+    if args.scenario is not None and Path(args.scenario).name not in (name, name.removesuffix(".toml")):
+        raise ScenarioError("SCENARIO", args.scenario, f"the campaign's scenario ({name}) or none with --campaign")
+    return sc, base, case
 
 
 def cmd_check(args) -> int:
@@ -150,9 +205,9 @@ def cmd_check(args) -> int:
         from . import scenario as scenario_mod
 
         check_controller(sc, scenario_mod.find(args.scenario).parent)
+        choices = plan(sc)
     except (ScenarioError, PluginError) as exc:
         return fail(str(exc))
-    choices = plan(sc)
     if args.json:
         print(json.dumps({"scenario": sc.name, "valid": True,
                           "built": [{"model": c.model, "reason": c.reason} for c in choices if c.built],
@@ -215,6 +270,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
+    r.add_argument("--view", nargs="?", const="", metavar="HOST:PORT",
+                   help="serve the operator page live while the run goes (default 127.0.0.1 and a free port, "
+                   "printed); another address needs --view-token")
+    r.add_argument("--view-token", default=os.environ.get("STAND_VIEW_TOKEN"),
+                   help="token the page must give to pause, resume or stop the run (default: $STAND_VIEW_TOKEN)")
+    r.add_argument("--campaign", metavar="DIR", help="re-run one case of this campaign (with --case)")
+    r.add_argument("--case", type=int, metavar="K", help="the case index to re-run (with --campaign)")
     r.set_defaults(func=cmd_run)
 
     c = sub.add_parser("check", help="validate a scenario; list the models built and left out, and why")

@@ -8,6 +8,9 @@ torque needs it, and so on). ``stand check`` prints the plan without opening any
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,12 +22,13 @@ from sim.forces import OrbitForces
 from sim.frames import EarthRotation
 from sim.orbit import elements_to_state
 from sim.time import NS_PER_S, seconds_to_ns
-from sim.truth import TruthModel
+from sim.truth import CHUNK_S, TruthModel, chunk_points
 from sim.wheels import WheelCluster
 
 from . import devices
 from .adcs import build_controller
 from .devices import BuildContext
+from .errors import ScenarioError
 from .scenario import Scenario
 
 
@@ -44,8 +48,9 @@ def device_needs(sc: Scenario) -> dict[str, list[str]]:
     return needs
 
 
-def plan(sc: Scenario) -> list[Choice]:
-    """Every model the stand knows, built or left out, with the reason."""
+def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = None) -> list[Choice]:
+    """Every model the stand knows, built or left out, with the reason, and the run's estimated cost (refused with a
+    ScenarioError past the machine's limits: ``check_budget`` for a run of ``duration_s`` into ``out_dir``)."""
     o, env = sc.orbit, sc.environment
     dev = device_needs(sc)
     field_why = dev["magnetic_field"] + (["magnetic torque"] if "magnetic" in sc.torques else [])
@@ -104,12 +109,170 @@ def plan(sc: Scenario) -> list[Choice]:
                            + ", ".join(d.name for d in sc.devices if d.link == "served") + "); the run is paced"}
     choices.append(Choice(f"controller.{ctl.kind}", ctl.kind not in ("none", "external"),
                           ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
+    choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
     return choices
 
 
 def _wheels_text(sc: Scenario) -> str:
     n = sum(devices.get(d.kind).momentum_wheel(d) is not None for d in sc.devices)
     return f" with {n} momentum wheel{'s' if n > 1 else ''} in its state" if n else ""
+
+
+# --- what a run costs, estimated before t = 0 -------------------------------------------------------------------
+# Figures measured on this stand's loop (detumble, 2-core machine): a tick of the truth alone about 25 us, a device
+# looking for what arrived about 35 us every tick, a device's publish (codec round trip) and a controller update
+# about 30 us each, a telemetry row about 5 us (the default run: about 130 us a tick); an
+# orbit node about 50 us with point-mass or J2 gravity and about 1.2 ms with JGM-3 to degree 20 (the cost grows
+# with the square of the degree). Memory: the interpreter with numpy, python-can and matplotlib about 150 MB, a
+# point of the orbit track's chunk about 1.5 KB (12 KB with the IGRF field's temporaries), a telemetry row loaded
+# for the report and its plots three times over.
+TICK_S = 25e-6
+RECEIVE_S = 35e-6
+PUBLISH_S = 30e-6
+CONTROL_S = 30e-6
+ROW_S = 5e-6
+NODE_S = 50e-6
+NODE_JGM3_S = 1.2e-3
+BASE_BYTES = 150 << 20
+TRACK_POINT_BYTES = 1536
+TRACK_POINT_FIELD_BYTES = 12 << 10
+REPORT_COPIES = 3
+#: A run may use at most this fraction of the machine's memory.
+MEMORY_FRACTION = 0.5
+#: Longest computation a run may ask for, s: longer than any scenario's own duration (30 days), so a paced soak
+#: test is never refused by it, yet a step a million times too small is.
+MAX_COMPUTE_S = 31 * 86400.0
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The estimated cost of a run: ticks, telemetry, peak memory and computation (as fast as possible)."""
+
+    duration_s: float
+    ticks: int
+    rows: int
+    row_floats: int
+    telemetry_bytes: int
+    memory_bytes: int
+    compute_s: float
+    parts: dict  # memory by part (bytes), for the message naming the largest
+
+    def text(self) -> str:
+        return (f"about {self.ticks:,} ticks for {self.duration_s:g} s, {self.rows:,} telemetry rows of "
+                f"{self.row_floats} floats ({_size(self.telemetry_bytes)} on disk), peak memory about "
+                f"{_size(self.memory_bytes)}, about {_duration(self.compute_s)} of computation as fast as possible")
+
+
+def _size(n: float) -> str:
+    for unit, scale in (("TB", 1 << 40), ("GB", 1 << 30), ("MB", 1 << 20), ("KB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{int(n)} B"
+
+
+def _duration(s: float) -> str:
+    for unit, scale in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if s >= scale:
+            return f"{s / scale:.3g} {unit}"
+    return f"{s:.2g} s"
+
+
+def machine_memory_bytes() -> int | None:
+    """Memory this process may use: the physical memory, or the container's (cgroup v2) limit when smaller; None
+    where the system does not say."""
+    sizes = []
+    try:
+        sizes.append(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        pass
+    try:
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit.isdigit():
+            sizes.append(int(limit))
+    except OSError:
+        pass
+    return min(sizes) if sizes else None
+
+
+def free_disk_bytes(folder: Path) -> tuple[Path, int | None]:
+    """Free space of the file system the folder is (or will be) on: its nearest existing ancestor's."""
+    p = Path(folder).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return p, shutil.disk_usage(p).free
+    except OSError:
+        return p, None
+
+
+def budget(sc: Scenario, duration_s: float | None = None) -> Budget:
+    """Estimate the run's ticks, telemetry size, peak memory and computation from the scenario alone."""
+    duration = sc.duration_s if duration_s is None else float(duration_s)
+    step_ns = seconds_to_ns(sc.step_s)
+    ticks = seconds_to_ns(duration) // step_ns
+    rec_every = ticks_per(sc.record_rate_hz, sc.step_s)
+    rows = ticks // rec_every + 1
+    costs = [devices.get(d.kind).cost(d) for d in sc.devices]
+    field_on = "magnetic" in sc.torques or any(devices.get(d.kind).needs(d).get("magnetic_field")
+                                               for d in sc.devices)
+    # B-dot records its commanded dipole; a plug-in's own columns are not known before it is built.
+    row_floats = 14 + 3 * field_on + sum(c.row_floats for c in costs) + {"bdot": 3, "plugin": 16, "pointing": 24}.get(
+        sc.controller.kind, 0)
+    telemetry = rows * row_floats * 8
+    o = sc.orbit
+    points = chunk_points(sc.step_s / 2)
+    nodes_per_chunk = math.ceil(min(CHUNK_S, points * sc.step_s / 2) / o.step_s) + 2
+    parts = {
+        "the interpreter and libraries": BASE_BYTES,
+        "the orbit track": points * (TRACK_POINT_FIELD_BYTES if field_on and sc.environment.magnetic_field == "igrf"
+                                     else TRACK_POINT_BYTES)
+        + nodes_per_chunk * 64,
+        "the telemetry loaded for the report": REPORT_COPIES * telemetry,
+    }
+    for d, c in zip(sc.devices, costs, strict=True):
+        if c.memory_bytes:
+            parts[f"device {d.name}"] = c.memory_bytes
+    compute = ticks * (TICK_S + RECEIVE_S * len(costs)) + rows * ROW_S
+    node_s = NODE_JGM3_S * (o.gravity_degree / 20) ** 2 if o.gravity == "jgm3" else NODE_S
+    compute += duration / o.step_s * node_s
+    for c in costs:
+        publishes = ticks if c.rate_hz is None else duration * c.rate_hz
+        compute += publishes * (PUBLISH_S + c.publish_s)
+    if sc.controller.kind not in ("none", "external"):
+        compute += duration * sc.controller.rate_hz * CONTROL_S
+    return Budget(duration, int(ticks), int(rows), int(row_floats), int(telemetry), int(sum(parts.values())),
+                  compute, parts)
+
+
+def check_budget(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = None,
+                 memory_bytes: int | None = None) -> Budget:
+    """The run's ``budget``, refused with a ScenarioError naming the figure when the peak memory exceeds
+    MEMORY_FRACTION of this machine's memory (``memory_bytes``, default the physical memory), the telemetry exceeds
+    the free disk of the output folder (default ``runs``, where ``stand run`` writes), or the computation exceeds
+    MAX_COMPUTE_S."""
+    b = budget(sc, duration_s)
+    src = sc.source
+    how = (f"{b.ticks:,} ticks of dynamics.step_s = {sc.step_s:g} s over {b.duration_s:g} s, recorded at "
+           f"recording.rate_hz = {sc.record_rate_hz:g}")
+    if b.compute_s > MAX_COMPUTE_S:
+        raise ScenarioError("dynamics.step_s", sc.step_s, f"a run this stand can finish: {how} is about "
+                            f"{_duration(b.compute_s)} of computation (at most {_duration(MAX_COMPUTE_S)}); use a "
+                            "larger step or a shorter scenario.duration_s", src)
+    ram = machine_memory_bytes() if memory_bytes is None else memory_bytes
+    if ram is not None and b.memory_bytes > MEMORY_FRACTION * ram:
+        largest = max(b.parts, key=b.parts.get)
+        field, value = (("recording.rate_hz", sc.record_rate_hz) if largest.startswith("the telemetry") else
+                        ("devices", [d.name for d in sc.devices]) if largest.startswith("device") else
+                        ("dynamics.step_s", sc.step_s))
+        raise ScenarioError(field, value, f"a run whose estimated peak memory (about {_size(b.memory_bytes)}; "
+                            f"{largest} {_size(b.parts[largest])}) fits in {MEMORY_FRACTION:.0%} of this machine's "
+                            f"{_size(ram)}; {how}", src)
+    folder, free = free_disk_bytes(Path("runs") if out_dir is None else Path(out_dir))
+    if free is not None and b.telemetry_bytes > free:
+        raise ScenarioError("recording.rate_hz", sc.record_rate_hz, f"a recording whose telemetry fits on the disk: "
+                            f"{b.rows:,} rows of {b.row_floats} floats is {_size(b.telemetry_bytes)}, and {folder} "
+                            f"has {_size(free)} free; record less often or for a shorter scenario.duration_s", src)
+    return b
 
 
 def _star_screen_choice(sc: Scenario, why: list[str]) -> Choice:
@@ -182,11 +345,13 @@ def initial_state(sc: Scenario):
     return np.asarray(r, dtype=float), np.asarray(v, dtype=float)
 
 
-def build(sc: Scenario, speed: float | None = None, base: Path | None = None) -> Scene:
+def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
+          out_dir: Path | None = None) -> Scene:
     """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
     (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
-    relative to (the scenario's)."""
-    choices = plan(sc)
+    relative to (the scenario's); ``duration_s`` and ``out_dir``, the run's length (default the scenario's) and
+    folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``)."""
+    choices = plan(sc, duration_s, out_dir)
     built = {c.model for c in choices if c.built}
     r0, v0 = initial_state(sc)
     env = sc.environment

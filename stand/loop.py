@@ -122,12 +122,37 @@ class Progress:
         self.stream.flush()
 
 
+#: Wall-clock period of the observer's control poll (pause, stop from the operator page).
+POLL_S = 0.25
+
+
+def _obey(command: str, observer, events: EventLog, pacer: Pacer, t: float, clock, sleep) -> None:
+    """Act on the observer's ``"pause"`` or ``"stop"``: a pause holds the loop (polling, bounded sleeps) until the
+    observer says otherwise, then moves the pacer's start by the pause so a paced run does not race to catch up."""
+    if command == "pause":
+        events.log("paused", f"paused from the operator page at t = {t:.3f} s", t_s=t)
+        t0 = clock()
+        while command == "pause":
+            sleep(0.05)
+            command = observer.poll_control()
+        if pacer.start is not None:
+            pacer.start += clock() - t0
+        if command != "stop":
+            events.log("resumed", f"resumed after {clock() - t0:.1f} s of wall time", t_s=t)
+    if command == "stop":
+        raise Stopped("stop from the operator page")
+
+
 def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float | None = None,
-        progress: bool = False, clock=time.monotonic, sleep=time.sleep) -> RunResult:
+        progress: bool = False, clock=time.monotonic, sleep=time.sleep, observer=None) -> RunResult:
     """Run the scene, recording into ``out_dir``. Returns how it went; never leaves a bus open.
 
     Whatever ends the run (the end, a device fault, a plug-in exception, a full disk, the operator), the
     telemetry written so far stays readable and the event log says what happened.
+
+    ``observer`` (the operator page's live feed, optional): ``observer.record(t_s, row)`` is called with every
+    telemetry row and must only keep it (no I/O, no waiting); ``observer.poll_control()`` is called at most every
+    ``POLL_S`` of wall time and returns None, ``"pause"`` or ``"stop"``.
     """
     sc = scene.scenario
     truth = scene.truth
@@ -167,6 +192,9 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     ctl_update = controller.update if controller is not None else None
     show = bar.update if progress else None
     record = recorder.record
+    observe = observer.record if observer is not None else None
+    poll_every = ticks_per(1.0 / POLL_S, sc.step_s)
+    next_poll = 0.0
     wall0 = clock()
     pacer.begin()
     k = 0
@@ -197,8 +225,15 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                 if ctl_row is not None:
                     row += tuple(ctl_row())
                 record(row)
+                if observe is not None:
+                    observe(t, row)
                 if show is not None:
                     show(t)
+            if observe is not None and k % poll_every == 0 and clock() >= next_poll:
+                next_poll = clock() + POLL_S
+                command = observer.poll_control()
+                if command is not None:
+                    _obey(command, observer, events, pacer, t, clock, sleep)
             if k % watch_every == 0:
                 for w in watches:
                     w.check(t)

@@ -131,15 +131,23 @@ class RendezvousSpec:
 # Validation
 
 
+#: Largest coordinate of the target and chaser geometry, m (a docking target is metres, a station 100 m), and of the
+#: chaser's start: the approach is relative motion near the target, which the linear (CW) model holds to ~10 km.
+MAX_SIZE_M = 1000.0
+MAX_RANGE_M = 1e5
+#: Largest chaser speed relative to the target, m/s.
+MAX_SPEED_M_S = 1000.0
+
+
 def _unit_quat(t, key: str, default) -> np.ndarray:
-    q = t.vector(key, 4, default)
+    q = t.vector(key, 4, default, lo=-2.0, hi=2.0)
     if abs(np.linalg.norm(q) - 1.0) > 1e-6:
         raise t.error(key, q.tolist(), f"a unit quaternion [w, x, y, z] (its norm is {np.linalg.norm(q):.9g})")
     return q
 
 
 def _nonzero(t, key: str, default=MISSING) -> np.ndarray:
-    v = t.vector(key, 3, default)
+    v = t.vector(key, 3, default, lo=-MAX_SIZE_M, hi=MAX_SIZE_M)
     if np.linalg.norm(v) == 0.0:
         raise t.error(key, v.tolist(), "a non-zero direction [x, y, z]")
     return v
@@ -150,7 +158,7 @@ def _body(t, vehicle: str, k: int) -> Occluder:
     name = t.text("name", f"{kind} {k}")
     pos = {"lo": 0.0, "lo_open": True, "hi": 1000.0}
     if kind in ("frustum", "cone", "cylinder"):
-        base, axis = t.vector("base_m", 3), _nonzero(t, "axis")
+        base, axis = t.vector("base_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M), _nonzero(t, "axis")
         length = t.number("length_m", **pos)
         if kind == "cylinder":
             r0 = r1 = t.number("radius_m", **pos)
@@ -167,9 +175,10 @@ def _body(t, vehicle: str, k: int) -> Occluder:
         if np.any(size <= 0) or np.any(size > 1000):
             raise t.error("size_m", size.tolist(), "three edge lengths [x, y, z], each > 0 and <= 1000 m")
         q = _unit_quat(t, "q_XV", [1.0, 0.0, 0.0, 0.0])
-        shape = Box(t.vector("center_m", 3), size / 2.0, dcm(q))
+        shape = Box(t.vector("center_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M), size / 2.0, dcm(q))
     else:
-        corner, u, v = t.vector("corner_m", 3), _nonzero(t, "edge_u_m"), _nonzero(t, "edge_v_m")
+        corner = t.vector("corner_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M)
+        u, v = _nonzero(t, "edge_u_m"), _nonzero(t, "edge_v_m")
         if np.linalg.norm(np.cross(u, v)) <= 1e-9 * np.linalg.norm(u) * np.linalg.norm(v):
             raise t.error("edge_v_m", v.tolist(), f"an edge not parallel to edge_u_m = {u.tolist()} "
                           "(the two edges span the panel)")
@@ -198,7 +207,7 @@ def _marks(t) -> np.ndarray:
     except (TypeError, ValueError):
         arr = None
     if raw is MISSING or arr is None or arr.ndim != 2 or arr.shape[1] != 2 or len(arr) == 0 \
-            or not np.all(np.isfinite(arr)) or len(arr) > 500:
+            or not np.all(np.isfinite(arr)) or len(arr) > 500 or np.max(np.abs(arr)) > MAX_SIZE_M:
         raise t.error("marks_m", raw, "a list of 1 to 500 mark centres [x, y] on the plate (m, plate frame)")
     return arr
 
@@ -212,7 +221,8 @@ def _plate(t) -> PlateSpec:
         k = int(np.argmax(far))
         raise t.error("marks_m", marks[k].tolist(), f"marks that lie on the plate (radius_m = {radius:g}: this "
                       f"one reaches {far[k]:.4g} m from the centre)")
-    spec = PlateSpec(center_T_m=t.vector("center_m", 3), q_PT=_unit_quat(t, "q_PT", [1.0, 0.0, 0.0, 0.0]),
+    center = t.vector("center_m", 3, lo=-MAX_SIZE_M, hi=MAX_SIZE_M)
+    spec = PlateSpec(center_T_m=center, q_PT=_unit_quat(t, "q_PT", [1.0, 0.0, 0.0, 0.0]),
                      radius_m=radius, marks_m=marks, mark_radius_m=mark_r,
                      mark_rings=int(t.number("mark_rings", 2, lo=0, hi=12, integer=True)))
     t.check_unknown()
@@ -226,7 +236,7 @@ def _camera(t, duration_s: float) -> CameraSpec:
     if not isinstance(times, list) or not times or len(times) > 50 or any(
             isinstance(x, bool) or not isinstance(x, int | float) or not 0 <= x <= duration_s for x in times):
         raise t.error("times_s", times, f"a list of 1 to 50 times in [0, {duration_s:g}] s")
-    spec = CameraSpec(position_C_m=t.vector("position_m", 3, [0.0, 0.0, 0.0]),
+    spec = CameraSpec(position_C_m=t.vector("position_m", 3, [0.0, 0.0, 0.0], lo=-MAX_SIZE_M, hi=MAX_SIZE_M),
                       fov_deg=pair(t, "fov_deg", (30.0, 22.5), 1.0, 120.0, False),
                       resolution_px=pair(t, "resolution_px", (480, 360), 16, 2048, True),
                       times_s=tuple(float(x) for x in times))
@@ -259,8 +269,8 @@ def parse_rendezvous(t, duration_s: float, orbit, source: str | None = None) -> 
     if traj == "cw" and orbit.e > CW_MAX_E:
         raise ch.error("trajectory", traj, f"'line' or 'kepler' for this target orbit: the Clohessy-Wiltshire "
                        f"equations assume a circular one and orbit.e = {orbit.e:g} exceeds {CW_MAX_E:g}")
-    r0 = ch.vector("r0_m", 3)
-    v0 = ch.vector("v0_m_s", 3, [0.0, 0.0, 0.0])
+    r0 = ch.vector("r0_m", 3, lo=-MAX_RANGE_M, hi=MAX_RANGE_M)
+    v0 = ch.vector("v0_m_s", 3, [0.0, 0.0, 0.0], lo=-MAX_SPEED_M_S, hi=MAX_SPEED_M_S)
     roll = math.radians(ch.number("roll_deg", 0.0, lo=-180.0, hi=180.0))
     chaser_bodies = _bodies(ch, "chaser")
     ch.check_unknown()

@@ -81,7 +81,8 @@ def evaluate(criteria, tel, result: RunResult, scene_devices=()) -> list[dict]:
     return out
 
 
-def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
+def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True) -> dict:
+    """summary.json, and with ``plots`` the PNG plots and report.md (a campaign's runs leave them out)."""
     out_dir = Path(out_dir)
     sc = scene.scenario
     tel = load(out_dir)
@@ -114,11 +115,16 @@ def write_summary(scene: Scene, result: RunResult, out_dir) -> dict:
         "telemetry_rows": int(len(tel["t_s"])),
     }
     write_json_atomic(out_dir / "summary.json", summary)
+    if not plots:
+        return summary
     try:
-        plots = write_plots(tel, out_dir, rate_limits=rate_limits(sc.criteria))
+        made = write_plots(tel, out_dir, rate_limits=rate_limits(sc.criteria))
         for d in sc.devices:
-            plots += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
-        write_markdown(summary, plots, out_dir)
+            made += devices.get(d.kind).plots(tel, d.name, out_dir, criteria)
+        from .view.export import report_panorama
+
+        made += [p for p in [report_panorama(out_dir, sc)] if p]
+        write_markdown(summary, made, out_dir)
     except OSError as exc:  # a full disk: the summary above is what matters, and it is whole
         summary["report_error"] = f"plots or report.md not written: {exc.strerror or exc}"
         write_json_atomic(out_dir / "summary.json", summary)

@@ -42,12 +42,12 @@ import numpy as np
 
 import fixtures
 from sim.attitude import check_inertia
-from sim.constants import R_EARTH
+from sim.constants import MU_EARTH, R_EARTH
 from sim.time import Epoch
 
 from .adcs.metrics import METRICS as POINTING_METRICS
 from .devices import DeviceSpec
-from .errors import MISSING, ScenarioError
+from .errors import MISSING, ScenarioError, shown
 
 FIXTURES = fixtures.ROOT
 SCENARIO_DIR = FIXTURES / "scenarios"
@@ -62,10 +62,20 @@ POINTING_DEVICES = {"star_tracker": "star_tracker", "gyro": "gyro", "magnetorque
 HILL_KM = 1.5e6
 #: Largest principal moment of inertia a scenario may give (a space station is about 1e8 kg m^2).
 MAX_INERTIA_KG_M2 = 1e10
+#: Longest period of a rate, in dynamics steps: whole numbers of steps stay exact in a float below 2**53, and a
+#: period of 30 days at the smallest step (1e-6 s) is 2.6e12 steps.
+MAX_STEPS_PER_PERIOD = 1e13
+#: Strongest geomagnetic field at the Earth's surface, T (IGRF: about 66 uT south of Australia; the centred
+#: dipole's pole field is 61 uT); it falls with the cube of the distance.
+MAX_FIELD_T = 6.7e-5
 #: A scenario file larger than this is refused before it is parsed (the shipped ones are under 5 KiB).
 MAX_FILE_BYTES = 1 << 20
 #: Run names become folder names under the output folder: a plain name, no path.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+#: Keys printed as they are in an error; any other key is quoted and cut.
+KEY_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,100}")
+#: Control characters (C0 but tab, DEL, C1): refused in text that reaches a console or a report.
+CONTROL = re.compile("[\x00-\x08\x0a-\x1f\x7f-\x9f]")
 #: Metrics of the run itself; device kinds add theirs (stand.devices.DeviceKind.metrics).
 METRICS = {
     "final_rate_deg_s": "body rate |omega| at the end of the run (deg/s)",
@@ -107,6 +117,10 @@ class Table:
         self.used: set[str] = set()
 
     def _name(self, key: str) -> str:
+        # A key is any string in TOML: one with a line break or a megabyte of text is quoted and cut, so the
+        # error stays one short line.
+        if not KEY_PATTERN.fullmatch(key):
+            key = shown(key)
         return f"{self.path}.{key}" if self.path else key
 
     def error(self, key: str, value, allowed: str) -> ScenarioError:
@@ -145,8 +159,9 @@ class Table:
 
     def text(self, key: str, default=MISSING) -> str:
         value = self.raw(key, default)
-        if not isinstance(value, str) or not value:
-            raise self.error(key, value, "a non-empty string is expected")
+        if not isinstance(value, str) or not value or CONTROL.search(value):
+            # Names, ports and paths reach file systems, buses and consoles: a NUL or an escape has no place there.
+            raise self.error(key, value, "a non-empty string without control characters is expected")
         return value
 
     def vector(self, key: str, n: int, default=MISSING, *, lo=None, hi=None) -> np.ndarray:
@@ -283,10 +298,11 @@ def shipped() -> dict[str, str]:
     out = {}
     for f in sorted(SCENARIO_DIR.glob("*.toml")):
         try:
-            desc = tomllib.loads(f.read_text(encoding="utf-8")).get("scenario", {}).get("description", "")
+            data = tomllib.loads(f.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, OSError):
-            desc = "(unreadable)"
-        out[f.stem] = desc
+            data = {"scenario": {"description": "(unreadable)"}}
+        if "scenario" in data:  # a campaign's dispersion file lives beside its scenario but is none
+            out[f.stem] = data["scenario"].get("description", "")
     return out
 
 
@@ -312,10 +328,14 @@ def load(path: str | Path, overrides: list[str] | None = None) -> Scenario:
     path = find(path)
     try:
         size = path.stat().st_size
-        if size > MAX_FILE_BYTES:
+        # The size a file reports is not always what it holds (procfs says 0): read no more than the limit allows.
+        with path.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+        if size > MAX_FILE_BYTES or len(raw) > MAX_FILE_BYTES:
             raise ScenarioError("SCENARIO", str(path), f"a scenario file under {MAX_FILE_BYTES >> 10} KiB "
-                                f"(this one has {size} bytes)")
-        text = path.read_bytes().decode("utf-8")
+                                f"(this one has {max(size, len(raw))}{'' if size > MAX_FILE_BYTES else ' or more'} "
+                                "bytes)")
+        text = raw.decode("utf-8")
     except OSError as exc:
         raise ScenarioError("SCENARIO", str(path), f"a readable TOML file is required ({exc.strerror})") from None
     except UnicodeDecodeError as exc:
@@ -375,10 +395,13 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     try:
         epoch = Epoch.from_iso(epoch_text)
     except ValueError as exc:
-        raise sc.error("epoch", epoch_text, str(exc).rstrip(".")) from None
+        # The value is already in the sentence (cut to its first 200 characters); the model's message repeats it.
+        raise sc.error("epoch", epoch_text, str(exc).replace(f"epoch {epoch_text!r}", "the epoch").rstrip(".")) \
+            from None
     duration_s = sc.number("duration_s", lo=0, lo_open=True, hi=30 * 86400)
-    if not isinstance(description, str):
-        raise sc.error("description", description, "a string")
+    if not isinstance(description, str) or len(description) > 2000 or CONTROL.search(description):
+        # It is printed on consoles and in reports: no control characters (terminal escapes, NUL), no novels.
+        raise sc.error("description", description, "a string of at most 2000 characters without control characters")
     seed = int(sc.number("seed", 0, lo=0, integer=True))
     sc.check_unknown()
 
@@ -409,6 +432,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     _check_refs(devices, source)
 
     controller = _controller(root.table("controller", required=False), step_s, devices)
+    _check_torque_reach(spacecraft, orbit, devices, torques, controller, step_s, integrator, source)
     crit_raw = root.raw("criteria", [])
     if not isinstance(crit_raw, list):
         raise root.error("criteria", crit_raw, "an array of [[criteria]] tables is expected")
@@ -432,6 +456,9 @@ def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
     """A rate in Hz whose period is a whole number of dynamics steps (rates are exact ratios)."""
     hz = t.number(key, default, lo=0, lo_open=True, hi=1.0 / step_s)
     ratio = 1.0 / (hz * step_s)
+    if ratio > MAX_STEPS_PER_PERIOD:  # also a subnormal rate, whose period is infinite
+        raise t.error(key, hz, f"a rate whose period is at most {MAX_STEPS_PER_PERIOD:g} dynamics steps "
+                      f"({step_s:g} s), i.e. >= {1.0 / (MAX_STEPS_PER_PERIOD * step_s):.6g} Hz")
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise t.error(key, hz, f"a rate whose period is a whole number of dynamics steps ({step_s:g} s), "
                       f"e.g. {1.0 / step_s:g}, {0.5 / step_s:g} or {0.1 / step_s:g} Hz")
@@ -524,27 +551,64 @@ def _spacecraft(t: Table, step_s: float, integrator: str) -> SpacecraftSpec:
 
     mass = t.number("mass_kg", lo=0.0, lo_open=True, hi=1e7)
     raw_I = t.raw("inertia_kg_m2")
+    if not (_numbers(raw_I, 3) or (isinstance(raw_I, list) and len(raw_I) == 3 and all(_numbers(r, 3) for r in raw_I))):
+        raise t.error("inertia_kg_m2", raw_I, "3 principal moments [I1, I2, I3] or a 3x3 symmetric matrix of finite "
+                      "numbers, kg m^2")
+    too_large = f"principal moments from 1e-9 to {MAX_INERTIA_KG_M2:g} kg m^2 (a CubeSat is about 0.01, a space " \
+                "station about 1e8)"
+    if np.max(np.abs(np.asarray(raw_I, dtype=float))) > MAX_INERTIA_KG_M2:
+        raise t.error("inertia_kg_m2", raw_I, too_large)  # before the eigenvalues, which would overflow
     try:
         inertia = check_inertia(raw_I, "spacecraft.inertia_kg_m2")
     except (ValueError, TypeError) as exc:
         raise t.error("inertia_kg_m2", raw_I, str(exc).rstrip(".")) from None
     moments = np.linalg.eigvalsh(inertia)
     if moments.min() < 1e-9 or moments.max() > MAX_INERTIA_KG_M2:
-        raise t.error("inertia_kg_m2", raw_I, f"principal moments from 1e-9 to {MAX_INERTIA_KG_M2:g} kg m^2 (a "
-                      "CubeSat is about 0.01, a space station about 1e8)")
-    q = t.vector("q_BN", 4, [1.0, 0.0, 0.0, 0.0])
+        raise t.error("inertia_kg_m2", raw_I, too_large)
+    q = t.vector("q_BN", 4, [1.0, 0.0, 0.0, 0.0], lo=-2.0, hi=2.0)
     try:
         check_unit(q, "spacecraft.q_BN")
     except ValueError:
         raise t.error("q_BN", q.tolist(),
                       f"a unit quaternion [w, x, y, z] (its norm is {np.linalg.norm(q):.9g})") from None
-    omega = np.radians(t.vector("omega_BN_B_deg_s", 3, [0.0, 0.0, 0.0]))
+    # Far beyond what any step integrates (check_step below says how far); the bound keeps the arithmetic finite.
+    omega = np.radians(t.vector("omega_BN_B_deg_s", 3, [0.0, 0.0, 0.0], lo=-1e6, hi=1e6))
     try:
         check_step(inertia, omega, step_s, "dynamics.step_s", max_angle_rad(integrator), integrator)
     except ValueError as exc:
         raise ScenarioError("dynamics.step_s", step_s, str(exc).rstrip("."), t.source) from None
     t.check_unknown()
     return SpacecraftSpec(mass, inertia, q, omega)
+
+
+def _numbers(value, n: int) -> bool:
+    """A list of n finite numbers (booleans are not numbers here)."""
+    return isinstance(value, list) and len(value) == n and all(
+        isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+
+
+def _check_torque_reach(spacecraft: SpacecraftSpec, orbit: OrbitSpec, devices, torques, controller: ControllerSpec,
+                        step_s: float, integrator: str, source: str | None) -> None:
+    """Refuse a body that the largest torque could spin, within one control period (the zero-order hold), past the
+    rate the dynamics step integrates accurately: such a run would pass check and abort in its first seconds."""
+    from sim.integrators import max_angle_rad
+
+    moments = np.linalg.eigvalsh(spacecraft.inertia_kg_m2)
+    r_p = orbit.a_m * (1.0 - orbit.e) if orbit.a_m is not None else orbit.p_m / (1.0 + orbit.e)
+    dipole = math.sqrt(3.0) * sum(getattr(d, "max_dipole_A_m2", 0.0) for d in devices)
+    magnetic = dipole * MAX_FIELD_T * (R_EARTH / r_p) ** 3 if "magnetic" in torques else 0.0
+    # |r x I r| over unit vectors r is at most (I_max - I_min) / 2.
+    gravity = 1.5 * MU_EARTH / r_p**3 * (moments[-1] - moments[0]) if "gravity_gradient" in torques else 0.0
+    hold_s = 1.0 / controller.rate_hz
+    reach = float(np.linalg.norm(spacecraft.omega_BN_B)) + (magnetic + gravity) / moments[0] * hold_s
+    limit = max_angle_rad(integrator) / step_s
+    if reach > limit:
+        raise ScenarioError("spacecraft.inertia_kg_m2", spacecraft.inertia_kg_m2.tolist(),
+                            f"a body the torques cannot spin past what dynamics.step_s = {step_s:g} s integrates "
+                            f"({limit:.4g} rad/s) within one control period ({hold_s:g} s): the largest torque "
+                            f"({magnetic + gravity:.3g} N m, from dipoles of {dipole:.3g} A m^2 in fields up to "
+                            f"{MAX_FIELD_T * (R_EARTH / r_p) ** 3:.3g} T and gravity gradient) over the smallest "
+                            f"principal moment ({moments[0]:.3g} kg m^2) reaches {reach:.4g} rad/s", source)
 
 
 def _environment(t: Table, epoch: Epoch) -> EnvironmentSpec:
@@ -574,7 +638,7 @@ def _device(t: Table, step_s: float) -> DeviceSpec:
     if not NAME_PATTERN.fullmatch(name):
         raise t.error("name", name, "a plain name of letters, digits, '_', '.' and '-' (it names telemetry columns)")
     link = t.choice("link", kind.links, kind.default_link)
-    q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0])
+    q_SB = t.vector("q_SB", 4, [1.0, 0.0, 0.0, 0.0], lo=-2.0, hi=2.0)
     if abs(np.linalg.norm(q_SB) - 1.0) > 1e-6:
         raise t.error("q_SB", q_SB.tolist(), "a unit quaternion [w, x, y, z] (sensor frame relative to body)")
     return kind.parse(t, DeviceSpec(name=name, kind=kind_name, link=link, q_SB=q_SB), step_s)

@@ -21,6 +21,11 @@ Per frame (``Renderer.render``), with no per-star Python loop:
    number of stars, not the screen size);
 7. detector: the same spots at the tracker's own PSF sigma, in electrons (noise-free float32).
 
+``Renderer.detector_signal`` is step 7 alone, as lit pixels and their values instead of an image
+(what an emulated tracker needs, see :class:`star_screen.tracking.exposure.SparseExposure`): one
+stamp per star covering its whole smeared path (the samples' separable spots summed by one small
+matrix product per star) instead of one stamp per sample.
+
 Dynamic-range policy (screen, see docs/star_screen.md):
 
 * A star of magnitude ``mag_full`` centred on a pixel has a peak of full scale at the nominal
@@ -36,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.special import erf, erfinv
@@ -138,6 +144,69 @@ def splat_gaussians(x, y, flux, sigma, width: int, height: int, truncate: float 
         idx_parts.append(flat[ok])
         val_parts.append(stamp[ok].astype(np.float32))
     return np.concatenate(idx_parts), np.concatenate(val_parts), peak
+
+
+#: Sub-pixel phases per pixel in the tables of :func:`_pixel_integral_table`.
+_PHASES = 512
+
+
+@lru_cache(maxsize=8)
+def _pixel_integral_table(sigma: float, R: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel integrals of a unit 1-D Gaussian of ``sigma`` over the 2R + 1 pixels around the one
+    holding its centre, tabulated against the centre's phase in that pixel (0..1, ``_PHASES``
+    steps), with their derivatives in the phase: ``(g, dg)`` of shape ``(_PHASES + 1, 2R + 1)``.
+
+    ``scipy.special.erf`` costs about 35 ns a value, 50 times an ``exp``; cubic Hermite
+    interpolation in this table (exact values and slopes at the nodes) is within 1e-12 of the
+    erf differences (per unit flux; 4e-14 at sigma 1 px), far below the float32 the detector holds."""
+    inv = 1.0 / (_SQRT2 * sigma)
+    phase = np.arange(_PHASES + 1) / _PHASES
+    z = (np.arange(2 * R + 2)[None, :] - R - phase[:, None]) * inv  # pixel edges, (phases, 2R + 2)
+    g = 0.5 * np.diff(erf(z), axis=1)
+    dg = np.diff(-inv / math.sqrt(math.pi) * np.exp(-z * z), axis=1)
+    return g, dg
+
+
+def _pixel_integrals(centre: np.ndarray, sigma: float, R: int) -> np.ndarray:
+    """``0.5 (erf((e + 1 - c) / (sqrt 2 sigma)) - erf((e - c) / (sqrt 2 sigma)))`` for the pixels e of
+    ``floor(c) - R .. floor(c) + R``: shape ``centre.shape + (2R + 1,)``, from the phase table."""
+    g, dg = _pixel_integral_table(float(sigma), int(R))
+    u = (centre - np.floor(centre)) * _PHASES
+    i = np.minimum(u.astype(np.int64), _PHASES - 1)
+    t = (u - i)[..., None]
+    t2 = t * t
+    t3 = t2 * t
+    h = 1.0 / _PHASES
+    return ((2 * t3 - 3 * t2 + 1) * g[i] + (t3 - 2 * t2 + t) * (h * dg[i])
+            + (3 * t2 - 2 * t3) * g[i + 1] + (t3 - t2) * (h * dg[i + 1]))
+
+
+def _path_stamps(x, y, flux, sigma: float, width: int, height: int, truncate: float = 4.0):
+    """Spots of :func:`splat_gaussians` at samples ``x, y`` ``(n, k)`` along each star's path (``flux``
+    (n,) per sample), summed per star on one stamp: ``(flat pixel indices, values)``, one entry per
+    star and pixel (stars may share pixels). Each sample's spot is truncated exactly as there."""
+    R = int(math.ceil(truncate * sigma))
+    n, k = x.shape
+    span = np.arange(2 * R + 1)
+
+    def factors(centre):
+        """Each sample's pixel integrals over its own 2R + 1 pixels, placed on the star's stamp."""
+        first = np.floor(centre).astype(np.int64)  # (n, k) pixel holding the sample
+        origin = first.min(axis=1) - R  # (n,) stamp corner
+        size = int((first.max(axis=1) - first.min(axis=1)).max()) + 2 * R + 1
+        out = np.zeros((n, k, size))
+        start = np.arange(n * k).reshape(n, k) * size + (first - R - origin[:, None])
+        out.reshape(-1)[start[:, :, None] + span] = _pixel_integrals(centre, sigma, R)
+        return out, origin[:, None] + np.arange(size)
+
+    fx, cols = factors(x)
+    fy, rows = factors(y)
+    stamp = np.matmul((fy * flux[:, None, None]).transpose(0, 2, 1), fx)  # (n, rows, cols)
+    ok = stamp > 0.0
+    if rows.min() < 0 or rows.max() >= height or cols.min() < 0 or cols.max() >= width:
+        ok &= ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
+    flat = rows[:, :, None] * width + cols[:, None, :]
+    return flat[ok], stamp[ok]
 
 
 @dataclass
@@ -363,6 +432,52 @@ class Renderer:
         if v.shape != (3,) or not np.all(np.isfinite(v)) or not math.hypot(*v) < 0.01 * _C_LIGHT:
             raise ValueError(f"v_sc_gcrs_m_s = {v_sc_gcrs_m_s!r}; it must be 3 finite numbers (m/s) with a speed "
                              "below 1% of c (aberration is computed for a spacecraft, not a light beam).")
+    def detector_signal(
+        self,
+        q_SN,
+        epoch: Epoch,
+        *,
+        v_sc_gcrs_m_s=None,
+        omega_SN_S=None,
+        exposure_s: float | None = None,
+    ) -> tuple[StarsInField, np.ndarray, np.ndarray]:
+        """The ideal detector image of :meth:`render` as ``(stars, idx, e)``: the raster indices of
+        the pixels that receive light (each once) and their signal in electrons (float64; the image
+        holds the same values rounded to float32). Same arguments as :meth:`render`; no screen."""
+        t = self.bench.tracker
+        stars = self.stars_in_field(q_SN, epoch, v_sc_gcrs_m_s)
+        exposure = t.exposure_s if exposure_s is None else float(exposure_s)
+        path = self._smear_offsets(stars, omega_SN_S, exposure)
+        det_flux = t.flux_mag0_e * 10.0 ** (-0.4 * stars.mag.astype(float))
+        stars.detector_flux_e = det_flux
+        n = len(stars)
+        if n == 0:
+            return stars, np.empty(0, np.int64), np.empty(0)
+        if path is not None:
+            dirs, k = path
+            xy = t.project(dirs.reshape(-1, 3))[0].reshape(n, k, 2)
+        else:
+            k = 1
+            xy = stars.detector_xy[:, None, :]
+        idx, val = _path_stamps(xy[..., 0], xy[..., 1], det_flux / k, t.psf_sigma_px, t.width, t.height,
+                                self.photometry.truncate_sigmas)
+        return stars, *self._sum_duplicates(idx, val, t.width * t.height)
+
+    def _sum_duplicates(self, idx: np.ndarray, val: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """Each raster index once with the sum of its values (where stars' stamps overlap), without
+        sorting: a persistent marker array names one entry per pixel."""
+        if getattr(self, "_mark", None) is None or self._mark.size != size:
+            self._mark = np.zeros(size, np.int32)
+        mark = self._mark
+        order = np.arange(len(idx), dtype=np.int32)
+        mark[idx] = order
+        keep = mark[idx] == order  # one entry per pixel (the last writer's)
+        u, total = idx[keep], val[keep]
+        if len(u) < len(idx):
+            mark[u] = np.arange(len(u), dtype=np.int32)
+            rest = ~keep
+            np.add.at(total, mark[idx[rest]], val[rest])
+        return u, total
 
     def render(
         self,

@@ -13,6 +13,8 @@ PUBLIC = {
     "sim.environment": ["magnetic_field_itrs", "sun_position_gcrs", "moon_position_gcrs", "shadow_fraction"],
     "sim.attitude": ["propagate"],
     "stand.telemetry": ["load"],
+    "stand.campaign": ["parse_dispersions", "case_values", "make_spec", "run_campaign", "aggregate", "load_case",
+                       "run_case"],
 }
 
 

@@ -15,7 +15,13 @@ noise (shot noise on signal + 20 e- background, 10 e- read noise, seeded), then:
   on its own (per megapixel, as in the acceptance). The whole tracking frame (extraction of the
   0.79 Mpx frame + tracking) is reported beside it, without a limit;
 * random-dot frames (no real sky): any valid solution is a false solve;
-* covariance: RMS error over the predicted sigma (1 when the covariance is honest).
+* covariance: RMS error over the predicted sigma (1 when the covariance is honest);
+* the emulated tracker's exposure: on the first 200 attitudes, CPU time per exposure of the dense
+  path (render the detector image, ``camera_noise`` on every pixel, ``extract_stars``) and of the
+  sparse one the stand runs (``Renderer.detector_signal``, ``SparseExposure.stars``: noise drawn
+  only where extraction reads, the same distribution), and the lost-in-space accuracy on the sparse
+  exposures beside the dense rows of the same attitudes (its own seeded stream, so the rows above
+  do not move).
 
 Times are process CPU time (``time.process_time``), as in the anchors of docs/benchmarks.md, which
 were measured on the same kind of shared 2-core machine: tetra3rs 0.14 (Rust) 0.29 ms median /
@@ -124,6 +130,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         np.add.at(ideal, idx, val)
         sol = tracker.solve(camera_noise(ideal.reshape(optics.height, optics.width), rng), optics)
         dots_valid += int(sol.valid)
+    exposure_rows = _exposure_rows(renderer, tracker, epoch, qs[:200], seed, err[:200], ok[:200])
     good = ok
     ce, re_ = err[good, 0], err[good, 1]
     rate = 100.0 * np.count_nonzero(good) / n
@@ -171,4 +178,51 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         _row("tracker.db.build", round(db_s, 3), "s", None, None, None,
              f"{len(db)} patterns of {len(db.u_N)} stars, max edge {math.degrees(db.max_edge_rad):.2f} deg, "
              "wall time, built once per field size"),
+        *exposure_rows,
+    ]
+
+
+def _exposure_rows(renderer, tracker, epoch, qs, seed, dense_err, dense_ok) -> list[dict]:
+    """Dense against sparse exposure: cost per exposure and the lost-in-space accuracy on each."""
+    optics = renderer.bench.tracker
+    exposure = tracker.sparse_exposure(optics)
+    rng = np.random.default_rng([seed, 1])
+    t_dense, t_sparse = [], []
+    err = np.full((len(qs), 2), np.nan)
+    for i, q in enumerate(qs):
+        c0 = time.process_time()
+        frame = renderer.render(q, epoch, screen=False, copy=False)
+        extract_stars(camera_noise(frame.detector, rng), optics.psf_sigma_px, k_sigma=tracker.k_sigma,
+                      max_stars=tracker.max_centroids)
+        c1 = time.process_time()
+        _, idx, e = renderer.detector_signal(q, epoch)
+        stars = exposure.stars(idx, e, rng)
+        c2 = time.process_time()
+        t_dense.append(c1 - c0)
+        t_sparse.append(c2 - c1)
+        sol = tracker.solve_stars(stars, optics)
+        if sol.valid:
+            a = attitude_error_S(sol.q_SN, q) / ARCSEC
+            if np.linalg.norm(a) <= FALSE_LIMIT_ARCSEC:
+                err[i] = [math.hypot(a[0], a[1]), abs(a[2])]
+    good = np.isfinite(err[:, 0])
+    rate = 100.0 * good.mean()
+    m = len(qs)
+    dense = dense_err[dense_ok]
+
+    def p95(a):
+        return round(float(np.percentile(a, 95)), 3) if len(a) else math.nan
+
+    return [
+        _row("tracker.exposure.dense_cost_median", round(float(np.median(t_dense)) * 1e3, 3), "ms", None, None, None,
+             f"render + camera_noise + extract_stars, CPU time, {m} attitudes"),
+        _row("tracker.exposure.sparse_cost_median", round(float(np.median(t_sparse)) * 1e3, 3), "ms", None, None,
+             None, f"detector_signal + SparseExposure.stars (what the stand runs), CPU time; "
+             f"{exposure.counts['drawn'] / max(exposure.counts['frames'], 1):.0f} pixels drawn per frame"),
+        _row("tracker.exposure.sparse_lis_success_rate", round(rate, 2), "%", None, None, None,
+             f"dense on the same attitudes {100.0 * dense_ok.mean():.2f} %"),
+        _row("tracker.exposure.sparse_cross_p95", p95(err[good, 0]), "arcsec", None, None, None,
+             f"dense on the same attitudes {p95(dense[:, 0])}"),
+        _row("tracker.exposure.sparse_roll_p95", p95(err[good, 1]), "arcsec", None, None, None,
+             f"dense on the same attitudes {p95(dense[:, 1])}"),
     ]

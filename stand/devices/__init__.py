@@ -23,6 +23,7 @@ Links (``link = ...`` in a ``[[devices]]`` table):
 
 from __future__ import annotations
 
+import functools
 import importlib
 import math
 from dataclasses import dataclass, field
@@ -57,8 +58,14 @@ _loaded: dict[str, DeviceKind] = {}
 
 def kind_names() -> tuple[str, ...]:
     """Every kind known: the shipped ones, then those of installed packages."""
-    extra = [ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS]
-    return (*KINDS, *sorted(extra))
+    return (*KINDS, *_installed_kinds())
+
+
+@functools.cache
+def _installed_kinds() -> tuple[str, ...]:
+    # Scanning the installed distributions takes milliseconds and validation asks for every device and criterion;
+    # packages installed while the process runs are seen by the next one.
+    return tuple(sorted(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS))
 
 
 def get(name: str) -> DeviceKind:
@@ -85,6 +92,18 @@ class DeviceSpec:
     kind: str
     link: str
     q_SB: np.ndarray  # device (sensor) frame relative to body, scalar-first
+
+
+@dataclass(frozen=True)
+class DeviceCost:
+    """What one device costs a run, for the estimate made before t = 0 (``stand.compose.budget``): how often it
+    publishes (None: every tick), the floats it adds to a telemetry row, the memory it holds for the whole run
+    (star databases, image buffers) and the computation of one publish beyond the usual codec round trip (s)."""
+
+    rate_hz: float | None = None
+    row_floats: int = 16
+    memory_bytes: int = 0
+    publish_s: float = 0.0
 
 
 @dataclass
@@ -195,6 +214,10 @@ class DeviceKind:
 
     def build(self, spec: DeviceSpec, ctx: BuildContext) -> Device:
         raise NotImplementedError
+
+    def cost(self, spec: DeviceSpec) -> DeviceCost:
+        """What the device costs a run (the default assumes a publish every tick and a 16-float row)."""
+        return DeviceCost()
 
     def metric(self, metric: str, at_s: float | None, tel: dict, names: list[str]) -> float:
         """The value of one of ``metrics`` from the telemetry of this kind's devices ``names``."""

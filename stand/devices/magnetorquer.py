@@ -11,6 +11,7 @@ The coils act in body axes; the magnetometer reads in its sensor frame ``q_SB``.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_can
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_can
 
 NAN3 = (math.nan, math.nan, math.nan)
 #: python-can's serial-line interfaces ignore recv()'s timeout and block for the port's own: keep it short, so a
@@ -58,7 +59,9 @@ class MagnetorquerSpec(DeviceSpec):
     field_source: str = "truth"  # or the name of a device that makes the field (a Helmholtz cage)
 
 
+@functools.cache
 def _codec():
+    """The board's codec, for the limits its DBC sets (read only; built once, the DBC takes milliseconds to parse)."""
     from drivers.magnetorquer.codec import MagnetorquerCodec
 
     return MagnetorquerCodec()
@@ -110,6 +113,9 @@ class MagnetorquerKind(DeviceKind):
                             f"coil currents at {spec.status_rate_hz:g} Hz)",
                 "served": f"magnetorquer board served on {where} for a flight computer outside, magnetometer at "
                           f"{spec.sample_rate_hz:g} Hz"}[spec.link]
+
+    def cost(self, spec: MagnetorquerSpec) -> DeviceCost:
+        return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=7)
 
     def build(self, spec: MagnetorquerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedBoard, "hardware": HardwareBoard, "served": ServedBoard}[spec.link](spec, ctx)

@@ -19,6 +19,7 @@ time at start, logs the offset it measures, and scores each solution against the
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import select
@@ -33,7 +34,7 @@ from sim.constants import R_EARTH
 from sim.environment import R_SUN
 from sim.rotations import axis_angle, compose, conjugate, dcm, quat_from_axis_angle
 from sim.truth import compose_floats, rotate_to_body
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_serial_url
 
 ARCSEC = math.pi / 180.0 / 3600.0
 #: Longest wall-clock wait for a frame to cross the in-process serial line before it counts as lost.
@@ -62,6 +63,8 @@ _UNIT_KEYS = {"ms": ("_s", 1e-3), "deg": ("_deg", 1.0), "deg/s": ("_deg_s", 1.0)
 #: Settings of the truth source only: with source = "image" the image is the noise.
 TRUTH_ONLY_SETTINGS = ("noise_cross_arcsec", "noise_roll_arcsec")
 TRACKER_SOURCES = ("truth", "image")
+#: Memory of an image-source tracker before its image buffers: star catalog and pattern database, bytes.
+IMAGE_BASE_BYTES = 300 << 20
 #: Image-source settings: key -> (default, lo, hi, integer). Pairs are [x, y] (image right, down).
 TRACKER_IMAGE_SETTINGS = {
     "mag_limit": (8.0, 4.0, 9.0, False),  # stars drawn and used, Hipparcos Hp (the catalog fixture reaches 9)
@@ -78,6 +81,11 @@ TRACKER_IMAGE_PAIRS = {
 def icd_settings() -> dict[str, tuple[float, float, float, bool]]:
     """Scenario settings that are ICD parameters: key -> (default, lo, hi, integer) in the scenario's units,
     read from the ICD's parameter table so scenario limits are the device's own."""
+    return dict(_icd_settings())
+
+
+@functools.cache
+def _icd_settings() -> dict[str, tuple[float, float, float, bool]]:
     from drivers.star_tracker.codec import load_icd
 
     out = {}
@@ -195,6 +203,18 @@ class StarTrackerKind(DeviceKind):
                             "its solutions and sets its clock)",
                 "served": f"star tracker served on serial {spec.port} for a flight computer outside, {what}, "
                           f"{every}"}[spec.link]
+
+    def cost(self, spec: StarTrackerSpec) -> DeviceCost:
+        # A solution crossing the serial pty (SLIP, CRC, both ends in this process) takes about 1.2 ms.
+        rate_hz = 1.0 / spec.emulator["output_interval_s"]
+        if spec.source != "image" or spec.link == "hardware":
+            return DeviceCost(rate_hz=rate_hz, row_floats=10, publish_s=1.2e-3)
+        # Measured: the catalog and pattern database take about 270 MB; the frame buffers about 14 bytes a
+        # detector pixel (235 MB at 4096 x 4096); a frame (render, camera noise, detection, solve) 25 ms at
+        # 1024 x 768 and Hp 8, 1.2 s at 4096 x 4096 with a 60 deg field and Hp 9.
+        px = spec.optics.width * spec.optics.height
+        return DeviceCost(rate_hz=rate_hz, row_floats=10, memory_bytes=IMAGE_BASE_BYTES + 16 * px,
+                          publish_s=1.2e-3 + 5e-3 + 70e-9 * px)
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
         if spec.screen is not None:
@@ -537,6 +557,7 @@ class ImageSolver:
         self.tracker = StarTracker(catalog=self.renderer.catalog, mag_limit=optics.mag_limit, epoch=epoch)
         self.tracker.database(optics)  # the pattern database (about 1 s), now rather than on the first tick
         self.tracker.places(epoch, parallax=True)  # apparent places at the scenario epoch, cached
+        self.exposure = self.tracker.sparse_exposure(optics, **self.camera)  # noise drawn where extraction looks
         self._last: tuple[float, np.ndarray] | None = None  # (t_s, q) of the previous exposure if valid
         self._before: tuple[float, np.ndarray] | None = None  # the valid one before it
         self.counts = {"frames": 0, "lis": 0, "tracking": 0, "failed": 0}
@@ -556,23 +577,20 @@ class ImageSolver:
         """TrackerTruth fields measured from the exposure at ``t_s``: the solved q_TN, stars centroided
         and matched, 1-sigma errors (rad); an identity attitude and 0 stars matched when the solve fails."""
         from star_screen.render import SmearTooLong
-        from star_screen.tracking.noise import camera_noise
 
         w0 = time.perf_counter()
         epoch = self.epoch + t_s
         v = np.asarray(v_N, dtype=float)
         try:
-            frame = self.renderer.render(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T, screen=False,
-                                         copy=False)
+            _, lit, signal_e = self.renderer.detector_signal(q_TN, epoch, v_sc_gcrs_m_s=v, omega_SN_S=omega_TN_T)
         except SmearTooLong:  # stars trailed past the renderer's cap: no tracker solves such an image
             self.counts["frames"] += 1
             self.counts["failed"] += 1
             self.frame_ms.append((time.perf_counter() - w0) * 1e3)
             self._last = self._before = None
             return {"q_TN": (1.0, 0.0, 0.0, 0.0), "stars_matched": 0, "stars_in_field": 0}
-        image = camera_noise(frame.detector, self.rng, **self.camera)
-        sol = self.tracker.solve(image, self.optics, self._prior(t_s),
-                                 observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))
+        sol = self.tracker.solve_stars(self.exposure.stars(lit, signal_e, self.rng), self.optics, self._prior(t_s),
+                                       observer_velocity_m_s=self.renderer.observer_velocity(epoch, v))
         self.counts["frames"] += 1
         self.frame_ms.append((time.perf_counter() - w0) * 1e3)
         seen = {"stars_in_field": int(sol.stars_centroided)}

@@ -18,7 +18,7 @@ from sim.environment import shadow_fraction
 from sim.rotations import dcm
 from sim.sensors import CoarseSunSensors, FineSunSensor
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec
 
 #: Coarse heads on the six body faces (+x, -x, +y, -y, +z, -z), rotated by the mount.
 HEAD_LABELS = ["+x face", "-x face", "+y face", "-y face", "+z face", "-z face"]
@@ -94,6 +94,11 @@ class SunSensorKind(DeviceKind):
 
     def describe(self, spec) -> str:
         return f"{spec.type} sun sensor sampled from the truth at {spec.rate_hz:g} Hz, eclipse-aware (no bus)"
+
+    def cost(self, spec: SunSensorSpec) -> DeviceCost:
+        # A sample evaluates the Sun's position and the Earth's shadow: about 50 us.
+        return DeviceCost(rate_hz=spec.rate_hz, row_floats=(len(FACE_NORMALS) if spec.type == "coarse" else 2) + 2,
+                          publish_s=50e-6)
 
     def build(self, spec: SunSensorSpec, ctx: BuildContext) -> Device:
         return SunSensor(spec, ctx)

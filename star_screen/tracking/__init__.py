@@ -196,6 +196,16 @@ class StarTracker:
         stars = extract_stars(img, optics.psf_sigma_px, k_sigma=self.k_sigma, max_stars=self.max_centroids)
         return self.solve_stars(stars, optics, prior, epoch=epoch, observer_velocity_m_s=observer_velocity_m_s)
 
+    def sparse_exposure(self, optics: TrackerOptics, *, background_e: float = 20.0, read_noise_e: float = 10.0):
+        """A :class:`~star_screen.tracking.exposure.SparseExposure` of these optics with this tracker's
+        extraction settings: for an emulated tracker, ``solve_stars(exposure.stars(idx, e, rng), ...)``
+        with ``idx, e`` from :meth:`star_screen.render.Renderer.detector_signal` is distributed as
+        ``solve(camera_noise(image, rng, ...), ...)`` and costs a fraction of it."""
+        from star_screen.tracking.exposure import SparseExposure
+
+        return SparseExposure(optics.width, optics.height, optics.psf_sigma_px, background_e=background_e,
+                              read_noise_e=read_noise_e, k_sigma=self.k_sigma, max_stars=self.max_centroids)
+
     def solve_stars(self, stars: ExtractedStars, optics: TrackerOptics, prior=None, *, epoch=None,
                     observer_velocity_m_s=None) -> Solution:
         """Identify and estimate from already extracted stars (brightest first)."""

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ExtractedStars", "extract_stars", "background_level"]
+__all__ = ["BACKGROUND_STEP", "ExtractedStars", "background_level", "extract_candidates", "extract_stars",
+           "window_radius"]
 
 
 @dataclass(frozen=True)
@@ -50,7 +51,11 @@ class ExtractedStars:
         return len(self.flux)
 
 
-def background_level(image: np.ndarray, step: int = 8) -> tuple[float, float]:
+#: ``background_level`` looks at every BACKGROUND_STEP-th pixel of every BACKGROUND_STEP-th row.
+BACKGROUND_STEP = 8
+
+
+def background_level(image: np.ndarray, step: int = BACKGROUND_STEP) -> tuple[float, float]:
     """Background (median) and noise (1.4826 MAD) of ``image`` from every ``step``-th pixel."""
     sub = np.asarray(image[::step, ::step], dtype=np.float32).ravel()
     med = float(np.median(sub))
@@ -61,6 +66,12 @@ def background_level(image: np.ndarray, step: int = 8) -> tuple[float, float]:
         # take a token noise level, so every pixel above the exact background level can count.
         noise = max(float(np.std(sub)) * 1e-3, 1e-6 * max(abs(med), 1.0), 1e-3)
     return med, noise
+
+
+def window_radius(psf_sigma_px: float) -> int:
+    """Half width (pixels) of the centroid window around a star's peak pixel."""
+    s_p2 = psf_sigma_px**2 + 1.0 / 12.0
+    return max(2, int(math.ceil(3.0 * math.sqrt(s_p2))))
 
 
 def extract_stars(
@@ -82,29 +93,58 @@ def extract_stars(
     img = np.asarray(image)
     if img.ndim != 2:
         raise ValueError(f"extract_stars takes a 2-D image; got shape {img.shape}.")
+    _check_psf(psf_sigma_px)
+    bg, noise = background_level(img)
+    thr = bg + k_sigma * noise
+    flat = img.reshape(-1)
+    return extract_candidates(flat.__getitem__, np.flatnonzero(flat > thr), img.shape, bg, noise, thr, psf_sigma_px,
+                              min_area=min_area, max_stars=max_stars, iterations=iterations)
+
+
+def _check_psf(psf_sigma_px: float) -> None:
     if not (math.isfinite(psf_sigma_px) and psf_sigma_px > 0):
         raise ValueError(f"psf_sigma_px = {psf_sigma_px!r}; it must be a positive number of pixels.")
-    h, w = img.shape
-    bg, noise = background_level(img)
+
+
+def extract_candidates(
+    values,
+    cand: np.ndarray,
+    shape: tuple[int, int],
+    bg: float,
+    noise: float,
+    thr: float,
+    psf_sigma_px: float,
+    *,
+    min_area: int = 2,
+    max_stars: int | None = None,
+    iterations: int = 3,
+) -> ExtractedStars:
+    """Steps 2-4 of :func:`extract_stars` from its candidate pixels, for images held otherwise.
+
+    ``values(flat_index_array)`` returns the pixel values at raster indices (any index shape);
+    ``cand``: every raster index whose value exceeds ``thr``, ascending; ``bg``, ``noise``: the
+    background statistics (:func:`background_level`). :func:`extract_stars` is this with
+    ``values = image.ravel().__getitem__``; :class:`star_screen.tracking.exposure.SparseExposure`
+    passes an image whose pixels are drawn when first read.
+    """
+    _check_psf(psf_sigma_px)
+    h, w = shape
     empty = ExtractedStars(np.empty((0, 2)), np.empty(0), np.empty(0, np.int32), bg, noise)
-    thr = bg + k_sigma * noise
     s_p2 = psf_sigma_px**2 + 1.0 / 12.0
     s_w2 = s_p2
     gain = (s_w2 + s_p2) / s_w2
-    R = max(2, int(math.ceil(3.0 * math.sqrt(s_p2))))
+    R = window_radius(psf_sigma_px)
     # Candidate pixels: above threshold and a strict local maximum of their 3 x 3 neighbourhood
     # (a tie goes to the earlier pixel in raster order), with at least ``min_area`` pixels of it above threshold. Only
     # the few above-threshold pixels are touched after the first compare, which keeps this well
     # below the cost of labelling the whole frame.
-    flat = img.reshape(-1)
-    cand = np.flatnonzero(flat > thr)
     if len(cand) == 0:
         return empty
     iy, ix = np.divmod(cand, w)
     inner = (ix >= R) & (ix < w - R) & (iy >= R) & (iy < h - R)
     cand, ix, iy = cand[inner], ix[inner], iy[inner]
-    nbv = flat[cand[:, None] + np.array([-w - 1, -w, -w + 1, -1, 1, w - 1, w, w + 1])]
-    v = flat[cand][:, None]
+    nbv = values(cand[:, None] + np.array([-w - 1, -w, -w + 1, -1, 1, w - 1, w, w + 1]))
+    v = values(cand)[:, None]
     peak = np.all(v > nbv[:, :4], axis=1) & np.all(v >= nbv[:, 4:], axis=1)
     area = np.count_nonzero(nbv > thr, axis=1) + 1
     keep = peak & (area >= min_area)
@@ -113,7 +153,7 @@ def extract_stars(
         return empty
     # Two peaks closer than the window (a noisy flat top, or a pair the optics blend): keep the brighter.
     if len(cand) > 1:
-        o = np.argsort(-flat[cand], kind="stable")
+        o = np.argsort(-values(cand), kind="stable")
         cand, ix, iy, area = cand[o], ix[o], iy[o], area[o]
         from scipy.spatial import cKDTree
 
@@ -126,19 +166,22 @@ def extract_stars(
     k = np.arange(-R, R + 1)
     cols = ix[:, None] + k  # (n, K)
     rows = iy[:, None] + k
-    win = img[rows[:, :, None], cols[:, None, :]].astype(np.float64) - bg  # (n, K, K)
+    win = values(rows[:, :, None] * w + cols[:, None, :]).astype(np.float64) - bg  # (n, K, K)
     xc = cols + 0.5  # pixel-centre coordinates
     yc = rows + 0.5
     c = guess.copy()
     for _ in range(iterations):
         wx = np.exp(-0.5 * (xc - c[:, :1]) ** 2 / s_w2)
         wy = np.exp(-0.5 * (yc - c[:, 1:]) ** 2 / s_w2)
-        ww = wy[:, :, None] * wx[:, None, :] * win
-        s = ww.sum(axis=(1, 2))
+        # The weight is separable: column sums weighted by wy, row sums weighted by wx, as two
+        # batched products instead of the (n, K, K) weighted window.
+        col = np.matmul(wy[:, None, :], win)[:, 0, :] * wx  # sum over rows of ww
+        row = np.matmul(win, wx[:, :, None])[:, :, 0] * wy  # sum over columns of ww
+        s = col.sum(axis=1)
         ok = s > 0
         s = np.where(ok, s, 1.0)
-        mx = (ww.sum(axis=1) * xc).sum(axis=1) / s
-        my = (ww.sum(axis=2) * yc).sum(axis=1) / s
+        mx = (col * xc).sum(axis=1) / s
+        my = (row * yc).sum(axis=1) / s
         step = np.stack((mx - c[:, 0], my - c[:, 1]), axis=-1) * gain
         # A step longer than the window means the fit wandered (blend, cosmic ray): keep the guess.
         step = np.where((ok[:, None]) & (np.abs(step) < R), step, 0.0)

@@ -122,3 +122,117 @@ def test_dipole_scene_never_evaluates_igrf(monkeypatch):
     monkeypatch.setattr(igrf, "field_itrs", boom)
     monkeypatch.setattr(igrf, "_load", boom)
     env.magnetic_field_itrs(2026.0, [7e6, 0.0, 0.0], model="dipole")
+
+
+def _unit(rng, n):
+    u = rng.normal(size=(n, 3))
+    return u / np.linalg.norm(u, axis=1)[:, None]
+
+
+def test_single_point_path_equals_the_vectorised_path():
+    """One position per call takes the folded polynomial path; many positions the recursion. They
+    agree to 1e-12 of |B| over all intervals (nodes and the 2025-2030 secular variation included),
+    degrees, radii from half the reference radius out, and directions at and near the poles."""
+    rng = np.random.default_rng(14)
+    n = 400
+    u = _unit(rng, n)
+    u[:12] = [0.0, 0.0, 1.0]
+    u[12:24, :2] = rng.normal(size=(12, 2)) * 1e-9  # within 1e-9 rad of a pole
+    u[12:24, 2] = np.where(np.arange(12) % 2, 1.0, -1.0)
+    u[24:30] = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1, 1, 0]]
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    r = u * R_IGRF * rng.uniform(0.5, 4.0, size=(n, 1))
+    years = np.concatenate([[1900.0, 1995.0, 2000.0, 2025.0, 2029.999, 2030.0, 1962.5], rng.uniform(1900, 2030, n)])
+    worst = 0.0
+    for k in range(n):
+        year = float(years[k])
+        degree = (13, 10, 1, 7)[k % 4]
+        one = igrf.field_itrs(year, r[k], degree=degree)
+        many = igrf.field_itrs(year, r[k][None, :], degree=degree)[0]
+        worst = max(worst, np.linalg.norm(one - many) / np.linalg.norm(many))
+    assert worst < 1e-12, worst
+
+
+def test_single_point_path_on_the_ppigrf_reference_points():
+    d = np.loadtxt(REF, delimiter=",")
+    one = np.array([igrf.field_itrs(row[0], row[1:4]) for row in d])
+    many = np.array([igrf.field_itrs(row[0], row[None, 1:4])[0] for row in d])
+    rel = np.linalg.norm(one - many, axis=1) / np.linalg.norm(many, axis=1)
+    assert rel.max() < 1e-12, rel.max()
+    assert np.linalg.norm(one / NT - d[:, 4:7], axis=1).max() < 1.0  # issue 5's tolerance
+
+
+def test_single_point_refusals_match_the_vectorised_ones():
+    for bad in ([1e6, 0.0, 0.0], [np.nan, 7e6, 0.0], [np.inf, 0.0, 0.0]):
+        with pytest.raises(ValueError, match="inside the Earth or non-finite"):
+            igrf.field_itrs(2020.0, np.array(bad))
+        with pytest.raises(ValueError, match="inside the Earth or non-finite"):
+            igrf.field_itrs(2020.0, np.array([bad]))
+    with pytest.raises(ValueError, match="igrf degree 0"):
+        igrf.field_itrs(2020.0, [7e6, 0, 0], degree=0)
+
+
+def test_decimal_year_by_arithmetic_within_a_day_equals_erfa():
+    """Within a UTC day the decimal year is arithmetic on the TAI date; it must equal ERFA's
+    to the last bit or two of the result (one unit in the last place of 2026 is 7 us), including the
+    first and last instants of a year."""
+    rng = np.random.default_rng(5)
+    # Whole-year spans (2026, 2024, 1999) and day spans in a year with a leap second (2016).
+    starts = ["2026-06-01T00:00:00Z", "2025-12-31T00:00:00Z", "2024-02-29T00:00:00Z", "1999-12-31T12:00:00Z",
+              "2016-03-01T00:00:00Z", "2016-12-30T00:00:00Z"]
+    for iso in starts:
+        e0 = Epoch.from_iso(iso)
+        for dt in np.concatenate([[0.0, 1e-6, 43200.0, 86399.999999], rng.uniform(0.0, 86400.0, 20)]):
+            e = e0 + float(dt)
+            fast = igrf.decimal_year(e)
+            assert igrf._span is not None  # the arithmetic path served this epoch
+            slow = igrf._decimal_year_erfa(e)
+            assert abs(fast - slow) <= 2 * np.spacing(slow), (iso, dt)
+
+
+def test_decimal_year_does_not_depend_on_what_was_asked_before():
+    """Runs must repeat bit for bit in one process: the same epoch gives the same bits whichever
+    day the arithmetic path last served, midnight included."""
+    probes = [Epoch.from_iso(t) for t in ("2026-06-01T00:00:00Z", "2026-06-01T00:00:00.000001Z",
+                                          "2026-05-31T23:59:59.9999Z", "2026-06-01T12:00:00Z", "2026-12-31T23:59:59Z",
+                                          "2027-01-01T00:00:00Z")]
+    fresh = []
+    for e in probes:
+        igrf._span = None
+        fresh.append(igrf.decimal_year(e))
+    for before in probes + [Epoch.from_iso("2026-05-31T06:00:00Z"), Epoch.from_iso("2026-06-02T06:00:00Z")]:
+        for e, want in zip(probes, fresh, strict=True):
+            igrf.decimal_year(before)
+            assert igrf.decimal_year(e) == want
+
+
+def test_decimal_year_on_a_day_ending_in_a_leap_second_follows_erfa():
+    """2016-12-31 lasted 86401 s; its instants, the leap second among them, go through ERFA; so do
+    instants before 1972, when UTC ran at a rate offset from TAI."""
+    e0 = Epoch.from_iso("2016-12-31T23:59:58Z")
+    prev = -np.inf
+    for dt in np.arange(0.0, 4.0, 0.25):
+        e = e0 + float(dt)
+        y = igrf.decimal_year(e)
+        assert abs(y - igrf._decimal_year_erfa(e)) <= 2 * np.spacing(y)
+        assert y >= prev  # never runs backwards across the leap second and the new year
+        prev = y
+    assert igrf.decimal_year(Epoch.from_iso("2017-01-01T00:00:00Z")) == 2017.0
+    for iso in ("1965-04-01T06:00:00Z", "1910-04-01T06:00:00Z"):
+        e = Epoch.from_iso(iso)
+        for dt in (0.0, 3600.0, 7200.0):
+            assert abs(igrf.decimal_year(e + dt) - igrf._decimal_year_erfa(e + dt)) <= 2 * np.spacing(1965.0)
+
+
+def test_point_series_follows_the_recursion_to_degree_20_and_refuses_beyond():
+    rng = np.random.default_rng(20)
+    nn, mm = harmonics.index_nm(20)
+    C = rng.normal(size=nn.size)
+    S = rng.normal(size=nn.size) * (mm > 0)
+    series = harmonics.PointSeries(C, S, 20)
+    for p in _unit(rng, 50) * rng.uniform(1.0, 3.0, size=(50, 1)):
+        ref = harmonics.gradient(p, C, S, 1.0, 20)
+        got = np.array(series.gradient(*p, 1.0))
+        assert np.linalg.norm(got - ref) <= 1e-12 * np.linalg.norm(ref)
+    with pytest.raises(ValueError, match="degree 21 is not allowed"):
+        harmonics.point_tensor(np.zeros(253), np.zeros(253), 21)

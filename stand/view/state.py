@@ -1,0 +1,459 @@
+"""What the operator page shows, computed from a run folder (replay) or from the rows a live run hands over.
+
+``view.json`` (written beside the telemetry at run start by :func:`write_view_json`) holds what the page needs
+from the scenario: the epoch, the Earth-rotation model, and for every device its kind, mount ``q_SB`` and field
+of view. :func:`load_meta` reads it, or rebuilds it from the scenario named in ``summary.json`` for a run
+recorded before the file existed.
+
+:func:`derive` turns telemetry columns into the page's samples: the telemetry itself plus the Sun and Moon
+directions from the spacecraft (with their angular radii), the Earth's visible fraction of the Sun, the
+Earth-fixed attitude ``q_EN`` and the sub-satellite point. :func:`project` is the panorama's projection, the
+same formulas as the page's ``view.js``; tests and the PNG export use it to say where the page must draw.
+
+Panorama convention: a direction ``u`` in the chosen frame has longitude ``atan2(u_y, u_x)`` and latitude
+``asin(u_z)``; the map is seen from inside the sphere, so longitude grows to the left (looking along +x with +z
+up, +y is on the left) and +z is up.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim.constants import R_EARTH
+from sim.environment import R_SUN, shadow_fraction
+from sim.ephemeris import EphemerisTrack
+from sim.frames import EarthRotation
+from sim.rotations import quat_from_dcm
+from sim.time import Epoch
+
+VIEW_FILE = "view.json"
+R_MOON = 1.7374e6
+#: A tracker whose scenario gives no field (truth-source trackers) is drawn with the stand's default optics.
+DEFAULT_TRACKER_FOV_DEG = (20.0, 15.0)
+#: Most samples a replay sends the page for the whole run (the slider's resolution is duration / this).
+MAX_SAMPLES = 6000
+PROJECTIONS = ("equirectangular", "hammer")
+
+
+# --------------------------------------------------------------------------------------------------- metadata
+
+def _device_view(d) -> dict:
+    """Kind, mount and fields of view of one scenario device (anything with a field is drawn)."""
+    out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB], "fovs": []}
+    if d.kind == "star_tracker":
+        optics = getattr(d, "optics", None)
+        fx, fy = optics.fov_deg if optics is not None else DEFAULT_TRACKER_FOV_DEG
+        em = getattr(d, "emulator", {}) or {}
+        out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(fx), float(fy)],
+                            "label": d.name})
+        out["exclusion_deg"] = {b: float(em[f"{b}_exclusion_deg"]) for b in ("sun", "moon", "earth")
+                                if f"{b}_exclusion_deg" in em}
+        out["rate_limit_deg_s"] = float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None
+    elif d.kind == "sun_sensor":
+        half = float(getattr(d, "fov_half_deg", 90.0))
+        if getattr(d, "type", "fine") == "coarse":
+            from stand.devices.sun_sensor import FACE_NORMALS, HEAD_LABELS
+
+            for n, label in zip(FACE_NORMALS, HEAD_LABELS, strict=True):
+                out["fovs"].append({"shape": "cone", "axis_S": [float(x) for x in n], "half_deg": half,
+                                    "label": f"{d.name} {label}", "head": True})
+        else:
+            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": half, "label": d.name})
+    else:
+        fov = getattr(d, "fov_deg", None)
+        half = getattr(d, "fov_half_deg", None)
+        if fov is not None:
+            out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(x) for x in fov],
+                                "label": d.name})
+        elif half is not None:
+            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": float(half), "label": d.name})
+    return out
+
+
+def describe(sc) -> dict:
+    """The page's view of a scenario (what ``view.json`` holds)."""
+    env = sc.environment
+    return {
+        "format": 1,
+        "scenario": sc.name,
+        "description": sc.description,
+        "epoch": sc.epoch.iso,
+        "duration_s": float(sc.duration_s),
+        "step_s": float(sc.step_s),
+        "record_rate_hz": float(sc.record_rate_hz),
+        "earth_rotation": {"model": env.earth_rotation, "era0_rad": float(env.era0_rad)},
+        "devices": [_device_view(d) for d in sc.devices],
+        "criteria": [{"name": c.name, "metric": c.metric, "max": c.max, "min": c.min, "at_s": c.at_s}
+                     for c in sc.criteria],
+    }
+
+
+def write_view_json(sc, run_dir, duration_s: float | None = None) -> Path:
+    """``view.json`` of a run (``duration_s``: the run's own when ``--duration`` changed it)."""
+    meta = describe(sc)
+    if duration_s is not None:
+        meta["duration_s"] = float(duration_s)
+    path = Path(run_dir) / VIEW_FILE
+    path.write_text(json.dumps(meta, indent=1) + "\n")
+    return path
+
+
+def load_meta(run_dir) -> dict:
+    """``view.json`` of a run, or the same rebuilt from the scenario its summary names."""
+    run_dir = Path(run_dir)
+    path = run_dir / VIEW_FILE
+    if path.is_file():
+        return json.loads(path.read_text())
+    summary = run_dir / "summary.json"
+    if not summary.is_file():
+        raise FileNotFoundError(f"{run_dir} is not a run folder: it holds neither {VIEW_FILE} nor summary.json.")
+    from stand.errors import ScenarioError
+    from stand.scenario import find, load
+
+    data = json.loads(summary.read_text())
+    source = data.get("source")
+    try:
+        meta = describe(load(find(source)))
+        if data.get("status") == "completed" and data.get("sim_duration_s"):
+            meta["duration_s"] = float(data["sim_duration_s"])  # a --duration run
+        return meta
+    except (ScenarioError, TypeError, OSError):
+        raise FileNotFoundError(f"{run_dir} has no {VIEW_FILE} and its scenario {source!r} is neither a file on this "
+                                "machine nor a shipped scenario.") from None
+
+
+# --------------------------------------------------------------------------------------------------- geometry
+
+class Sky:
+    """The slow sky of a run: Sun and Moon tracks and the Earth's rotation, built once per run."""
+
+    def __init__(self, meta: dict):
+        self.epoch = Epoch.from_iso(meta["epoch"])
+        er = meta.get("earth_rotation", {})
+        # UT1 - UTC and polar motion are left at 0: at most 13.5 arcsec on the drawn Earth.
+        self.rotation = EarthRotation(self.epoch, er.get("model", "iau2006"), er.get("era0_rad", 0.0))
+        self.sun = EphemerisTrack(self.epoch, "sun")
+        self.moon = EphemerisTrack(self.epoch, "moon")
+        self._lock = threading.Lock()  # the tracks cache nodes; the live sender and the server share them
+
+    def derive(self, cols: dict) -> dict:
+        """Telemetry columns (``t_s`` (n,), ``r_BN_N`` (n, 3), ...) plus what the page draws from them."""
+        t = np.asarray(cols["t_s"], dtype=float)
+        r = np.asarray(cols["r_BN_N"], dtype=float).reshape(-1, 3)
+        out = dict(cols)
+        with self._lock:
+            r_sun = self.sun.position_gcrs(t).reshape(-1, 3)
+            r_moon = self.moon.position_gcrs(t).reshape(-1, 3)
+            C = self.rotation.dcm_itrs_gcrs(t).reshape(-1, 3, 3)
+        for body, pos, radius in (("sun", r_sun, R_SUN), ("moon", r_moon, R_MOON)):
+            d = pos - r
+            n = np.linalg.norm(d, axis=-1, keepdims=True)
+            out[f"{body}_N"] = d / n
+            out[f"{body}_radius_rad"] = np.arcsin(radius / n[:, 0])
+        rn = np.linalg.norm(r, axis=-1)
+        out["earth_radius_rad"] = np.arcsin(np.minimum(1.0, R_EARTH / rn))
+        out["sun_fraction"] = shadow_fraction(r, r_sun) if len(t) else np.zeros(0)
+        out["q_EN"] = quat_from_dcm(C) if len(t) else np.zeros((0, 4))
+        r_E = np.einsum("nij,nj->ni", C, r)
+        out["lat_deg"] = np.degrees(np.arcsin(r_E[:, 2] / rn)) if len(t) else np.zeros(0)
+        out["lon_deg"] = np.degrees(np.arctan2(r_E[:, 1], r_E[:, 0])) if len(t) else np.zeros(0)
+        return out
+
+
+def decimate(t: np.ndarray, max_samples: int = MAX_SAMPLES) -> np.ndarray:
+    """Indices of at most about ``max_samples`` rows evenly spread in time, first and last kept."""
+    n = len(t)
+    if n <= max_samples:
+        return np.arange(n)
+    dt = (t[-1] - t[0]) / (max_samples - 1)
+    idx = np.unique(np.searchsorted(t, t[0] + dt * np.arange(max_samples), side="left"))
+    idx = idx[idx < n]
+    return np.unique(np.append(idx, n - 1))
+
+
+def encode(samples: dict) -> dict:
+    """Columns as ``{name: {"shape": [n, w], "f32": base64}}`` (time in float64): a tenth of JSON's size."""
+    out = {}
+    for name, v in samples.items():
+        a = np.asarray(v)
+        if a.dtype.kind not in "fiub":
+            continue
+        dtype = "<f8" if name == "t_s" else "<f4"
+        a2 = a.reshape(len(a), -1) if a.ndim else a.reshape(1, 1)
+        out[name] = {"shape": list(a2.shape), "dtype": "f8" if dtype == "<f8" else "f4",
+                     "data": base64.b64encode(np.ascontiguousarray(a2, dtype=dtype).tobytes()).decode("ascii")}
+    return out
+
+
+def replay_samples(run_dir, meta: dict, max_samples: int = MAX_SAMPLES, sky: Sky | None = None) -> dict:
+    """The whole run, decimated, with everything derived."""
+    from stand.telemetry import load
+
+    tel = load(run_dir)
+    idx = decimate(tel["t_s"], max_samples)
+    cols = {k: np.asarray(v)[idx] for k, v in tel.items()}
+    return (sky or Sky(meta)).derive(cols)
+
+
+def read_events(run_dir) -> list[dict]:
+    path = Path(run_dir) / "events.jsonl"
+    out = []
+    if path.is_file():
+        for line in path.read_text(errors="replace").splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue  # a line cut by a crash
+    return out
+
+
+def star_table(meta: dict, mag_limit: float | None = None) -> dict:
+    """Catalog stars (brightest first) at the run's epoch: right ascension, declination (rad), Hp magnitude."""
+    from star_screen.catalog import Catalog, unit_to_radec
+
+    cat = Catalog.load(mag_limit=mag_limit)
+    places = cat.places(Epoch.from_iso(meta["epoch"]), parallax=False)
+    ra, dec = unit_to_radec(places.u_N)
+    return {"count": len(cat), "hp_limit": cat.hp_limit,
+            "stars": encode({"ra_dec_mag": np.stack((ra, dec, places.mag.astype(float)), axis=-1)})["ra_dec_mag"]}
+
+
+# --------------------------------------------------------------------------------------------------- projection
+
+def lon_lat(u) -> tuple[np.ndarray, np.ndarray]:
+    u = np.asarray(u, dtype=float)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    return np.arctan2(u[..., 1], u[..., 0]), np.arcsin(np.clip(u[..., 2], -1.0, 1.0))
+
+
+def project(u, kind: str, width: float, height: float) -> np.ndarray:
+    """Pixel ``(x, y)`` of directions ``u`` (..., 3) on a ``width`` x ``height`` panorama (``view.js``'s
+    ``project``). Equirectangular fills the box (longitude +180 at the left edge); Hammer-Aitoff's ellipse is
+    inscribed in it."""
+    lon, lat = lon_lat(u)
+    if kind == "equirectangular":
+        x = width / 2 - lon / (2 * math.pi) * width
+        y = height / 2 - lat / math.pi * height
+    elif kind == "hammer":
+        d = np.sqrt(1.0 + np.cos(lat) * np.cos(lon / 2))
+        hx = 2 * math.sqrt(2) * np.cos(lat) * np.sin(lon / 2) / d  # in [-2 sqrt 2, 2 sqrt 2]
+        hy = math.sqrt(2) * np.sin(lat) / d  # in [-sqrt 2, sqrt 2]
+        x = width / 2 - hx / (2 * math.sqrt(2)) * width / 2
+        y = height / 2 - hy / math.sqrt(2) * height / 2
+    else:
+        raise ValueError(f"projection {kind!r} is not one of {', '.join(PROJECTIONS)}.")
+    return np.stack((x, y), axis=-1)
+
+
+# --------------------------------------------------------------------------------------------------- live feed
+
+def split_rows(rows, columns: list[dict]) -> dict:
+    """Flat telemetry rows -> columns, as ``stand.telemetry.load`` returns them."""
+    arr = np.asarray(rows, dtype=float)
+    out, col = {}, 0
+    for c in columns:
+        w = int(c["width"])
+        out[c["name"]] = arr[:, col] if w == 1 else arr[:, col:col + w]
+        col += w
+    return out
+
+
+class LiveFeed:
+    """The loop's observer during ``stand run --view``: the loop's side of the live page.
+
+    The loop calls :meth:`record` for every telemetry row (it appends a reference to the row and returns: no
+    copy, no lock, no numpy) and :meth:`poll_control` a few times per second. A sender thread wakes ``push_hz``
+    times a second, keeps the rows appended since that are at least ``duration / max_samples`` apart (and the
+    newest), and hands them as one array to ``link.send(("rows", array))``; ``link.receive()`` returns the control
+    commands that arrived from the page since the last call. Deriving the sky, encoding and serving happen at the
+    other end of the link (:class:`LiveSource`, in the server's own process for ``stand run --view``), so they
+    never hold this process's interpreter lock while the loop runs.
+    """
+
+    def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES):
+        self.link = link
+        self.rows: list = []
+        self.push_period_s = 1.0 / push_hz
+        self.spacing_s = max(meta["duration_s"] / max_samples, 1.0 / meta.get("record_rate_hz", 10.0))
+        self._control: str | None = None
+        self._taken = 0
+        self._next_t = -math.inf
+        self.pushes = 0
+        self.cpu_s = 0.0
+        self.error: str | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- the loop's side (hot path: keep it to an append) -------------------------------------------------
+    def record(self, t_s: float, row: tuple) -> None:
+        self.rows.append(row)
+
+    def poll_control(self) -> str | None:
+        return self._control
+
+    # -- the sender ----------------------------------------------------------------------------------------
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="view-sender", daemon=True)
+        self._thread.start()
+
+    def finish(self) -> None:
+        """The run ended: stop the sender (bounded wait) and send what is left."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+        self.push()
+
+    def _run(self) -> None:
+        c0 = time.thread_time()
+        try:
+            while not self._stop.wait(self.push_period_s):
+                try:
+                    self.push()
+                except (OSError, EOFError, ValueError) as exc:  # the page's end went away: the run goes on
+                    self.error = f"live view stopped: {type(exc).__name__}: {exc}"
+                    return
+        finally:
+            self.cpu_s = time.thread_time() - c0  # what the sender took from the run's process (stand bench view)
+
+    def push(self) -> None:
+        for command in self.link.receive():
+            self._control = command
+        n = len(self.rows)
+        new, self._taken = self.rows[self._taken:n], n
+        if not new:
+            return
+        keep = []
+        nxt = self._next_t
+        for row in new:
+            if row[0] >= nxt:
+                keep.append(row)
+                nxt = row[0] + self.spacing_s
+        if keep and keep[-1] is not new[-1]:
+            keep.append(new[-1])  # the newest row is always shown
+        self._next_t = nxt
+        self.link.send(("rows", np.asarray(keep, dtype=float)))
+        self.pushes += 1
+
+
+class LiveSource:
+    """The page's side of a live run: derives what the page draws from the rows the feed sends, keeps the history
+    for pages that open mid-run, tails the event log, and turns the page's pause, resume and stop into control
+    commands (``control(command)``, sent back to the feed)."""
+
+    mode = "live"
+
+    def __init__(self, run_dir, meta: dict, control=None):
+        self.run_dir = Path(run_dir)
+        self.meta = meta
+        self.sky = Sky(meta)
+        self.control = control or (lambda command: None)
+        self.status = "running"
+        self._columns: list[dict] | None = None
+        self._history: list[dict] = []
+        self._events: list[dict] = []
+        self._events_pos = 0
+        self.listeners: list = []  # callables(message dict)
+        self.pushes = 0
+        self._lock = threading.Lock()
+
+    def request(self, command: str) -> str:
+        """``pause``, ``resume`` or ``stop`` from the page; returns the new status."""
+        if command not in ("pause", "resume", "stop"):
+            raise ValueError(f"control command {command!r} is not one of pause, resume, stop.")
+        if self.status in ("finished", "stopping"):
+            return self.status
+        if command == "stop":
+            self.status = "stopping"
+            self.control("stop")
+        elif command == "pause":
+            self.status = "paused"
+            self.control("pause")
+        elif command == "resume" and self.status == "paused":
+            self.status = "running"
+            self.control(None)
+        self._notify({"type": "status", "status": self.status})
+        return self.status
+
+    def finished(self, run_status: str = "completed") -> None:
+        events = self._new_events()
+        self.status = "finished"
+        self._notify({"type": "status", "status": "finished", "run_status": run_status,
+                      **({"events": events} if events else {})})
+
+    def _schema(self) -> list[dict] | None:
+        if self._columns is None:
+            path = self.run_dir / "telemetry" / "schema.json"
+            if path.is_file():
+                self._columns = json.loads(path.read_text())["columns"]
+        return self._columns
+
+    def ingest(self, rows: np.ndarray) -> None:
+        """New rows (already thinned by the feed): derive, keep, and push to the pages."""
+        cols = self._schema()
+        if cols is None or not len(rows):
+            return
+        with self._lock:
+            derived = self.sky.derive(split_rows(rows, cols))
+            self._history.append(derived)
+            self.pushes += 1
+            events = self._new_events()
+        self._notify({"type": "samples", "samples": encode(derived), "status": self.status,
+                      **({"events": events} if events else {})})
+
+    def _new_events(self) -> list[dict]:
+        path = self.run_dir / "events.jsonl"
+        if not path.is_file():
+            return []
+        with open(path, "rb") as f:
+            f.seek(self._events_pos)
+            data = f.read()
+        cut = data.rfind(b"\n") + 1
+        self._events_pos += cut
+        out = []
+        for line in data[:cut].decode("utf-8", "replace").splitlines():
+            try:
+                out.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        self._events += out
+        return out
+
+    def _notify(self, message: dict) -> None:
+        for listener in list(self.listeners):
+            listener(message)
+
+    def snapshot(self) -> tuple[dict, list[dict]]:
+        """Every sample so far (one table) and every event, for a page that opens mid-run."""
+        with self._lock:
+            self._new_events()
+            if not self._history:
+                return {}, list(self._events)
+            keys = self._history[0].keys()
+            merged = {k: np.concatenate([np.asarray(h[k]) for h in self._history]) for k in keys}
+            return merged, list(self._events)
+
+
+class LocalLink:
+    """Feed and source in one process (tests, the bench's in-process comparison): rows go straight to the
+    source; the source's control commands come straight back."""
+
+    def __init__(self, source: LiveSource):
+        self.source = source
+        self.inbox: list = []
+        source.control = self.inbox.append
+
+    def send(self, message) -> None:
+        kind, rows = message
+        self.source.ingest(rows)
+
+    def receive(self) -> list:
+        out = list(self.inbox)
+        self.inbox.clear()
+        return out
