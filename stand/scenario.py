@@ -447,9 +447,31 @@ def parse(data: dict, source: str | None = None) -> Scenario:
 
         rendezvous = parse_rendezvous(root.table("rendezvous"), duration_s, orbit, source)
     root.check_unknown()
-    return Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
-                    tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
-                    record_rate_hz, rendezvous)
+    sc = Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
+                  tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
+                  record_rate_hz, rendezvous)
+    if controller.kind == "pointing":
+        _check_pointing(sc)
+    return sc
+
+
+def _check_pointing(sc: Scenario) -> None:
+    """Construct the pointing controller over unopened devices, so a bad option is a ScenarioError at load."""
+    from .adcs import PluginError, check_controller
+
+    try:
+        check_controller(sc)
+    except PluginError as exc:
+        text = str(exc).removeprefix("controller.kind = 'pointing': ").rstrip(".")
+        m = re.match(r"options\.(\w+)", text)
+        options = sc.controller.params["options"]
+        key = m.group(1) if m else None
+        if key and "; " in text:
+            text = text.split("; ", 1)[1]  # the rule only: the value is shown once, shortened, by the error
+        text = " ".join(text.split())[:300]
+        raise ScenarioError(f"controller.options.{key}" if key else "controller.options",
+                            options.get(key, MISSING) if key else sorted(options)[:20],
+                            f"an option PointingController accepts ({text})", sc.source) from None
 
 
 def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
@@ -688,29 +710,53 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
 def _pointing(t: Table, devices) -> dict:
     """The options of the reference pointing ADCS: the devices it reads and commands must exist, be of the right
     kind and have a host driver in the stand (not served); the rest is checked by its constructor."""
+    from dataclasses import fields
+
+    from .adcs.modes import ModeConfig
+    from .adcs.pointing import OPTIONS
+
     options = t.raw("options", {})
     if not isinstance(options, dict):
         raise t.error("options", options, "a table of options of stand.adcs.pointing.PointingController")
+    opt = Table(options, t._name("options"), t.source)
+    opt.check_unknown(tuple(OPTIONS))
+
+    def bad(v) -> bool:
+        if isinstance(v, float):
+            return not math.isfinite(v)
+        if isinstance(v, str):
+            return "\x00" in v
+        if isinstance(v, list):
+            return any(bad(x) for x in v)
+        if isinstance(v, dict):
+            return any(bad(x) for x in v.values())
+        return False
+
+    for key, value in options.items():
+        if bad(value):
+            raise opt.error(key, value, "finite numbers and text without NUL bytes")
+    if "modes" in options:
+        opt.table("modes").check_unknown(tuple(f.name for f in fields(ModeConfig)))
     by_name = {d.name: d for d in devices}
 
     def check(key: str, name, kind: str) -> None:
-        d = by_name.get(name)
+        d = by_name.get(name) if isinstance(name, str) else None
         if d is None or d.kind != kind:
             have = [x.name for x in devices if x.kind == kind]
-            raise t.error(f"options.{key}", name, f"the name of a [[devices]] entry of kind {kind!r} "
+            raise opt.error(key, name, f"the name of a [[devices]] entry of kind {kind!r} "
                           f"({', '.join(have) or 'none in this scenario'})")
         if d.link == "served":
-            raise t.error(f"options.{key}", name, "a device the stand's controller can use: this one is served to a "
+            raise opt.error(key, name, "a device the stand's controller can use: this one is served to a "
                           "flight computer outside (link = 'served'); use controller.kind = 'external'")
 
     if "gyro" not in options:
-        raise t.error("options.gyro", MISSING, "the name of the gyro the pointing controller reads")
+        raise opt.error("gyro", MISSING, "the name of the gyro the pointing controller reads")
     for key, kind in POINTING_DEVICES.items():
         if key in options:
             check(key, options[key], kind)
     wheels = options.get("wheels", [d.name for d in devices if d.kind == "reaction_wheel"])
     if not isinstance(wheels, list) or len(wheels) < 3:
-        raise t.error("options.wheels", wheels, "a list of at least three reaction wheel device names")
+        raise opt.error("wheels", wheels, "a list of at least three reaction wheel device names")
     for name in wheels:
         check("wheels", name, "reaction_wheel")
     return {**options, "wheels": list(wheels)}

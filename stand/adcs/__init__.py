@@ -220,7 +220,7 @@ def build_controller(sc, devices: dict, base: Path | None = None):
         hosts = {name: d.host for name, d in devices.items()}
         try:
             return PointingController(hosts, period, **pointing_options(sc))
-        except ValueError as exc:
+        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
             raise PluginError(f"controller.kind = 'pointing': {exc}") from None
     if ctl.kind != "plugin":
         return None
@@ -254,7 +254,7 @@ def check_controller(sc, base: Path | None = None) -> None:
         try:
             PointingController({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz,
                                **pointing_options(sc))
-        except ValueError as exc:
+        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
             raise PluginError(f"controller.kind = 'pointing': {exc}") from None
         return
     if ctl.kind != "plugin":
