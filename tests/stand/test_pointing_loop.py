@@ -198,12 +198,13 @@ def test_pointing_controller_options_are_checked_against_the_devices(write_scena
     with pytest.raises(ScenarioError, match="options.wheels.*reaction_wheel"):
         scenario.load(write_scenario(data))
     data = pointing_dict()
-    data["controller"]["options"]["law"] = "bang-bang"
-    sc = scenario.load(write_scenario(data))
-    from stand.adcs import PluginError, check_controller
-
-    with pytest.raises(PluginError, match="law"):
-        check_controller(sc)
+    data["controller"]["options"]["law"] = "bang-bang"  # refused by the controller's constructor, at load
+    with pytest.raises(ScenarioError, match=r"controller.options.law = 'bang-bang'.*mrp, quaternion"):
+        scenario.load(write_scenario(data))
+    data = pointing_dict()
+    data["controller"]["options"]["modes"] = {"outage": 10.0}
+    with pytest.raises(ScenarioError, match="controller.options.modes.outage .*not known here"):
+        scenario.load(write_scenario(data))
 
 
 def test_pointing_run_is_repeatable(write_scenario, tmp_path):
