@@ -23,6 +23,7 @@ from sim.frames import EarthRotation
 from sim.orbit import elements_to_state
 from sim.time import NS_PER_S, seconds_to_ns
 from sim.truth import CHUNK_S, TruthModel, chunk_points
+from sim.wheels import WheelCluster
 
 from . import devices
 from .adcs import build_controller
@@ -73,7 +74,7 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     choices = [
         Choice("orbit", True, f"{gravity} gravity, RK4 at {o.step_s:g} s with the force re-evaluated at every "
                "stage, Hermite-interpolated to the dynamics steps"),
-        Choice("attitude", True, f"rigid body, {sc.integrator.upper()} at {sc.step_s:g} s"),
+        Choice("attitude", True, f"rigid body{_wheels_text(sc)}, {sc.integrator.upper()} at {sc.step_s:g} s"),
         Choice(f"magnetic_field.{env.magnetic_field}", needs_field,
                "needed by " + ", ".join(field_why) if needs_field
                else "no magnetometer, magnetorquer, cage or magnetic torque in the scene"),
@@ -110,6 +111,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
                           ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
     choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
     return choices
+
+
+def _wheels_text(sc: Scenario) -> str:
+    n = sum(devices.get(d.kind).momentum_wheel(d) is not None for d in sc.devices)
+    return f" with {n} momentum wheel{'s' if n > 1 else ''} in its state" if n else ""
 
 
 # --- what a run costs, estimated before t = 0 -------------------------------------------------------------------
@@ -210,7 +216,7 @@ def budget(sc: Scenario, duration_s: float | None = None) -> Budget:
     field_on = "magnetic" in sc.torques or any(devices.get(d.kind).needs(d).get("magnetic_field")
                                                for d in sc.devices)
     # B-dot records its commanded dipole; a plug-in's own columns are not known before it is built.
-    row_floats = 14 + 3 * field_on + sum(c.row_floats for c in costs) + {"bdot": 3, "plugin": 16}.get(
+    row_floats = 14 + 3 * field_on + sum(c.row_floats for c in costs) + {"bdot": 3, "plugin": 16, "pointing": 24}.get(
         sc.controller.kind, 0)
     telemetry = rows * row_floats * 8
     o = sc.orbit
@@ -368,12 +374,14 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
     def field_itrs(t_s, r_itrs):
         return magnetic_field_itrs(epoch + t_s, r_itrs, env.magnetic_field, env.igrf_degree)
 
+    wheels = wheel_cluster(sc)
     truth = TruthModel(
         inertia=sc.spacecraft.inertia_kg_m2, q_BN=sc.spacecraft.q_BN, omega_BN_B=sc.spacecraft.omega_BN_B,
         r_N=r0, v_N=v0, step_ns=seconds_to_ns(sc.step_s), gravity=sc.orbit.gravity,
         orbit_step_s=sc.orbit.step_s,
         field_itrs=field_itrs if needs_field else None,
         earth_rotation=rotation, torques=sc.torques, forces=forces, integrator=sc.integrator,
+        **({} if wheels is None else {"wheels": wheels[0], "wheel_speeds_rad_s": wheels[1]}),
     )
     scene = Scene(sc, truth, choices)
     try:
@@ -383,7 +391,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
         # Stimulators first, so they are built, and step each tick, before the devices that read them.
         for d in sorted(sc.devices, key=lambda d: not devices.get(d.kind).provides):
             ctx = BuildContext(truth, tracks, sc.epoch, np.random.default_rng(seeds[d.name]), sc.step_s, speed,
-                               stimuli)
+                               stimuli, {} if wheels is None else wheels[2])
             scene.devices[d.name] = built = devices.get(d.kind).build(d, ctx)
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
@@ -392,6 +400,22 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
         scene.close()
         raise
     return scene
+
+
+def wheel_cluster(sc: Scenario):
+    """``(WheelCluster, speeds_rad_s, {device name: column})`` of the scenario's momentum wheels, in device order,
+    or None when no device is one (``DeviceKind.momentum_wheel``)."""
+    axes, inertias, speeds, index = [], [], [], {}
+    for d in sc.devices:
+        w = devices.get(d.kind).momentum_wheel(d)
+        if w is not None:
+            index[d.name] = len(axes)
+            axes.append(np.asarray(w[0], dtype=float))
+            inertias.append(float(w[1]))
+            speeds.append(float(w[2]))
+    if not axes:
+        return None
+    return WheelCluster(np.column_stack(axes), inertias), speeds, index
 
 
 def ticks_per(rate_hz: float, step_s: float) -> int:

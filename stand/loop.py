@@ -166,6 +166,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     publishers = [(d.publish, d.every_ticks) for d in devs]
     receivers = [d.receive for d in devs]
     givers = [d.dipole_B for d in devs if d.gives_dipole]
+    wheelers = [d.wheel_torque_Nm for d in sorted((d for d in devs if d.gives_wheel_torque),
+                                                  key=lambda d: d.wheel_index)] or None
     rows = [d.row for d in devs]
     controller = scene.controller
     ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if controller is not None else 0
@@ -237,7 +239,10 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
                     w.check(t)
             if k >= n_steps:
                 break
-            step((dx, dy, dz))
+            if wheelers is None:
+                step((dx, dy, dz))
+            else:
+                step((dx, dy, dz), tuple([torque() for torque in wheelers]))
             k += 1
     except KeyboardInterrupt:
         status, error = "stopped", f"stopped by the operator (Ctrl-C) at t = {truth.t_s:.3f} s"

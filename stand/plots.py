@@ -459,3 +459,94 @@ def plot_sun_sensor(tel, out_dir, name: str, head_labels=None, file_name: str | 
     """Readings of sun sensor ``name`` (coarse: head currents; fine: Sun angles of valid samples),
     Earth shadow shaded, the visible Sun fraction and validity below. Writes ``sun_NAME.png``."""
     return _save(sun_sensor_figure(tel, name, head_labels), out_dir, file_name or f"sun_{name}.png")
+
+
+# ------------------------------------------------------------------------------ gyro, wheels, pointing
+def gyro_figure(tel, name: str) -> Figure:
+    t = _time(tel)
+    w = np.degrees(_column(tel, f"{name}.omega_S"))
+    valid = _column(tel, f"{name}.valid") == 1.0
+    fig = Figure(figsize=(WIDTH_IN, 4.5), layout="constrained")
+    ax = fig.subplots()
+    for k in range(3):
+        ax.plot(t, np.where(valid, w[:, k], np.nan), lw=0.7, color=AXIS_COLOURS[k], label=f"sensor {'xyz'[k]}")
+    ax.set(xlabel=TIME_LABEL, ylabel="rate (deg/s)", xlim=(t[0], t[-1]),
+           title=f"Gyro {name}: the newest valid sample the host decoded ({100.0 * valid.mean():.0f} % of rows valid)")
+    ax.grid(alpha=0.3)
+    _legend_outside(ax)
+    return fig
+
+
+def plot_gyro(tel, out_dir, name: str) -> str:
+    """Rates of gyro ``name`` in sensor axes. Writes ``gyro_NAME.png``."""
+    return _save(gyro_figure(tel, name), out_dir, f"gyro_{name}.png")
+
+
+def wheel_figure(tel, name: str) -> Figure:
+    t = _time(tel)
+    fig = Figure(figsize=(WIDTH_IN, 6.0), layout="constrained")
+    ax, tq = fig.subplots(2, 1, sharex=True)
+    ax.plot(t, _column(tel, f"{name}.speed_rad_s") * 30.0 / math.pi, "k", lw=0.9)
+    ax.set(ylabel="speed (rpm)", title=f"Reaction wheel {name}: speed relative to the body, torques on the rotor")
+    ax.grid(alpha=0.3)
+    for col, label, style in (("torque_cmd_Nm", "held command", "tab:blue"),
+                              ("motor_torque_Nm", "motor (after its lag)", "tab:orange"),
+                              ("net_torque_Nm", "net (motor minus friction)", "tab:green")):
+        tq.plot(t, _column(tel, f"{name}.{col}") * 1e3, lw=0.7, color=style, label=label)
+    tq.set(ylabel="torque (mN m)", xlabel=TIME_LABEL, xlim=(t[0], t[-1]))
+    tq.grid(alpha=0.3)
+    _legend_outside(tq)
+    return fig
+
+
+def plot_wheel(tel, out_dir, name: str) -> str:
+    """Speed and torques of reaction wheel ``name``. Writes ``wheel_NAME.png``."""
+    return _save(wheel_figure(tel, name), out_dir, f"wheel_{name}.png")
+
+
+def pointing_figure(tel, modes=("detumble", "sun_acquisition", "fine_pointing")) -> Figure:
+    """Pointing error (truth against the reference), knowledge error per body axis with the filter's 3-sigma,
+    and the mode timeline, from the controller's ``adcs_*`` columns."""
+    from stand.adcs.metrics import ARCSEC, error_angles_B
+
+    t = _time(tel)
+    q = _column(tel, "q_BN")
+    fig = Figure(figsize=(WIDTH_IN, 8.0), layout="constrained")
+    pe, ke, strip = fig.subplots(3, 1, sharex=True, height_ratios=(2, 2.5, 1))
+    ref = _column(tel, "adcs_q_RN")
+    ok = np.all(np.isfinite(ref), axis=1)
+    err = np.full(len(t), np.nan)
+    if ok.any():
+        err[ok] = np.linalg.norm(error_angles_B(q[ok], ref[ok]), axis=1) / ARCSEC
+    pe.semilogy(t, err, "k", lw=0.8, label="|attitude - reference|")
+    pe.set(ylabel="pointing error (arcsec)", title="Pointing: truth against the controller's reference and estimate")
+    pe.grid(alpha=0.3, which="both")
+    _legend_outside(pe)
+    est = _column(tel, "adcs_q_BN_est")
+    s3 = _column(tel, "adcs_sigma3_B") / ARCSEC
+    ok = np.all(np.isfinite(est), axis=1)
+    e = np.full((len(t), 3), np.nan)
+    if ok.any():
+        e[ok] = error_angles_B(q[ok], est[ok]) / ARCSEC
+    for k in range(3):
+        ke.plot(t, e[:, k], lw=0.6, color=AXIS_COLOURS[k], label=f"knowledge error body {'xyz'[k]}")
+        ke.plot(t, s3[:, k], lw=0.8, ls="--", color=AXIS_COLOURS[k], label=f"filter 3-sigma {'xyz'[k]}")
+        ke.plot(t, -s3[:, k], lw=0.8, ls="--", color=AXIS_COLOURS[k])
+    finite = np.abs(e[np.isfinite(e)])
+    if len(finite):
+        lim = 3.0 * float(np.percentile(finite, 99))
+        ke.set_ylim(-max(lim, 1.0), max(lim, 1.0))
+    ke.set(ylabel="estimate - truth (arcsec)")
+    ke.grid(alpha=0.3)
+    _legend_outside(ke)
+    mode = _column(tel, "adcs_mode")
+    strip.step(t, mode, "k", where="post", lw=1.0)
+    strip.set(yticks=range(len(modes)), yticklabels=modes, ylim=(-0.5, len(modes) - 0.5), xlabel=TIME_LABEL,
+              xlim=(t[0], t[-1]))
+    strip.grid(alpha=0.3)
+    return fig
+
+
+def plot_pointing(tel, out_dir, name: str = "pointing.png") -> str:
+    """:func:`pointing_figure` written to ``pointing.png``."""
+    return _save(pointing_figure(tel), out_dir, name)

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from . import devices
+from .adcs.metrics import METRICS as POINTING_METRICS
+from .adcs.metrics import value as pointing_metric
 from .compose import Scene
 from .loop import RunResult
 from .scenario import METRIC_UNITS, Criterion, all_metrics
@@ -36,6 +38,8 @@ def metric_value(c: Criterion, tel, result: RunResult, scene_devices=()) -> floa
         return float(_rate_deg_s(tel)[sel].max()) if np.any(sel) else math.nan
     if c.metric == "frames_rejected":
         return float(_rejected(result.counters))
+    if c.metric in POINTING_METRICS:
+        return pointing_metric(c.metric, c.at_s, tel)
     if c.metric == "overruns":
         return float(result.timing.get("overruns", 0))
     for d in scene_devices:
@@ -181,6 +185,8 @@ def write_plots(tel, out_dir: Path, *, rate_limits: list | None = None) -> list[
     commanded = "dipole_cmd_B" if "dipole_cmd_B" in tel else None
     if produced or commanded:
         made.append(plots.plot_dipole(tel, out_dir, produced, commanded))
+    if all(c in tel for c in ("adcs_q_BN_est", "adcs_sigma3_B", "adcs_q_RN", "adcs_mode")):
+        made.append(plots.plot_pointing(tel, out_dir))
     return made
 
 

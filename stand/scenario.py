@@ -14,11 +14,15 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
     [spacecraft]   mass_kg, inertia_kg_m2 (3 principal moments or 3x3), q_BN, omega_BN_B_deg_s
     [environment]  magnetic_field = "igrf" | "dipole", igrf_degree, earth_rotation = "iau2006" | "uniform",
                    era0_deg, eop = "iers" | "none"
-    [[devices]]    name, kind = "magnetorquer" | "star_tracker" | "sun_sensor", q_SB, and per kind:
+    [[devices]]    name, kind = "magnetorquer" | "star_tracker" | "sun_sensor" | "cage" | "gyro" | "reaction_wheel",
+                   q_SB, and per kind:
                    magnetorquer: interface, channel, sample_rate_hz, max_dipole_A_m2, mag_noise_nT, ...
                    star_tracker: port, source = "truth" | "image", noise_cross_arcsec, fov_deg, ...
                    sun_sensor: type = "coarse" | "fine", rate_hz, noise_mA | noise_deg, fov_half_deg
-    [controller]   kind = "bdot" | "none" | "plugin", rate_hz, ...
+                   gyro: port, output_rate_hz, ideal, arw_deg_sqrt_h, bias_instability_deg_h, delay_s, ...
+                   reaction_wheel: interface, channel, wheel, spin_axis_B, inertia_kg_m2, max_torque_Nm, ...
+    [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, ...
+                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name)
     [[criteria]]   name, metric, max | min, at_s
     [recording]    rate_hz
     [rendezvous]   shadows on a docking target during an approach (``stand shadow``; see stand.rendezvous)
@@ -41,6 +45,7 @@ from sim.attitude import check_inertia
 from sim.constants import MU_EARTH, R_EARTH
 from sim.time import Epoch
 
+from .adcs.metrics import METRICS as POINTING_METRICS
 from .devices import DeviceSpec
 from .errors import MISSING, ScenarioError, shown
 
@@ -49,7 +54,10 @@ SCENARIO_DIR = FIXTURES / "scenarios"
 DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
 
 TORQUES = ("magnetic", "gravity_gradient")
-CONTROLLER_KINDS = ("bdot", "none", "plugin", "external")
+CONTROLLER_KINDS = ("bdot", "none", "plugin", "external", "pointing")
+#: Devices the reference pointing ADCS (``controller.kind = "pointing"``) takes by name: option -> device kind.
+POINTING_DEVICES = {"star_tracker": "star_tracker", "gyro": "gyro", "magnetorquer": "magnetorquer",
+                    "sun_sensor": "sun_sensor"}
 #: The Earth's Hill sphere radius, km: the largest orbit the Earth alone governs.
 HILL_KM = 1.5e6
 #: Largest principal moment of inertia a scenario may give (a space station is about 1e8 kg m^2).
@@ -76,10 +84,15 @@ METRICS = {
     "frames_rejected": "device frames rejected by any codec (count)",
     "overruns": "ticks that ran past their real-time deadline (count, paced runs only)",
 }
+# Metrics on the controller's estimate and reference, read from its telemetry columns by convention
+# (stand.adcs.metrics): they all take at_s, the settle time.
+METRICS.update(POINTING_METRICS)
 #: Units of the metrics, for the console and the report.
 METRIC_UNITS = {"final_rate_deg_s": "deg/s", "rate_deg_s_at": "deg/s", "max_rate_deg_s_after": "deg/s",
                 "frames_rejected": "frames", "overruns": "ticks", "tracker_availability_after": "",
-                "tracker_error_cross_arcsec_p95": "arcsec", "tracker_error_roll_arcsec_p95": "arcsec"}
+                "tracker_error_cross_arcsec_p95": "arcsec", "tracker_error_roll_arcsec_p95": "arcsec",
+                "pointing_error_arcsec_p95_after": "arcsec", "knowledge_error_arcsec_p95_after": "arcsec",
+                "knowledge_within_3sigma_fraction": ""}
 
 
 def all_metrics() -> dict[str, str]:
@@ -434,9 +447,31 @@ def parse(data: dict, source: str | None = None) -> Scenario:
 
         rendezvous = parse_rendezvous(root.table("rendezvous"), duration_s, orbit, source)
     root.check_unknown()
-    return Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
-                    tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
-                    record_rate_hz, rendezvous)
+    sc = Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
+                  tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
+                  record_rate_hz, rendezvous)
+    if controller.kind == "pointing":
+        _check_pointing(sc)
+    return sc
+
+
+def _check_pointing(sc: Scenario) -> None:
+    """Construct the pointing controller over unopened devices, so a bad option is a ScenarioError at load."""
+    from .adcs import PluginError, check_controller
+
+    try:
+        check_controller(sc)
+    except PluginError as exc:
+        text = str(exc).removeprefix("controller.kind = 'pointing': ").rstrip(".")
+        m = re.match(r"options\.(\w+)", text)
+        options = sc.controller.params["options"]
+        key = m.group(1) if m else None
+        if key and "; " in text:
+            text = text.split("; ", 1)[1]  # the rule only: the value is shown once, shortened, by the error
+        text = " ".join(text.split())[:300]
+        raise ScenarioError(f"controller.options.{key}" if key else "controller.options",
+                            options.get(key, MISSING) if key else sorted(options)[:20],
+                            f"an option PointingController accepts ({text})", sc.source) from None
 
 
 def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
@@ -659,6 +694,8 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     params: dict = {}
     if kind == "bdot":
         _bdot(t, rate_hz, step_s, devices, params)
+    elif kind == "pointing":
+        params["options"] = _pointing(t, devices)
     else:
         params["module"] = t.text("module")
         params["path"] = t.text("path") if t.has("path") else None
@@ -668,6 +705,61 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
         params["options"] = options
     t.check_unknown()
     return ControllerSpec(kind, rate_hz, params)
+
+
+def _pointing(t: Table, devices) -> dict:
+    """The options of the reference pointing ADCS: the devices it reads and commands must exist, be of the right
+    kind and have a host driver in the stand (not served); the rest is checked by its constructor."""
+    from dataclasses import fields
+
+    from .adcs.modes import ModeConfig
+    from .adcs.pointing import OPTIONS
+
+    options = t.raw("options", {})
+    if not isinstance(options, dict):
+        raise t.error("options", options, "a table of options of stand.adcs.pointing.PointingController")
+    opt = Table(options, t._name("options"), t.source)
+    opt.check_unknown(tuple(OPTIONS))
+
+    def bad(v) -> bool:
+        if isinstance(v, float):
+            return not math.isfinite(v)
+        if isinstance(v, str):
+            return "\x00" in v
+        if isinstance(v, list):
+            return any(bad(x) for x in v)
+        if isinstance(v, dict):
+            return any(bad(x) for x in v.values())
+        return False
+
+    for key, value in options.items():
+        if bad(value):
+            raise opt.error(key, value, "finite numbers and text without NUL bytes")
+    if "modes" in options:
+        opt.table("modes").check_unknown(tuple(f.name for f in fields(ModeConfig)))
+    by_name = {d.name: d for d in devices}
+
+    def check(key: str, name, kind: str) -> None:
+        d = by_name.get(name) if isinstance(name, str) else None
+        if d is None or d.kind != kind:
+            have = [x.name for x in devices if x.kind == kind]
+            raise opt.error(key, name, f"the name of a [[devices]] entry of kind {kind!r} "
+                          f"({', '.join(have) or 'none in this scenario'})")
+        if d.link == "served":
+            raise opt.error(key, name, "a device the stand's controller can use: this one is served to a "
+                          "flight computer outside (link = 'served'); use controller.kind = 'external'")
+
+    if "gyro" not in options:
+        raise opt.error("gyro", MISSING, "the name of the gyro the pointing controller reads")
+    for key, kind in POINTING_DEVICES.items():
+        if key in options:
+            check(key, options[key], kind)
+    wheels = options.get("wheels", [d.name for d in devices if d.kind == "reaction_wheel"])
+    if not isinstance(wheels, list) or len(wheels) < 3:
+        raise opt.error("wheels", wheels, "a list of at least three reaction wheel device names")
+    for name in wheels:
+        check("wheels", name, "reaction_wheel")
+    return {**options, "wheels": list(wheels)}
 
 
 def _bdot(t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
@@ -722,7 +814,7 @@ def _criterion(t: Table, duration_s: float) -> Criterion:
 def _metrics_at() -> set[str]:
     from stand import devices
 
-    out = {"rate_deg_s_at", "max_rate_deg_s_after"}
+    out = {"rate_deg_s_at", "max_rate_deg_s_after", *POINTING_METRICS}
     for name in devices.kind_names():
         out.update(devices.get(name).metrics_at)
     return out

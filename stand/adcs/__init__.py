@@ -155,6 +155,55 @@ def _import_from(folder: Path, module_name: str, spec: str):
             sys.path.pop(0)
 
 
+#: The smallest tracker noise handed to the filter (arcsec): a noiseless tracker still quantises its quaternion.
+MIN_TRACKER_SIGMA_ARCSEC = 0.5
+
+
+def pointing_options(sc) -> dict:
+    """The options of ``controller.kind = "pointing"`` with what the scenario already says filled in (an option
+    the scenario gives wins): the spacecraft inertia, each device's mount, the wheels' axes, inertias and torque
+    limit, the tracker's noise, the gyro's random walks, the coarse sun heads' normals, and for nadir, target
+    and sun guidance the orbit at t = 0 and the epoch."""
+    opts = dict(sc.controller.params["options"])
+    specs = {d.name: d for d in sc.devices}
+    opts.setdefault("inertia_kg_m2", np.asarray(sc.spacecraft.inertia_kg_m2, dtype=float).tolist())
+    wheels = [specs[n] for n in opts["wheels"]]
+    opts.setdefault("wheel_axes_B", [list(w.spin_axis_B) for w in wheels])
+    opts.setdefault("wheel_inertia_kg_m2", [w.inertia_kg_m2 for w in wheels])
+    opts.setdefault("max_wheel_torque_Nm", min(w.max_torque_Nm for w in wheels))
+    if "star_tracker" in opts:
+        st = specs[opts["star_tracker"]]
+        opts.setdefault("star_tracker_q_TB", st.q_SB.tolist())
+        if st.source == "truth" and "noise_cross_arcsec" in st.emulator:
+            arcsec = np.radians(1.0 / 3600.0)
+            opts.setdefault("tracker_sigma_rad", [max(st.emulator[k], MIN_TRACKER_SIGMA_ARCSEC) * arcsec
+                                                  for k in ("noise_cross_arcsec", "noise_roll_arcsec")])
+    gyro = specs[opts["gyro"]]
+    opts.setdefault("gyro_q_SB", gyro.q_SB.tolist())
+    if not gyro.ideal and gyro.arw_rad_sqrt_s > 0:
+        opts.setdefault("gyro_arw_rad_s05", gyro.arw_rad_sqrt_s)
+    if not gyro.ideal and gyro.rrw_rad_s_sqrt_s > 0:
+        opts.setdefault("gyro_rrw_rad_s15", gyro.rrw_rad_s_sqrt_s)
+    for key in ("magnetorquer", "sun_sensor"):
+        if key in opts:
+            opts.setdefault(f"{key}_q_SB", specs[opts[key]].q_SB.tolist())
+    if "sun_sensor" in opts and specs[opts["sun_sensor"]].type == "coarse":
+        from stand.devices.sun_sensor import FACE_NORMALS
+
+        # The controller solves for the Sun in the heads' own axes and then turns it through the mount.
+        opts.setdefault("sun_sensor_normals_B", FACE_NORMALS.tolist())
+    guidance = opts.get("guidance", "inertial")
+    if guidance in ("nadir", "target"):
+        from stand.compose import initial_state
+
+        r, v = initial_state(sc)
+        opts.setdefault("orbit_r_N_m", r.tolist())
+        opts.setdefault("orbit_v_N_m_s", v.tolist())
+    if guidance in ("sun", "target"):
+        opts.setdefault("epoch", sc.epoch.iso)
+    return opts
+
+
 def build_controller(sc, devices: dict, base: Path | None = None):
     """The scenario's controller over the scene's devices (name -> Device), or None. Plug-in failures at
     construction are PluginError (a scenario error)."""
@@ -165,6 +214,14 @@ def build_controller(sc, devices: dict, base: Path | None = None):
         spec = next(d for d in sc.devices if d.name == p["device"])
         return BDot(devices[spec.name].host, period, p["gain_A_m2_s_per_T"], p["max_dipole_A_m2"], q_SB=spec.q_SB,
                     skip_coil_active=p["skip_coil_active"], duty_cycle=p.get("duty_cycle", 1.0))
+    if ctl.kind == "pointing":
+        from .pointing import PointingController
+
+        hosts = {name: d.host for name, d in devices.items()}
+        try:
+            return PointingController(hosts, period, **pointing_options(sc))
+        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
+            raise PluginError(f"controller.kind = 'pointing': {exc}") from None
     if ctl.kind != "plugin":
         return None
     cls = load_plugin(p["module"], p.get("path"), base)
@@ -191,6 +248,15 @@ def check_controller(sc, base: Path | None = None) -> None:
     """What ``stand check`` does for the controller: import the plug-in and construct it over unopened devices,
     so a missing module, a wrong path or bad options fail here in one sentence, not at t = 0."""
     ctl = sc.controller
+    if ctl.kind == "pointing":
+        from .pointing import PointingController
+
+        try:
+            PointingController({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz,
+                               **pointing_options(sc))
+        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
+            raise PluginError(f"controller.kind = 'pointing': {exc}") from None
+        return
     if ctl.kind != "plugin":
         return
     p = ctl.params

@@ -49,6 +49,15 @@ __all__ = ["PointingController", "default_wheel_axes_B"]
 MODE_CODES = {m: float(i) for i, m in enumerate(MODES)}
 OMEGA_EARTH_RAD_S = 7.292115e-5
 GUIDANCE = ("inertial", "nadir", "sun", "target")
+#: The options the constructor takes.
+OPTIONS = frozenset({"inertia_kg_m2", "star_tracker", "star_tracker_q_TB", "tracker_sigma_rad", "gyro", "gyro_q_SB",
+    "gyro_arw_rad_s05", "gyro_rrw_rad_s15", "wheels", "wheel_axes_B", "wheel_inertia_kg_m2",
+    "max_wheel_torque_Nm", "wheel_speed_target_rad_s", "null_gain_per_s", "magnetorquer",
+    "magnetorquer_q_SB", "dump_gain_per_s", "max_dipole_A_m2", "h_target_B", "sun_sensor",
+    "sun_sensor_q_SB", "sun_sensor_normals_B", "sun_axis_B", "guidance", "q_RN", "orbit_r_N_m",
+    "orbit_v_N_m_s", "epoch", "secondary_N", "target_itrs_m", "law", "natural_frequency_rad_s",
+    "damping_ratio", "detumble_gain_N_m_s", "initial_mode", "modes", "gate_sigma", "initial_bias_rad_s",
+    "sigma_bias_rad_s"})
 #: Control periods of on-board orbit solved in one vectorised call.
 ORBIT_BATCH = 1000
 
@@ -101,14 +110,7 @@ class PointingController:
     """Detumble, sun acquisition and fine pointing over a star tracker, a gyro and reaction wheels."""
 
     def __init__(self, devices: dict, period_s: float, **options):
-        known = {"inertia_kg_m2", "star_tracker", "star_tracker_q_TB", "tracker_sigma_rad", "gyro", "gyro_q_SB",
-                 "gyro_arw_rad_s05", "gyro_rrw_rad_s15", "wheels", "wheel_axes_B", "wheel_inertia_kg_m2",
-                 "max_wheel_torque_Nm", "wheel_speed_target_rad_s", "null_gain_per_s", "magnetorquer",
-                 "magnetorquer_q_SB", "dump_gain_per_s", "max_dipole_A_m2", "h_target_B", "sun_sensor",
-                 "sun_sensor_q_SB", "sun_sensor_normals_B", "sun_axis_B", "guidance", "q_RN", "orbit_r_N_m",
-                 "orbit_v_N_m_s", "epoch", "secondary_N", "target_itrs_m", "law", "natural_frequency_rad_s",
-                 "damping_ratio", "detumble_gain_N_m_s", "initial_mode", "modes", "gate_sigma", "initial_bias_rad_s",
-                 "sigma_bias_rad_s"}
+        known = OPTIONS
         unknown = sorted(set(options) - known)
         if unknown:
             raise ValueError(f"options {unknown} are not PointingController options; allowed: {sorted(known)}.")
@@ -381,7 +383,7 @@ class PointingController:
         s = self.sun_sensor.take_sun()
         if s is None or not getattr(s, "valid", False):
             return None
-        if hasattr(s, "angles_rad"):
+        if getattr(s, "angles_rad", None) is not None:  # the stand's reader carries both fields, one None
             a, b = s.angles_rad
             v = np.array([math.tan(a), math.tan(b), 1.0])
         elif self.sun_normals is not None:

@@ -46,6 +46,8 @@ KINDS = {
     "star_tracker": "stand.devices.star_tracker:KIND",
     "sun_sensor": "stand.devices.sun_sensor:KIND",
     "cage": "stand.devices.cage:KIND",
+    "gyro": "stand.devices.gyro:KIND",
+    "reaction_wheel": "stand.devices.reaction_wheel:KIND",
 }
 
 #: Truth models a device may need, in the order ``stand check`` lists them.
@@ -117,6 +119,8 @@ class BuildContext:
     speed: float | None = None
     #: Stimulators built before this device (name -> Device): a magnetometer in a cage reads the cage's field.
     stimuli: dict = field(default_factory=dict)
+    #: Momentum wheels in the truth's wheel cluster: device name -> its column (``DeviceKind.momentum_wheel``).
+    wheels: dict = field(default_factory=dict)
 
 
 class Device:
@@ -126,7 +130,8 @@ class Device:
        links), or the host reads what a real device sent (hardware);
     2. the controller runs;
     3. ``receive(t_s)``: actuators take in commands; ``dipole_B`` (when ``gives_dipole``) is the output held
-       over the next step;
+       over the next step, as is ``wheel_torque_Nm`` (when ``gives_wheel_torque``: the net torque on the rotor
+       of column ``wheel_index`` of the truth's wheel cluster);
     4. ``row()`` when a telemetry row is due, matching ``columns()``.
 
     ``activity()`` counts measurements that reached the stand; the loop's watch reports a device whose count
@@ -138,6 +143,8 @@ class Device:
     host: Any = None
     every_ticks: int = 1
     gives_dipole: bool = False
+    gives_wheel_torque: bool = False
+    wheel_index: int = -1
     silent_after_s: float | None = None
 
     def columns(self) -> list[tuple[str, int, str]]:
@@ -151,6 +158,9 @@ class Device:
 
     def dipole_B(self) -> tuple[float, float, float]:
         return (0.0, 0.0, 0.0)
+
+    def wheel_torque_Nm(self) -> float:
+        return 0.0
 
     def row(self) -> tuple:
         return ()
@@ -184,6 +194,12 @@ class DeviceKind:
 
     def parse(self, t: Table, base: DeviceSpec, step_s: float) -> DeviceSpec:
         raise NotImplementedError
+
+    def momentum_wheel(self, spec: DeviceSpec):
+        """``(spin_axis_B, inertia_kg_m2, speed0_rad_s)`` when a device of this spec is a momentum wheel the truth
+        must carry in its dynamics (composition builds the wheel cluster from these before any device), else
+        None."""
+        return None
 
     def refs(self, spec: DeviceSpec) -> dict[str, tuple[str, str]]:
         """Other devices this one takes something from: scenario key -> (device name, what it must provide)."""

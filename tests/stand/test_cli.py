@@ -36,9 +36,9 @@ def test_bad_scenario_exits_2_with_one_line(scenario_dict, write_scenario, capsy
 
 
 def test_unknown_device_exits_2(scenario_dict, write_scenario, capsys, tmp_path):
-    scenario_dict["devices"][0]["kind"] = "reaction_wheel"
+    scenario_dict["devices"][0]["kind"] = "thruster"
     code, _, err = run_cli(["check", str(write_scenario(scenario_dict))], capsys)
-    assert code == 2 and "devices[0].kind = 'reaction_wheel'" in err
+    assert code == 2 and "devices[0].kind = 'thruster'" in err
 
 
 def test_port_that_cannot_be_opened_exits_2(scenario_dict, write_scenario, capsys, tmp_path):

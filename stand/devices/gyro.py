@@ -1,0 +1,285 @@
+"""Three-axis rate gyro on a serial line (``drivers.gyro``, the ICD in ``fixtures/devices/gyro.toml``).
+
+The stand hands the emulator the rate the gyro measures at each sample time: the true body rate, delayed by
+``delay_s`` (a :class:`sim.sensors.DelayLine` of the truth), through the sensor model :class:`sim.sensors.Gyro`
+(angle and rate random walk, bias instability, turn-on bias, scale factor, misalignment, the mount ``q_SB``).
+The emulator adds what the wire does: quantisation to the datagram's LSB and saturation at ``range_deg_s``.
+``ideal = true`` leaves out every error and the delay: the datagram carries the true rate in sensor axes.
+
+Links: ``emulated`` (emulator and host on an in-process pty pair, every exchange settled within the tick, so a
+run is bit-for-bit repeatable), ``hardware`` (the host on a real port), ``served`` (the emulator on a real
+port, fed by the truth, for a flight computer outside).
+
+Telemetry: ``NAME.omega_S`` (the newest sample the host decoded, rad/s, sensor axes) and ``NAME.valid``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.errors import DeviceTimeoutError
+from sim.rotations import dcm
+from sim.truth import rotate_to_body
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
+
+DEG = math.pi / 180.0
+#: deg/sqrt(h) -> rad/sqrt(s); deg/h -> rad/s; deg/h/sqrt(h) -> rad/s/sqrt(s).
+ARW_UNIT = DEG / 60.0
+DEG_H = DEG / 3600.0
+RRW_UNIT = DEG_H / 60.0
+#: Longest wall-clock wait for a datagram to cross the in-process serial line.
+SETTLE_TIMEOUT_S = 1.0
+#: Sample periods a gyro may miss before it is reported silent.
+SILENT_SAMPLES = 10
+NAN4 = (math.nan,) * 4
+#: Error-model keys (scenario units) that ``ideal = true`` refuses.
+NOISE_KEYS = ("arw_deg_sqrt_h", "rrw_deg_h_sqrt_h", "bias_instability_deg_h", "bias_correlation_s", "bias_deg_h",
+              "scale_factor_ppm", "misalignment_mrad", "delay_s")
+
+
+@dataclass(frozen=True)
+class GyroSpec(DeviceSpec):
+    port: str = "pty"
+    baudrate: int = 460800
+    output_rate_hz: float = 20.0
+    ideal: bool = False
+    arw_rad_sqrt_s: float = 0.0
+    rrw_rad_s_sqrt_s: float = 0.0
+    bias_instability_rad_s: float = 0.0
+    bias_correlation_s: float = 100.0
+    bias_rad_s: tuple = (0.0, 0.0, 0.0)
+    scale_factor: tuple = (0.0, 0.0, 0.0)
+    misalignment_rad: tuple = (0.0,) * 6  # off-diagonal terms, row order: xy, xz, yx, yz, zx, zy
+    delay_s: float = 0.0
+    range_rad_s: float = 400.0 * DEG
+    latency_s: float = 5e-4
+    startup_time_s: float = 0.0
+
+
+def misalignment_matrix(off: tuple) -> np.ndarray:
+    """The 3 x 3 small-angle misalignment (zero diagonal) from its six off-diagonal terms in row order."""
+    m = np.zeros((3, 3))
+    m[[0, 0, 1, 1, 2, 2], [1, 2, 0, 2, 0, 1]] = off
+    return m
+
+
+class GyroKind(DeviceKind):
+    name = "gyro"
+
+    def parse(self, t, base: DeviceSpec, step_s: float) -> GyroSpec:
+        from stand.scenario import rate
+
+        ideal = t.flag("ideal", False)
+        if ideal:
+            for key in NOISE_KEYS:
+                if t.has(key):
+                    raise t.error(key, t.raw(key), "no error setting with ideal = true (the ideal gyro reports the "
+                                  "true rate without noise, bias or delay); remove it or set ideal = false")
+        if base.link == "emulated":
+            port = t.choice("port", ("pty",), "pty")
+        else:
+            port = check_serial_url(t, "port", t.text("port"))
+        out_hz = rate(t, "output_rate_hz", step_s, 1.0 / step_s)
+        if out_hz < 1.0:
+            raise t.error("output_rate_hz", out_hz, "at least 1 Hz (SET_OUTPUT_PERIOD carries at most 1 s)")
+        spec = GyroSpec(
+            **base.__dict__, port=port, baudrate=int(t.number("baudrate", 460800, lo=1200, hi=4_000_000,
+                                                              integer=True)),
+            output_rate_hz=out_hz, ideal=ideal,
+            arw_rad_sqrt_s=t.number("arw_deg_sqrt_h", 0.0, lo=0.0, hi=100.0) * ARW_UNIT,
+            rrw_rad_s_sqrt_s=t.number("rrw_deg_h_sqrt_h", 0.0, lo=0.0, hi=1e4) * RRW_UNIT,
+            bias_instability_rad_s=t.number("bias_instability_deg_h", 0.0, lo=0.0, hi=1e4) * DEG_H,
+            bias_correlation_s=t.number("bias_correlation_s", 100.0, lo=0.0, lo_open=True, hi=1e7),
+            bias_rad_s=tuple(t.vector("bias_deg_h", 3, [0.0, 0.0, 0.0], lo=-1e5, hi=1e5) * DEG_H),
+            scale_factor=tuple(t.vector("scale_factor_ppm", 3, [0.0, 0.0, 0.0], lo=-1e5, hi=1e5) * 1e-6),
+            misalignment_rad=tuple(t.vector("misalignment_mrad", 6, [0.0] * 6, lo=-50.0, hi=50.0) * 1e-3),
+            delay_s=t.number("delay_s", 0.0, lo=0.0, hi=1.0),
+            range_rad_s=t.number("range_deg_s", 400.0, lo=1.0, hi=512.0) * DEG,
+            latency_s=t.number("latency_s", 5e-4, lo=0.0, hi=0.065),
+            startup_time_s=t.number("startup_time_s", 0.0, lo=0.0, hi=600.0),
+        )
+        t.check_unknown()
+        return spec
+
+    def describe(self, spec) -> str:
+        model = "the true rate (ideal)" if spec.ideal else (
+            f"ARW {spec.arw_rad_sqrt_s / ARW_UNIT:g} deg/sqrt(h), RRW {spec.rrw_rad_s_sqrt_s / RRW_UNIT:g} "
+            f"deg/h/sqrt(h), bias instability {spec.bias_instability_rad_s / DEG_H:g} deg/h, delay "
+            f"{spec.delay_s * 1e3:g} ms")
+        return {"emulated": f"gyro emulated on an in-process serial pty pair at {spec.output_rate_hz:g} Hz, {model}",
+                "hardware": f"gyro on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads its rates)",
+                "served": f"gyro served on serial {spec.port} for a flight computer outside at "
+                          f"{spec.output_rate_hz:g} Hz, {model}"}[spec.link]
+
+    def build(self, spec: GyroSpec, ctx: BuildContext) -> Device:
+        return {"emulated": EmulatedGyro, "hardware": HardwareGyro, "served": ServedGyro}[spec.link](spec, ctx)
+
+    def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        from stand.plots import plot_gyro
+
+        return [plot_gyro(tel, out_dir, name)]
+
+
+def rate_source(spec: GyroSpec, ctx: BuildContext):
+    """``(push, source)``: ``push(t_s)`` records the true body rate each tick; ``source(t_k)`` is the rate the
+    gyro measures at sample time ``t_k`` (sensor axes, rad/s)."""
+    truth = ctx.truth
+    q_SB = tuple(float(x) for x in spec.q_SB)
+    if spec.ideal:
+        def source(_t_s):
+            return rotate_to_body(q_SB, truth.w)
+
+        return None, source
+    from sim.sensors import DelayLine, Gyro
+
+    model = Gyro(sample_period_s=1.0 / spec.output_rate_hz, arw_rad_sqrt_s=spec.arw_rad_sqrt_s,
+                 rrw_rad_s_sqrt_s=spec.rrw_rad_s_sqrt_s, bias_instability_rad_s=spec.bias_instability_rad_s,
+                 bias_correlation_s=spec.bias_correlation_s, bias_rad_s=np.array(spec.bias_rad_s),
+                 scale_factor=np.array(spec.scale_factor), misalignment=misalignment_matrix(spec.misalignment_rad),
+                 delay_s=spec.delay_s, dcm_SB=dcm(spec.q_SB))
+    line = DelayLine(spec.delay_s + 2.0 * ctx.step_s)
+    rng = ctx.rng
+    state = [model.initial_state(rng)]
+    delay = spec.delay_s
+
+    def push(t_s):
+        line.push(t_s, truth.w)
+
+    def source(t_k):
+        y, _, state[0] = model.measure(line.at(t_k - delay), rng, state[0])
+        return y
+
+    return push, source
+
+
+def _config(spec: GyroSpec):
+    from drivers.gyro.emulator import GyroEmulatorConfig
+
+    return GyroEmulatorConfig(output_period_s=1.0 / spec.output_rate_hz, range_rad_s=spec.range_rad_s,
+                              latency_s=spec.latency_s, startup_time_s=spec.startup_time_s)
+
+
+class _GyroDevice(Device):
+    def __init__(self, spec: GyroSpec, ctx: BuildContext):
+        self.name, self.spec = spec.name, spec
+        self.silent_after_s = SILENT_SAMPLES / spec.output_rate_hz
+        self.emulator = None
+        self.host = None
+        self._slave_fd: int | None = None
+
+    def columns(self):
+        return [(f"{self.name}.omega_S", 3, "rad/s"), (f"{self.name}.valid", 1, "1")]
+
+    def _latest(self):
+        return self.host.latest_rate
+
+    def row(self):
+        s = self._latest()
+        return (*s.omega_rad_s, float(s.valid)) if s is not None else NAN4
+
+    def activity(self):
+        return self.host.counters["samples"]
+
+    def summary(self):
+        out = {}
+        if self.host is not None:
+            out["host_counters"] = dict(self.host.counters)
+        if self.emulator is not None:
+            out["emulator_counters"] = dict(self.emulator.counters)
+        return out
+
+    def close(self):
+        if self.host is not None:
+            self.host.close()
+        if self.emulator is not None:
+            self.emulator.close()
+        if self._slave_fd is not None:
+            os.close(self._slave_fd)
+            self._slave_fd = None
+
+
+class EmulatedGyro(_GyroDevice):
+    """Emulator and host on an in-process pty pair; every datagram reaches the host within its tick."""
+
+    def __init__(self, spec: GyroSpec, ctx: BuildContext):
+        from drivers.gyro.emulator import GyroEmulator
+        from drivers.gyro.host import GyroHost
+        from drivers.serial_port import pty_pair
+
+        super().__init__(spec, ctx)
+        self._push, source = rate_source(spec, ctx)
+        emulator_port, host_port, self._slave_fd = pty_pair()
+        try:
+            self.emulator = GyroEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
+            self.host = GyroHost(host_port, name=spec.name)
+        except BaseException:
+            self.close()
+            raise
+
+    @staticmethod
+    def _frames_in(counters: dict) -> int:
+        return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
+
+    def publish(self, t_s: float) -> None:
+        if self._push is not None:
+            self._push(t_s)
+        emu, host = self.emulator, self.host
+        emu.service(t_s)
+        if emu.counters["sent"] > self._frames_in(host.counters):
+            # A pty hands bytes over asynchronously: wait (bounded) until the host has decoded every datagram
+            # sent, so each sample reaches the flight code in the tick it was sent, the same in every run.
+            deadline = time.monotonic() + SETTLE_TIMEOUT_S
+            while emu.counters["sent"] > self._frames_in(host.counters):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise DeviceTimeoutError(
+                        f"{self.name}: a datagram written to the serial line did not arrive within "
+                        f"{SETTLE_TIMEOUT_S:g} s.", device=self.name, awaited="RATE datagram",
+                        timeout_s=SETTLE_TIMEOUT_S)
+                select.select([host.port.fileno()], [], [], min(left, 0.01))
+                host.poll()
+
+
+class HardwareGyro(_GyroDevice):
+    """The host driver on a real port: the stand reads (and records) what the gyro sends."""
+
+    def __init__(self, spec: GyroSpec, ctx: BuildContext):
+        from drivers.gyro.host import GyroHost
+
+        super().__init__(spec, ctx)
+        self.host = GyroHost(spec.port, baudrate=spec.baudrate, name=spec.name)
+
+    def publish(self, t_s: float) -> None:
+        self.host.poll()
+
+
+class ServedGyro(_GyroDevice):
+    """The emulator on a real port, fed by the truth, for a flight computer outside; no host in the stand."""
+
+    def __init__(self, spec: GyroSpec, ctx: BuildContext):
+        from drivers.gyro.emulator import GyroEmulator
+
+        super().__init__(spec, ctx)
+        self._push, source = rate_source(spec, ctx)
+        self.emulator = GyroEmulator(spec.port, source, _config(spec), baudrate=spec.baudrate,
+                                     name=f"{spec.name} emulator")
+
+    def publish(self, t_s: float) -> None:
+        if self._push is not None:
+            self._push(t_s)
+        self.emulator.service(t_s)
+
+    def _latest(self):
+        return self.emulator.latest_rate
+
+    def activity(self):
+        return self.emulator.counters["samples"]
+
+
+KIND = GyroKind()

@@ -1,0 +1,293 @@
+"""Reaction wheels on CAN, one device per wheel (``drivers.reaction_wheel``, the DBC in ``fixtures/devices``).
+
+A wheel is part of the truth's dynamics: composition asks every kind for its momentum wheels
+(:meth:`stand.devices.DeviceKind.momentum_wheel`) and gives the truth a :class:`sim.wheels.WheelCluster` of them
+before any device is built; each wheel device then knows its column in the cluster (``wheel_index``).
+
+Each tick the device reads the command its emulator holds (``command_at``: TORQUE, SPEED or IDLE after the
+watchdog), steps its motor model (:class:`sim.actuators.WheelMotor`: torque and speed limits, back-EMF roll-off,
+first-order lag, Coulomb and viscous friction with stiction) from the truth's wheel speed, and gives the truth
+the net torque on the rotor (``wheel_torque_Nm``) held over the step. ``ideal = true``: no friction, no lag
+(the torque and speed limits stay: they are the wheel's rating).
+
+Links:
+
+* ``emulated``: emulator and host driver on an in-process python-can ``virtual`` bus;
+* ``hardware``: the host on a real adapter; the truth gets the motor torque the wheel reports in RW_SPEED_TLM
+  (the real rotor's speed is the wheel's, the truth's only mirrors it);
+* ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.rotations import dcm
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_can
+
+RPM = math.pi / 30.0
+MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
+#: Telemetry periods a wheel may miss before it is reported silent.
+SILENT_PERIODS = 5
+
+
+@dataclass(frozen=True)
+class ReactionWheelSpec(DeviceSpec):
+    interface: str = "virtual"
+    channel: str = ""
+    wheel: int = 0
+    spin_axis_B: tuple = (0.0, 0.0, 1.0)
+    inertia_kg_m2: float = 2e-3
+    max_torque_Nm: float = 4e-3
+    max_speed_rad_s: float = 6000.0 * RPM
+    coulomb_Nm: float = 0.0
+    viscous_Nm_s: float = 0.0
+    static_Nm: float | None = None
+    time_constant_s: float = 0.0
+    speed0_rad_s: float = 0.0
+    telemetry_rate_hz: float = 10.0
+    ideal: bool = False
+
+
+class ReactionWheelKind(DeviceKind):
+    name = "reaction_wheel"
+
+    def parse(self, t, base: DeviceSpec, step_s: float) -> ReactionWheelSpec:
+        from drivers.reaction_wheel.codec import ReactionWheelCodec
+        from stand.scenario import rate
+
+        codec = ReactionWheelCodec(0)
+        interface = t.text("interface", "virtual" if base.link == "emulated" else "socketcan")
+        channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
+        check_can(t, base.link, interface, channel)
+        if t.has("spin_axis_B") and t.has("q_SB"):
+            raise t.error("spin_axis_B", t.raw("spin_axis_B"), "either spin_axis_B or q_SB (whose z axis is the "
+                          "spin axis), not both")
+        if t.has("spin_axis_B"):
+            axis = t.vector("spin_axis_B", 3, lo=-1e3, hi=1e3)
+            n = float(np.linalg.norm(axis))
+            if n < 1e-9:
+                raise t.error("spin_axis_B", axis.tolist(), "a non-zero direction in body axes")
+            axis = axis / n
+        else:
+            axis = dcm(base.q_SB).T[:, 2]  # the wheel frame's z axis in body axes
+        ideal = t.flag("ideal", False)
+        if ideal:
+            for key in ("coulomb_Nm", "viscous_Nm_s", "static_Nm", "time_constant_s"):
+                if t.has(key):
+                    raise t.error(key, t.raw(key), "no friction or lag setting with ideal = true; remove it or set "
+                                  "ideal = false")
+        max_torque = t.number("max_torque_Nm", 4e-3, lo=0.0, lo_open=True, hi=codec.torque_range_Nm[1])
+        max_speed = t.number("max_speed_rpm", 6000.0, lo=0.0, lo_open=True,
+                             hi=codec.speed_range_rad_s[1] / RPM) * RPM
+        coulomb = 0.0 if ideal else t.number("coulomb_Nm", 0.0, lo=0.0, hi=max_torque)
+        static = None if ideal or not t.has("static_Nm") else t.number("static_Nm", lo=coulomb, hi=max_torque)
+        spec = ReactionWheelSpec(
+            **base.__dict__, interface=interface, channel=channel,
+            wheel=int(t.number("wheel", 0, lo=0, hi=15, integer=True)),
+            spin_axis_B=tuple(float(x) for x in axis),
+            inertia_kg_m2=t.number("inertia_kg_m2", 2e-3, lo=1e-7, hi=100.0),
+            max_torque_Nm=max_torque, max_speed_rad_s=max_speed,
+            coulomb_Nm=coulomb, static_Nm=static,
+            viscous_Nm_s=0.0 if ideal else t.number("viscous_Nm_s", 0.0, lo=0.0, hi=1.0),
+            time_constant_s=0.0 if ideal else t.number("time_constant_s", 0.0, lo=0.0, hi=10.0),
+            speed0_rad_s=t.number("speed0_rpm", 0.0, lo=-max_speed / RPM, hi=max_speed / RPM) * RPM,
+            telemetry_rate_hz=rate(t, "telemetry_rate_hz", step_s, min(10.0, 1.0 / step_s)),
+            ideal=ideal,
+        )
+        t.check_unknown()
+        return spec
+
+    def momentum_wheel(self, spec: ReactionWheelSpec):
+        return np.array(spec.spin_axis_B), spec.inertia_kg_m2, spec.speed0_rad_s
+
+    def describe(self, spec) -> str:
+        where = f"CAN {spec.interface}:{spec.channel} node {spec.wheel}"
+        axis = ", ".join(f"{x:.3f}" for x in spec.spin_axis_B)
+        motor = "ideal motor" if spec.ideal else (f"friction {spec.coulomb_Nm:g} N m + {spec.viscous_Nm_s:g} N m s, "
+                                                  f"lag {spec.time_constant_s:g} s")
+        what = (f"spin axis [{axis}] B, J {spec.inertia_kg_m2:g} kg m^2, {spec.max_torque_Nm:g} N m, "
+                f"{spec.max_speed_rad_s / RPM:g} rpm, {motor}")
+        return {"emulated": f"reaction wheel emulated on {where}, {what}",
+                "hardware": f"reaction wheel on {where} (hardware: the truth gets the motor torque it reports), {what}",
+                "served": f"reaction wheel served on {where} for a flight computer outside, {what}"}[spec.link]
+
+    def build(self, spec: ReactionWheelSpec, ctx: BuildContext) -> Device:
+        return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)
+
+    def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        from stand.plots import plot_wheel
+
+        return [plot_wheel(tel, out_dir, name)]
+
+
+def motor_of(spec: ReactionWheelSpec):
+    from sim.actuators import ReactionWheel, WheelMotor
+
+    rotor = ReactionWheel(spec.inertia_kg_m2, spec.coulomb_Nm, spec.viscous_Nm_s, spec.static_Nm)
+    return WheelMotor(rotor, spec.max_torque_Nm, spec.max_speed_rad_s, spec.time_constant_s)
+
+
+class _Wheel(Device):
+    gives_wheel_torque = True
+
+    def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
+        self.name, self.spec = spec.name, spec
+        self.truth = ctx.truth
+        self.h_s = ctx.step_s
+        self.wheel_index = ctx.wheels[spec.name]
+        self.silent_after_s = SILENT_PERIODS / spec.telemetry_rate_hz
+        self.host = None
+        self.emulator = None
+        self._buses: list = []
+        self._tau = 0.0  # net torque on the rotor over the next step
+        self._motor_tau = 0.0  # the motor's torque now (its lag state)
+        self._cmd = 0.0
+        self._mode = MODE_CODES["TORQUE"]
+        self.energy_friction_J = 0.0
+
+    def speed_rad_s(self) -> float:
+        return self.truth.wheel_speeds_rad_s[self.wheel_index]
+
+    def columns(self):
+        n = self.name
+        return [(f"{n}.speed_rad_s", 1, "rad/s"), (f"{n}.mode", 1, "1"), (f"{n}.torque_cmd_Nm", 1, "N m"),
+                (f"{n}.motor_torque_Nm", 1, "N m"), (f"{n}.net_torque_Nm", 1, "N m")]
+
+    def row(self):
+        return (self.speed_rad_s(), self._mode, self._cmd, self._motor_tau, self._tau)
+
+    def wheel_torque_Nm(self) -> float:
+        return self._tau
+
+    def _source(self, _t_s):
+        return self.speed_rad_s(), self._motor_tau
+
+    def _step_motor(self, cmd) -> None:
+        """One dynamics step of the motor under the held command, from the truth's wheel speed."""
+        from sim.actuators import WheelState
+
+        w0 = self.speed_rad_s()
+        state = WheelState(w0, self._motor_tau)
+        self._mode = MODE_CODES.get(cmd.mode, -1.0)
+        if cmd.mode == "SPEED":
+            self._cmd = cmd.speed_rad_s
+            state, body, friction = self.motor.step_speed(state, cmd.speed_rad_s, self.h_s)
+        else:
+            if cmd.mode == "IDLE":  # motor off: no drive, the rotor coasts on its friction
+                state = WheelState(w0, 0.0)
+            self._cmd = cmd.torque_Nm
+            state, body, friction = self.motor.step(state, cmd.torque_Nm, self.h_s)
+        self._motor_tau = state.motor_torque_Nm
+        self._tau = -body  # the rotor gets what the body gives up: motor minus friction
+        self.energy_friction_J += friction
+
+    def summary(self):
+        out = {"speed_end_rpm": round(self.speed_rad_s() / RPM, 3),
+               "friction_energy_J": round(self.energy_friction_J, 9)}
+        if self.host is not None:
+            out["host_counters"] = dict(self.host.counters)
+        if self.emulator is not None:
+            out["emulator_counters"] = dict(self.emulator.counters)
+        return out
+
+    def close(self):
+        for endpoint in (self.host, self.emulator):
+            if endpoint is not None:
+                endpoint.close()
+        for b in self._buses:
+            b.shutdown()
+        self._buses = []
+
+
+def _emulator(spec: ReactionWheelSpec, bus, source):
+    from drivers.reaction_wheel.emulator import ReactionWheelEmulator, WheelEmulatorConfig
+
+    cfg = WheelEmulatorConfig(max_torque_Nm=spec.max_torque_Nm, max_speed_rad_s=spec.max_speed_rad_s,
+                              telemetry_period_s=1.0 / spec.telemetry_rate_hz)
+    return ReactionWheelEmulator(bus, source, cfg, wheel=spec.wheel, name=f"{spec.name} emulator")
+
+
+class EmulatedWheel(_Wheel):
+    def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+        from drivers.reaction_wheel.host import ReactionWheelHost
+
+        super().__init__(spec, ctx)
+        self.motor = motor_of(spec)
+        try:
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self.emulator = _emulator(spec, self._buses[0], self._source)
+            self.host = ReactionWheelHost(self._buses[1], spec.wheel, name=spec.name)
+        except BaseException:
+            self.close()
+            raise
+
+    def publish(self, t_s):
+        self.emulator.publish(t_s)
+        self.host.poll()  # count what reached the stand, read by the flight code or not (take_speed stays theirs)
+
+    def receive(self, t_s):
+        self.emulator.receive(t_s)
+        self._step_motor(self.emulator.command_at(t_s))
+
+    def activity(self):
+        return self.host.counters["samples"]
+
+
+class ServedWheel(_Wheel):
+    def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+
+        super().__init__(spec, ctx)
+        self.motor = motor_of(spec)
+        self._buses.append(open_bus(spec.interface, spec.channel))
+        try:
+            self.emulator = _emulator(spec, self._buses[0], self._source)
+        except BaseException:
+            self.close()
+            raise
+
+    def publish(self, t_s):
+        self.emulator.publish(t_s)
+
+    def receive(self, t_s):
+        self.emulator.receive(t_s)
+        self._step_motor(self.emulator.command_at(t_s))
+
+    def activity(self):
+        return self.emulator.counters["commands_accepted"]
+
+
+class HardwareWheel(_Wheel):
+    """The host on a real wheel: the truth's rotor is driven by the motor torque the wheel reports."""
+
+    def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+        from drivers.reaction_wheel.host import ReactionWheelHost
+
+        super().__init__(spec, ctx)
+        self._buses.append(open_bus(spec.interface, spec.channel))
+        self.host = ReactionWheelHost(self._buses[0], spec.wheel, name=spec.name)
+
+    def publish(self, t_s):
+        self.host.poll()
+
+    def receive(self, t_s):
+        self.host.poll()
+        s = self.host.latest_speed
+        if s is not None:
+            self._motor_tau = self._tau = s.torque_Nm
+        st = self.host.latest_status
+        if st is not None:
+            self._mode = MODE_CODES.get(st.mode, -1.0)
+
+    def activity(self):
+        return self.host.counters["samples"]
+
+
+KIND = ReactionWheelKind()
