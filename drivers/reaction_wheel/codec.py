@@ -94,16 +94,49 @@ class ModeCommand:
         object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "ModeCommand.mode"))
 
 
-@dataclass(frozen=True, slots=True)
-class WheelSpeed:
-    """Measured wheel speed (rad/s about the spin axis), motor torque applied (N m), flags, counter."""
+class WheelSpeed(float):
+    """Measured wheel speed: the float itself is the speed in rad/s about the spin axis (what flight code
+    written against ``take_speed() -> rad/s`` expects), and the rest of the telemetry rides along as
+    attributes: ``speed_rad_s`` (the same value), ``torque_Nm`` (motor torque applied), ``valid``,
+    ``speed_limited``, ``torque_limited``, ``seq``. Immutable; equal when every field is."""
 
-    speed_rad_s: float
-    torque_Nm: float
-    valid: bool
-    speed_limited: bool
-    torque_limited: bool
-    seq: int
+    __slots__ = ("torque_Nm", "valid", "speed_limited", "torque_limited", "seq")
+
+    def __new__(cls, speed_rad_s: float, torque_Nm: float, valid: bool, speed_limited: bool,
+                torque_limited: bool, seq: int) -> WheelSpeed:
+        obj = super().__new__(cls, speed_rad_s)
+        for name, value in (("torque_Nm", torque_Nm), ("valid", valid), ("speed_limited", speed_limited),
+                            ("torque_limited", torque_limited), ("seq", seq)):
+            object.__setattr__(obj, name, value)
+        return obj
+
+    @property
+    def speed_rad_s(self) -> float:
+        return float(self)
+
+    def _fields(self) -> tuple:
+        return (float(self), self.torque_Nm, self.valid, self.speed_limited, self.torque_limited, self.seq)
+
+    def __setattr__(self, name, value):
+        raise AttributeError(f"WheelSpeed is immutable; cannot set {name!r}.")
+
+    def __eq__(self, other):
+        if isinstance(other, WheelSpeed):
+            return self._fields() == other._fields()
+        return float(self) == other
+
+    def __ne__(self, other):
+        return not self == other
+
+    def __hash__(self):
+        return hash(self._fields())
+
+    def __repr__(self) -> str:
+        return (f"WheelSpeed(speed_rad_s={float(self)!r}, torque_Nm={self.torque_Nm!r}, valid={self.valid!r}, "
+                f"speed_limited={self.speed_limited!r}, torque_limited={self.torque_limited!r}, seq={self.seq!r})")
+
+    def __reduce__(self):
+        return (WheelSpeed, self._fields())
 
 
 @dataclass(frozen=True, slots=True)

@@ -271,3 +271,15 @@ def test_fast_codec_equals_cantools_on_the_wheel_dbc(data):
     assert dbc.encode(name, values) == (msg.frame_id, msg.encode(values, strict=True))
     payload = data.draw(st.binary(min_size=8, max_size=8))
     assert dbc.decode(msg.frame_id, payload) == (name, msg.decode(payload, decode_choices=False))
+
+
+def test_take_speed_is_a_number_in_rad_s_with_the_telemetry_as_attributes():
+    """Flight code written against ``take_speed() -> rad/s`` does arithmetic on it; code that wants the flags
+    reads them from the same object."""
+    s = WheelSpeed(12.5, 1e-3, True, False, True, 7)
+    assert s + 0.5 == 13.0 and abs(s) == 12.5 and isinstance(s, float)
+    assert (s.speed_rad_s, s.torque_Nm, s.valid, s.speed_limited, s.torque_limited, s.seq) == (12.5, 1e-3, True,
+                                                                                              False, True, 7)
+    assert s != WheelSpeed(12.5, 1e-3, True, False, True, 8)
+    with pytest.raises(AttributeError):
+        s.valid = False
