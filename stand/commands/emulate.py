@@ -134,6 +134,27 @@ def _stop_on_sigterm():
     return signal.signal(signal.SIGTERM, _term)
 
 
+def serve_until_stopped(emu, duration_s: float | None, start=None) -> int:
+    """Run an emulator's own loop until ``duration_s``, Ctrl-C or SIGTERM; a device error (the port lost) is
+    printed and gives exit status 1. ``start`` runs first, inside the same handling (e.g. setting time zero)."""
+    from drivers.errors import DriverError
+
+    old = _stop_on_sigterm()
+    try:
+        if start is not None:
+            start()
+        emu.run(duration_s)
+    except KeyboardInterrupt:
+        pass
+    except DriverError as exc:
+        print(f"stand emulate: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+    return 0
+
+
 def run_magnetorquer(args) -> int:
     """The CAN magnetorquer board (with its magnetometer) on a python-can bus, in wall time."""
     import time
@@ -194,21 +215,10 @@ def run_cage(args) -> int:
     except DriverError as exc:
         emu.close()
         return _fail(str(exc))
-    old = _stop_on_sigterm()
-    status = 0
     with emu:
         print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
                                                       " until Ctrl-C") + OPEN_LOOP, flush=True)
-        try:
-            emu.run(args.duration)
-        except KeyboardInterrupt:
-            pass
-        except DriverError as exc:
-            print(f"stand emulate: {exc}", file=sys.stderr)
-            status = 1
-        finally:
-            if old is not None:
-                signal.signal(signal.SIGTERM, old)
+        status = serve_until_stopped(emu, args.duration)
         print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
                           "counters": emu.counters}), flush=True)
     return status
@@ -311,21 +321,10 @@ def run(args) -> int:
     except (ValueError, DriverError) as exc:
         return _fail(str(exc))
 
-    old = _stop_on_sigterm()
-    status = 0
     with emu:
         print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port}"
               + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
-        try:
-            emu.run(args.duration)
-        except KeyboardInterrupt:
-            pass
-        except DriverError as exc:
-            print(f"stand emulate: {exc}", file=sys.stderr)
-            status = 1
-        finally:
-            if old is not None:
-                signal.signal(signal.SIGTERM, old)
+        status = serve_until_stopped(emu, args.duration)
         print(json.dumps({"device": args.device, "port": args.port, "mode": emu.mode, "counters": emu.counters}),
               flush=True)
     return status

@@ -36,8 +36,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import signal
-import sys
 import threading
 import time
 from collections import deque
@@ -283,30 +281,22 @@ def run_screen(args, fail) -> int:
     except (ValueError, DriverError) as exc:
         cam.close()
         return fail(str(exc))
-    old = signal.signal(signal.SIGTERM, _interrupt) if threading.current_thread() is threading.main_thread() else None
-    status = 0
+    from stand.commands.emulate import serve_until_stopped
+
     with emu:
         cam.start()
         where = f"{cam.address[0]}:{cam.address[1]}"
         print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port} looking at the screen "
               f"(display node on {where} UDP, pre-distortion {args.pre_distortion})"
               + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C"), flush=True)
-        try:
+
+        def time_zero():
             cam.base_ns = time.monotonic_ns()  # the emulator's time 0: its run() starts now
-            emu.run(args.duration)
-        except KeyboardInterrupt:
-            pass
-        except DriverError as exc:
-            print(f"stand emulate: {exc}", file=sys.stderr)
-            status = 1
+
+        try:
+            status = serve_until_stopped(emu, args.duration, start=time_zero)
         finally:
-            if old is not None:
-                signal.signal(signal.SIGTERM, old)
             cam.close()
         print(json.dumps({"device": args.device, "port": args.port, "source": "screen", "mode": emu.mode,
                           "counters": emu.counters, "screen": cam.summary()}), flush=True)
     return status
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
