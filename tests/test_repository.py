@@ -17,7 +17,7 @@ DOCS = ROOT / "docs"
 # is not BENCHMARKS plus ".md".
 FORBIDDEN = tuple(a + b for a, b in (
     ("DESIGN", ".md"), ("BENCHMARKS", ".md"), ("STYLE", ".md"),
-    ("../", "shared"), ("shared", "/notes"), ("/work/", "shared"),
+    ("../", "shared"), ("shared", "/notes"),
     ("numerics", ".md"), ("ecosystem", ".md"), ("hil-practice", ".md"), ("anchor-starscreen", ".md"),
 ))
 
