@@ -1,4 +1,7 @@
 import itertools
+import shutil
+import subprocess
+import time
 import tomllib
 from pathlib import Path
 
@@ -52,3 +55,19 @@ def write_scenario(tmp_path):
         return p
 
     return write
+
+
+@pytest.fixture
+def pty_pair(tmp_path):
+    """A socat pty pair (the stand's end, the peer's end) for cross-process serial tests; skipped without socat."""
+    if shutil.which("socat") is None:
+        pytest.skip("socat is not installed (apt-get install socat)")
+    a, b = tmp_path / "stand", tmp_path / "peer"
+    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 5
+    while not (a.exists() and b.exists()) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    yield str(a), str(b)
+    proc.terminate()
+    proc.wait(timeout=5)

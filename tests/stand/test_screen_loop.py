@@ -7,10 +7,8 @@ import dataclasses
 import json
 import math
 import re
-import shutil
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -141,21 +139,6 @@ def test_a_bench_lan_display_node_is_accepted(tmp_path):
     sc = scenario.load(_scenario(tmp_path, screen_port="udp://192.168.10.20:5600"))
     st = next(d for d in sc.devices if d.name == "st1")
     assert st.screen == {"mode": "state", "host": "192.168.10.20", "port": 5600, "latency_s": 0.02}
-
-
-@pytest.fixture
-def pty_pair(tmp_path):
-    if shutil.which("socat") is None:
-        pytest.skip("socat is not installed (apt-get install socat)")
-    a, b = tmp_path / "stand", tmp_path / "tracker"
-    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 5
-    while not (a.exists() and b.exists()) and time.monotonic() < deadline:
-        time.sleep(0.02)
-    yield str(a), str(b)
-    proc.terminate()
-    proc.wait(timeout=5)
 
 
 DURATION_S = 20.0
