@@ -183,6 +183,21 @@ class LoopbackBus(BusABC):
                 return msg
         return None
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """The next wanted frame, waiting up to ``timeout`` s (None: until one arrives); None on timeout.
+
+        ``BusABC.recv`` with its loop and its level-9 log line left out: delivery already applied the
+        filters, and this runs for every frame of the stand's tick."""
+        if self._queue:
+            msg = self._take()
+            if msg is not None:
+                return msg
+        if self._is_shutdown:
+            raise can.CanOperationError(f"Cannot receive on {self.channel_info}: the bus is shut down.")
+        if timeout is not None and timeout <= 0.0:
+            return None
+        return self._wait(timeout)
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if self._queue:
             msg = self._take()

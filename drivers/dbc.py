@@ -173,8 +173,8 @@ def _compile_message(entry: _Message) -> tuple[Any, Any]:
         enc += [f"    t = type({v})",
                 f"    if t is not float and t is not int and t is not bool or not {sig.lo!r} <= {v} <= {sig.hi!r}:",
                 "        return None"]
-        if sig.kind == _IDENTITY:
-            enc.append(f"    {r} = round({v})")
+        if sig.kind == _IDENTITY:  # round() of an int or a bool is the same number
+            enc.append(f"    {r} = {v} if t is not float else round({v})")
         elif sig.kind == _LINEAR or sig.mask < _EXACT_QUOTIENT:
             # For an integer scale, cantools divides only when the value is not an exact multiple;
             # an exact multiple below 2**53 divides exactly anyway, so one division is the same.
@@ -282,6 +282,16 @@ class DbcCodec:
 
     # -- encode ---------------------------------------------------------------------------------
 
+    def fast_paths(self) -> tuple[dict, dict]:
+        """For codecs that wrap this one in a per-tick path: ``(encoders, decoders)``.
+
+        ``encoders[name](values)`` is the payload, or None where :meth:`encode` must decide (anything but plain
+        numbers within range; it raises the error); ``decoders[frame_id]`` is ``(name, length, decode)``, whose
+        ``decode(data)`` takes a payload of exactly ``length`` bytes (anything else goes to :meth:`decode`).
+        Messages the straight-line code does not cover map to None in both."""
+        return ({e.name: e.encode_fast if e.fast else None for e in self._by_name.values()},
+                {e.frame_id: (e.name, e.length, e.decode_fast) if e.fast else None for e in self._by_name.values()})
+
     def encode(self, name: str, values: Mapping[str, Any]) -> tuple[int, bytes]:
         """Encode ``values`` (physical, DBC units) as message ``name``: returns (frame id, payload).
 
@@ -291,7 +301,7 @@ class DbcCodec:
             raise EncodeError(
                 f"Unknown message {name!r} in {self.path.name}; known: {', '.join(self.names)}."
             )
-        if not isinstance(values, Mapping):
+        if type(values) is not dict and not isinstance(values, Mapping):  # a dict skips the slow ABC check
             raise EncodeError(f"Cannot encode {name}: values = {values!r} must be a mapping of signal name to value; "
                               f"the message has {', '.join(self.signal_names(name))}.")
         if not entry.fast:

@@ -200,6 +200,7 @@ class MagnetorquerCodec:
             Counters: self._encode_counters,
             Heartbeat: self._encode_heartbeat,
         }
+        self._fast_encoders, self._fast_decoders = dbc.fast_paths()
         self._decoders = {
             "MTQ_DIPOLE_CMD": self._decode_dipole,
             "MTQ_MODE_CMD": self._decode_mode,
@@ -227,22 +228,29 @@ class MagnetorquerCodec:
         except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
             raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
 
+    def _encode_values(self, name: str, values: dict[str, Any]) -> tuple[int, bytes]:
+        fast = self._fast_encoders[name]
+        payload = fast(values) if fast is not None else None
+        if payload is None:  # the full checks, and their error messages
+            return self.dbc.encode(name, values)
+        return self.ids[name], payload
+
     def _encode_dipole(self, msg: DipoleCommand) -> tuple[int, bytes]:
         mx, my, mz = msg.dipole_A_m2
-        return self.dbc.encode(
+        return self._encode_values(
             "MTQ_DIPOLE_CMD",
             {"dipole_x": mx, "dipole_y": my, "dipole_z": mz, "duration_ms": msg.duration_s / _MS},
         )
 
     def _encode_mode(self, msg: ModeCommand) -> tuple[int, bytes]:
-        return self.dbc.encode(
+        return self._encode_values(
             "MTQ_MODE_CMD",
             {"mode": MODES.index(msg.mode), "reset_counters": bool(msg.reset_counters), "seq": msg.seq},
         )
 
     def _encode_sample(self, msg: MagSample) -> tuple[int, bytes]:
         bx, by, bz = msg.b_T
-        return self.dbc.encode(
+        return self._encode_values(
             "MAG_SAMPLE",
             {
                 "b_x": bx / _NT,
@@ -257,7 +265,7 @@ class MagnetorquerCodec:
     def _encode_status(self, msg: Status) -> tuple[int, bytes]:
         ax, ay, az = msg.coil_active
         ix, iy, iz = msg.coil_current_A
-        return self.dbc.encode(
+        return self._encode_values(
             "MTQ_STATUS",
             {
                 "mode": MODES.index(msg.mode),
@@ -272,7 +280,7 @@ class MagnetorquerCodec:
         )
 
     def _encode_counters(self, msg: Counters) -> tuple[int, bytes]:
-        return self.dbc.encode(
+        return self._encode_values(
             "MTQ_COUNTERS",
             {
                 "rejected_frames": msg.rejected_frames,
@@ -284,7 +292,7 @@ class MagnetorquerCodec:
         )
 
     def _encode_heartbeat(self, msg: Heartbeat) -> tuple[int, bytes]:
-        return self.dbc.encode(
+        return self._encode_values(
             "MTQ_HEARTBEAT",
             {"uptime_s": msg.uptime_s, "state": HEARTBEAT_STATES.index(msg.state), "counter": msg.counter},
         )
@@ -293,7 +301,11 @@ class MagnetorquerCodec:
 
     def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
         """Decode one payload into its message (ProtocolError for unknown id / length / enum)."""
-        name, v = self.dbc.decode(frame_id, data)
+        fast = self._fast_decoders.get(frame_id)
+        if fast is not None and len(data) == fast[1]:
+            name, v = fast[0], fast[2](data)
+        else:  # unknown id, wrong length: the DBC codec's checks raise
+            name, v = self.dbc.decode(frame_id, data)
         try:
             return self._decoders[name](v)
         except ValueError as exc:  # an enum value outside its table

@@ -154,6 +154,8 @@ def _emulator(spec: MagnetorquerSpec, ctx: BuildContext, bus):
         def field_S(_t_s):
             # The board sits in the cage: it reads the cage's field (body axes) through its mount.
             return rotate_to_body(q_SB, stimulus())
+    elif q_SB == (1.0, 0.0, 0.0, 0.0):
+        field_S = truth.b_B  # sensor axes are body axes: the truth's own (cached) field
     else:
         def field_S(_t_s):
             # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
