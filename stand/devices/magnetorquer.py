@@ -46,7 +46,7 @@ SILENT_PERIODS = 5
 
 @dataclass(frozen=True)
 class MagnetorquerSpec(DeviceSpec):
-    interface: str = "virtual"
+    interface: str = "stand_loopback"
     channel: str = ""
     sample_rate_hz: float = 10.0
     status_rate_hz: float = 1.0
@@ -75,7 +75,7 @@ class MagnetorquerKind(DeviceKind):
 
         codec = _codec()
         dipole_max = codec.dipole_range_A_m2[1]  # what MTQ_DIPOLE_CMD can carry
-        interface = t.text("interface", "virtual" if base.link == "emulated" else "socketcan")
+        interface = t.text("interface", "stand_loopback" if base.link == "emulated" else "socketcan")
         channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
         check_can(t, base.link, interface, channel)
         max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=dipole_max)

@@ -36,7 +36,7 @@ SILENT_PERIODS = 5
 
 @dataclass(frozen=True)
 class ReactionWheelSpec(DeviceSpec):
-    interface: str = "virtual"
+    interface: str = "stand_loopback"
     channel: str = ""
     wheel: int = 0
     spin_axis_B: tuple = (0.0, 0.0, 1.0)
@@ -60,7 +60,7 @@ class ReactionWheelKind(DeviceKind):
         from stand.scenario import rate
 
         codec = ReactionWheelCodec(0)
-        interface = t.text("interface", "virtual" if base.link == "emulated" else "socketcan")
+        interface = t.text("interface", "stand_loopback" if base.link == "emulated" else "socketcan")
         channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
         check_can(t, base.link, interface, channel)
         if t.has("spin_axis_B") and t.has("q_SB"):

@@ -32,7 +32,7 @@ import numpy as np
 from drivers.errors import DeviceTimeoutError
 from sim.constants import R_EARTH
 from sim.environment import R_SUN
-from sim.rotations import axis_angle, compose, conjugate, dcm, quat_from_axis_angle
+from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_serial_url
 
@@ -98,10 +98,13 @@ def _icd_settings() -> dict[str, tuple[float, float, float, bool]]:
 
 
 def attitude_error_arcsec(q_true, q_meas) -> tuple[float, float]:
-    """(cross-boresight, roll) error of a measured tracker attitude, arcsec (boresight +z)."""
-    E = dcm(q_meas) @ dcm(q_true).T  # small rotation from true to measured tracker axes
-    theta = 0.5 * np.array([E[1, 2] - E[2, 1], E[2, 0] - E[0, 2], E[0, 1] - E[1, 0]])
-    return math.hypot(theta[0], theta[1]) / ARCSEC, abs(theta[2]) / ARCSEC
+    """(cross-boresight, roll) error of a measured tracker attitude, arcsec (boresight +z).
+
+    The rotation from true to measured tracker axes, E = dcm(q_meas) dcm(q_true)^T, has the antisymmetric part
+    vee(E - E^T) / 2 = sin(angle) axis = 2 w v for its quaternion (w, v) = q_true^-1 then q_meas: on floats."""
+    tw, tx, ty, tz = q_true
+    w, x, y, z = hamilton_floats((tw, -tx, -ty, -tz), tuple(q_meas))
+    return math.hypot(2.0 * w * x, 2.0 * w * y) / ARCSEC, abs(2.0 * w * z) / ARCSEC
 
 
 @dataclass(frozen=True)
@@ -568,10 +571,20 @@ class ImageSolver:
             return None
         t1, q1 = self._last
         if self._before is None:
-            return q1
+            return np.array(q1)
         t0, q0 = self._before
-        axis, angle = axis_angle(compose(q1, conjugate(q0)))  # rotation of the tracker axes from t0 to t1
-        return compose(quat_from_axis_angle(axis, float(angle) * (t_s - t1) / (t1 - t0)), q1)
+        # The rotation of the tracker axes from t0 to t1 (w >= 0), its angle scaled to t_s - t1, then after q1.
+        w0, x0, y0, z0 = q0
+        w, x, y, z = hamilton_floats((w0, -x0, -y0, -z0), q1)
+        if w < 0.0:
+            w, x, y, z = -w, -x, -y, -z
+        s = math.sqrt(x * x + y * y + z * z)
+        if s == 0.0:
+            return np.array(q1)
+        half = math.atan2(s, w) * (t_s - t1) / (t1 - t0)
+        k = math.sin(half) / s
+        q = hamilton_floats(q1, (math.cos(half), k * x, k * y, k * z))
+        return np.array(q if q[0] >= 0.0 else tuple(-c for c in q))
 
     def solve(self, t_s: float, q_TN, omega_TN_T, v_N) -> dict:
         """TrackerTruth fields measured from the exposure at ``t_s``: the solved q_TN, stars centroided
@@ -599,7 +612,7 @@ class ImageSolver:
             self._last = self._before = None
             return {"q_TN": (1.0, 0.0, 0.0, 0.0), "stars_matched": 0, **seen}
         self.counts[sol.mode] += 1
-        self._before, self._last = self._last, (t_s, sol.q_SN)
+        self._before, self._last = self._last, (t_s, tuple(sol.q_SN.tolist()))
         return {"q_TN": tuple(float(x) for x in sol.q_SN), "stars_matched": int(sol.stars_matched),
                 "sigma_cross_rad": float(sol.sigma_cross_arcsec) * ARCSEC,
                 "sigma_roll_rad": float(sol.sigma_roll_arcsec) * ARCSEC, **seen}
