@@ -9,7 +9,9 @@ A port is given as
 
 :class:`FdPort` wraps a raw file descriptor (the master side of ``os.openpty()``), and
 :func:`pty_pair` makes an in-process pty pair: the emulator serves on the master fd, the code
-under test opens the slave path like any serial device.
+under test opens the slave path like any serial device. :func:`pipe_pair` is the same line without
+the kernel: two :class:`PipePort` ends in one process, bytes readable at the other end as soon as
+they are written (the serial analogue of the ``stand_loopback`` CAN bus).
 
 Nothing here can hang on a peer that stopped reading: :meth:`FdPort.write` has a monotonic
 deadline (``write_timeout``) and raises :class:`~drivers.errors.DeviceTimeoutError` when the line
@@ -24,13 +26,16 @@ from __future__ import annotations
 
 import os
 import select
+import threading
+import time
 import tty
 from typing import Any
 
 from drivers.endpoint import Endpoint
 from drivers.errors import ConnectError, DeviceTimeoutError
 
-__all__ = ["FdPort", "SerialEndpoint", "open_port", "port_name", "pty_pair", "write_available"]
+__all__ = ["FdPort", "PipePort", "SerialEndpoint", "open_port", "pipe_pair", "port_name", "pty_pair", "wait_readable",
+           "write_available"]
 
 
 class FdPort:
@@ -131,6 +136,108 @@ class FdPort:
 
     def __repr__(self) -> str:
         return f"FdPort({self.name!r})"
+
+
+class PipePort:
+    """One end of an in-process serial line (:func:`pipe_pair`), with the parts of the ``serial.Serial`` API
+    drivers use and no file descriptor.
+
+    What one end writes the other can read at once. Like a pty, the line holds at most ``capacity`` bytes
+    in each direction: :meth:`write` waits up to ``write_timeout`` for the reader, then raises
+    :class:`~drivers.errors.DeviceTimeoutError` (``written`` says how many bytes went in), so a writer never
+    hangs on a peer that stopped reading; :meth:`read` waits up to ``timeout`` (None = until ``size``
+    bytes or the other end closes). Both ends may be used from different threads.
+    """
+
+    def __init__(self, name: str, rx: bytearray, tx: bytearray, cond: threading.Condition, capacity: int,
+                 timeout: float | None = 0.0, write_timeout: float = 1.0) -> None:
+        self.name = self.port = name
+        self._rx, self._tx, self._cond, self.capacity = rx, tx, cond, capacity
+        self.timeout = timeout
+        self.write_timeout = float(write_timeout)
+        self.is_open = True
+        self.peer: PipePort | None = None
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self._rx) if self.is_open else 0
+
+    def read(self, size: int = 1) -> bytes:
+        rx = self._rx
+        if len(rx) < size and self.timeout != 0:
+            deadline = None if self.timeout is None else time.monotonic() + self.timeout
+            with self._cond:
+                while len(rx) < size and self.peer is not None and self.peer.is_open and self.is_open:
+                    left = None if deadline is None else deadline - time.monotonic()
+                    if left is not None and left <= 0:
+                        break
+                    self._cond.wait(left)
+        with self._cond:
+            out = bytes(rx[:size])
+            del rx[:size]
+            self._cond.notify_all()
+        return out
+
+    def write(self, data: bytes) -> int:
+        data = bytes(data)
+        view, tx, cond = memoryview(data), self._tx, self._cond
+        deadline = time.monotonic() + self.write_timeout
+        with cond:
+            while view:
+                if not self.is_open:
+                    raise OSError(f"{self.name}: the port is closed.")
+                room = self.capacity - len(tx)
+                if room > 0:
+                    tx += view[:room]
+                    view = view[room:]
+                    cond.notify_all()
+                    continue
+                left = deadline - time.monotonic()
+                if left <= 0 or not cond.wait(left) and self.capacity - len(tx) <= 0:
+                    err = DeviceTimeoutError(
+                        f"{self.name}: {len(view)} of {len(data)} bytes could not be written within "
+                        f"{self.write_timeout:g} s; the other end is not reading.",
+                        device=self.name, awaited="the line to take the bytes", timeout_s=self.write_timeout)
+                    err.written = len(data) - len(view)
+                    raise err
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def reset_input_buffer(self) -> None:
+        with self._cond:
+            self._rx.clear()
+            self._cond.notify_all()
+
+    def close(self) -> None:
+        with self._cond:
+            self.is_open = False
+            self._cond.notify_all()
+
+    def __repr__(self) -> str:
+        return f"PipePort({self.name!r})"
+
+
+def pipe_pair(name: str = "pipe", capacity: int = 65536) -> tuple[PipePort, PipePort]:
+    """Two ends of one in-process serial line, ``(a, b)``: what ``a`` writes ``b`` reads and the other way
+    round, each direction holding at most ``capacity`` bytes. Close both ends when done."""
+    if not (isinstance(capacity, int) and 64 <= capacity <= 1 << 24):
+        raise ValueError(f"pipe_pair capacity = {capacity!r}; allowed 64 to 16777216 bytes.")
+    cond = threading.Condition()
+    a_to_b, b_to_a = bytearray(), bytearray()
+    a = PipePort(f"{name}-a", b_to_a, a_to_b, cond, capacity)
+    b = PipePort(f"{name}-b", a_to_b, b_to_a, cond, capacity)
+    a.peer, b.peer = b, a
+    return a, b
+
+
+def wait_readable(port: Any, timeout_s: float) -> None:
+    """Wait up to ``timeout_s`` until ``port`` has bytes to read: ``select`` on a port with a descriptor; a
+    :class:`PipePort` has them as soon as they were written, so nothing to wait for there."""
+    fileno = getattr(port, "fileno", None)
+    if fileno is not None:
+        select.select([fileno()], [], [], timeout_s)
 
 
 def pty_pair() -> tuple[FdPort, str, int]:

@@ -239,6 +239,34 @@ CAN_INTERFACES["served"] = CAN_INTERFACES["hardware"]
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "[::1]")
 
 
+#: How an emulated serial device is wired to its host driver: ``pipe`` (in-process, the bytes never leave Python:
+#: the fast default) or ``pty`` (a kernel pty pair, the tty path a bench's adapter takes).
+SERIAL_LINES = ("pipe", "pty")
+
+
+def serial_line(kind: str, name: str):
+    """The two ends of an emulated device's serial line: ``(emulator_port, host_port, close)``.
+
+    ``host_port`` is an open port (``pipe``) or the pty slave's path (``pty``) for the host driver to open;
+    ``close()`` releases what the line holds once both drivers are closed. The emulator's end never waits to
+    write (the loop's thread drives it): what the host has not read by then is counted as dropped."""
+    import os
+
+    from drivers.serial_port import pipe_pair, pty_pair
+
+    if kind == "pipe":
+        emulator_end, host_end = pipe_pair(name)
+        emulator_end.write_timeout = 0.0
+
+        def close():
+            emulator_end.close()
+            host_end.close()
+
+        return emulator_end, host_end, close
+    master, slave_path, slave_fd = pty_pair()
+    return master, slave_path, lambda: os.close(slave_fd)
+
+
 def check_serial_url(t: Table, key: str, value: str) -> str:
     """A serial port: a device path, a pty, ``loop://``, or a socket/RFC 2217 URL to this machine only."""
     if "\x00" in value:

@@ -6,7 +6,8 @@ The stand hands the emulator the rate the gyro measures at each sample time: the
 The emulator adds what the wire does: quantisation to the datagram's LSB and saturation at ``range_deg_s``.
 ``ideal = true`` leaves out every error and the delay: the datagram carries the true rate in sensor axes.
 
-Links: ``emulated`` (emulator and host on an in-process pty pair, every exchange settled within the tick, so a
+Links: ``emulated`` (emulator and host on an in-process serial line, ``port = "pipe"`` (default) or a kernel pty
+pair with ``port = "pty"``, every exchange settled within the tick, so a
 run is bit-for-bit repeatable), ``hardware`` (the host on a real port), ``served`` (the emulator on a real
 port, fed by the truth, for a flight computer outside).
 
@@ -16,17 +17,16 @@ Telemetry: ``NAME.omega_S`` (the newest sample the host decoded, rad/s, sensor a
 from __future__ import annotations
 
 import math
-import os
-import select
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.errors import DeviceTimeoutError
+from drivers.serial_port import wait_readable
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
+from stand.devices import SERIAL_LINES, BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url, serial_line
 
 DEG = math.pi / 180.0
 #: deg/sqrt(h) -> rad/sqrt(s); deg/h -> rad/s; deg/h/sqrt(h) -> rad/s/sqrt(s).
@@ -45,7 +45,7 @@ NOISE_KEYS = ("arw_deg_sqrt_h", "rrw_deg_h_sqrt_h", "bias_instability_deg_h", "b
 
 @dataclass(frozen=True)
 class GyroSpec(DeviceSpec):
-    port: str = "pty"
+    port: str = "pipe"
     baudrate: int = 460800
     output_rate_hz: float = 20.0
     ideal: bool = False
@@ -82,7 +82,7 @@ class GyroKind(DeviceKind):
                     raise t.error(key, t.raw(key), "no error setting with ideal = true (the ideal gyro reports the "
                                   "true rate without noise, bias or delay); remove it or set ideal = false")
         if base.link == "emulated":
-            port = t.choice("port", ("pty",), "pty")
+            port = t.choice("port", SERIAL_LINES, "pipe")
         else:
             port = check_serial_url(t, "port", t.text("port"))
         out_hz = rate(t, "output_rate_hz", step_s, 1.0 / step_s)
@@ -112,7 +112,7 @@ class GyroKind(DeviceKind):
             f"ARW {spec.arw_rad_sqrt_s / ARW_UNIT:g} deg/sqrt(h), RRW {spec.rrw_rad_s_sqrt_s / RRW_UNIT:g} "
             f"deg/h/sqrt(h), bias instability {spec.bias_instability_rad_s / DEG_H:g} deg/h, delay "
             f"{spec.delay_s * 1e3:g} ms")
-        return {"emulated": f"gyro emulated on an in-process serial pty pair at {spec.output_rate_hz:g} Hz, {model}",
+        return {"emulated": f"gyro emulated on an in-process serial {spec.port} at {spec.output_rate_hz:g} Hz, {model}",
                 "hardware": f"gyro on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads its rates)",
                 "served": f"gyro served on serial {spec.port} for a flight computer outside at "
                           f"{spec.output_rate_hz:g} Hz, {model}"}[spec.link]
@@ -171,7 +171,7 @@ class _GyroDevice(Device):
         self.silent_after_s = SILENT_SAMPLES / spec.output_rate_hz
         self.emulator = None
         self.host = None
-        self._slave_fd: int | None = None
+        self._close_line = None  # releases the emulated serial line
 
     def columns(self):
         return [(f"{self.name}.omega_S", 3, "rad/s"), (f"{self.name}.valid", 1, "1")]
@@ -199,22 +199,21 @@ class _GyroDevice(Device):
             self.host.close()
         if self.emulator is not None:
             self.emulator.close()
-        if self._slave_fd is not None:
-            os.close(self._slave_fd)
-            self._slave_fd = None
+        if self._close_line is not None:
+            self._close_line()
+            self._close_line = None
 
 
 class EmulatedGyro(_GyroDevice):
-    """Emulator and host on an in-process pty pair; every datagram reaches the host within its tick."""
+    """Emulator and host on an in-process serial line (pipe or pty); every datagram reaches the host within its tick."""
 
     def __init__(self, spec: GyroSpec, ctx: BuildContext):
         from drivers.gyro.emulator import GyroEmulator
         from drivers.gyro.host import GyroHost
-        from drivers.serial_port import pty_pair
 
         super().__init__(spec, ctx)
         self._push, source = rate_source(spec, ctx)
-        emulator_port, host_port, self._slave_fd = pty_pair()
+        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
         try:
             self.emulator = GyroEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
             self.host = GyroHost(host_port, name=spec.name)
@@ -242,7 +241,7 @@ class EmulatedGyro(_GyroDevice):
                         f"{self.name}: a datagram written to the serial line did not arrive within "
                         f"{SETTLE_TIMEOUT_S:g} s.", device=self.name, awaited="RATE datagram",
                         timeout_s=SETTLE_TIMEOUT_S)
-                select.select([host.port.fileno()], [], [], min(left, 0.01))
+                wait_readable(host.port, min(left, 0.01))
                 host.poll()
 
 

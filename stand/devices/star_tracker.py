@@ -11,7 +11,8 @@ Two sources feed the emulator. ``truth``: the true attitude, to which the emulat
 ``star_screen.tracking`` solves it (``ImageSolver``); the emulator is handed the solved attitude and the stars
 matched, with its own noise at 0.
 
-Links: ``emulated`` (emulator and host on an in-process pty pair, every exchange settled within the tick, so a
+Links: ``emulated`` (emulator and host on an in-process serial line, ``port = "pipe"`` (default) or a kernel pty
+pair with ``port = "pty"``, every exchange settled within the tick, so a
 run is bit-for-bit repeatable), ``hardware`` (the host on a real port: the stand sets the device clock to sim
 time at start, logs the offset it measures, and scores each solution against the truth at its time stamp),
 ``served`` (the emulator on a real port, fed by the truth, for a flight computer outside).
@@ -21,8 +22,6 @@ from __future__ import annotations
 
 import functools
 import math
-import os
-import select
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,11 +29,21 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DeviceTimeoutError
+from drivers.serial_port import wait_readable
 from sim.constants import R_EARTH
 from sim.environment import R_SUN
 from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_serial_url
+from stand.devices import (
+    SERIAL_LINES,
+    BuildContext,
+    Device,
+    DeviceCost,
+    DeviceKind,
+    DeviceSpec,
+    check_serial_url,
+    serial_line,
+)
 
 ARCSEC = math.pi / 180.0 / 3600.0
 #: Longest wall-clock wait for a frame to cross the in-process serial line before it counts as lost.
@@ -112,7 +121,7 @@ class StarTrackerSpec(DeviceSpec):
     """A star tracker on a serial line, fed by truth plus noise (``source = "truth"``) or by image-based
     solutions (``source = "image"``)."""
 
-    port: str = "pty"  # emulated: an in-process pty pair; hardware/served: a pyserial URL or device path
+    port: str = "pipe"  # emulated: "pipe" (in-process line) or "pty"; hardware/served: a pyserial URL or device path
     baudrate: int = 115200
     address: int | None = None
     source: str = "truth"
@@ -163,7 +172,7 @@ class StarTrackerKind(DeviceKind):
             # The solution is the image's: no added noise, and the stars matched are the solver's own.
             settings.update(noise_cross_arcsec=0.0, noise_roll_arcsec=0.0, match_probability=1.0)
         if base.link == "emulated":
-            port = t.choice("port", ("pty",), "pty")
+            port = t.choice("port", SERIAL_LINES, "pipe")
         else:
             port = check_serial_url(t, "port", t.text("port"))
         baud = int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True))
@@ -201,7 +210,7 @@ class StarTrackerKind(DeviceKind):
 
             return (f"star tracker on serial {spec.port} at {spec.baudrate} Bd looking at the stand's star screen "
                     f"({describe_screen(spec.screen)}; the stand reads its solutions and sets its clock)")
-        return {"emulated": f"star tracker emulated on an in-process serial pty pair, {what}, {every}",
+        return {"emulated": f"star tracker emulated on an in-process serial {spec.port}, {what}, {every}",
                 "hardware": f"star tracker on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads "
                             "its solutions and sets its clock)",
                 "served": f"star tracker served on serial {spec.port} for a flight computer outside, {what}, "
@@ -306,7 +315,7 @@ class TrackerDevice(Device):
         cfg = spec.emulator
         self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
         self.emulator = None
-        self._slave_fd: int | None = None
+        self._close_line = None  # releases the emulated serial line
         self._seen = 0
 
     def _new_solution(self):
@@ -375,9 +384,9 @@ class TrackerDevice(Device):
             self.host.close()
         if self.emulator is not None:
             self.emulator.close()
-        if self._slave_fd is not None:
-            os.close(self._slave_fd)
-            self._slave_fd = None
+        if self._close_line is not None:
+            self._close_line()
+            self._close_line = None
 
 
 def _measure(spec: StarTrackerSpec, ctx: BuildContext, dev: TrackerDevice):
@@ -406,18 +415,17 @@ def _config(spec: StarTrackerSpec):
 
 
 class EmulatedTracker(TrackerDevice):
-    """Emulator and host on an in-process pty pair: the same kernel tty path a bench would use, without a
-    second process; every exchange completes within the tick, so runs are repeatable."""
+    """Emulator and host on an in-process serial line (a pipe, or a pty pair: the kernel tty path a bench would
+    use) without a second process; every exchange completes within the tick, so runs are repeatable."""
 
     def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
-        from drivers.serial_port import pty_pair
         from drivers.star_tracker.codec import Subscribe
         from drivers.star_tracker.emulator import StarTrackerEmulator
         from drivers.star_tracker.host import StarTrackerHost
 
         super().__init__(spec, ctx)
         measure = _measure(spec, ctx, self)
-        emulator_port, host_port, self._slave_fd = pty_pair()
+        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
         self.emulator = StarTrackerEmulator(emulator_port, measure, _config(spec), ctx.rng,
                                             name=f"{spec.name} emulator")
         try:
@@ -451,7 +459,7 @@ class EmulatedTracker(TrackerDevice):
                 raise DeviceTimeoutError(
                     f"{self.name}: a frame written to the serial line did not arrive within {SETTLE_TIMEOUT_S:g} s.",
                     device=self.name, awaited="frames written to the serial line", timeout_s=SETTLE_TIMEOUT_S)
-            select.select([port.fileno()], [], [], min(left, 0.01))
+            wait_readable(port, min(left, 0.01))
             if port is self.host.port:
                 self.host.poll()
             else:
