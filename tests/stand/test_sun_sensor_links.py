@@ -252,3 +252,29 @@ def test_link_settings_are_checked(tmp_path):
     assert load({"link": "model", "rate_hz": 0.01}).devices[0].link == "model"
     spec = load({"link": "hardware", "port": "/dev/ttyUSB1", "baudrate": 9600}).devices[0]
     assert (spec.port, spec.baudrate) == ("/dev/ttyUSB1", 9600)
+
+
+def test_a_sun_sensor_that_stops_sending_is_logged_silent_and_heard_again(tmp_path):
+    fss = {"name": "fss", "kind": "sun_sensor", "type": "fine", "rate_hz": 5.0}
+    path = tmp_path / "s.toml"
+    path.write_text(to_toml(sun_scenario([fss], duration_s=40.0)))
+    out = tmp_path / "out"
+    with build(scenario.load(path)) as scene:
+        device = scene.devices["fss"]
+        assert device.silent_after_s == pytest.approx(2.0)  # ten sample periods
+        emulator = device.emulator
+        service = emulator.service
+
+        def quiet_from_5_to_30_s(t_s):
+            # The sensor keeps sampling but sends nothing.
+            emulator.silent = 5.0 <= t_s < 30.0
+            service(t_s)
+
+        emulator.service = quiet_from_5_to_30_s
+        result = run(scene, out)
+    assert result.status == "completed" and result.counters["fss"]["silences"] == 1
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    silent = next(e for e in events if e["kind"] == "device_silent")
+    assert silent["device"] == "fss" and 5.0 + 2.0 <= silent["t_s"] <= 5.0 + 3.0
+    back = next(e for e in events if e["kind"] == "device_recovered")
+    assert back["device"] == "fss" and 30.0 <= back["t_s"] <= 31.0
