@@ -383,7 +383,7 @@ class PointingController:
         s = self.sun_sensor.take_sun()
         if s is None or not getattr(s, "valid", False):
             return None
-        if getattr(s, "angles_rad", None) is not None:  # the stand's reader carries both fields, one None
+        if getattr(s, "angles_rad", None) is not None:  # a coarse sample has no angles (or None)
             a, b = s.angles_rad
             v = np.array([math.tan(a), math.tan(b), 1.0])
         elif self.sun_normals is not None:

@@ -1,15 +1,33 @@
-"""Sun sensors: sampled from the truth through ``sim.sensors`` at their own rate.
+"""Sun sensors, coarse (six photodiode heads) or fine (two angles), on a serial line (``drivers.sun_sensor``, the
+ICD in ``fixtures/devices/sun_sensor.toml``).
 
-The Sun direction comes from the scene's Sun track, the visible fraction of its disk from the conical shadow
-model, so eclipse and penumbra dim the coarse heads and invalidate the fine sensor. They have no device protocol
-yet (``link = "model"``): the flight code reads them through :class:`SunSensorReader`, a host-side reader with
-the shape of a host driver, and the stand records their readings (``NAME.currents`` or ``NAME.angles``,
-``NAME.valid``, ``NAME.sun_fraction``).
+The stand hands the emulator what the sensor measures at each sample time: the Sun direction from the scene's
+Sun track, turned into body axes, and the visible fraction of the Sun's disk from the conical shadow model,
+through :class:`sim.sensors.CoarseSunSensors` (cosine heads on the six body faces, rotated by the mount) or
+:class:`sim.sensors.FineSunSensor` (noise, field of view, invalid in umbra and deep penumbra). The emulator adds
+what the wire does: quantisation to the datagram's LSB (1 urad, 0.1 uA, 1 %), the current range, angles sent
+as 0 when not valid.
+
+Links: ``emulated`` (default; emulator and host on an in-process pty pair, every exchange settled within the
+tick, so a run is bit-for-bit repeatable), ``hardware`` (the host on a real port; at start the stand sets the
+sensor's output period to ``1 / rate_hz``), ``served`` (the emulator on a real port, fed by the truth, for a
+flight computer outside), and ``model`` (no protocol: :class:`SunSensorReader` hands the flight code the
+model's unquantised reading).
+
+On every link the flight code's ``take_sun()`` returns the codec's shape: a
+:class:`~drivers.sun_sensor.codec.FineSunSample` (``.angles_rad``, ``.intensity``) or a
+:class:`~drivers.sun_sensor.codec.CoarseSunSample` (``.currents_A``, ``.saturated``), with ``.valid``,
+``.time_us`` (device clock; sim time on the emulated and model links) and ``.seq``.
+
+Telemetry: ``NAME.currents`` (A, coarse) or ``NAME.angles`` (rad, fine) and ``NAME.valid``: the newest sample
+the host decoded (the emulator sent, on a served link; the model gave, on the model link); ``NAME.sun_fraction``:
+the visible fraction of the Sun at that sample (NaN on a hardware link, where nothing is simulated).
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,11 +36,24 @@ from sim.environment import shadow_fraction
 from sim.rotations import dcm
 from sim.sensors import CoarseSunSensors, FineSunSensor
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec
+from stand.devices import (
+    LINKS,
+    BuildContext,
+    Device,
+    DeviceCost,
+    DeviceKind,
+    DeviceSpec,
+    check_serial_url,
+    settle_serial,
+)
 
 #: Coarse heads on the six body faces (+x, -x, +y, -y, +z, -z), rotated by the mount.
 HEAD_LABELS = ["+x face", "-x face", "+y face", "-y face", "+z face", "-z face"]
 FACE_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float)
+#: Sample periods a sun sensor may miss before it is reported silent.
+SILENT_SAMPLES = 10
+#: The longest output period SET_OUTPUT_PERIOD carries (s).
+MAX_PERIOD_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -31,37 +62,33 @@ class SunSensorSpec(DeviceSpec):
     rate_hz: float = 10.0
     noise: float = 0.0  # coarse: head current noise (A); fine: angle noise (rad)
     fov_half_deg: float = 90.0
+    port: str = "pty"
+    baudrate: int = 115200
 
-
-@dataclass(frozen=True)
-class SunReading:
-    """One sun-sensor sample as the flight code gets it: ``currents_A`` (coarse, one per head) or
-    ``angles_rad`` (fine, two axes), ``valid`` and the sim time it was taken."""
-
-    time_s: float
-    valid: bool
-    currents_A: tuple | None = None
-    angles_rad: tuple | None = None
+    @property
+    def width(self) -> int:
+        return len(FACE_NORMALS) if self.type == "coarse" else 2
 
 
 class SunSensorReader:
-    """The host-side reader of a modelled sun sensor: ``take_sun()`` returns the newest reading once."""
+    """The host-side reader of a modelled sun sensor (``link = "model"``): ``take_sun()`` returns the newest
+    sample once, in the codec's shape (:class:`FineSunSample` or :class:`CoarseSunSample`, unquantised)."""
 
     def __init__(self, name: str):
         self.name = name
-        self.latest: SunReading | None = None
+        self.latest_sample = None
         self._taken = True
         self.counters = {"samples": 0}
 
-    def _put(self, reading: SunReading) -> None:
-        self.latest, self._taken = reading, False
+    def _put(self, sample) -> None:
+        self.latest_sample, self._taken = sample, False
         self.counters["samples"] += 1
 
-    def take_sun(self) -> SunReading | None:
+    def take_sun(self):
         if self._taken:
             return None
         self._taken = True
-        return self.latest
+        return self.latest_sample
 
     def close(self) -> None:
         """Nothing to release: the sensor is a model."""
@@ -69,8 +96,8 @@ class SunSensorReader:
 
 class SunSensorKind(DeviceKind):
     name = "sun_sensor"
-    links = ("model",)
-    default_link = "model"
+    links = (*LINKS, "model")
+    default_link = "emulated"
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> SunSensorSpec:
         from stand.scenario import rate
@@ -83,25 +110,42 @@ class SunSensorKind(DeviceKind):
         # Coarse heads default to the bare cosine law (a 90 deg half-field); a fine sensor to 60 deg.
         fov = t.number("fov_half_deg", 90.0, lo=1.0, hi=90.0) if kind == "coarse" else \
             t.number("fov_half_deg", 60.0, lo=1.0, hi=89.0)
-        spec = SunSensorSpec(**base.__dict__, type=kind, rate_hz=rate(t, "rate_hz", step_s, 1.0 / step_s),
-                             noise=noise, fov_half_deg=fov)
+        rate_hz = rate(t, "rate_hz", step_s, 1.0 / step_s)
+        if base.link in ("emulated", "model"):
+            port = t.choice("port", ("pty",), "pty")
+        else:
+            port = check_serial_url(t, "port", t.text("port"))
+        if base.link != "model" and 1.0 / rate_hz > MAX_PERIOD_S:
+            raise t.error("rate_hz", rate_hz, f"at least {1.0 / MAX_PERIOD_S:.6g} Hz on a {base.link} link "
+                          f"(SET_OUTPUT_PERIOD carries at most {MAX_PERIOD_S:g} s)")
+        spec = SunSensorSpec(**base.__dict__, type=kind, rate_hz=rate_hz, noise=noise, fov_half_deg=fov, port=port,
+                             baudrate=int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True)))
         t.check_unknown()
         return spec
 
     def needs(self, spec) -> dict[str, str]:
+        if spec.link == "hardware":
+            return {}
         why = f"sun sensor {spec.name}"
         return {"sun": why, "eclipse": why}
 
     def describe(self, spec) -> str:
-        return f"{spec.type} sun sensor sampled from the truth at {spec.rate_hz:g} Hz, eclipse-aware (no bus)"
+        what = f"{spec.type} sun sensor"
+        fed = f"at {spec.rate_hz:g} Hz, sampled from the truth, eclipse-aware"
+        return {"emulated": f"{what} emulated on an in-process serial pty pair {fed}",
+                "hardware": f"{what} on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads its "
+                            f"samples, output period set to {1.0 / spec.rate_hz:g} s)",
+                "served": f"{what} served on serial {spec.port} for a flight computer outside {fed}",
+                "model": f"{what} {fed} (link = 'model': no bus)"}[spec.link]
 
     def cost(self, spec: SunSensorSpec) -> DeviceCost:
         # A sample evaluates the Sun's position and the Earth's shadow: about 50 us.
-        return DeviceCost(rate_hz=spec.rate_hz, row_floats=(len(FACE_NORMALS) if spec.type == "coarse" else 2) + 2,
-                          publish_s=50e-6)
+        return DeviceCost(rate_hz=None if spec.link in ("hardware", "served") else spec.rate_hz,
+                          row_floats=spec.width + 2, publish_s=0.0 if spec.link == "hardware" else 50e-6)
 
     def build(self, spec: SunSensorSpec, ctx: BuildContext) -> Device:
-        return SunSensor(spec, ctx)
+        return {"emulated": EmulatedSunSensor, "hardware": HardwareSunSensor, "served": ServedSunSensor,
+                "model": ModelSunSensor}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
         from stand.plots import plot_sun_sensor
@@ -109,33 +153,26 @@ class SunSensorKind(DeviceKind):
         return [plot_sun_sensor(tel, out_dir, name, head_labels=HEAD_LABELS if f"{name}.currents" in tel else None)]
 
 
-class SunSensor(Device):
-    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
-        from stand.compose import ticks_per
+class SunTruth:
+    """What the sensor measures: ``measure(t_s) -> (values, valid, nu)`` from the truth as it stands (the values
+    are the model's: six head currents in A, or two angles in rad, NaN when not valid), with ``nu`` the visible
+    fraction of the Sun. Counts the samples taken and those in shadow or penumbra."""
 
-        self.name, self.spec = spec.name, spec
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
         self.truth = ctx.truth
         self.sun = ctx.tracks["sun"]
         self.rng = ctx.rng
-        self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)
-        self.host = SunSensorReader(spec.name)
+        self.coarse = spec.type == "coarse"
         dcm_SB = dcm(spec.q_SB)
-        if spec.type == "coarse":
+        if self.coarse:
             self.model = CoarseSunSensors(FACE_NORMALS @ dcm_SB, noise_A=spec.noise, cutoff_deg=spec.fov_half_deg)
-            self.width = len(FACE_NORMALS)
         else:
             self.model = FineSunSensor(dcm_SB, fov_half_deg=spec.fov_half_deg, noise_rad=spec.noise)
-            self.width = 2
         self.samples = 0
         self.eclipsed = 0
-        self.last = (math.nan,) * (self.width + 2)
+        self.nu = math.nan
 
-    def columns(self) -> list[tuple[str, int, str]]:
-        reading = (f"{self.name}.currents", self.width, "A") if self.spec.type == "coarse" else \
-            (f"{self.name}.angles", 2, "rad")
-        return [reading, (f"{self.name}.valid", 1, "1"), (f"{self.name}.sun_fraction", 1, "1")]
-
-    def publish(self, t_s: float) -> None:
+    def measure(self, t_s: float) -> tuple[tuple, bool, float]:
         r = np.array(self.truth.r_N)
         r_sun = self.sun.position_gcrs(t_s)
         d = r_sun - r
@@ -143,22 +180,165 @@ class SunSensor(Device):
         nu = float(shadow_fraction(r, r_sun))
         self.samples += 1
         self.eclipsed += nu < 1.0
-        if self.spec.type == "coarse":
-            currents = tuple(self.model.measure(s_B, nu, self.rng).tolist())
-            valid = nu > 0.0
-            self.host._put(SunReading(t_s, valid, currents_A=currents))
-            self.last = (*currents, float(valid), nu)
-        else:
-            angles, valid = self.model.measure(s_B, nu, self.rng)
-            angles = tuple(angles.tolist())
-            self.host._put(SunReading(t_s, bool(valid), angles_rad=angles))
-            self.last = (*angles, float(valid), nu)
+        self.nu = nu
+        if self.coarse:
+            return tuple(self.model.measure(s_B, nu, self.rng).tolist()), nu > 0.0, nu
+        angles, valid = self.model.measure(s_B, nu, self.rng)
+        return tuple(angles.tolist()), bool(valid), nu
+
+    def counts(self) -> dict:
+        return {"samples_in_shadow_or_penumbra": int(self.eclipsed)}
+
+
+def _config(spec: SunSensorSpec):
+    from drivers.sun_sensor.emulator import SunEmulatorConfig
+
+    return SunEmulatorConfig(kind=spec.type, output_period_s=1.0 / spec.rate_hz)
+
+
+class _SunSensorDevice(Device):
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
+        self.name, self.spec = spec.name, spec
+        self.silent_after_s = SILENT_SAMPLES / spec.rate_hz
+        self.nan_row = (math.nan,) * (spec.width + 2)
+        self.emulator = None
+        self.host = None
+        self.sun: SunTruth | None = None
+        self._slave_fd: int | None = None
+
+    def columns(self) -> list[tuple[str, int, str]]:
+        reading = (f"{self.name}.currents", self.spec.width, "A") if self.spec.type == "coarse" else \
+            (f"{self.name}.angles", 2, "rad")
+        return [reading, (f"{self.name}.valid", 1, "1"), (f"{self.name}.sun_fraction", 1, "1")]
+
+    def _latest(self):
+        return self.host.latest_sample
 
     def row(self) -> tuple:
-        return self.last
+        s = self._latest()
+        if s is None:
+            return self.nan_row
+        values = s.currents_A if self.spec.type == "coarse" else s.angles_rad
+        if len(values) != self.spec.width:  # a hardware sensor of the other type: its values do not fit the columns
+            return self.nan_row
+        return (*values, float(s.valid), self.sun.nu if self.sun is not None else math.nan)
+
+    def _source(self, ctx: BuildContext):
+        self.sun = SunTruth(self.spec, ctx)
+        return self.sun.measure
+
+    def activity(self) -> int:
+        return self.host.counters["samples"]
 
     def summary(self) -> dict:
-        return {"samples": self.samples, "samples_in_shadow_or_penumbra": int(self.eclipsed)}
+        out = self.sun.counts() if self.sun is not None else {}
+        if self.host is not None:
+            out["host_counters"] = dict(self.host.counters)
+        if self.emulator is not None:
+            out["emulator_counters"] = dict(self.emulator.counters)
+        return out
+
+    def close(self) -> None:
+        if self.host is not None:
+            self.host.close()
+        if self.emulator is not None:
+            self.emulator.close()
+        if self._slave_fd is not None:
+            os.close(self._slave_fd)
+            self._slave_fd = None
+
+
+class EmulatedSunSensor(_SunSensorDevice):
+    """Emulator and host on an in-process pty pair; every sample reaches the host within its tick."""
+
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
+        from drivers.serial_port import pty_pair
+        from drivers.sun_sensor.emulator import SunSensorEmulator
+        from drivers.sun_sensor.host import SunSensorHost
+        from stand.compose import ticks_per
+
+        super().__init__(spec, ctx)
+        # Serviced only on its sample ticks: the emulator's output grid falls on them, and nothing else talks
+        # to it in the loop (the flight code streams; a blocking request would wait for the next sample tick).
+        self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)
+        source = self._source(ctx)
+        emulator_port, host_port, self._slave_fd = pty_pair()
+        try:
+            self.emulator = SunSensorEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
+            self.host = SunSensorHost(host_port, name=spec.name)
+        except BaseException:
+            self.close()
+            raise
+
+    def publish(self, t_s: float) -> None:
+        self.emulator.service(t_s)
+        settle_serial(self.emulator, self.host, self.name, "sun sample")
+
+
+class HardwareSunSensor(_SunSensorDevice):
+    """The host driver on a real port: the stand reads (and records) what the sensor sends."""
+
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
+        from drivers.sun_sensor.host import SunSensorHost
+
+        super().__init__(spec, ctx)
+        self.host = SunSensorHost(spec.port, baudrate=spec.baudrate, name=spec.name)
+
+    def start(self, events) -> None:
+        # The sensor streams at its own period; the scenario's rate is what the silence watch expects.
+        self.host.set_output_period(1.0 / self.spec.rate_hz)
+
+    def publish(self, t_s: float) -> None:
+        self.host.poll()
+
+
+class ServedSunSensor(_SunSensorDevice):
+    """The emulator on a real port, fed by the truth, for a flight computer outside; no host in the stand."""
+
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
+        from drivers.sun_sensor.emulator import SunSensorEmulator
+
+        super().__init__(spec, ctx)
+        # Serviced every tick so that a REQUEST_SAMPLE from outside is answered within one step.
+        self.emulator = SunSensorEmulator(spec.port, self._source(ctx), _config(spec), baudrate=spec.baudrate,
+                                          name=f"{spec.name} emulator")
+
+    def publish(self, t_s: float) -> None:
+        self.emulator.service(t_s)
+
+    def _latest(self):
+        return self.emulator.latest_sample
+
+    def activity(self) -> int:
+        return self.emulator.counters["samples"]
+
+
+class ModelSunSensor(_SunSensorDevice):
+    """No protocol: the model's reading goes to the flight code through a :class:`SunSensorReader`."""
+
+    def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
+        from stand.compose import ticks_per
+
+        super().__init__(spec, ctx)
+        self.silent_after_s = None  # a model cannot fall silent
+        self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)
+        self._measure = self._source(ctx)
+        self.host = SunSensorReader(spec.name)
+        self._seq = 0
+
+    def publish(self, t_s: float) -> None:
+        from drivers.sun_sensor.codec import CoarseSunSample, FineSunSample
+
+        values, valid, nu = self._measure(t_s)
+        time_us, seq = round(t_s * 1e6), self._seq
+        self._seq = (seq + 1) & 0xFFFF
+        if self.spec.type == "coarse":
+            self.host._put(CoarseSunSample(time_us, values, valid, False, False, seq))
+        else:
+            self.host._put(FineSunSample(time_us, values, nu, valid, False, seq))
+
+    def summary(self) -> dict:
+        return {"samples": self.sun.samples, **self.sun.counts()}
 
 
 KIND = SunSensorKind()
