@@ -301,28 +301,30 @@ def check_can(t: Table, link: str, interface: str, channel: str) -> None:
 SETTLE_TIMEOUT_S = 1.0
 
 
-def _frames_in(counters: dict) -> int:
+def frames_in(counters: dict) -> int:
+    """Frames a serial driver has taken in, good or rejected (from its ``counters``)."""
     return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
 
 
 def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SETTLE_TIMEOUT_S) -> None:
-    """Wait (bounded) until ``host`` has taken in every datagram ``emulator`` sent on their in-process pty pair.
+    """Wait (bounded) until ``host`` has taken in every datagram ``emulator`` sent on their in-process serial line
+    (:func:`serial_line`).
 
-    A pty hands bytes over asynchronously; settling each tick makes every sample reach the flight code in the
-    tick it was sent, the same in every run. Raises :class:`drivers.errors.DeviceTimeoutError` after
+    A pty hands bytes over asynchronously (a pipe at once); settling each tick makes every sample reach the flight
+    code in the tick it was sent, the same in every run. Raises :class:`drivers.errors.DeviceTimeoutError` after
     ``timeout_s`` of wall time."""
-    if emulator.counters["sent"] <= _frames_in(host.counters):
+    if emulator.counters["sent"] <= frames_in(host.counters):
         return
-    import select
     import time
 
     from drivers.errors import DeviceTimeoutError
+    from drivers.serial_port import wait_readable
 
     deadline = time.monotonic() + timeout_s
-    while emulator.counters["sent"] > _frames_in(host.counters):
+    while emulator.counters["sent"] > frames_in(host.counters):
         left = deadline - time.monotonic()
         if left <= 0:
             raise DeviceTimeoutError(f"{name}: a datagram written to the in-process serial line did not arrive "
                                      f"within {timeout_s:g} s.", device=name, awaited=awaited, timeout_s=timeout_s)
-        select.select([host.port.fileno()], [], [], min(left, 0.01))
+        wait_readable(host.port, min(left, 0.01))
         host.poll()

@@ -17,24 +17,28 @@ Telemetry: ``NAME.omega_S`` (the newest sample the host decoded, rad/s, sensor a
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.errors import DeviceTimeoutError
-from drivers.serial_port import wait_readable
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import SERIAL_LINES, BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url, serial_line
+from stand.devices import (
+    SERIAL_LINES,
+    BuildContext,
+    Device,
+    DeviceKind,
+    DeviceSpec,
+    check_serial_url,
+    serial_line,
+    settle_serial,
+)
 
 DEG = math.pi / 180.0
 #: deg/sqrt(h) -> rad/sqrt(s); deg/h -> rad/s; deg/h/sqrt(h) -> rad/s/sqrt(s).
 ARW_UNIT = DEG / 60.0
 DEG_H = DEG / 3600.0
 RRW_UNIT = DEG_H / 60.0
-#: Longest wall-clock wait for a datagram to cross the in-process serial line.
-SETTLE_TIMEOUT_S = 1.0
 #: Sample periods a gyro may miss before it is reported silent.
 SILENT_SAMPLES = 10
 NAN4 = (math.nan,) * 4
@@ -221,28 +225,12 @@ class EmulatedGyro(_GyroDevice):
             self.close()
             raise
 
-    @staticmethod
-    def _frames_in(counters: dict) -> int:
-        return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
-
     def publish(self, t_s: float) -> None:
         if self._push is not None:
             self._push(t_s)
         emu, host = self.emulator, self.host
         emu.service(t_s)
-        if emu.counters["sent"] > self._frames_in(host.counters):
-            # A pty hands bytes over asynchronously: wait (bounded) until the host has decoded every datagram
-            # sent, so each sample reaches the flight code in the tick it was sent, the same in every run.
-            deadline = time.monotonic() + SETTLE_TIMEOUT_S
-            while emu.counters["sent"] > self._frames_in(host.counters):
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise DeviceTimeoutError(
-                        f"{self.name}: a datagram written to the serial line did not arrive within "
-                        f"{SETTLE_TIMEOUT_S:g} s.", device=self.name, awaited="RATE datagram",
-                        timeout_s=SETTLE_TIMEOUT_S)
-                wait_readable(host.port, min(left, 0.01))
-                host.poll()
+        settle_serial(emu, host, self.name, "RATE datagram")
 
 
 class HardwareGyro(_GyroDevice):

@@ -36,18 +36,18 @@ from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
 from stand.devices import (
     SERIAL_LINES,
+    SETTLE_TIMEOUT_S,
     BuildContext,
     Device,
     DeviceCost,
     DeviceKind,
     DeviceSpec,
     check_serial_url,
+    frames_in,
     serial_line,
 )
 
 ARCSEC = math.pi / 180.0 / 3600.0
-#: Longest wall-clock wait for a frame to cross the in-process serial line before it counts as lost.
-SETTLE_TIMEOUT_S = 1.0
 R_MOON = 1.7374e6
 #: The Earth's disk as a tracker sees it includes the bright atmosphere.
 ATMOSPHERE_M = 100e3
@@ -441,10 +441,6 @@ class EmulatedTracker(TrackerDevice):
         cfg = self.emulator.config
         return (time_us * 1e-6 - cfg.clock_offset_s) / (1.0 + cfg.clock_drift_ppm * 1e-6)
 
-    @staticmethod
-    def _frames_in(counters: dict) -> int:
-        return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
-
     def _settle(self, done, port) -> None:
         """Wait (wall clock, bounded) until the other end has the frames written to it.
 
@@ -467,11 +463,11 @@ class EmulatedTracker(TrackerDevice):
 
     def publish(self, t_s: float) -> None:
         emu, host = self.emulator, self.host
-        if host.counters["sent"] > self._frames_in(emu.counters):
+        if host.counters["sent"] > frames_in(emu.counters):
             self._settle(lambda: emu.port.in_waiting > 0, emu.port)
         emu.service(t_s)
-        if emu.counters["sent"] > self._frames_in(host.counters):
-            self._settle(lambda: self._frames_in(host.counters) >= emu.counters["sent"], host.port)
+        if emu.counters["sent"] > frames_in(host.counters):
+            self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
         sol = self._new_solution()
         if sol is not None:
             self._score(sol, self.sim_time_of(sol.time_us))

@@ -8,7 +8,8 @@ through :class:`sim.sensors.CoarseSunSensors` (cosine heads on the six body face
 what the wire does: quantisation to the datagram's LSB (1 urad, 0.1 uA, 1 %), the current range, angles sent
 as 0 when not valid.
 
-Links: ``emulated`` (default; emulator and host on an in-process pty pair, every exchange settled within the
+Links: ``emulated`` (default; emulator and host on an in-process serial line, ``port = "pipe"`` (default) or a
+kernel pty pair with ``port = "pty"``, every exchange settled within the
 tick, so a run is bit-for-bit repeatable), ``hardware`` (the host on a real port; at start the stand sets the
 sensor's output period to ``1 / rate_hz``), ``served`` (the emulator on a real port, fed by the truth, for a
 flight computer outside), and ``model`` (no protocol: :class:`SunSensorReader` hands the flight code the
@@ -27,7 +28,6 @@ the visible fraction of the Sun at that sample (NaN on a hardware link, where no
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,12 +38,14 @@ from sim.sensors import CoarseSunSensors, FineSunSensor
 from sim.truth import rotate_to_body
 from stand.devices import (
     LINKS,
+    SERIAL_LINES,
     BuildContext,
     Device,
     DeviceCost,
     DeviceKind,
     DeviceSpec,
     check_serial_url,
+    serial_line,
     settle_serial,
 )
 
@@ -62,7 +64,7 @@ class SunSensorSpec(DeviceSpec):
     rate_hz: float = 10.0
     noise: float = 0.0  # coarse: head current noise (A); fine: angle noise (rad)
     fov_half_deg: float = 90.0
-    port: str = "pty"
+    port: str = "pipe"
     baudrate: int = 115200
 
     @property
@@ -112,7 +114,7 @@ class SunSensorKind(DeviceKind):
             t.number("fov_half_deg", 60.0, lo=1.0, hi=89.0)
         rate_hz = rate(t, "rate_hz", step_s, 1.0 / step_s)
         if base.link in ("emulated", "model"):
-            port = t.choice("port", ("pty",), "pty")
+            port = t.choice("port", SERIAL_LINES, "pipe")
         else:
             port = check_serial_url(t, "port", t.text("port"))
         if base.link != "model" and 1.0 / rate_hz > MAX_PERIOD_S:
@@ -132,7 +134,7 @@ class SunSensorKind(DeviceKind):
     def describe(self, spec) -> str:
         what = f"{spec.type} sun sensor"
         fed = f"at {spec.rate_hz:g} Hz, sampled from the truth, eclipse-aware"
-        return {"emulated": f"{what} emulated on an in-process serial pty pair {fed}",
+        return {"emulated": f"{what} emulated on an in-process serial {spec.port} {fed}",
                 "hardware": f"{what} on serial {spec.port} at {spec.baudrate} Bd (hardware: the stand reads its "
                             f"samples, output period set to {1.0 / spec.rate_hz:g} s)",
                 "served": f"{what} served on serial {spec.port} for a flight computer outside {fed}",
@@ -204,7 +206,7 @@ class _SunSensorDevice(Device):
         self.emulator = None
         self.host = None
         self.sun: SunTruth | None = None
-        self._slave_fd: int | None = None
+        self._close_line = None  # releases the emulated serial line
 
     def columns(self) -> list[tuple[str, int, str]]:
         reading = (f"{self.name}.currents", self.spec.width, "A") if self.spec.type == "coarse" else \
@@ -243,16 +245,15 @@ class _SunSensorDevice(Device):
             self.host.close()
         if self.emulator is not None:
             self.emulator.close()
-        if self._slave_fd is not None:
-            os.close(self._slave_fd)
-            self._slave_fd = None
+        if self._close_line is not None:
+            self._close_line()
+            self._close_line = None
 
 
 class EmulatedSunSensor(_SunSensorDevice):
-    """Emulator and host on an in-process pty pair; every sample reaches the host within its tick."""
+    """Emulator and host on an in-process serial line (pipe or pty); every sample reaches the host within its tick."""
 
     def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
-        from drivers.serial_port import pty_pair
         from drivers.sun_sensor.emulator import SunSensorEmulator
         from drivers.sun_sensor.host import SunSensorHost
         from stand.compose import ticks_per
@@ -262,7 +263,7 @@ class EmulatedSunSensor(_SunSensorDevice):
         # to it in the loop (the flight code streams; a blocking request would wait for the next sample tick).
         self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)
         source = self._source(ctx)
-        emulator_port, host_port, self._slave_fd = pty_pair()
+        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
         try:
             self.emulator = SunSensorEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
             self.host = SunSensorHost(host_port, name=spec.name)
