@@ -20,7 +20,7 @@ from drivers.errors import ConnectError
 if TYPE_CHECKING:  # pragma: no cover
     import can
 
-__all__ = ["OWN_INTERFACES", "loops_back", "open_bus", "socketcan_available"]
+__all__ = ["OWN_INTERFACES", "data_frame", "loops_back", "open_bus", "socketcan_available"]
 
 #: Interfaces this package provides, name -> (module, class). They are registered with python-can
 #: through the ``can.interface`` entry-point group when the package is installed; ``open_bus``
@@ -93,3 +93,32 @@ def loops_back(bus) -> bool:
     """True for a bus that hands a node its own frames back (python-can's ``udp_multicast``: every datagram sent to
     the group reaches the sender too). A node on such a bus counts those frames as echoes, not as foreign traffic."""
     return type(bus).__name__ == "UdpMulticastBus"
+
+
+_message_new: Any = None
+
+
+def data_frame(frame_id: int, payload: bytes) -> can.Message:
+    """A classic CAN data frame with an 11-bit id: what ``can.Message(arbitration_id=frame_id, data=payload,
+    is_extended_id=False)`` makes, field for field, without the constructor's keyword handling (the host drivers
+    and emulators make one per frame, several per tick)."""
+    global _message_new
+    if _message_new is None:
+        import can
+
+        _message_new = (object.__new__, can.Message)
+    new, cls = _message_new
+    m = new(cls)
+    m.timestamp = 0.0
+    m.arbitration_id = frame_id
+    m.is_extended_id = False
+    m.is_remote_frame = False
+    m.is_error_frame = False
+    m.channel = None
+    m.data = bytearray(payload)
+    m.dlc = len(m.data)
+    m.is_fd = False
+    m.is_rx = True
+    m.bitrate_switch = False
+    m.error_state_indicator = False
+    return m

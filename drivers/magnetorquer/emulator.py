@@ -39,7 +39,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_bus import loops_back
+from drivers.can_bus import data_frame, loops_back
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
@@ -435,7 +435,7 @@ class MagnetorquerEmulator(BusEndpoint):
     def _send(self, msg: Any) -> None:
         frame_id, payload = self._encode(msg)
         try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+            self.bus.send(data_frame(frame_id, payload))
         except can.CanError as exc:
             raise DriverError(f"mtq emulator: cannot send on {self.bus.channel_info}: {exc}") from exc
         self.counters["sent"] += 1

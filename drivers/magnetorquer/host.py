@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
-from drivers.can_bus import loops_back
+from drivers.can_bus import data_frame, loops_back
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
 from drivers.magnetorquer.codec import (
@@ -150,7 +150,7 @@ class MagnetorquerBoard(BusEndpoint):
             self._check_open()
         frame_id, payload = self._encode(msg)
         try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+            self.bus.send(data_frame(frame_id, payload))
         except can.CanError as exc:
             raise DriverError(
                 f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"

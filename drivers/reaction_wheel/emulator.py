@@ -38,6 +38,7 @@ from typing import Any, NamedTuple
 
 import can
 
+from drivers.can_bus import data_frame
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DriverError, ProtocolError
 from drivers.reaction_wheel.codec import (
@@ -293,7 +294,7 @@ class ReactionWheelEmulator(BusEndpoint):
     def _send(self, msg: Any) -> None:
         frame_id, payload = self.codec.encode(msg)
         try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+            self.bus.send(data_frame(frame_id, payload))
         except can.CanError as exc:
             raise DriverError(f"{self.name}: cannot send on {self.bus.channel_info}: {exc}") from exc
         self.counters["sent"] += 1

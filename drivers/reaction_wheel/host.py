@@ -21,6 +21,7 @@ from typing import Any
 
 import can
 
+from drivers.can_bus import data_frame
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
 from drivers.reaction_wheel.codec import (
@@ -122,7 +123,7 @@ class ReactionWheelHost(BusEndpoint):
             raise DriverError(f"{self.name}: the reaction wheel driver is closed; open a new one.")
         frame_id, payload = self.codec.encode(msg)
         try:
-            self.bus.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+            self.bus.send(data_frame(frame_id, payload))
         except can.CanError as exc:
             raise DriverError(f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: "
                               f"{exc}") from exc

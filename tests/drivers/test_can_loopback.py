@@ -329,3 +329,16 @@ def test_python_can_discovers_the_interface_through_its_entry_point(tmp_path):
                          cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["drivers.can_loopback", "LoopbackBus", "ok"]
+
+
+def test_data_frame_is_the_message_the_constructor_makes_field_for_field():
+    """``drivers.can_bus.data_frame`` skips ``can.Message.__init__``: every slot python-can declares must still
+    come out as the constructor sets it (a new slot in a python-can release fails here, not in a run)."""
+    from drivers.can_bus import data_frame
+
+    for frame_id, payload in ((0x123, b"\x01\x02\x03"), (0x7FF, bytes(8)), (0, b"")):
+        fast = data_frame(frame_id, payload)
+        ref = can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False)
+        slots = [s for s in can.Message.__slots__ if s != "__weakref__"]
+        assert {s: getattr(fast, s) for s in slots} == {s: getattr(ref, s) for s in slots}
+        assert fast.equals(ref) and type(fast.data) is bytearray
