@@ -93,10 +93,37 @@ def _on_interface(sc, interface: str):
         for d in sc.devices))
 
 
+#: Rounds of the full chain (and of Basilisk, when given) in ``bench loop``: this machine's speed drifts by tens of
+#: percent from minute to minute, so one run says little; the rows give the median and the range.
+LOOP_ROUNDS = 3
+#: A Python with Basilisk (``pip install bsk``) to run the comparison case in the same sitting, round by round.
+BASILISK_PYTHON_ENV = "STAND_BASILISK_PYTHON"
+
+
+def _basilisk_round(python: str) -> float:
+    """One run of the Basilisk comparison case (``fixtures/reference/basilisk``) with ``python``: its speed."""
+    import subprocess
+
+    script = REFERENCE_JSON.parent / "detumble_basilisk.py"
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "bsk.json"
+        done = subprocess.run([python, str(script), "--json", str(out), "--runs", "1"], capture_output=True,
+                              text=True, timeout=600)
+        if done.returncode != 0:
+            raise RuntimeError(f"{BASILISK_PYTHON_ENV}={python}: the Basilisk script failed: "
+                               f"{done.stderr.strip().splitlines()[-1:] or done.returncode}")
+        return float(json.loads(out.read_text())["realtime_factor"])
+
+
 def bench_loop(quick: bool = False) -> list[dict]:
     """The default scenario afap: wall time against real time, with every measurement and command
     through the CAN codec on the scenario's bus (the stand's in-process ``stand_loopback``), again on
-    python-can's ``virtual`` bus (same bits, a deep copy per frame), and the same dynamics without devices."""
+    python-can's ``virtual`` bus (same bits, a deep copy per frame), and the same dynamics without devices.
+
+    The full chain runs ``LOOP_ROUNDS`` times; with ``STAND_BASILISK_PYTHON`` set to a Python that has Basilisk, the
+    Basilisk comparison case runs between them, so both are measured in the same sitting on the same load."""
+    import os
+
     from stand.scenario import DEFAULT_SCENARIO, load
 
     sc = load(DEFAULT_SCENARIO)
@@ -111,13 +138,32 @@ def bench_loop(quick: bool = False) -> list[dict]:
         if ref.get("realtime_factor"):
             anchor, note = float(ref["realtime_factor"]), f"Basilisk {ref.get('bsk_version', '')} measured here"
     rows = []
+    bsk_python = os.environ.get(BASILISK_PYTHON_ENV)
+    rounds = 1 if quick else LOOP_ROUNDS
     with tempfile.TemporaryDirectory() as tmp:
-        result, wall, tel = _timed_run(sc, Path(tmp) / "full", devices=True)
+        walls, bsk = [], []
+        for k in range(rounds):
+            result, wall, tel = _timed_run(sc, Path(tmp) / f"full{k}", devices=True)
+            walls.append(wall)
+            if bsk_python:
+                bsk.append(_basilisk_round(bsk_python))
+        wall = float(np.median(walls))
         n = result.ticks
         frames = _sent(result.counters)
+        factors = sorted(result.sim_duration_s / w for w in walls)
+        spread = f", {len(walls)} runs: {factors[0]:.0f} to {factors[-1]:.0f}x" if len(walls) > 1 else ""
+        if bsk:
+            anchor = float(np.median(bsk))
+            note = f"Basilisk measured between these runs: {min(bsk):.0f} to {max(bsk):.0f}x"
         rows.append({"name": "loop.full_chain.realtime_factor", "value": round(result.sim_duration_s / wall, 1),
                      "unit": "x", "anchor": f"{anchor:g} ({note}, no device I/O)",
-                     "note": f"{result.sim_duration_s:g} s simulated in {wall:.2f} s, {frames} CAN frames sent"})
+                     "note": f"{result.sim_duration_s:g} s simulated in {wall:.2f} s (median){spread}, "
+                             f"{frames} CAN frames sent"})
+        if bsk:
+            ratio = result.sim_duration_s / wall / anchor
+            rows.append({"name": "loop.full_chain.vs_basilisk", "value": round(ratio, 2), "unit": "x",
+                         "limit": ">= 1.3", "pass": ratio >= 1.3,
+                         "note": "median real-time factor over Basilisk's median, same sitting"})
         buses = sorted({d.interface for d in sc.devices if d.kind == "magnetorquer"})
         rows.append({"name": "loop.full_chain.per_tick", "value": round(wall / max(n, 1) * 1e6, 1), "unit": "us",
                      "note": "bus: " + ", ".join(buses)})
