@@ -16,6 +16,7 @@ from stand import devices, scenario, telemetry
 from stand.adcs import metrics
 from stand.compose import build
 from stand.devices import BuildContext
+from stand.devices.star_tracker import FLAG_BITS
 from stand.errors import ScenarioError
 from stand.loop import run
 from stand.report import write_summary
@@ -247,6 +248,56 @@ def test_pointing_star_tracker_points_within_its_budget(write_scenario, tmp_path
     assert metrics.value("pointing_error_arcsec_p95_after", 0.0, tel) > 1000.0
     for name in ("st", "imu", "rw0"):
         assert result.counters[name]["host_counters"]["rejected_crc" if name != "rw0" else "rejected_other"] == 0
+
+
+@pytest.mark.slow
+def test_acquisition_goes_through_every_mode_in_order_and_recovers_from_the_sun_blinding(tmp_path):
+    """The shipped ``acquisition`` scenario, whole (an orbit): detumble, sun acquisition, fine pointing, in that
+    order; the tracker blinded by the Sun at least once while pointing, the filter riding it on the gyro and the
+    tracker's solutions back after it; every criterion of the scenario met."""
+    from stand.report import evaluate
+
+    sc = scenario.load(SCENARIO_DIR / "acquisition.toml")
+    with build(sc) as scene:
+        result = run(scene, tmp_path / "acq")
+    assert result.status == "completed"
+    tel = telemetry.load(tmp_path / "acq")
+    t, mode = tel["t_s"], tel["adcs_mode"]
+    first = [float(t[np.argmax(mode == m)]) for m in (0.0, 1.0, 2.0)]
+    assert all(np.any(mode == m) for m in (0.0, 1.0, 2.0)) and first[0] < first[1] < first[2], first
+    assert mode[-1] == 2.0  # ends in fine pointing
+    fine = t >= first[2]
+    sun = (np.nan_to_num(tel["st.flags"]).astype(int) & FLAG_BITS["sun_in_field"]) > 0
+    blinded = fine & sun & (tel["st.valid"] == 0.0)
+    assert blinded.any(), "the Sun never blinded the tracker while pointing"
+    # The longest run of blinded rows, and the filter on the gyro through it.
+    edges = np.flatnonzero(np.diff(np.r_[0, blinded.astype(int), 0]))
+    starts, ends = edges[::2], edges[1::2]
+    k = int(np.argmax(ends - starts))
+    out_s, back_i = t[starts[k]], ends[k]
+    assert t[back_i - 1] - out_s >= 5.0, (out_s, t[back_i - 1])
+    assert np.all(tel["adcs_gyro_only"][starts[k] + 1:back_i] == 1.0)
+    after = slice(back_i, None)
+    assert np.any(tel["st.valid"][after] == 1.0) and np.any(tel["adcs_gyro_only"][after] == 0.0)
+    verdicts = evaluate(sc.criteria, tel, result, sc.devices)
+    assert all(v["pass"] for v in verdicts), [(v["name"], v["value"]) for v in verdicts if not v["pass"]]
+
+
+@pytest.mark.slow
+def test_pointing_with_the_image_tracker_points_within_its_criteria(tmp_path):
+    """The shipped ``pointing_star_tracker_image`` scenario, whole: every exposure rendered, noised and solved
+    over the tracker's protocol; its criteria met."""
+    from stand.report import evaluate
+
+    sc = scenario.load(SCENARIO_DIR / "pointing_star_tracker_image.toml")
+    with build(sc) as scene:
+        result = run(scene, tmp_path / "img")
+    assert result.status == "completed"
+    tel = telemetry.load(tmp_path / "img")
+    verdicts = evaluate(sc.criteria, tel, result, sc.devices)
+    assert verdicts and all(v["pass"] for v in verdicts), [(v["name"], v["value"]) for v in verdicts if not v["pass"]]
+    settled = tel["t_s"] >= 200.0
+    assert np.mean(tel["st.valid"][settled] == 1.0) >= 0.9  # the newest solution was a valid one
 
 
 # ------------------------------------------------------------------------------------------ metrics
