@@ -179,8 +179,6 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     watch_every = ticks_per(1.0, sc.step_s)
     status, error = "completed", None
     events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
-    for d in devs:
-        d.start(events)
     # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals once here, and
     # the dipoles travel as tuples of floats (no arrays, no float() per tick).
     wait = pacer.wait if pacer.factor is not None else None
@@ -196,13 +194,16 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     observe = observer.record if observer is not None else None
     poll_every = ticks_per(1.0 / POLL_S, sc.step_s)
     next_poll = 0.0
+    k = 0
+    wall0 = clock()
     # What exists now (the libraries, the scene) lives as long as the run: kept out of the collector, a full
     # collection no longer walks that whole heap every few thousand ticks (up to 60 ms each; unfrozen at the end).
     gc.freeze()
-    wall0 = clock()
-    pacer.begin()
-    k = 0
-    try:
+    try:  # from here on whatever ends the run (a device's start included) leaves a readable record
+        for d in devs:
+            d.start(events)
+        wall0 = clock()
+        pacer.begin()
         while True:
             t = truth.t_ns / 1e9
             if wait is not None:

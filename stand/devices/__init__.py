@@ -306,6 +306,33 @@ def frames_in(counters: dict) -> int:
     return counters["frames_received"] + sum(v for k, v in counters.items() if k.startswith("rejected"))
 
 
+class SerialDevice(Device):
+    """What the serial kinds (star tracker, gyro, sun sensor) share: a host driver, an emulator or both (by link), and
+    the emulated line between them (:func:`serial_line`), all released by :meth:`close`."""
+
+    host = None
+    emulator = None
+    _close_line = None  # releases the emulated serial line
+
+    def driver_counters(self) -> dict:
+        """The host's and the emulator's counters, for the summary (``host_counters``, ``emulator_counters``)."""
+        out = {}
+        if self.host is not None:
+            out["host_counters"] = dict(self.host.counters)
+        if self.emulator is not None:
+            out["emulator_counters"] = dict(self.emulator.counters)
+        return out
+
+    def close(self) -> None:
+        if self.host is not None:
+            self.host.close()
+        if self.emulator is not None:
+            self.emulator.close()
+        if self._close_line is not None:
+            self._close_line()
+            self._close_line = None
+
+
 def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SETTLE_TIMEOUT_S) -> None:
     """Wait (bounded) until ``host`` has taken in every datagram ``emulator`` sent on their in-process serial line
     (:func:`serial_line`).

@@ -29,6 +29,7 @@ from stand.devices import (
     Device,
     DeviceKind,
     DeviceSpec,
+    SerialDevice,
     check_serial_url,
     serial_line,
     settle_serial,
@@ -169,13 +170,12 @@ def _config(spec: GyroSpec):
                               latency_s=spec.latency_s, startup_time_s=spec.startup_time_s)
 
 
-class _GyroDevice(Device):
+class _GyroDevice(SerialDevice):
     def __init__(self, spec: GyroSpec, ctx: BuildContext):
         self.name, self.spec = spec.name, spec
         self.silent_after_s = SILENT_SAMPLES / spec.output_rate_hz
         self.emulator = None
         self.host = None
-        self._close_line = None  # releases the emulated serial line
 
     def columns(self):
         return [(f"{self.name}.omega_S", 3, "rad/s"), (f"{self.name}.valid", 1, "1")]
@@ -191,21 +191,7 @@ class _GyroDevice(Device):
         return self.host.counters["samples"]
 
     def summary(self):
-        out = {}
-        if self.host is not None:
-            out["host_counters"] = dict(self.host.counters)
-        if self.emulator is not None:
-            out["emulator_counters"] = dict(self.emulator.counters)
-        return out
-
-    def close(self):
-        if self.host is not None:
-            self.host.close()
-        if self.emulator is not None:
-            self.emulator.close()
-        if self._close_line is not None:
-            self._close_line()
-            self._close_line = None
+        return self.driver_counters()
 
 
 class EmulatedGyro(_GyroDevice):

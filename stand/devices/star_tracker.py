@@ -42,6 +42,7 @@ from stand.devices import (
     DeviceCost,
     DeviceKind,
     DeviceSpec,
+    SerialDevice,
     check_serial_url,
     frames_in,
     serial_line,
@@ -299,7 +300,7 @@ def _tracker_image(t, name: str) -> tuple[Any, dict]:
     return optics, {"read_noise_e": float(values["read_noise_e"]), "background_e": float(values["background_e"])}
 
 
-class TrackerDevice(Device):
+class TrackerDevice(SerialDevice):
     """What every link shares: scoring solutions against the truth, the telemetry columns and the summary."""
 
     def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
@@ -315,7 +316,6 @@ class TrackerDevice(Device):
         cfg = spec.emulator
         self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
         self.emulator = None
-        self._close_line = None  # releases the emulated serial line
         self._seen = 0
 
     def _new_solution(self):
@@ -367,10 +367,7 @@ class TrackerDevice(Device):
         out = {"solutions": self.solutions, "valid": self.valid,
                "availability": round(self.valid / self.solutions, 4) if self.solutions else 0.0,
                "flags_fired": dict(self.flags)}
-        if self.host is not None:
-            out["host_counters"] = dict(self.host.counters)
-        if self.emulator is not None:
-            out["emulator_counters"] = dict(self.emulator.counters)
+        out.update(self.driver_counters())
         if self.image is not None:
             out["image"] = self.image.summary()
         if len(err):
@@ -379,14 +376,6 @@ class TrackerDevice(Device):
                                                for p, q in (("median", 50), ("p95", 95), ("max", 100))}
         return out
 
-    def close(self) -> None:
-        if self.host is not None:
-            self.host.close()
-        if self.emulator is not None:
-            self.emulator.close()
-        if self._close_line is not None:
-            self._close_line()
-            self._close_line = None
 
 
 def _measure(spec: StarTrackerSpec, ctx: BuildContext, dev: TrackerDevice):

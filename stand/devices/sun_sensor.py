@@ -44,6 +44,7 @@ from stand.devices import (
     DeviceCost,
     DeviceKind,
     DeviceSpec,
+    SerialDevice,
     check_serial_url,
     serial_line,
     settle_serial,
@@ -198,7 +199,7 @@ def _config(spec: SunSensorSpec):
     return SunEmulatorConfig(kind=spec.type, output_period_s=1.0 / spec.rate_hz)
 
 
-class _SunSensorDevice(Device):
+class _SunSensorDevice(SerialDevice):
     def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
         self.name, self.spec = spec.name, spec
         self.silent_after_s = SILENT_SAMPLES / spec.rate_hz
@@ -206,7 +207,6 @@ class _SunSensorDevice(Device):
         self.emulator = None
         self.host = None
         self.sun: SunTruth | None = None
-        self._close_line = None  # releases the emulated serial line
 
     def columns(self) -> list[tuple[str, int, str]]:
         reading = (f"{self.name}.currents", self.spec.width, "A") if self.spec.type == "coarse" else \
@@ -234,20 +234,9 @@ class _SunSensorDevice(Device):
 
     def summary(self) -> dict:
         out = self.sun.counts() if self.sun is not None else {}
-        if self.host is not None:
-            out["host_counters"] = dict(self.host.counters)
-        if self.emulator is not None:
-            out["emulator_counters"] = dict(self.emulator.counters)
+        out.update(self.driver_counters())
         return out
 
-    def close(self) -> None:
-        if self.host is not None:
-            self.host.close()
-        if self.emulator is not None:
-            self.emulator.close()
-        if self._close_line is not None:
-            self._close_line()
-            self._close_line = None
 
 
 class EmulatedSunSensor(_SunSensorDevice):

@@ -5,7 +5,6 @@ disk ends a run "aborted" with what was written kept."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -16,12 +15,7 @@ import pytest
 
 from stand import telemetry
 from stand.cli import main
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def _env():
-    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+from tests.stand.processes import REPO, stand_env
 
 
 def _events(out: Path) -> list[dict]:
@@ -63,7 +57,7 @@ def test_scenarios_are_found_by_name_by_name_with_toml_and_by_path_even_beside_a
 
 
 def _start(args, tmp_path) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "stand.cli", *args], cwd=tmp_path, env=_env(),
+    return subprocess.Popen([sys.executable, "-m", "stand.cli", *args], cwd=tmp_path, env=stand_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 

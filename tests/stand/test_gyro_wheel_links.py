@@ -4,10 +4,8 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -15,16 +13,12 @@ import pytest
 
 from stand import telemetry
 from stand.cli import main
+from tests.stand.processes import run_stand_polling, stand_env
 
 from .conftest import to_toml
 
-REPO = Path(__file__).resolve().parents[2]
 #: One LSB of the gyro's RATE datagram: 2^-14 deg/s.
 RATE_LSB_RAD_S = np.radians(2.0 ** -14)
-
-
-def _env():
-    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
 
 
 def small_scenario(devices: list[dict], duration_s: float, controller: dict | None = None) -> dict:
@@ -52,24 +46,17 @@ def test_served_gyro_streams_the_true_rate_to_a_host_in_another_process(pty_pair
     out = tmp_path / "out"
     samples = []
     with GyroHost(peer_end, name="fc gyro") as host:
-        stand = subprocess.Popen([sys.executable, "-m", "stand.cli", "run", str(path), "--speed", "4", "--out",
-                                  str(out), "--no-progress"], env=_env(), cwd=tmp_path, stdout=subprocess.PIPE,
-                                 stderr=subprocess.STDOUT, text=True)
-        try:
-            deadline = time.monotonic() + 60
-            while stand.poll() is None and time.monotonic() < deadline:
-                s = host.take_rate()
-                if s is not None:
-                    samples.append(s)
-                time.sleep(0.01)
-            log, _ = stand.communicate(timeout=30)
-        finally:
-            if stand.poll() is None:
-                stand.kill()
-                stand.communicate()
+
+        def take():
+            s = host.take_rate()
+            if s is not None:
+                samples.append(s)
+
+        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"],
+                                      tmp_path, take)
         host.poll()
         counters = dict(host.counters)
-    assert stand.returncode == 0, log
+    assert code == 0, log
     emu = json.loads((out / "summary.json").read_text())["device_counters"]["imu"]["emulator_counters"]
     assert counters["samples"] == emu["sent"] >= 150 and counters["rejected_crc"] == counters["rejected_other"] == 0
     assert all(s.valid for s in samples) and len(samples) >= 40
@@ -98,7 +85,7 @@ with emu:
 
 def test_hardware_gyro_reads_an_emulator_in_another_process(pty_pair, tmp_path):
     stand_end, device_end = pty_pair
-    emu = subprocess.Popen([sys.executable, "-c", GYRO_EMULATOR, device_end, "8"], env=_env(), cwd=tmp_path,
+    emu = subprocess.Popen([sys.executable, "-c", GYRO_EMULATOR, device_end, "8"], env=stand_env(), cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert emu.stdout.readline().strip() == "ready"
     gyro = {"name": "imu", "kind": "gyro", "link": "hardware", "port": stand_end, "output_rate_hz": 10.0}
@@ -144,7 +131,7 @@ def _in_private_namespace(tmp_path: Path, peer: str, peer_args: str, stand_args:
         f"{sys.executable} {tmp_path / 'peer.py'} {peer_args} > {tmp_path / 'peer.log'} 2>&1 & peer=$!; "
         f"sleep 1; {sys.executable} -m stand.cli {' '.join(stand_args)}; rc=$?; wait $peer; exit $rc"
     )
-    proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=_env(), cwd=tmp_path, capture_output=True,
+    proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=stand_env(), cwd=tmp_path, capture_output=True,
                           text=True, timeout=300)
     log = (tmp_path / "peer.log").read_text() if (tmp_path / "peer.log").exists() else ""
     assert proc.returncode == 0, proc.stdout + proc.stderr + log

@@ -5,7 +5,6 @@ python-can's udp_multicast only inside a private network namespace (``unshare --
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -16,16 +15,12 @@ import pytest
 
 from stand import telemetry
 from stand.cli import main
+from tests.stand.processes import REPO, stand_env
 
-REPO = Path(__file__).resolve().parents[2]
 EXTERNAL = REPO / "examples" / "external_bdot.py"
 #: The in-process default run's |omega| (deg/s): what the external flight program must reproduce within 10 %.
 CHECKPOINTS_S = (600, 1800, 3600)
 SPEED = 20  # the external runs' pacing: 3600 s of sim time in 3 minutes of wall time
-
-
-def _env():
-    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
 
 
 def _rates_at(run_dir) -> dict[int, float]:
@@ -52,7 +47,8 @@ def test_external_bdot_closes_the_detumble_through_a_served_board_on_a_serial_li
         pty_pair, tmp_path, in_process_rates):
     stand_end, fc_end = pty_pair
     fc = subprocess.Popen([sys.executable, str(EXTERNAL), "--interface", "serial", "--channel", fc_end,
-                           "--idle-s", "10"], env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                           "--idle-s", "10"], env=stand_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          text=True)
     out = tmp_path / "ext"
     try:
         code = main(["run", "detumble_external", "--set", f"devices.mtq.channel={stand_end}", "--speed", str(SPEED),
@@ -90,7 +86,7 @@ def test_external_bdot_closes_the_detumble_over_can_udp_multicast_in_a_private_n
         f"--set devices.mtq.channel={group} --speed {SPEED} --duration 3600 --out {out} --no-progress; "
         "rc=$?; sleep 1; exit $rc"
     )
-    proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=_env(), cwd=tmp_path, capture_output=True,
+    proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=stand_env(), cwd=tmp_path, capture_output=True,
                           text=True, timeout=600)
     fc_log = (tmp_path / "fc.log").read_text() if (tmp_path / "fc.log").exists() else ""
     assert proc.returncode in (0, 1), proc.stderr + fc_log
@@ -100,7 +96,7 @@ def test_external_bdot_closes_the_detumble_over_can_udp_multicast_in_a_private_n
 def test_hardware_tracker_served_by_stand_emulate_in_another_process(pty_pair, tmp_path):
     stand_end, device_end = pty_pair
     emu = subprocess.Popen([sys.executable, "-m", "stand.cli", "emulate", "star-tracker", "--port", device_end,
-                            "--duration", "60", "--boot-time-s", "0.5"], env=_env(), cwd=tmp_path,
+                            "--duration", "60", "--boot-time-s", "0.5"], env=stand_env(), cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert "star tracker at address" in emu.stdout.readline()
     out = tmp_path / "hw"
@@ -207,7 +203,7 @@ def test_a_plugin_reads_tracker_sun_sensor_and_board_and_records_its_own_columns
 
 
 def _run_cli(args, cwd) -> tuple[int, str]:
-    proc = subprocess.run([sys.executable, "-m", "stand.cli", *args], cwd=cwd, env=_env(), capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "stand.cli", *args], cwd=cwd, env=stand_env(), capture_output=True,
                           text=True, timeout=300)
     return proc.returncode, proc.stderr
 

@@ -5,10 +5,8 @@ stand's host reading an emulator in another process)."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -18,10 +16,10 @@ from stand import scenario, telemetry
 from stand.cli import main
 from stand.compose import build
 from stand.loop import run
+from tests.stand.processes import run_stand_polling, stand_env
 
 from .conftest import to_toml
 
-REPO = Path(__file__).resolve().parents[2]
 #: One LSB of the wire: 0.1 uA per head current, 1 urad per angle.
 CURRENT_LSB_A = 1e-7
 ANGLE_LSB_RAD = 1e-6
@@ -85,10 +83,6 @@ def _run(tmp_path: Path, name: str, data: dict):
     return telemetry.load(tmp_path / name), result.counters, controller
 
 
-def _env():
-    return {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-
-
 def test_emulated_is_the_default_link_and_the_model_link_stays():
     from stand.devices import get
 
@@ -149,29 +143,22 @@ def test_served_link_streams_to_a_host_in_another_process(pty_pair, tmp_path):
     path = tmp_path / "served.toml"
     path.write_text(to_toml(sun_scenario([served], duration_s=20.0)))
     out = tmp_path / "out"
+    samples, answered = [], []
     with SunSensorHost(peer_end, name="fc sun sensor") as host:
-        stand = subprocess.Popen([sys.executable, "-m", "stand.cli", "run", str(path), "--speed", "4", "--out",
-                                  str(out), "--no-progress"], env=_env(), cwd=tmp_path, stdout=subprocess.PIPE,
-                                 stderr=subprocess.STDOUT, text=True)
-        samples, answered = [], None
-        try:
-            deadline = time.monotonic() + 60
-            while stand.poll() is None and time.monotonic() < deadline:
-                s = host.take_sun()
-                if s is not None:
-                    samples.append(s)
-                if answered is None and len(samples) >= 10:
-                    answered = host.request_sun(timeout_s=5.0)
-                    samples.append(answered)
-                time.sleep(0.01)
-            log, _ = stand.communicate(timeout=30)
-        finally:
-            if stand.poll() is None:
-                stand.kill()
-                stand.communicate()
+
+        def take():
+            s = host.take_sun()
+            if s is not None:
+                samples.append(s)
+            if not answered and len(samples) >= 10:
+                answered.append(host.request_sun(timeout_s=5.0))
+                samples.append(answered[0])
+
+        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"],
+                                      tmp_path, take)
         host.poll()
         counters = dict(host.counters)
-    assert stand.returncode == 0, log
+    assert code == 0, log
     summary = json.loads((out / "summary.json").read_text())
     emu = summary["device_counters"]["css"]["emulator_counters"]
     assert emu["requests"] == 1 and counters["rejected_crc"] == counters["rejected_other"] == 0
@@ -181,7 +168,7 @@ def test_served_link_streams_to_a_host_in_another_process(pty_pair, tmp_path):
     assert all(type(s).__name__ == "CoarseSunSample" and s.valid for s in samples)
     # Samples are measured on the ticks (the streamed ones on the 0.2 s grid, the requested one at its tick);
     # each one carries the currents the stand recorded at that tick.
-    streamed = [s for s in samples if s is not answered]
+    streamed = [s for s in samples if not any(s is a for a in answered)]
     assert all(s.time_us % 100_000 == 0 for s in samples)
     assert sum(s.time_us % 200_000 != 0 for s in streamed) <= 1
     tel = telemetry.load(out)
@@ -205,7 +192,7 @@ with emu:
 
 def test_hardware_link_reads_an_emulator_in_another_process(pty_pair, tmp_path):
     stand_end, device_end = pty_pair
-    emu = subprocess.Popen([sys.executable, "-c", EMULATOR, device_end, "8"], env=_env(), cwd=tmp_path,
+    emu = subprocess.Popen([sys.executable, "-c", EMULATOR, device_end, "8"], env=stand_env(), cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert emu.stdout.readline().strip() == "ready"
     hardware = {"name": "fss", "kind": "sun_sensor", "type": "fine", "link": "hardware", "port": stand_end,
