@@ -22,8 +22,7 @@ from star_screen.collimated import matched_gain, screen_to_detector
 from star_screen.geometry import default_bench
 from star_screen.render import Renderer
 from star_screen.tracking.extract import extract_stars
-
-from .test_links import _env
+from tests.stand.processes import stand_env
 
 EPOCH = Epoch.from_iso("2026-03-20T12:00:00Z")
 ARCSEC = math.pi / 180 / 3600
@@ -151,7 +150,7 @@ def _loop(tmp_path, stand_end, tracker_end, pre_distortion: str) -> tuple[int, d
         [sys.executable, "-m", "stand.cli", "emulate", "star-tracker", "--source", "screen", "--port", tracker_end,
          "--screen-bind", "127.0.0.1:0", "--interval-s", "0.5", "--collimator-k1", "0.05",
          "--collimator-shift-px", "2,-1.5", "--pre-distortion", pre_distortion, "--duration", "120"],
-        env=_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        env=stand_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         ready = emu.stdout.readline()
         found = re.search(r"display node on 127\.0\.0\.1:(\d+) UDP", ready)
@@ -227,7 +226,7 @@ def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_whe
     path.write_text(to_toml(data))
     # The tracker here is the open-loop emulator (it does not look at the window): this is the screen's side.
     emu = subprocess.Popen([sys.executable, "-m", "stand.cli", "emulate", "star-tracker", "--port", tracker_end,
-                            "--duration", "60", "--boot-time-s", "0.5"], env=_env(), cwd=tmp_path,
+                            "--duration", "60", "--boot-time-s", "0.5"], env=stand_env(), cwd=tmp_path,
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     out = tmp_path / "run"
     try:
