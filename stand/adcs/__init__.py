@@ -143,10 +143,26 @@ def _import_installed(module_name: str, spec: str):
         sys.path[:] = saved
 
 
+#: Top-level plug-in modules imported from a scenario's folder, and the folder each came from.
+_PLUGIN_FOLDERS: dict[str, Path] = {}
+
+
 def _import_from(folder: Path, module_name: str, spec: str):
+    top = module_name.split(".")[0]
+    if top in sys.modules:
+        if _PLUGIN_FOLDERS.get(top) not in (None, folder):
+            # The same name from another scenario's folder, earlier in this process: this folder's module is meant.
+            for name in [n for n in sys.modules if n == top or n.startswith(top + ".")]:
+                del sys.modules[name]
+        elif top not in _PLUGIN_FOLDERS:
+            where = getattr(sys.modules[top], "__file__", None) or "built in"
+            raise PluginError(f"controller.module = {spec!r} is not allowed: {top!r} is already imported from {where}; "
+                              f"give the plug-in's module a name of its own.")
     sys.path.insert(0, str(folder))
     try:
-        return importlib.import_module(module_name)
+        module = importlib.import_module(module_name)
+        _PLUGIN_FOLDERS[top] = folder
+        return module
     except Exception as exc:
         raise PluginError(f"controller.module = {spec!r}: {module_name!r} cannot be imported from {folder} "
                           f"({type(exc).__name__}: {exc}).") from None

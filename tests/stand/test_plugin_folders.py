@@ -1,0 +1,29 @@
+"""Plug-ins loaded from a scenario's folder: the same module name in two folders gives each scenario its own."""
+
+from __future__ import annotations
+
+import pytest
+
+from stand.adcs import PluginError, load_plugin
+
+PLUGIN = """
+class Flight:
+    SOURCE = {source!r}
+"""
+
+
+def test_the_same_module_name_in_two_folders_loads_each_folders_own(tmp_path):
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "fsw_same_name.py").write_text(PLUGIN.format(source=name))
+    first = load_plugin("fsw_same_name:Flight", "a", base=tmp_path)
+    second = load_plugin("fsw_same_name:Flight", "b", base=tmp_path)
+    again = load_plugin("fsw_same_name:Flight", "b", base=tmp_path)
+    assert (first.SOURCE, second.SOURCE) == ("a", "b")
+    assert again is second  # the same folder again: the module already imported
+
+
+def test_a_plug_in_named_like_a_module_already_imported_is_refused_in_one_sentence(tmp_path):
+    (tmp_path / "json.py").write_text(PLUGIN.format(source="mine"))
+    with pytest.raises(PluginError, match="'json' is already imported from .*give the plug-in's module a name of its"):
+        load_plugin("json:Flight", ".", base=tmp_path)
