@@ -33,7 +33,7 @@ import numpy as np
 
 from sim.rotations import canonical, compose, conjugate
 
-from .quat import cross, dcm1, error
+from .quat import cross, dcm1, error, finite3
 
 __all__ = ["WheelDistribution", "attitude_error", "control_torque", "dumping_dipole", "mrp", "pd_gains"]
 
@@ -45,10 +45,7 @@ class ControlError(ValueError):
 
 
 def _vec(v, name: str) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise ControlError(f"{name} = {np.asarray(v).tolist()} must be 3 finite numbers.")
-    return a
+    return finite3(v, name, ControlError)
 
 
 def check_gain(g, name: str) -> np.ndarray:

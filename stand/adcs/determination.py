@@ -29,7 +29,7 @@ import numpy as np
 
 from sim.rotations import canonical, compose, quat_from_dcm
 
-from .quat import conj, dcm1, positive, qmul
+from .quat import conj, dcm1, finite3, positive, qmul
 
 __all__ = ["MEKF", "FilterError", "quest", "triad"]
 
@@ -293,10 +293,7 @@ _H_ATTITUDE = np.hstack((np.eye(3), np.zeros((3, 3))))
 
 
 def _finite3(v, name: str) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise FilterError(f"{name} = {np.asarray(v).tolist()} must be 3 finite numbers.")
-    return a
+    return finite3(v, name, FilterError)
 
 
 def _normalise(q) -> np.ndarray:

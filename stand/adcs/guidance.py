@@ -27,7 +27,7 @@ import numpy as np
 from sim.frames import dcm_lvlh_gcrs
 from sim.rotations import canonical, quat_from_dcm
 
-from .quat import cross
+from .quat import cross, finite3
 
 __all__ = ["inertial", "nadir", "pointing_frame", "sun_pointing", "target_pointing"]
 
@@ -40,10 +40,7 @@ class GuidanceError(ValueError):
 
 
 def _vec(v, name: str) -> np.ndarray:
-    a = np.asarray(v, dtype=float)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise GuidanceError(f"{name} = {np.asarray(v).tolist()} must be 3 finite numbers.")
-    return a
+    return finite3(v, name, GuidanceError)
 
 
 def _unit(v, name: str) -> np.ndarray:

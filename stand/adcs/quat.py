@@ -1,5 +1,6 @@
 """Quaternion products and matrices for one quaternion at a time, without the per-call checks of
-:mod:`sim.rotations` (whose broadcasting and validation cost ~20 us per call, more than the arithmetic).
+:mod:`sim.rotations` (whose broadcasting and validation cost ~20 us per call, more than the arithmetic), and the
+one check the ADCS modules make of a 3-vector input (:func:`finite3`).
 
 Same conventions (scalar-first Hamilton, ``v_B = dcm(q_BN) @ v_N``); callers pass unit quaternions they
 have already validated or normalised themselves.
@@ -10,6 +11,15 @@ from __future__ import annotations
 import numpy as np
 
 from sim.rotations import hamilton_floats
+
+
+def finite3(v, name: str, error: type[ValueError]) -> np.ndarray:
+    """``v`` as a (3,) float array; ``error`` (the calling module's own) naming ``name`` unless it is 3 finite
+    numbers."""
+    a = np.asarray(v, dtype=float)
+    if a.shape != (3,) or not np.all(np.isfinite(a)):
+        raise error(f"{name} = {np.asarray(v).tolist()} must be 3 finite numbers.")
+    return a
 
 
 def qmul(p, q) -> np.ndarray:

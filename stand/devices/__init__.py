@@ -285,6 +285,16 @@ def check_serial_url(t: Table, key: str, value: str) -> str:
     raise t.error(key, value, "a device path (/dev/ttyUSB0), a pty, loop://, or socket://127.0.0.1:PORT")
 
 
+def can_endpoint(t: Table, base: DeviceSpec) -> tuple[str, str]:
+    """A CAN device's ``interface`` and ``channel``, checked: an emulated device defaults to the in-process
+    ``stand_loopback`` bus on a channel of its own, a hardware or served one to ``socketcan`` on ``can0``."""
+    emulated = base.link == "emulated"
+    interface = t.text("interface", "stand_loopback" if emulated else "socketcan")
+    channel = t.text("channel", f"stand-{base.name}" if emulated else "can0")
+    check_can(t, base.link, interface, channel)
+    return interface, channel
+
+
 def check_can(t: Table, link: str, interface: str, channel: str) -> None:
     allowed = CAN_INTERFACES[link]
     if interface not in allowed:
@@ -313,6 +323,18 @@ class SerialDevice(Device):
     host = None
     emulator = None
     _close_line = None  # releases the emulated serial line
+
+    def open_emulated(self, port: str, make_emulator, make_host) -> None:
+        """The emulated link: an in-process serial line of kind ``port`` (:func:`serial_line`) with
+        ``make_emulator(emulator_end)`` and ``make_host(host_end)`` on its two ends; on any failure everything
+        opened so far is released before the error goes on."""
+        emulator_end, host_end, self._close_line = serial_line(port, self.name)
+        try:
+            self.emulator = make_emulator(emulator_end)
+            self.host = make_host(host_end)
+        except BaseException:
+            self.close()
+            raise
 
     def driver_counters(self) -> dict:
         """The host's and the emulator's counters, for the summary (``host_counters``, ``emulator_counters``)."""

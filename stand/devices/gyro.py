@@ -31,7 +31,6 @@ from stand.devices import (
     DeviceSpec,
     SerialDevice,
     check_serial_url,
-    serial_line,
     settle_serial,
 )
 
@@ -203,13 +202,9 @@ class EmulatedGyro(_GyroDevice):
 
         super().__init__(spec, ctx)
         self._push, source = rate_source(spec, ctx)
-        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
-        try:
-            self.emulator = GyroEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
-            self.host = GyroHost(host_port, name=spec.name)
-        except BaseException:
-            self.close()
-            raise
+        self.open_emulated(spec.port,
+                           lambda end: GyroEmulator(end, source, _config(spec), name=f"{spec.name} emulator"),
+                           lambda end: GyroHost(end, name=spec.name))
 
     def publish(self, t_s: float) -> None:
         if self._push is not None:

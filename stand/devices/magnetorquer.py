@@ -20,7 +20,7 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, check_can
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 
 NAN3 = (math.nan, math.nan, math.nan)
 #: python-can's serial-line interfaces ignore recv()'s timeout and block for the port's own: keep it short, so a
@@ -75,9 +75,7 @@ class MagnetorquerKind(DeviceKind):
 
         codec = _codec()
         dipole_max = codec.dipole_range_A_m2[1]  # what MTQ_DIPOLE_CMD can carry
-        interface = t.text("interface", "stand_loopback" if base.link == "emulated" else "socketcan")
-        channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
-        check_can(t, base.link, interface, channel)
+        interface, channel = can_endpoint(t, base)
         max_dipole = t.number("max_dipole_A_m2", 0.2, lo=0.0, lo_open=True, hi=dipole_max)
         spec = MagnetorquerSpec(
             **base.__dict__,

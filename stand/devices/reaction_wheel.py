@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.rotations import dcm
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_can
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -60,9 +60,7 @@ class ReactionWheelKind(DeviceKind):
         from stand.scenario import rate
 
         codec = ReactionWheelCodec(0)
-        interface = t.text("interface", "stand_loopback" if base.link == "emulated" else "socketcan")
-        channel = t.text("channel", f"stand-{base.name}" if base.link == "emulated" else "can0")
-        check_can(t, base.link, interface, channel)
+        interface, channel = can_endpoint(t, base)
         if t.has("spin_axis_B") and t.has("q_SB"):
             raise t.error("spin_axis_B", t.raw("spin_axis_B"), "either spin_axis_B or q_SB (whose z axis is the "
                           "spin axis), not both")

@@ -45,7 +45,6 @@ from stand.devices import (
     SerialDevice,
     check_serial_url,
     frames_in,
-    serial_line,
 )
 
 ARCSEC = math.pi / 180.0 / 3600.0
@@ -414,11 +413,11 @@ class EmulatedTracker(TrackerDevice):
 
         super().__init__(spec, ctx)
         measure = _measure(spec, ctx, self)
-        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
-        self.emulator = StarTrackerEmulator(emulator_port, measure, _config(spec), ctx.rng,
-                                            name=f"{spec.name} emulator")
+        self.open_emulated(spec.port,
+                           lambda end: StarTrackerEmulator(end, measure, _config(spec), ctx.rng,
+                                                           name=f"{spec.name} emulator"),
+                           lambda end: StarTrackerHost(end, spec.address, name=spec.name))
         try:
-            self.host = StarTrackerHost(host_port, spec.address, name=spec.name)
             # Not the blocking subscribe(): nothing services the emulator while the host would wait.
             self.host.send_command(Subscribe(self.host.codec.solution_id, 0.0))
         except BaseException:

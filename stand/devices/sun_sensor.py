@@ -46,7 +46,6 @@ from stand.devices import (
     DeviceSpec,
     SerialDevice,
     check_serial_url,
-    serial_line,
     settle_serial,
 )
 
@@ -252,13 +251,9 @@ class EmulatedSunSensor(_SunSensorDevice):
         # to it in the loop (the flight code streams; a blocking request would wait for the next sample tick).
         self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)
         source = self._source(ctx)
-        emulator_port, host_port, self._close_line = serial_line(spec.port, spec.name)
-        try:
-            self.emulator = SunSensorEmulator(emulator_port, source, _config(spec), name=f"{spec.name} emulator")
-            self.host = SunSensorHost(host_port, name=spec.name)
-        except BaseException:
-            self.close()
-            raise
+        self.open_emulated(spec.port,
+                           lambda end: SunSensorEmulator(end, source, _config(spec), name=f"{spec.name} emulator"),
+                           lambda end: SunSensorHost(end, name=spec.name))
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
