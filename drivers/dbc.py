@@ -17,6 +17,10 @@ per 8-byte frame, on the stand's per-tick path). The generated encoder only take
 out-of-range values) goes to the descriptor loop :meth:`DbcCodec._encode_general`, which is the
 reference and raises the errors.
 
+Device codecs that run every tick take :meth:`DbcCodec.packer`: the same fast path on positional values in the
+codec's own order (no dict per frame), run by the compiled ``drivers._bitpack`` when the install built it
+(drivers/_bitpack.c, the same results to the bit) and by the generated Python otherwise.
+
 Conventions (the same as cantools with ``decode_choices=False``, ``scaling=True``):
 
 - physical value = raw * scale + offset; raw = round((physical - offset) / scale), rounding half
@@ -33,6 +37,7 @@ Conventions (the same as cantools with ``decode_choices=False``, ``scaling=True`
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -149,54 +154,129 @@ def _raw_range_implied(sig: _Signal) -> bool:
 _EXACT_QUOTIENT = 1 << 53
 
 
-def _compile_message(entry: _Message) -> tuple[Any, Any]:
+def _signal_code(i: int, sig: _Signal) -> tuple[list[str], str, list[str], str]:
+    """The straight-line code of one signal: (encoder lines for value ``v{i}``, its packed field, decoder lines,
+    its physical value). The arithmetic is exactly that of :meth:`DbcCodec._encode_general` and of cantools (the
+    same operations in the same order on the same constants, written as literals)."""
+    v, r = f"v{i}", f"r{i}"
+    # Plain numbers within [min|max] only (this also refuses NaN); the loop handles the rest.
+    enc = [f"    t = type({v})",
+           f"    if t is not float and t is not int and t is not bool or not {sig.lo!r} <= {v} <= {sig.hi!r}:",
+           "        return None"]
+    if sig.kind == _IDENTITY:  # round() of an int or a bool is the same number
+        enc.append(f"    {r} = {v} if t is not float else round({v})")
+    elif sig.kind == _LINEAR or sig.mask < _EXACT_QUOTIENT:
+        # For an integer scale, cantools divides only when the value is not an exact multiple;
+        # an exact multiple below 2**53 divides exactly anyway, so one division is the same.
+        shifted = v if sig.offset == 0 and type(sig.offset) is int else f"({v} - {sig.offset!r})"
+        enc.append(f"    {r} = round({shifted} / {sig.scale!r})")
+    else:  # cantools' integer-scale path: avoid a division when the value is exact
+        enc += [f"    {r} = {v} - {sig.offset!r}",
+                f"    q, m = divmod({r}, {sig.scale!r})",
+                f"    {r} = round(q if m == 0 else {r} / {sig.scale!r})"]
+    if not _raw_range_implied(sig):
+        enc += [f"    if not {sig.raw_lo} <= {r} <= {sig.raw_hi}:", "        return None"]
+    dec = [f"    {r} = (word >> {sig.start}) & {sig.mask:#x}"]
+    if sig.sign_bit:
+        dec.append(f"    {r} = ({r} ^ {sig.sign_bit:#x}) - {sig.sign_bit:#x}")
+    value = r if sig.kind == _IDENTITY else f"{r} * {sig.scale!r} + {sig.offset!r}"
+    return enc, f"({r} & {sig.mask:#x}) << {sig.start}", dec, value
+
+
+def _compile_message(entry: _Message, order: tuple[str, ...] | None = None) -> tuple[Any, Any]:
     """Generate the straight-line encoder and decoder of one fast-path message.
 
-    The arithmetic is exactly that of :meth:`DbcCodec._encode_general` and of cantools (the same
-    operations in the same order on the same constants, written as literals), so the bytes and
-    values are bit-identical; only the loop and the attribute look-ups are gone.
+    Without ``order``: ``encode(values)`` takes a dict and ``decode(data)`` returns one. With ``order`` (a
+    permutation of the signal names): ``encode(*values)`` takes the values positionally in that order and
+    ``decode(data)`` returns a tuple in that order (no dict on the per-tick path). Either way the bytes and values
+    are those of cantools, bit for bit; only the loop and the look-ups are gone.
     """
-    enc = [
-        "def encode(values):",
-        f"    if len(values) != {len(entry.signals)}:",
-        "        return None",
-        "    try:",
-        *(f"        v{i} = values[{sig.name!r}]" for i, sig in enumerate(entry.signals)),
-        "    except KeyError:",
-        "        return None",
-    ]
+    by_name = {sig.name: (i, sig) for i, sig in enumerate(entry.signals)}
+    signals = [by_name[n] for n in order] if order is not None else list(by_name.values())
+    if order is None:
+        enc = ["def encode(values):",
+               f"    if len(values) != {len(entry.signals)}:",
+               "        return None",
+               "    try:",
+               *(f"        v{i} = values[{sig.name!r}]" for i, sig in signals),
+               "    except KeyError:",
+               "        return None"]
+    else:
+        enc = [f"def encode({', '.join(f'v{i}' for i, _ in signals)}):"]
     dec = ["def decode(data):", "    word = int.from_bytes(data, 'little')"]
     fields, out = [], []
-    for i, sig in enumerate(entry.signals):
-        v, r = f"v{i}", f"r{i}"
-        # Plain numbers within [min|max] only (this also refuses NaN); the loop handles the rest.
-        enc += [f"    t = type({v})",
-                f"    if t is not float and t is not int and t is not bool or not {sig.lo!r} <= {v} <= {sig.hi!r}:",
-                "        return None"]
-        if sig.kind == _IDENTITY:  # round() of an int or a bool is the same number
-            enc.append(f"    {r} = {v} if t is not float else round({v})")
-        elif sig.kind == _LINEAR or sig.mask < _EXACT_QUOTIENT:
-            # For an integer scale, cantools divides only when the value is not an exact multiple;
-            # an exact multiple below 2**53 divides exactly anyway, so one division is the same.
-            shifted = v if sig.offset == 0 and type(sig.offset) is int else f"({v} - {sig.offset!r})"
-            enc.append(f"    {r} = round({shifted} / {sig.scale!r})")
-        else:  # cantools' integer-scale path: avoid a division when the value is exact
-            enc += [f"    {r} = {v} - {sig.offset!r}",
-                    f"    q, m = divmod({r}, {sig.scale!r})",
-                    f"    {r} = round(q if m == 0 else {r} / {sig.scale!r})"]
-        if not _raw_range_implied(sig):
-            enc += [f"    if not {sig.raw_lo} <= {r} <= {sig.raw_hi}:", "        return None"]
-        fields.append(f"({r} & {sig.mask:#x}) << {sig.start}")
-        dec.append(f"    {r} = (word >> {sig.start}) & {sig.mask:#x}")
-        if sig.sign_bit:
-            dec.append(f"    {r} = ({r} ^ {sig.sign_bit:#x}) - {sig.sign_bit:#x}")
-        value = r if sig.kind == _IDENTITY else f"{r} * {sig.scale!r} + {sig.offset!r}"
-        out.append(f"{sig.name!r}: {value}")
+    for i, sig in signals:
+        e, f, d, value = _signal_code(i, sig)
+        enc += e
+        dec += d
+        fields.append(f)
+        out.append(value if order is not None else f"{sig.name!r}: {value}")
     enc.append(f"    return ({' | '.join(fields) or '0'}).to_bytes({entry.length}, 'little')")
-    dec.append(f"    return {{{', '.join(out)}}}")
+    dec.append(f"    return ({', '.join(out)},)" if order is not None else f"    return {{{', '.join(out)}}}")
     namespace: dict[str, Any] = {}
     exec(compile("\n".join(enc + [""] + dec), f"<dbc {entry.name}>", "exec"), namespace)  # noqa: S102
     return namespace["encode"], namespace["decode"]
+
+
+def _packer_type() -> Any:
+    """``drivers._bitpack.Packer`` when the build made it and ``STAND_NATIVE`` is not ``0``; else None."""
+    if os.environ.get("STAND_NATIVE", "1") == "0":
+        return None
+    try:
+        from drivers._bitpack import Packer
+    except ImportError:  # built without a C compiler: the generated Python, the same to the bit
+        return None
+    return Packer
+
+
+_Packer = _packer_type()
+#: Which implementation packs the fast-path messages: "compiled" (drivers/_bitpack.c) or "python".
+NATIVE = "python" if _Packer is None else "compiled"
+
+
+def _compiled_packer(entry: _Message, order: tuple[str, ...]) -> Any:
+    """The C build of the positional fast path for ``entry``, or None without it or for a signal beyond what it
+    covers (more than 52 bits, a frame over 8 bytes)."""
+    if _Packer is None or entry.length > 8:
+        return None
+    by_name = {sig.name: sig for sig in entry.signals}
+    rows = []
+    for name in order:
+        sig = by_name[name]
+        bits = sig.mask.bit_length()
+        if bits > 52 or not all(_is_literal(x) for x in (sig.scale, sig.offset, sig.lo, sig.hi)):
+            return None
+        rows.append((sig.start, bits, bool(sig.sign_bit), sig.kind, sig.scale, sig.offset, sig.lo, sig.hi,
+                     sig.raw_lo, sig.raw_hi))
+    try:
+        return _Packer(entry.length, rows)
+    except ValueError:  # an integer scale too large for its 64-bit arithmetic: the Python path
+        return None
+
+
+class MessagePacker:
+    """One message's per-tick codec on positional values, for device codecs that run every tick.
+
+    ``pack(*values)`` (physical values in DBC units, in ``order``) is the payload, or None where
+    :meth:`DbcCodec.encode` must decide (anything but plain numbers within range; it raises the error naming the
+    field); ``unpack(payload)`` of exactly ``length`` bytes is the tuple of physical values in ``order``.
+    ``compiled`` says whether the C build (``drivers._bitpack``) or the generated Python runs; they agree to the
+    bit. A message outside the fast path (big-endian, multiplexed, float signals) goes through cantools.
+    """
+
+    __slots__ = ("name", "frame_id", "length", "order", "pack", "unpack", "compiled")
+
+    def __init__(self, codec: DbcCodec, entry: _Message, order: tuple[str, ...]) -> None:
+        self.name, self.frame_id, self.length, self.order = entry.name, entry.frame_id, entry.length, order
+        native = _compiled_packer(entry, order) if entry.fast else None
+        self.compiled = native is not None
+        if native is not None:
+            self.pack, self.unpack = native.pack, native.unpack
+        elif entry.fast:
+            self.pack, self.unpack = _compile_message(entry, order)
+        else:
+            self.pack = lambda *values: None  # noqa: E731 - DbcCodec.encode takes every case
+            self.unpack = lambda data: tuple(codec.decode(entry.frame_id, data)[1][n] for n in order)  # noqa: E731
 
 
 class DbcCodec:
@@ -282,15 +362,13 @@ class DbcCodec:
 
     # -- encode ---------------------------------------------------------------------------------
 
-    def fast_paths(self) -> tuple[dict, dict]:
-        """For codecs that wrap this one in a per-tick path: ``(encoders, decoders)``.
-
-        ``encoders[name](values)`` is the payload, or None where :meth:`encode` must decide (anything but plain
-        numbers within range; it raises the error); ``decoders[frame_id]`` is ``(name, length, decode)``, whose
-        ``decode(data)`` takes a payload of exactly ``length`` bytes (anything else goes to :meth:`decode`).
-        Messages the straight-line code does not cover map to None in both."""
-        return ({e.name: e.encode_fast if e.fast else None for e in self._by_name.values()},
-                {e.frame_id: (e.name, e.length, e.decode_fast) if e.fast else None for e in self._by_name.values()})
+    def packer(self, name: str, order: tuple[str, ...]) -> MessagePacker:
+        """Message ``name``'s per-tick codec on positional values in ``order`` (every signal of the message, each
+        once): see :class:`MessagePacker`."""
+        entry = self._message(name)
+        if sorted(order) != sorted(s.name for s in entry.cantools_message.signals):
+            raise ValueError(f"{name}: order {order!r} must name each of {', '.join(self.signal_names(name))} once.")
+        return MessagePacker(self, entry, tuple(order))
 
     def encode(self, name: str, values: Mapping[str, Any]) -> tuple[int, bytes]:
         """Encode ``values`` (physical, DBC units) as message ``name``: returns (frame id, payload).

@@ -26,6 +26,7 @@ did not list. Time is integer nanoseconds; a run is bit-for-bit repeatable.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 
 import numpy as np
@@ -343,7 +344,10 @@ class TruthModel:
             p += track.position(base + 1)
             f += track.field(base + 2)
             p += track.position(base + 2)
-        q, w = rk4_magnetic_gg(self.q, self.w, self.h, self._I, self.body._Ii, dipole_B, f, p)
+        new = _rk4_magnetic_gg(self.q, self.w, self.h, self._I, self.body._Ii, dipole_B, f, p, MU_EARTH)
+        if new is None:
+            raise non_finite_state(self.h, self.h)
+        q, w = new
         if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
             check_step(self.body.inertia, w, self.h, "dynamics.step_s", self._max_angle, self.integrator)
         self.q, self.w = q, w
@@ -373,13 +377,16 @@ class TruthModel:
         self.t_ns += self.step_ns
 
 
-def rk4_magnetic_gg(q, w, h, I, Ii, dipole_B, fields_N, positions_N):
+def rk4_magnetic_gg(q, w, h, I, Ii, dipole_B, fields_N, positions_N, mu=MU_EARTH):
     """One RK4 step of the rigid body under magnetic (m x B) and gravity-gradient torque, written out in one function.
 
     The same arithmetic, in the same order, as ``RigidBody.rk4_step`` with ``TruthModel._torque`` (so the result is
     the same to the bit); only the calls between them are gone, which halves the cost of the default scenario's
     step. ``fields_N`` and ``positions_N`` hold nine floats each: the inertial field (T) and position (m) at the step's
-    start, middle and end.
+    start, middle and end. Returns ``(q, w)`` normalised, or None when the new state is not finite.
+
+    ``sim._native.rk4_magnetic_gg`` is this function compiled (sim/_native.c, the same operations in the same
+    order); the truth model uses it when the build made it (see ``NATIVE``).
     """
     i00, i01, i02, i10, i11, i12, i20, i21, i22 = I
     j00, j01, j02, j10, j11, j12, j20, j21, j22 = Ii
@@ -387,7 +394,7 @@ def rk4_magnetic_gg(q, w, h, I, Ii, dipole_B, fields_N, positions_N):
     q0, q1, q2, q3 = q
     w0, w1, w2 = w
     h2 = 0.5 * h
-    gm3 = 3.0 * MU_EARTH
+    gm3 = 3.0 * mu
     out = []
     qw, qx, qy, qz, wx, wy, wz = q0, q1, q2, q3, w0, w1, w2
     for stage in range(4):
@@ -444,5 +451,21 @@ def rk4_magnetic_gg(q, w, h, I, Ii, dipole_B, fields_N, positions_N):
           w2 + h6 * (b2 + 2.0 * (d2 + g2) + m2))
     n = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
     if not (math.isfinite(n) and math.isfinite(wn[0]) and math.isfinite(wn[1]) and math.isfinite(wn[2])):
-        raise non_finite_state(h, h)
+        return None
     return (n0 / n, n1 / n, n2 / n, n3 / n), wn
+
+
+def _native_step():
+    """The compiled step when the build made it and ``STAND_NATIVE`` is not ``0``; else None."""
+    if os.environ.get("STAND_NATIVE", "1") == "0":
+        return None
+    try:
+        from ._native import rk4_magnetic_gg as native
+    except ImportError:  # built without a C compiler: the Python step, the same to the bit
+        return None
+    return native
+
+
+#: Which implementation of the default scenario's step runs: "compiled" (sim/_native.c) or "python".
+_rk4_magnetic_gg = _native_step() or rk4_magnetic_gg
+NATIVE = "compiled" if _rk4_magnetic_gg is not rk4_magnetic_gg else "python"

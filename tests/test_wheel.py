@@ -37,17 +37,21 @@ def installed(tmp_path_factory):
     # The dependencies, not the project: a plain path entry (the test environment's .pth files, among them an
     # editable install of this checkout, are not processed from it).
     (Path(site) / "_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    # Without PYTHONPATH: a checkout on it (with the egg-info a build leaves there) reads as adcs-stand installed.
     subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
-                   timeout=300)
+                   timeout=300, env=_env())
     work = root / "work"
     work.mkdir()
     return env_dir / "bin", work
 
 
+def _env() -> dict:
+    return {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+
+
 def _stand(installed, *args, timeout=300):
     bindir, work = installed
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
-    return subprocess.run([str(bindir / "stand"), *args], cwd=work, env=env, capture_output=True, text=True,
+    return subprocess.run([str(bindir / "stand"), *args], cwd=work, env=_env(), capture_output=True, text=True,
                           timeout=timeout)
 
 
@@ -58,8 +62,17 @@ def test_the_wheel_carries_its_data_and_not_the_checkout(installed):
                           "import stand, fixtures, sim, drivers, star_screen; print(stand.__file__); "
                           "print(fixtures.path('scenarios/detumble.toml')); "
                           "print(fixtures.path('catalog/hip2_hp9.npz'))"],
-                         cwd=work, capture_output=True, text=True, check=True).stdout.split()
+                         cwd=work, env=_env(), capture_output=True, text=True, check=True).stdout.split()
     assert all("site-packages" in p and str(REPO) not in p for p in out)
+    # Where this checkout's build compiled the hot paths (a C compiler is here), the wheel carries them too.
+    import drivers.dbc
+    import sim.truth
+
+    native = subprocess.run([str(bindir / "python"), "-c", "import sim.truth, drivers.dbc; "
+                             "print(sim.truth.NATIVE, drivers.dbc.NATIVE, sim.truth._rk4_magnetic_gg.__module__)"],
+                            cwd=work, env=_env(), capture_output=True, text=True, check=True).stdout.split()
+    if sim.truth.NATIVE == drivers.dbc.NATIVE == "compiled" and os.environ.get("STAND_NATIVE") != "0":
+        assert native == ["compiled", "compiled", "sim._native"]
 
 
 @pytest.mark.slow

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
@@ -134,6 +133,18 @@ class Heartbeat:
 Message = DipoleCommand | ModeCommand | MagSample | Status | Counters | Heartbeat
 
 
+#: The signals of each message in the order this codec passes them to the DBC's packer (names from the ICD).
+_SIGNALS: dict[str, tuple[str, ...]] = {
+    "MTQ_DIPOLE_CMD": ("dipole_x", "dipole_y", "dipole_z", "duration_ms"),
+    "MTQ_MODE_CMD": ("mode", "reset_counters", "seq"),
+    "MAG_SAMPLE": ("b_x", "b_y", "b_z", "seq", "coil_active", "valid"),
+    "MTQ_STATUS": ("mode", "coil_active_x", "coil_active_y", "coil_active_z", "current_x", "current_y", "current_z",
+                   "temperature"),
+    "MTQ_COUNTERS": ("rejected_frames", "watchdog_expiries", "saturations", "commands_accepted", "mode_seq_ack"),
+    "MTQ_HEARTBEAT": ("uptime_s", "state", "counter"),
+}
+
+
 def default_dbc_path() -> Path:
     """``fixtures/devices/magnetorquer.dbc``."""
     from drivers import fixture_path
@@ -200,8 +211,11 @@ class MagnetorquerCodec:
             Counters: self._encode_counters,
             Heartbeat: self._encode_heartbeat,
         }
-        self._fast_encoders, self._fast_decoders = dbc.fast_paths()
-        self._decoders = {
+        # Each message's signals in the order this codec passes them (positionally: no dict per frame).
+        p = {name: dbc.packer(name, order) for name, order in _SIGNALS.items()}
+        self._p_dipole, self._p_mode, self._p_sample = p["MTQ_DIPOLE_CMD"], p["MTQ_MODE_CMD"], p["MAG_SAMPLE"]
+        self._p_status, self._p_counters, self._p_heartbeat = p["MTQ_STATUS"], p["MTQ_COUNTERS"], p["MTQ_HEARTBEAT"]
+        builders = {
             "MTQ_DIPOLE_CMD": self._decode_dipole,
             "MTQ_MODE_CMD": self._decode_mode,
             "MAG_SAMPLE": self._decode_sample,
@@ -209,6 +223,10 @@ class MagnetorquerCodec:
             "MTQ_COUNTERS": self._decode_counters,
             "MTQ_HEARTBEAT": self._decode_heartbeat,
         }
+        #: frame id -> (payload length, unpack, message builder, name).
+        self._decoders = {q.frame_id: (q.length, q.unpack, builders[name], name) for name, q in p.items()}
+        #: True when the compiled bit packer (drivers._bitpack) runs every message, False for the generated Python.
+        self.compiled = all(q.compiled for q in p.values())
 
     # -- encode ---------------------------------------------------------------------------------
 
@@ -228,122 +246,72 @@ class MagnetorquerCodec:
         except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
             raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
 
-    def _encode_values(self, name: str, values: dict[str, Any]) -> tuple[int, bytes]:
-        fast = self._fast_encoders[name]
-        payload = fast(values) if fast is not None else None
-        if payload is None:  # the full checks, and their error messages
-            return self.dbc.encode(name, values)
-        return self.ids[name], payload
+    def _pack(self, packer, values: tuple) -> tuple[int, bytes]:
+        payload = packer.pack(*values)
+        if payload is None:  # the DBC codec's full checks, and their error messages
+            return self.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
+        return packer.frame_id, payload
 
     def _encode_dipole(self, msg: DipoleCommand) -> tuple[int, bytes]:
         mx, my, mz = msg.dipole_A_m2
-        return self._encode_values(
-            "MTQ_DIPOLE_CMD",
-            {"dipole_x": mx, "dipole_y": my, "dipole_z": mz, "duration_ms": msg.duration_s / _MS},
-        )
+        return self._pack(self._p_dipole, (mx, my, mz, msg.duration_s / _MS))
 
     def _encode_mode(self, msg: ModeCommand) -> tuple[int, bytes]:
-        return self._encode_values(
-            "MTQ_MODE_CMD",
-            {"mode": MODES.index(msg.mode), "reset_counters": bool(msg.reset_counters), "seq": msg.seq},
-        )
+        return self._pack(self._p_mode, (MODES.index(msg.mode), bool(msg.reset_counters), msg.seq))
 
     def _encode_sample(self, msg: MagSample) -> tuple[int, bytes]:
         bx, by, bz = msg.b_T
-        return self._encode_values(
-            "MAG_SAMPLE",
-            {
-                "b_x": bx / _NT,
-                "b_y": by / _NT,
-                "b_z": bz / _NT,
-                "seq": msg.seq,
-                "coil_active": bool(msg.coil_active),
-                "valid": bool(msg.valid),
-            },
-        )
+        return self._pack(self._p_sample, (bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.coil_active),
+                                           bool(msg.valid)))
 
     def _encode_status(self, msg: Status) -> tuple[int, bytes]:
         ax, ay, az = msg.coil_active
         ix, iy, iz = msg.coil_current_A
-        return self._encode_values(
-            "MTQ_STATUS",
-            {
-                "mode": MODES.index(msg.mode),
-                "coil_active_x": bool(ax),
-                "coil_active_y": bool(ay),
-                "coil_active_z": bool(az),
-                "current_x": ix / _MA,
-                "current_y": iy / _MA,
-                "current_z": iz / _MA,
-                "temperature": msg.temperature_C,
-            },
-        )
+        return self._pack(self._p_status, (MODES.index(msg.mode), bool(ax), bool(ay), bool(az), ix / _MA, iy / _MA,
+                                           iz / _MA, msg.temperature_C))
 
     def _encode_counters(self, msg: Counters) -> tuple[int, bytes]:
-        return self._encode_values(
-            "MTQ_COUNTERS",
-            {
-                "rejected_frames": msg.rejected_frames,
-                "watchdog_expiries": msg.watchdog_expiries,
-                "saturations": msg.saturations,
-                "commands_accepted": msg.commands_accepted,
-                "mode_seq_ack": msg.mode_seq_ack,
-            },
-        )
+        return self._pack(self._p_counters, (msg.rejected_frames, msg.watchdog_expiries, msg.saturations,
+                                             msg.commands_accepted, msg.mode_seq_ack))
 
     def _encode_heartbeat(self, msg: Heartbeat) -> tuple[int, bytes]:
-        return self._encode_values(
-            "MTQ_HEARTBEAT",
-            {"uptime_s": msg.uptime_s, "state": HEARTBEAT_STATES.index(msg.state), "counter": msg.counter},
-        )
+        return self._pack(self._p_heartbeat, (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter))
 
     # -- decode ---------------------------------------------------------------------------------
 
     def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
         """Decode one payload into its message (ProtocolError for unknown id / length / enum)."""
-        fast = self._fast_decoders.get(frame_id)
-        if fast is not None and len(data) == fast[1]:
-            name, v = fast[0], fast[2](data)
-        else:  # unknown id, wrong length: the DBC codec's checks raise
-            name, v = self.dbc.decode(frame_id, data)
+        entry = self._decoders.get(frame_id)
+        if entry is None or len(data) != entry[0]:
+            name, _ = self.dbc.decode(frame_id, data)  # raises the ProtocolError that says why
+            raise ProtocolError(f"{name} is not a magnetorquer message", frame_hex=frame_hex(frame_id, data))
+        _, unpack, build, name = entry
         try:
-            return self._decoders[name](v)
+            return build(unpack(data))
         except ValueError as exc:  # an enum value outside its table
             raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
 
+    # The builders take the values in _SIGNALS order.
     @staticmethod
-    def _decode_dipole(v: dict[str, Any]) -> DipoleCommand:
-        return DipoleCommand((v["dipole_x"], v["dipole_y"], v["dipole_z"]), v["duration_ms"] * _MS)
+    def _decode_dipole(v: tuple) -> DipoleCommand:
+        return DipoleCommand((v[0], v[1], v[2]), v[3] * _MS)
 
     @staticmethod
-    def _decode_mode(v: dict[str, Any]) -> ModeCommand:
-        return ModeCommand(v["mode"], bool(v["reset_counters"]), v["seq"])
+    def _decode_mode(v: tuple) -> ModeCommand:
+        return ModeCommand(v[0], bool(v[1]), v[2])
 
     @staticmethod
-    def _decode_sample(v: dict[str, Any]) -> MagSample:
-        return MagSample(
-            (v["b_x"] * _NT, v["b_y"] * _NT, v["b_z"] * _NT), v["coil_active"] == 1, v["valid"] == 1, v["seq"]
-        )
+    def _decode_sample(v: tuple) -> MagSample:
+        return MagSample((v[0] * _NT, v[1] * _NT, v[2] * _NT), v[4] == 1, v[5] == 1, v[3])
 
     @staticmethod
-    def _decode_status(v: dict[str, Any]) -> Status:
-        return Status(
-            v["mode"],
-            (v["coil_active_x"] == 1, v["coil_active_y"] == 1, v["coil_active_z"] == 1),
-            (v["current_x"] * _MA, v["current_y"] * _MA, v["current_z"] * _MA),
-            v["temperature"],
-        )
+    def _decode_status(v: tuple) -> Status:
+        return Status(v[0], (v[1] == 1, v[2] == 1, v[3] == 1), (v[4] * _MA, v[5] * _MA, v[6] * _MA), v[7])
 
     @staticmethod
-    def _decode_counters(v: dict[str, Any]) -> Counters:
-        return Counters(
-            v["rejected_frames"],
-            v["watchdog_expiries"],
-            v["saturations"],
-            v["commands_accepted"],
-            v["mode_seq_ack"],
-        )
+    def _decode_counters(v: tuple) -> Counters:
+        return Counters(*v)
 
     @staticmethod
-    def _decode_heartbeat(v: dict[str, Any]) -> Heartbeat:
-        return Heartbeat(v["uptime_s"], v["state"], v["counter"])
+    def _decode_heartbeat(v: tuple) -> Heartbeat:
+        return Heartbeat(v[0], v[1], v[2])

@@ -186,7 +186,7 @@ class MagnetorquerEmulator(BusEndpoint):
 
         self._bias_xyz = tuple(float(x) for x in config.mag_bias_T)
         self._coupling = np.asarray(config.coil_coupling_T_per_A_m2, dtype=float)
-        self._na = np.asarray(config.coil_area_turns_m2, dtype=float)
+        self._na_xyz = tuple(float(x) for x in config.coil_area_turns_m2)
         self._mag_lsb = config.mag_lsb_T
         # Sensor range in LSB counts (the DBC range, on the emulator's quantisation grid).
         lo, hi = codec.mag_range_T
@@ -476,13 +476,14 @@ class MagnetorquerEmulator(BusEndpoint):
 
     def status(self, t_s: float) -> Status:
         """The MTQ_STATUS the board reports at ``t_s``."""
-        m = self.dipole_at(t_s)
+        # On the command's floats, not the (3,) array: this runs once a second in every emulated board.
+        mx, my, mz = self.dipole_xyz_at(t_s)
+        nx, ny, nz = self._na_xyz
         i_max = self._i_max
-        current = [min(max(float(x), -i_max), i_max) for x in (m / self._na)]
         return Status(
             self.mode,
-            (bool(m[0] != 0), bool(m[1] != 0), bool(m[2] != 0)),
-            (current[0], current[1], current[2]),
+            (mx != 0.0, my != 0.0, mz != 0.0),
+            (min(max(mx / nx, -i_max), i_max), min(max(my / ny, -i_max), i_max), min(max(mz / nz, -i_max), i_max)),
             self._temperature,
         )
 
