@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
@@ -53,6 +52,17 @@ NODE_BASE = 0x20
 #: Wheels one DBC can number (the low four bits of every id).
 MAX_WHEELS = 16
 _MS = 1e-3
+
+#: The signals of each message in the order this codec passes them to the DBC's packer (names from the ICD).
+_SIGNALS: dict[str, tuple[str, ...]] = {
+    "RW_TORQUE_CMD": ("torque", "seq", "timeout_ms"),
+    "RW_SPEED_CMD": ("speed", "seq", "timeout_ms"),
+    "RW_MODE_CMD": ("mode", "reset_counters", "seq"),
+    "RW_SPEED_TLM": ("speed", "torque", "seq", "valid", "speed_limited", "torque_limited"),
+    "RW_STATUS": ("mode", "rejected_frames", "commands_accepted", "seq_ack", "watchdog_expiries", "saturations",
+                  "temperature"),
+    "RW_HEARTBEAT": ("uptime_s", "state", "counter"),
+}
 
 
 def _enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
@@ -232,16 +242,19 @@ class ReactionWheelCodec:
             Status: self._encode_status,
             Heartbeat: self._encode_heartbeat,
         }
-        self._decoders = {
-            "RW_TORQUE_CMD": lambda v: TorqueCommand(v["torque"], v["seq"], v["timeout_ms"] * _MS),
-            "RW_SPEED_CMD": lambda v: SpeedCommand(v["speed"], v["seq"], v["timeout_ms"] * _MS),
-            "RW_MODE_CMD": lambda v: ModeCommand(v["mode"], v["reset_counters"] == 1, v["seq"]),
-            "RW_SPEED_TLM": lambda v: WheelSpeed(v["speed"], v["torque"], v["valid"] == 1, v["speed_limited"] == 1,
-                                                 v["torque_limited"] == 1, v["seq"]),
-            "RW_STATUS": lambda v: Status(v["mode"], v["rejected_frames"], v["commands_accepted"], v["seq_ack"],
-                                          v["watchdog_expiries"], v["saturations"], v["temperature"]),
-            "RW_HEARTBEAT": lambda v: Heartbeat(v["uptime_s"], v["state"], v["counter"]),
+        # Each message's signals in the order the encoders below pass them (positionally: no dict per frame).
+        self._packers = {name: d.packer(name, order) for name, order in _SIGNALS.items()}
+        builders = {
+            "RW_TORQUE_CMD": lambda v: TorqueCommand(v[0], v[1], v[2] * _MS),
+            "RW_SPEED_CMD": lambda v: SpeedCommand(v[0], v[1], v[2] * _MS),
+            "RW_MODE_CMD": lambda v: ModeCommand(v[0], v[1] == 1, v[2]),
+            "RW_SPEED_TLM": lambda v: WheelSpeed(v[0], v[1], v[3] == 1, v[4] == 1, v[5] == 1, v[2]),
+            "RW_STATUS": lambda v: Status(*v),
+            "RW_HEARTBEAT": lambda v: Heartbeat(v[0], v[1], v[2]),
         }
+        #: this wheel's frame id -> (name, payload length, unpack, message builder).
+        self._decoders = {self.ids[name]: (name, q.length, q.unpack, builders[name])
+                          for name, q in self._packers.items()}
 
     def wheel_of(self, frame_id: int) -> int | None:
         """The wheel number a wheel id belongs to, or None for an id that is no wheel's."""
@@ -258,58 +271,59 @@ class ReactionWheelCodec:
                             f"{', '.join(t.__name__ for t in self._encoders)}.") from None
         try:
             name, values = encoder(msg)
-            frame_id, payload = self.dbc.encode(name, values)
+            packer = self._packers[name]
+            payload = packer.pack(*values)
+            if payload is None:  # the DBC codec's full checks, and their error messages
+                _, payload = self.dbc.encode(name, dict(zip(packer.order, values, strict=True)))
         except EncodeError as exc:
             raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {exc}") from exc
         except (TypeError, ValueError) as exc:
             raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {type(exc).__name__}: {exc}") from exc
-        return frame_id + self.wheel, payload
+        return packer.frame_id + self.wheel, payload
+
+    # The values in _SIGNALS order.
+    @staticmethod
+    def _encode_torque(msg: TorqueCommand) -> tuple[str, tuple]:
+        return "RW_TORQUE_CMD", (msg.torque_Nm, msg.seq, msg.timeout_s / _MS)
 
     @staticmethod
-    def _encode_torque(msg: TorqueCommand) -> tuple[str, dict[str, Any]]:
-        return "RW_TORQUE_CMD", {"torque": msg.torque_Nm, "seq": msg.seq, "timeout_ms": msg.timeout_s / _MS}
+    def _encode_speed(msg: SpeedCommand) -> tuple[str, tuple]:
+        return "RW_SPEED_CMD", (msg.speed_rad_s, msg.seq, msg.timeout_s / _MS)
 
     @staticmethod
-    def _encode_speed(msg: SpeedCommand) -> tuple[str, dict[str, Any]]:
-        return "RW_SPEED_CMD", {"speed": msg.speed_rad_s, "seq": msg.seq, "timeout_ms": msg.timeout_s / _MS}
+    def _encode_mode(msg: ModeCommand) -> tuple[str, tuple]:
+        return "RW_MODE_CMD", (MODES.index(msg.mode), bool(msg.reset_counters), msg.seq)
 
     @staticmethod
-    def _encode_mode(msg: ModeCommand) -> tuple[str, dict[str, Any]]:
-        return "RW_MODE_CMD", {"mode": MODES.index(msg.mode), "reset_counters": bool(msg.reset_counters),
-                               "seq": msg.seq}
+    def _encode_tlm(msg: WheelSpeed) -> tuple[str, tuple]:
+        return "RW_SPEED_TLM", (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
+                                bool(msg.torque_limited))
 
     @staticmethod
-    def _encode_tlm(msg: WheelSpeed) -> tuple[str, dict[str, Any]]:
-        return "RW_SPEED_TLM", {"speed": msg.speed_rad_s, "torque": msg.torque_Nm, "seq": msg.seq,
-                                "valid": bool(msg.valid), "speed_limited": bool(msg.speed_limited),
-                                "torque_limited": bool(msg.torque_limited)}
+    def _encode_status(msg: Status) -> tuple[str, tuple]:
+        return "RW_STATUS", (MODES.index(msg.mode), msg.rejected_frames, msg.commands_accepted, msg.seq_ack,
+                             msg.watchdog_expiries, msg.saturations, msg.temperature_C)
 
     @staticmethod
-    def _encode_status(msg: Status) -> tuple[str, dict[str, Any]]:
-        return "RW_STATUS", {"mode": MODES.index(msg.mode), "rejected_frames": msg.rejected_frames,
-                             "commands_accepted": msg.commands_accepted, "seq_ack": msg.seq_ack,
-                             "watchdog_expiries": msg.watchdog_expiries, "saturations": msg.saturations,
-                             "temperature": msg.temperature_C}
-
-    @staticmethod
-    def _encode_heartbeat(msg: Heartbeat) -> tuple[str, dict[str, Any]]:
-        return "RW_HEARTBEAT", {"uptime_s": msg.uptime_s, "state": HEARTBEAT_STATES.index(msg.state),
-                                "counter": msg.counter}
+    def _encode_heartbeat(msg: Heartbeat) -> tuple[str, tuple]:
+        return "RW_HEARTBEAT", (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter)
 
     # -- decode ---------------------------------------------------------------------------------
 
     def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
         """Decode one payload of this wheel (ProtocolError for another id / length / enum)."""
-        name = self._names.get(frame_id)
-        if name is None:
+        entry = self._decoders.get(frame_id)
+        if entry is None:
             raise ProtocolError(
                 f"frame id 0x{frame_id:03X} is not one of wheel {self.wheel}'s (node 0x{self.node:02X})",
                 frame_hex=frame_hex(frame_id, data, extended=frame_id > 0x7FF),
                 expected="one of " + ", ".join(f"0x{i:03X}" for i in sorted(self._names)),
                 computed=f"0x{frame_id:03X}",
             )
-        _, v = self.dbc.decode(frame_id - self.wheel, data)
+        name, length, unpack, build = entry
+        if len(data) != length:
+            self.dbc.decode(frame_id - self.wheel, data)  # raises the ProtocolError that says why
         try:
-            return self._decoders[name](v)
+            return build(unpack(data))
         except ValueError as exc:  # an enum value outside its table
             raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc

@@ -11,6 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers import dbc as dbc_mod
+from drivers import fixture_path
 from drivers.dbc import DbcCodec, _compile_message
 from tests.drivers.test_dbc import MIXED_DBC, MTQ_DBC, _fast_messages, _physical_values
 
@@ -22,7 +23,8 @@ compiled = pytest.mark.skipif(dbc_mod.NATIVE != "compiled",
 def codecs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, DbcCodec]:
     path = tmp_path_factory.mktemp("dbc") / "mixed.dbc"
     path.write_text(MIXED_DBC)
-    return {"mtq": DbcCodec(MTQ_DBC), "mixed": DbcCodec(path)}
+    return {"mtq": DbcCodec(MTQ_DBC), "rw": DbcCodec(fixture_path("devices/reaction_wheel.dbc")),
+            "mixed": DbcCodec(path)}
 
 
 def _order(codec: DbcCodec, name: str, draw) -> tuple[str, ...]:
@@ -54,7 +56,7 @@ def _same(a, b) -> bool:
 
 
 @compiled
-@pytest.mark.parametrize("which", ["mtq", "mixed"])
+@pytest.mark.parametrize("which", ["mtq", "rw", "mixed"])
 @settings(max_examples=400, suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None)
 @given(data=st.data())
 def test_compiled_and_generated_packers_agree_on_any_values(which, data, codecs) -> None:
@@ -70,7 +72,7 @@ def test_compiled_and_generated_packers_agree_on_any_values(which, data, codecs)
     assert _same(packer.unpack(payload), unpack_py(payload)), payload.hex()
 
 
-@pytest.mark.parametrize("which", ["mtq", "mixed"])
+@pytest.mark.parametrize("which", ["mtq", "rw", "mixed"])
 @settings(max_examples=300, suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None)
 @given(data=st.data())
 def test_packer_equals_the_dict_path(which, data, codecs) -> None:
