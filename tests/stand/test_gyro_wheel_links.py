@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from stand import telemetry
-from stand.cli import main
-from tests.stand.processes import run_stand_polling, stand_env
+from tests.stand.processes import private_netns_ok, run_beside_device, run_stand_polling, stand_env
 
 from .conftest import to_toml
 
@@ -85,17 +84,11 @@ with emu:
 
 def test_hardware_gyro_reads_an_emulator_in_another_process(pty_pair, tmp_path):
     stand_end, device_end = pty_pair
-    emu = subprocess.Popen([sys.executable, "-c", GYRO_EMULATOR, device_end, "8"], env=stand_env(), cwd=tmp_path,
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    assert emu.stdout.readline().strip() == "ready"
     gyro = {"name": "imu", "kind": "gyro", "link": "hardware", "port": stand_end, "output_rate_hz": 10.0}
     path = tmp_path / "hw.toml"
     path.write_text(to_toml(small_scenario([gyro], 12.0)))
     out = tmp_path / "hw"
-    try:
-        code = main(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"])
-    finally:
-        emu_out, _ = emu.communicate(timeout=30)
+    code, emu_out = run_beside_device(GYRO_EMULATOR, device_end, path, out, tmp_path)
     assert code == 0, emu_out
     sent = json.loads(emu_out.strip().splitlines()[-1])["counters"]["sent"]
     host = json.loads((out / "summary.json").read_text())["device_counters"]["imu"]["host_counters"]
@@ -109,20 +102,11 @@ def test_hardware_gyro_reads_an_emulator_in_another_process(pty_pair, tmp_path):
     assert not np.allclose(tel["omega_BN_B"][got][:, 0], expected[0], rtol=0, atol=1e-3)
 
 
-def _netns_ok() -> bool:
-    import shutil
-
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        return False
-    probe = subprocess.run(["unshare", "--net", "sh", "-c", "ip link set lo up && ip route add 224.0.0.0/4 dev lo"],
-                           capture_output=True, timeout=10)
-    return probe.returncode == 0
-
 
 def _in_private_namespace(tmp_path: Path, peer: str, peer_args: str, stand_args: list[str]) -> tuple[str, str]:
     """Run ``peer`` (a Python script) and ``stand run`` side by side inside ``unshare --net`` with loopback multicast
     routing; returns the stand's output and the peer's log. Skips where a private namespace is not permitted."""
-    if not _netns_ok():
+    if not private_netns_ok():
         pytest.skip("unshare --net with loopback multicast routing is not permitted here (needs root or user "
                     "namespaces); udp_multicast is never used in the default namespace")
     (tmp_path / "peer.py").write_text(peer)

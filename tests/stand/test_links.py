@@ -5,7 +5,6 @@ python-can's udp_multicast only inside a private network namespace (``unshare --
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +14,7 @@ import pytest
 
 from stand import telemetry
 from stand.cli import main
-from tests.stand.processes import REPO, stand_env
+from tests.stand.processes import REPO, private_netns_ok, stand_env
 
 EXTERNAL = REPO / "examples" / "external_bdot.py"
 #: The in-process default run's |omega| (deg/s): what the external flight program must reproduce within 10 %.
@@ -63,17 +62,10 @@ def test_external_bdot_closes_the_detumble_through_a_served_board_on_a_serial_li
     _check_external(out, in_process_rates, fc_out)
 
 
-def _netns_ok() -> bool:
-    if shutil.which("unshare") is None or shutil.which("ip") is None:
-        return False
-    probe = subprocess.run(["unshare", "--net", "sh", "-c", "ip link set lo up && ip route add 224.0.0.0/4 dev lo"],
-                           capture_output=True, timeout=10)
-    return probe.returncode == 0
-
 
 @pytest.mark.slow
 def test_external_bdot_closes_the_detumble_over_can_udp_multicast_in_a_private_namespace(tmp_path, in_process_rates):
-    if not _netns_ok():
+    if not private_netns_ok():
         pytest.skip("unshare --net with loopback multicast routing is not permitted here (needs root or user "
                     "namespaces); udp_multicast is never used in the default namespace")
     out = tmp_path / "ext"

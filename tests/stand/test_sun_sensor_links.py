@@ -5,18 +5,15 @@ stand's host reading an emulator in another process)."""
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from stand import scenario, telemetry
-from stand.cli import main
 from stand.compose import build
 from stand.loop import run
-from tests.stand.processes import run_stand_polling, stand_env
+from tests.stand.processes import run_beside_device, run_stand_polling
 
 from .conftest import to_toml
 
@@ -192,18 +189,12 @@ with emu:
 
 def test_hardware_link_reads_an_emulator_in_another_process(pty_pair, tmp_path):
     stand_end, device_end = pty_pair
-    emu = subprocess.Popen([sys.executable, "-c", EMULATOR, device_end, "8"], env=stand_env(), cwd=tmp_path,
-                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    assert emu.stdout.readline().strip() == "ready"
     hardware = {"name": "fss", "kind": "sun_sensor", "type": "fine", "link": "hardware", "port": stand_end,
                 "rate_hz": 5.0}
     path = tmp_path / "hw.toml"
     path.write_text(to_toml(sun_scenario([hardware], duration_s=12.0)))
     out = tmp_path / "hw"
-    try:
-        code = main(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"])
-    finally:
-        emu_out, _ = emu.communicate(timeout=30)
+    code, emu_out = run_beside_device(EMULATOR, device_end, path, out, tmp_path)
     assert code == 0, emu_out
     report = json.loads(emu_out.strip().splitlines()[-1])
     # The stand set the sensor's output period to the scenario's rate at start.
