@@ -32,10 +32,22 @@ BENCHES = {
     "campaign": "stand.benches.campaign:bench_campaign",
 }
 
-#: docs/benchmarks.md, closed-loop detumble: Basilisk 2.12.1, centred dipole, Python controller.
-BASILISK_RATE_DEG_S = {600.0: 7.2, 1800.0: 3.6, 3600.0: 0.88, 5670.0: 0.20}
 BASILISK_REALTIME = 2170.0
 REFERENCE_JSON = fixtures.ROOT / "reference" / "basilisk" / "detumble_basilisk.json"
+#: Basilisk 2.12.1 run on the default scenario's own case: the comparison case plus gravity-gradient torque and the
+#: CAN board's quantisation (5 nT magnetometer, 1e-5 A m^2 dipole), fixtures/reference/basilisk/README.md.
+STAND_CASE_JSON = fixtures.ROOT / "reference" / "basilisk" / "detumble_basilisk_stand_case.json"
+#: |omega| may differ from that run by this much at every checkpoint. The one modelling difference left is where
+#: the field is taken inside an RK4 step (the stand: at each stage's time; Basilisk: held at the step start). It
+#: moves |omega| by at most 5.9e-4 deg/s (measured, and with the field held the stand matches to 2e-6 relative);
+#: leaving out gravity gradient puts the stand 3.1e-3, 0.8e-3, 1.4e-3 and 2.9e-3 deg/s from it.
+BASILISK_RATE_TOL_DEG_S = 1e-3
+
+
+def basilisk_stand_case_rates() -> dict[float, float]:
+    """Basilisk's |omega| (deg/s) at its checkpoints after t = 0 on the default scenario's case."""
+    ref = json.loads(STAND_CASE_JSON.read_text())
+    return {float(t): float(v) for t, v in ref["omega_norm_deg_s"].items() if float(t) > 0.0}
 
 
 def run_bench(name: str, quick: bool = False, plot_path: str | None = None) -> list[dict]:
@@ -171,14 +183,15 @@ def bench_loop(quick: bool = False) -> list[dict]:
                      "note": f"bus: {', '.join(buses)}; attitude step: {truth_mod.NATIVE}, CAN bit packing: "
                              f"{dbc_mod.NATIVE} (STAND_NATIVE=0 runs the Python of both)"})
         rate = np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
-        for ts, ref in BASILISK_RATE_DEG_S.items():
+        for ts, ref in basilisk_stand_case_rates().items():
             if ts > result.sim_duration_s:
                 continue
             i = int(np.searchsorted(tel["t_s"], ts - 1e-9))
             v = float(rate[i])
-            rows.append({"name": f"loop.detumble.rate_at_{ts:g}s", "value": round(v, 3), "unit": "deg/s",
-                         "anchor": f"{ref} (Basilisk, dipole)", "limit": "within 30 %",
-                         "pass": abs(v - ref) <= 0.3 * ref})
+            rows.append({"name": f"loop.detumble.rate_at_{ts:g}s", "value": round(v, 5), "unit": "deg/s",
+                         "anchor": f"{ref:.5f} (Basilisk, this case)",
+                         "limit": f"within {BASILISK_RATE_TOL_DEG_S:g} deg/s",
+                         "pass": abs(v - ref) <= BASILISK_RATE_TOL_DEG_S})
         result_lb, wall_lb, _ = _timed_run(_on_interface(sc, "virtual"), Path(tmp) / "virtual", devices=True)
         rows.append({"name": "loop.full_chain.virtual_bus.realtime_factor",
                      "value": round(result_lb.sim_duration_s / wall_lb, 1), "unit": "x",

@@ -84,20 +84,29 @@ def test_left_out_field_model_is_never_evaluated(scenario_dict, write_scenario, 
 
 @pytest.mark.slow
 def test_default_detumble_passes_and_tracks_basilisk(tmp_path):
-    """The README's first command, in-process: one orbit, compared with Basilisk's published rates."""
+    """The README's first command, in-process: one orbit, |omega| within 1e-3 deg/s of Basilisk 2.12.1 run on the
+    same case (gravity gradient and the board's quantisation included) at 600, 1800, 3600 and 5670 s.
+
+    Why 1e-3 deg/s, the same at every checkpoint (fixtures/reference/basilisk/README.md): the only modelling
+    difference left is where the field is taken inside an RK4 step (each stage's time here, the step start in
+    Basilisk); it moves |omega| by 2.9e-4 to 5.9e-4 deg/s, an absolute offset that hardly changes as the rate falls
+    (so 2.7e-3 relative at 5670 s), and with the field held as Basilisk holds it the two agree to 2e-6 relative.
+    Leaving out gravity gradient (the former 2 % gap at 5670 s) puts the stand 3.1e-3, 0.8e-3, 1.4e-3 and 2.9e-3
+    deg/s from Basilisk at the four checkpoints."""
     sc = scenario.load(scenario.DEFAULT_SCENARIO)
     with build(sc) as scene:
         result = run(scene, tmp_path / "out")
         summary = write_summary(scene, result, tmp_path / "out")
     assert summary["pass"], summary["criteria"]
-    # Basilisk 2.12.1 run here on the same case (fixtures/reference/basilisk/README.md): within 30 %.
-    ref = json.loads((REPO / "fixtures" / "reference" / "basilisk" / "detumble_basilisk.json").read_text())
+    ref = json.loads((REPO / "fixtures" / "reference" / "basilisk" / "detumble_basilisk_stand_case.json").read_text())
+    assert ref["case"]["gravity_gradient"] and ref["case"]["quantisation"]["mag_lsb_T"] == 5e-9
     tel = telemetry.load(tmp_path / "out")
     rate = np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
-    for t_s in ("600", "1800", "3600"):
+    for t_s in ("600", "1800", "3600", "5670"):
         expected = ref["omega_norm_deg_s"][t_s]
         i = int(np.searchsorted(tel["t_s"], float(t_s) - 1e-9))
-        assert abs(rate[i] - expected) <= 0.3 * expected, (t_s, rate[i], expected)
+        assert tel["t_s"][i] == pytest.approx(float(t_s), abs=1e-6)
+        assert abs(rate[i] - expected) <= 1e-3, (t_s, rate[i], expected)
 
 
 def test_killed_run_log_still_loads(tmp_path):
