@@ -3,6 +3,9 @@
 Hypothesis explores new random examples on every developer run; under CI (``CI`` set) it runs a
 fixed, derandomised set so a landing never depends on the luck of the draw. A failure found
 locally is reproduced with the seed Hypothesis prints and becomes a regression test.
+
+Independent oracles and compiled paths are asked for through tests/oracles.py: skipped locally when missing, a
+failure under CI.
 """
 
 import os

@@ -8,10 +8,16 @@ import pytest
 
 from sim import eop, frames
 from sim.time import Epoch
+from tests.oracles import require, unavailable
 
 MAS = np.pi / (180 * 3600e3)
 TABLE = eop.default_table()
-needs_table = pytest.mark.skipif(TABLE is None, reason="astropy-iers-data is not installed")
+
+
+@pytest.fixture
+def needs_table():
+    if TABLE is None:
+        unavailable("astropy-iers-data is not installed (the env extra, in the test extra)")
 EPOCHS = ["1980-03-01T00:00:00Z", "1999-12-31T18:00:00Z", "2016-12-31T12:00:00Z", "2017-01-01T00:00:30Z",
           "2024-04-06T07:22:24Z", "2026-06-01T00:00:00Z"]
 
@@ -42,10 +48,10 @@ def _angle(a, b):
     return np.arcsin(0.5 * np.linalg.norm([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]))
 
 
-@needs_table
+@pytest.mark.usefixtures("needs_table")
 @pytest.mark.parametrize("iso", EPOCHS)
 def test_eop_values_match_astropys_reader(iso):
-    pytest.importorskip("astropy")
+    require("astropy")
     dut1, xp, yp = _astropy_eop(iso)
     e = eop.eop_at(Epoch.from_iso(iso))
     assert e.available
@@ -54,10 +60,10 @@ def test_eop_values_match_astropys_reader(iso):
     assert e.yp_rad == pytest.approx(yp, abs=0.01 * MAS)
 
 
-@needs_table
+@pytest.mark.usefixtures("needs_table")
 @pytest.mark.parametrize("iso", EPOCHS)
 def test_gcrs_to_itrs_within_1_mas_of_pyerfa_with_the_same_eop(iso):
-    pytest.importorskip("astropy")
+    require("astropy")
     dut1, xp, yp = _astropy_eop(iso)
     ep = Epoch.from_iso(iso, dut1_s=dut1)
     ut1 = erfa.utcut1(*ep.jd_utc, dut1)

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from sim.sensors import GM_PEAK_ADEV_OVER_SIGMA, GM_PEAK_TAU_OVER_T, DelayLine, Gyro, gauss_markov_adev
+from tests.oracles import require
 
-allantools = pytest.importorskip("allantools")
+allantools = require("allantools")
 
 REF = Path(__file__).resolve().parents[2] / "fixtures" / "reference" / "gyro_allan" / "allan_reference.csv"
 

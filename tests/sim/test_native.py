@@ -10,9 +10,12 @@ import pytest
 
 from sim import truth
 from sim.constants import MU_EARTH
+from tests.oracles import require_compiled
 
-pytestmark = pytest.mark.skipif(truth.NATIVE != "compiled",
-                                reason="sim._native was not built (no C compiler at install) or STAND_NATIVE=0")
+
+@pytest.fixture(scope="module", autouse=True)
+def _compiled() -> None:
+    require_compiled(truth.NATIVE, "sim._native")
 
 
 def _args(rng: np.random.Generator, scale_w: float, scale_m: float):

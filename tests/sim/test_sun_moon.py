@@ -7,6 +7,7 @@ import pytest
 
 from sim import ephemeris as eph
 from sim.time import Epoch
+from tests.oracles import require, unavailable
 
 ARCSEC = 1.0 / 3600.0
 
@@ -19,13 +20,13 @@ def _angle_arcsec(a, b):
 
 @pytest.fixture(scope="module")
 def de421():
-    pytest.importorskip("jplephem")
-    skyfield_data = pytest.importorskip("skyfield_data")
+    require("jplephem")
+    skyfield_data = require("skyfield_data", "skyfield-data in the test extra")
     from jplephem.spk import SPK
 
     path = os.path.join(os.path.dirname(skyfield_data.__file__), "data", "de421.bsp")
     if not os.path.exists(path):
-        pytest.skip("de421.bsp is not in skyfield-data")
+        unavailable(f"de421.bsp is not in skyfield-data ({path})")
     kernel = SPK.open(path)
     yield kernel
     kernel.close()

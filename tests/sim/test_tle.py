@@ -5,11 +5,11 @@ import os
 import numpy as np
 import pytest
 
-pytest.importorskip("sgp4")
-import sgp4  # noqa: E402
+from sim import tle
+from sim.time import Epoch
+from tests.oracles import require
 
-from sim import tle  # noqa: E402
-from sim.time import Epoch  # noqa: E402
+sgp4 = require("sgp4", "the env extra (in the test extra)")
 
 HERE = os.path.dirname(sgp4.__file__)
 ISS = ("1 25544U 98067A   08264.51782528 -.00002182  00000-0 -11606-4 0  2927",
@@ -68,7 +68,7 @@ def test_malformed_lines_are_refused_with_the_template(l1, l2, message):
 
 def test_teme_to_gcrs_matches_astropy():
     """astropy's TEME -> GCRS (independent code path: its own frame graph, same ERFA core)."""
-    pytest.importorskip("astropy")
+    require("astropy")
     from astropy import units as u
     from astropy.coordinates import GCRS, TEME, CartesianDifferential, CartesianRepresentation
     from astropy.time import Time

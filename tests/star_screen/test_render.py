@@ -4,13 +4,13 @@ fields, sparse update, smear, magnitude limit, aberration switch."""
 import math
 
 import numpy as np
-import pytest
 
 from star_screen.attitude import q_SN_from_radec_roll, radec_roll_from_q_SN
 from star_screen.catalog import unit_to_radec
 from star_screen.geometry import default_bench
 from star_screen.metrics import emitted_centroids, isolated, reference_tan_pixels
 from star_screen.render import Renderer
+from tests.oracles import require
 
 from .star_screen_helpers import ARCSEC, separation, synthetic_catalog
 
@@ -62,7 +62,7 @@ ATTITUDES = [
 
 
 def test_centroids_and_brightness_against_astropy_wcs(epoch):
-    pytest.importorskip("astropy")
+    require("astropy")
     r = Renderer(default_bench(), aberration=False)
     b = r.bench
     places = r._places_at(epoch)
