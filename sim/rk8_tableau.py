@@ -4,7 +4,7 @@ Source: G. J. Cooper and J. H. Verner, "Some explicit Runge-Kutta methods of hig
 Numer. Anal. 9(3), 389-405 (1972): nodes 1/2 and (7 +- sqrt(21)) / 14, exact values in terms of
 sqrt(21). ``tests/sim/test_integrators.py`` checks every order condition up to order 8 to
 round-off. This is the one home of the tableau: :mod:`sim.integrators` re-exports it and
-``fixtures/reference/rk8/gen_rk8_step.py`` unrolls it into :mod:`sim.rk8_generated`; the module
+``tools/gen_rk8_step.py`` unrolls it into :mod:`sim.rk8_generated`; the module
 imports nothing from ``sim`` so the generator runs even when the generated module is missing.
 """
 
