@@ -248,25 +248,39 @@ def test_random_dots_are_never_a_valid_solution(renderer, tracker):
         assert sol.stars_centroided >= 0.8 * k
 
 
-def test_covariance_matches_scatter_over_noisy_frames(renderer, tracker, epoch):
-    """One attitude, independent noise draws: the predicted sigmas match the error spread loosely."""
+#: Frames in the covariance check, each at its own random attitude with its own noise draw (about 0.09 s each).
+COV_FRAMES = 200
+#: What the covariance is held to: the rms of error / predicted sigma lies in [0.85, 1.0]. Measured over 2300 such
+#: frames (seeds 11 and 21): 0.920 +- 0.010 across the boresight and 0.899 +- 0.013 about it, with the spread of a
+#: chi-square of 2 and 1 degrees of freedom a frame (var(z^2) / mean(z^2)^2 measured 0.99 and 2.0). So it is
+#: conservative by about 10 %, likely because it scales by the residuals, which carry the render's systematic centroid
+#: errors (blends) as well as the noise (not separated here). Above 1.0 it would be optimistic, below 0.85 overcautious.
+COV_RATIO_RANGE = (0.85, 1.0)
+
+
+def test_covariance_matches_the_error_over_random_frames(renderer, tracker, epoch):
+    """Independent frames (random attitude, noise draw): the rms of error / predicted sigma, across the boresight
+    (2 degrees of freedom a frame) and about it (1), lies in COV_RATIO_RANGE widened by the 99.9 % two-sided
+    chi-square interval of that many degrees of freedom: 0.75-1.12 across and 0.71-1.17 about the boresight with
+    200 frames. So a covariance 25 % too small or 40 % too large fails (checked by scaling the sigmas)."""
+    from scipy.stats import chi2
+
     rng = np.random.default_rng(77)
     optics = renderer.bench.tracker
-    q = _random_q(rng, 1)[0]
-    ideal = renderer.render(q, epoch, screen=False).detector
-    errs, sc, sr = [], [], []
-    for _ in range(12):
+    z_cross, z_roll = [], []
+    for q in _random_q(rng, COV_FRAMES):
+        ideal = renderer.render(q, epoch, screen=False).detector
         sol = tracker.solve(camera_noise(ideal, rng), optics, prior=q)
         assert sol.valid
-        errs.append(attitude_error_S(sol.q_SN, q) / ARCSEC)
-        sc.append(sol.sigma_cross_arcsec)
-        sr.append(sol.sigma_roll_arcsec)
-    e = np.array(errs)
-    rms_cross = math.sqrt(np.mean(e[:, 0] ** 2 + e[:, 1] ** 2))
-    rms_roll = math.sqrt(np.mean(e[:, 2] ** 2))
-    # Loose: 12 trials and a common render bias (blends) allow a factor of 3 either way.
-    assert 1 / 3 < rms_cross / np.mean(sc) < 3
-    assert 1 / 3 < rms_roll / np.mean(sr) < 3
+        e = attitude_error_S(sol.q_SN, q) / ARCSEC
+        z_cross.append(math.hypot(e[0], e[1]) / sol.sigma_cross_arcsec)
+        z_roll.append(e[2] / sol.sigma_roll_arcsec)
+    lo, hi = COV_RATIO_RANGE
+    for name, z, dof in (("cross", z_cross, 2 * COV_FRAMES), ("roll", z_roll, COV_FRAMES)):
+        ratio = math.sqrt(np.mean(np.square(z)))
+        low = lo * math.sqrt(chi2.ppf(0.0005, dof) / dof)
+        high = hi * math.sqrt(chi2.ppf(0.9995, dof) / dof)
+        assert low <= ratio <= high, (name, ratio, low, high)
 
 
 def test_image_shape_must_match_the_optics(renderer, tracker):
