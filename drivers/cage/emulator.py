@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.framer.rtu import FramerRTU
+from pymodbus.pdu import DecodePDU, ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -44,6 +46,53 @@ _READ = {3: "holding", 4: "input"}
 _WRITE = (6, 16)
 _START_TIMEOUT_S = 5.0
 _STOP_TIMEOUT_S = 5.0
+
+
+class _Refuse(ModbusPDU):
+    """A request of a function the map does not list: decoded only to be answered with exception 1."""
+
+    def __init__(self, function_code: int, emulator: CageEmulator, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.function_code = function_code
+        self._emulator = emulator
+
+    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
+        return self._emulator._refuse(self.function_code, device_id)
+
+
+class _MapDecoder(DecodePDU):
+    """pymodbus's request decoder, but only the functions of the register map reach the cage.
+
+    Every other function (pymodbus also serves 1, 2, 5, 7, 8, 11, 12, 15, 17, 20-24 and 43 on its own) is
+    refused with exception 1 and applies nothing. Over RTU a function pymodbus does not know is still
+    framed when the whole buffer is one frame with a good CRC, so it too gets its exception 1.
+    """
+
+    def __init__(self, emulator: CageEmulator, functions: tuple[int, ...]) -> None:
+        super().__init__(True)
+        self._emulator = emulator
+        self._functions = frozenset(functions)
+
+    def lookupPduClass(self, data: bytes) -> type[ModbusPDU] | None:  # noqa: N802 - pymodbus's name
+        known = super().lookupPduClass(data)
+        if known is not None or len(data) < 4 or data[1] & 0x80:
+            return known
+        if not FramerRTU.check_CRC(data[:-2], int.from_bytes(data[-2:], "big")):
+            return None  # not a whole frame: let pymodbus hunt on
+        size = len(data)
+
+        class _Whole(ModbusPDU):
+            @classmethod
+            def calculateRtuFrameSize(cls, _data: bytes) -> int:  # noqa: N802 - pymodbus's name
+                return size
+
+        return _Whole
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        fc = int(frame[0]) if frame else 0
+        if fc in self._functions:
+            return super().decode(frame)
+        return _Refuse(fc, self._emulator) if fc < 0x80 else None
 
 
 def _blocks() -> tuple[list[SimData], list[SimData], list[SimData], list[SimData]]:
@@ -134,12 +183,23 @@ class CageEmulator(Endpoint):
                 code = words
             elif function_code in _WRITE and set_values is not None:
                 code = self.model.write(address, [int(v) for v in set_values])
+            elif function_code == 6:
+                # pymodbus reads a function-6 write back to build its echo: the block holds the value just
+                # written (what the standard's echo carries), so answer from it.
+                return None
             else:
                 code = EXC_ILLEGAL_FUNCTION
         if code:
             self.counters["rejected"] += 1
             return ExcCodes(code)
         return None
+
+    def _refuse(self, function_code: int, device_id: int) -> ModbusPDU:
+        if device_id != self.config.device_id:
+            self.counters["ignored_other_id"] += 1
+            raise NoSuchIdException("not this cage")  # with ignore_missing_devices: no answer at all
+        self.counters["rejected"] += 1
+        return ExceptionResponse(function_code, ExcCodes.ILLEGAL_FUNCTION)
 
     async def _other_id(self, *_args: Any) -> None:
         self.counters["ignored_other_id"] += 1
@@ -153,13 +213,17 @@ class CageEmulator(Endpoint):
         return [SimDevice(id=self.config.device_id, simdata=_blocks(), action=self._action),
                 SimDevice(id=0, simdata=_blocks(), action=self._other_id)]
 
+    def _restrict(self, server: Any) -> Any:
+        server.decoder = _MapDecoder(self, self.model.map.function_codes)  # before listen: handlers copy it
+        return server
+
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> tuple[str, int]:
         """Serve Modbus TCP on ``host:port`` (port 0: a free one); returns the address bound."""
         devices = self._devices()
 
         def make():
-            return ModbusTcpServer(devices, address=(host, port), ignore_missing_devices=True,
-                                   trace_packet=self._trace)
+            return self._restrict(ModbusTcpServer(devices, address=(host, port), ignore_missing_devices=True,
+                                                  trace_packet=self._trace))
 
         server = self._start(make, f"tcp://{host}:{port}")
         sock = server.transport.sockets[0].getsockname()
@@ -172,8 +236,9 @@ class CageEmulator(Endpoint):
         devices = self._devices()
 
         def make():
-            return ModbusSerialServer(devices, port=port, baudrate=baudrate, parity=parity, stopbits=stopbits,
-                                      ignore_missing_devices=True, trace_packet=self._trace, reconnect_delay=0.5)
+            return self._restrict(ModbusSerialServer(
+                devices, port=port, baudrate=baudrate, parity=parity, stopbits=stopbits, ignore_missing_devices=True,
+                trace_packet=self._trace, reconnect_delay=0.5))
 
         self._start(make, port)
         self.where = f"rtu:{port}@{baudrate}"

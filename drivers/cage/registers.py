@@ -195,6 +195,12 @@ class RegisterMap:
         return str(self.device["version"])
 
     @property
+    def function_codes(self) -> tuple[int, ...]:
+        """The Modbus function codes the map supports (the leading number of each item of
+        ``device.function_codes``); every other function gets exception 1 and applies nothing."""
+        return tuple(int(item.split()[0]) for item in str(self.device["function_codes"]).split(","))
+
+    @property
     def version_word(self) -> int:
         major, _, minor = self.version.partition(".")
         return int(major) * 256 + int(minor or 0)
