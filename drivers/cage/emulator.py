@@ -49,7 +49,8 @@ log = logging.getLogger(__name__)
 _READ = {3: "holding", 4: "input"}
 #: A Modbus TCP server on a bench serves a host or two: more connections than this are closed at once.
 MAX_CONNECTIONS = 8
-#: Requests per second one TCP connection may send (and how many it may send at once): beyond it the
+#: Requests per second one TCP connection may send (and how many it may send at once) where the emulator serves
+#: outside clients (``stand emulate cage``; the stand's own in-process link is not limited): beyond it the
 #: emulator stops reading that socket until it may again, so one flooding client cannot starve another.
 MAX_REQUEST_RATE_HZ = 1000.0
 REQUEST_BURST = 100
@@ -156,8 +157,11 @@ class _GuardedHandler(ServerRequestHandler):
     def data_received(self, data: bytes) -> None:
         if not self._admitted:
             return
-        now = time.monotonic()
         rate = self._emu.max_request_rate_hz
+        if rate is None:  # the stand's own in-process link at full speed: no limit
+            super().data_received(data)
+            return
+        now = time.monotonic()
         # a chunk is charged the most requests it can hold (the shortest request, a read, is 12 bytes on TCP):
         # pipelined frames arrive many to a read
         charge = max(1, len(data) // _SHORTEST_REQUEST_BYTES)
@@ -201,11 +205,12 @@ class CageEmulator(Endpoint):
     def __init__(self, config: CageConfig | None = None, *, rng: int | np.random.Generator | None = 0,
                  clock: Callable[[], float] | None = time.monotonic, lab_field: LabField | None = None,
                  regmap: RegisterMap | None = None, tick_s: float = 0.01, name: str = "cage emulator",
-                 max_connections: int = MAX_CONNECTIONS, max_request_rate_hz: float = MAX_REQUEST_RATE_HZ,
+                 max_connections: int = MAX_CONNECTIONS, max_request_rate_hz: float | None = None,
                  request_burst: int = REQUEST_BURST) -> None:
         if not (isinstance(max_connections, int) and max_connections >= 1):
             raise ValueError(f"max_connections = {max_connections!r} is not allowed; give a whole number >= 1.")
-        if not (isinstance(max_request_rate_hz, int | float) and 0 < max_request_rate_hz < float("inf")):
+        if max_request_rate_hz is not None and not (isinstance(max_request_rate_hz, int | float)
+                                                    and 0 < max_request_rate_hz < float("inf")):
             raise ValueError(f"max_request_rate_hz = {max_request_rate_hz!r} is not allowed; give a positive rate "
                              "in requests per second.")
         if not (isinstance(request_burst, int) and request_burst >= 1):
@@ -218,7 +223,7 @@ class CageEmulator(Endpoint):
         self._tick_s = float(tick_s)
         self._lock = threading.Lock()
         self.max_connections = max_connections
-        self.max_request_rate_hz = float(max_request_rate_hz)
+        self.max_request_rate_hz = None if max_request_rate_hz is None else float(max_request_rate_hz)
         self.request_burst = request_burst
         self._connections = 0
         self._log_last: dict[str, float] = {}

@@ -206,7 +206,7 @@ def run_magnetorquer(args) -> int:
 
 def run_cage(args) -> int:
     """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time."""
-    from drivers.cage.emulator import CageEmulator
+    from drivers.cage.emulator import MAX_REQUEST_RATE_HZ, CageEmulator
     from drivers.cage.host import parse_url
     from drivers.errors import DriverError
 
@@ -214,7 +214,7 @@ def run_cage(args) -> int:
         kind, host, port = parse_url(args.port)
     except ValueError as exc:
         return _fail(str(exc))
-    emu = CageEmulator(rng=args.seed)
+    emu = CageEmulator(rng=args.seed, max_request_rate_hz=MAX_REQUEST_RATE_HZ)  # serves outside clients: limited
     old = _stop_on_sigterm()  # from before the banner: a SIGTERM any time after it stops cleanly
     status = 0
     try:
