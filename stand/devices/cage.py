@@ -80,6 +80,16 @@ class CageKind(DeviceKind):
     def needs(self, spec) -> dict[str, str]:
         return {"magnetic_field": f"the field cage {spec.name} reproduces"}
 
+    def network_peers(self, spec) -> list[tuple[str, str]]:
+        if spec.link == "hardware" and spec.url.startswith("tcp://"):
+            from drivers.cage.host import parse_url
+
+            try:
+                return [("url", parse_url(spec.url)[1])]
+            except ValueError:
+                return [("url", spec.url)]  # refused as not a host on this machine; the driver would refuse it too
+        return []
+
     def describe(self, spec) -> str:
         lead = f", commanded {spec.lead_s:g} s ahead" if spec.lead_s else ""
         if spec.link == "hardware":
