@@ -14,8 +14,15 @@ Two ways time passes:
 - ``clock=None``: sim time. Only :meth:`CageEmulator.step` moves the model (the stand calls it once
   per tick); requests see the cage as of the last step.
 
+Only the functions the register map lists reach the model (3, 4, 6, 16); every other one is answered
+with exception 1 and applies nothing. Over TCP at most ``max_connections`` clients are served (a further
+one is closed at once) and, with ``max_request_rate_hz``, each connection is held to that rate by no
+longer reading its socket; repeated log lines are rate-limited (see ``docs/cage.md``).
+
 ``counters``: ``received`` and ``sent`` (Modbus frames), ``rejected`` (requests answered with an
-exception), ``ignored_other_id`` (requests for another unit id, not answered).
+exception), ``ignored_other_id`` (requests for another unit id, not answered), ``connections`` and
+``connections_refused`` (TCP clients served, and closed for being one too many), ``throttled`` (times a
+connection was paused for exceeding its request rate).
 """
 
 from __future__ import annotations
