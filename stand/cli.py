@@ -118,7 +118,8 @@ def cmd_run(args) -> int:
 
                 if case is None:
                     base = scenario_mod.find(args.scenario).parent if args.scenario else None
-                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out)
+                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out,
+                              allow_remote=getattr(args, "allow_remote", ()))
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
             except (KeyboardInterrupt, Stopped):
@@ -275,6 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "printed); another address needs --view-token")
     r.add_argument("--view-token", default=os.environ.get("STAND_VIEW_TOKEN"),
                    help="token the page must give to pause, resume or stop the run (default: $STAND_VIEW_TOKEN)")
+    r.add_argument("--allow-remote", action="append", default=[], metavar="HOST",
+                   help="let devices reach this host or multicast group beyond this machine (repeatable; default: "
+                        "loopback and link-local multicast only)")
     r.add_argument("--campaign", metavar="DIR", help="re-run one case of this campaign (with --case)")
     r.add_argument("--case", type=int, metavar="K", help="the case index to re-run (with --campaign)")
     r.set_defaults(func=cmd_run)

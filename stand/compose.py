@@ -346,11 +346,14 @@ def initial_state(sc: Scenario):
 
 
 def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
-          out_dir: Path | None = None) -> Scene:
+          out_dir: Path | None = None, allow_remote: tuple[str, ...] | list[str] = ()) -> Scene:
     """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
     (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
     relative to (the scenario's); ``duration_s`` and ``out_dir``, the run's length (default the scenario's) and
-    folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``)."""
+    folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``); ``allow_remote``, the
+    hosts and multicast groups beyond this machine the operator allows devices to reach
+    (:func:`stand.devices.check_network`)."""
+    devices.check_network(sc.devices, allow_remote)  # before anything connects
     choices = plan(sc, duration_s, out_dir)
     built = {c.model for c in choices if c.built}
     r0, v0 = initial_state(sc)

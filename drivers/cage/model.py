@@ -485,6 +485,8 @@ class CageModel:
                 if self.over_temperature and all(ax.temperature_C < cfg.temperature_reset_C for ax in self.axes):
                     self.over_temperature = False
                 if not self.output_on and t - self._t_heartbeat > cfg.heartbeat_timeout_s:
-                    # going on without a fresh heartbeat would trip at once: latch now, say why
-                    self._trip("heartbeat_lost")
+                    # going on without a fresh heartbeat would trip at once: latch now and say why, but it is a
+                    # refused enable, not a trip (heartbeat_trips counts outputs switched off)
+                    self.heartbeat_lost = True
+                    self._note("heartbeat_lost", None)
                 self.output_on = not (self.heartbeat_lost or self.over_temperature)

@@ -55,9 +55,10 @@ def render(regmap: RegisterMap | None = None) -> str:
         "",
         f"- Transports: {d['transports']}.",
         f"- Device (unit) id {d['default_device_id']}; requests for other ids get no answer.",
-        f"- Function codes: {d['function_codes']}. Any other function code gets exception 1 (illegal "
-        "function); an address outside the tables, or a request that starts or ends inside a 32-bit "
-        "value, exception 2 (illegal address); a value a register does not accept, exception 3 (illegal value), "
+        f"- Function codes: {d['function_codes']}. A function-6 write is answered with the echo of the request, "
+        "a function-16 write with its start address and count. Any other function code gets exception 1 (illegal "
+        "function) and applies nothing; an address outside the tables, or a request that starts or ends inside a "
+        "32-bit value, exception 2 (illegal address); a value a register does not accept, exception 3 (illegal value), "
         "and nothing of that request is applied.",
         "- Addresses are the 0-based addresses a request carries (a manual counting from 1 would call "
         "holding register 0 \"40001\" and input register 0 \"30001\").",

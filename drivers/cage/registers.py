@@ -12,6 +12,7 @@ for enum registers.
 from __future__ import annotations
 
 import math
+import operator
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -113,6 +114,11 @@ class Register:
 
     def words_from_raw(self, raw: int) -> list[int]:
         lo, hi = self.raw_range
+        try:
+            raw = operator.index(raw)  # a whole number only: a float or a string has no counts
+        except TypeError:
+            raise EncodeError(f"{self.name} = {raw!r} is not a whole number of counts; give an integer in "
+                              f"{lo}..{hi}.") from None
         if not lo <= raw <= hi:
             raise EncodeError(f"{self.name} = {raw!r} counts is outside its {self.type} range {lo}..{hi}.")
         v = raw & ((1 << (16 * self.words)) - 1)
@@ -126,26 +132,36 @@ class Register:
         Raises EncodeError (a ValueError) naming the register, the value and the allowed range.
         """
         if self.bits is not None and not isinstance(value, int | float):
-            names = set(value)
-            unknown = names - set(self.bits)
-            if unknown:
-                raise EncodeError(f"{self.name}: unknown bit(s) {sorted(unknown)}; known: {', '.join(self.bits)}.")
-            return self.words_from_raw(sum(1 << i for i, b in enumerate(self.bits) if b in names))
+            return self._encode_bits(value)
         if self.enum is not None and isinstance(value, str):
             if value not in self.enum:
                 raise EncodeError(f"{self.name} = {value!r} is not one of {', '.join(self.enum)}.")
             return self.words_from_raw(self.enum.index(value))
         try:
             x = float(value)
-        except (TypeError, ValueError):
-            raise EncodeError(f"{self.name} = {value!r} is not a number.") from None
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond a float's range
+            raise EncodeError(f"{self.name} = {value!r:.80} is not a number in {self._si_phrase()}.") from None
         if not math.isfinite(x):
             raise EncodeError(f"{self.name} = {value!r} is not finite; give a number in {self._si_phrase()}.")
-        raw = round(x / self.scale)
+        counts = x / self.scale
         lo, hi = self.raw_range
-        if not lo <= raw <= hi:
+        # compare before rounding: a huge x over a tiny scale is inf here, and round(inf) overflows
+        if not lo - 0.5 <= counts <= hi + 0.5 or not lo <= (raw := round(counts)) <= hi:
             raise EncodeError(f"{self.name} = {value!r} is outside what the register carries, {self._si_phrase()}.")
         return self.words_from_raw(raw)
+
+    def _encode_bits(self, value: Any) -> list[int]:
+        assert self.bits is not None
+        try:
+            names = set(value)
+        except TypeError:  # not iterable, or an unhashable member
+            raise EncodeError(f"{self.name} = {value!r:.80} is not a set of bit names; known: "
+                              f"{', '.join(self.bits)}.") from None
+        unknown = names - set(self.bits)
+        if unknown:
+            shown = sorted(repr(n) for n in unknown)[:8]
+            raise EncodeError(f"{self.name}: unknown bit(s) {', '.join(shown)}; known: {', '.join(self.bits)}.")
+        return self.words_from_raw(sum(1 << i for i, b in enumerate(self.bits) if b in names))
 
     def _si_phrase(self) -> str:
         lo, hi = self.si_range
@@ -177,6 +193,12 @@ class RegisterMap:
     @property
     def version(self) -> str:
         return str(self.device["version"])
+
+    @property
+    def function_codes(self) -> tuple[int, ...]:
+        """The Modbus function codes the map supports (the leading number of each item of
+        ``device.function_codes``); every other function gets exception 1 and applies nothing."""
+        return tuple(int(item.split()[0]) for item in str(self.device["function_codes"]).split(","))
 
     @property
     def version_word(self) -> int:
@@ -215,7 +237,11 @@ class RegisterMap:
 
     def encode(self, table: str, values: Mapping[str, Any]) -> tuple[int, list[int]]:
         """``(start, words)`` for registers given by name, which must be contiguous."""
-        regs = sorted((self.table(table)[n] for n in values), key=lambda r: r.address)
+        tab = self.table(table)
+        unknown = [n for n in values if n not in tab]
+        if unknown:
+            raise EncodeError(f"{unknown[0]!r:.80} is not a {table} register; known: {', '.join(tab)}.")
+        regs = sorted((tab[n] for n in values), key=lambda r: r.address)
         if not regs:
             raise EncodeError("nothing to encode: give at least one register.")
         words: list[int] = []

@@ -123,12 +123,20 @@ class SpinSource:
         return TrackerTruth(q_TN=tuple(float(x) for x in q), omega_TN_T=tuple(float(x) for x in self.omega))
 
 
+#: After a SIGTERM the emulator has this long to stop cleanly; then SIGALRM's default action ends the process
+#: (a write to an output nobody drains, or a server thread that does not stop, cannot keep it alive).
+SIGTERM_GRACE_S = 10
+
+
 def _stop_on_sigterm():
-    """SIGTERM stops like Ctrl-C; returns the previous handler (None off the main thread)."""
+    """SIGTERM stops like Ctrl-C, and for sure within ``SIGTERM_GRACE_S``; returns the previous handler (None off
+    the main thread)."""
     if threading.current_thread() is not threading.main_thread():
         return None
 
     def _term(signum, frame):
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.alarm(SIGTERM_GRACE_S)
         raise KeyboardInterrupt
 
     return signal.signal(signal.SIGTERM, _term)
@@ -198,7 +206,7 @@ def run_magnetorquer(args) -> int:
 
 def run_cage(args) -> int:
     """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time."""
-    from drivers.cage.emulator import CageEmulator
+    from drivers.cage.emulator import MAX_REQUEST_RATE_HZ, CageEmulator
     from drivers.cage.host import parse_url
     from drivers.errors import DriverError
 
@@ -206,21 +214,31 @@ def run_cage(args) -> int:
         kind, host, port = parse_url(args.port)
     except ValueError as exc:
         return _fail(str(exc))
-    emu = CageEmulator(rng=args.seed)
+    emu = CageEmulator(rng=args.seed, max_request_rate_hz=MAX_REQUEST_RATE_HZ)  # serves outside clients: limited
+    old = _stop_on_sigterm()  # from before the banner: a SIGTERM any time after it stops cleanly
+    status = 0
     try:
-        if kind == "tcp":
-            emu.serve_tcp(host, port)
-        else:
-            emu.serve_rtu(host, baudrate=args.baud)
-    except DriverError as exc:
+        try:
+            if kind == "tcp":
+                emu.serve_tcp(host, port)
+            else:
+                emu.serve_rtu(host, baudrate=args.baud)
+        except DriverError as exc:
+            emu.close()
+            return _fail(str(exc))
+        with emu:
+            print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
+                                                          " until Ctrl-C") + OPEN_LOOP, flush=True)
+            status = serve_until_stopped(emu, args.duration)
+    except KeyboardInterrupt:
         emu.close()
-        return _fail(str(exc))
-    with emu:
-        print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
-                                                      " until Ctrl-C") + OPEN_LOOP, flush=True)
-        status = serve_until_stopped(emu, args.duration)
-        print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
-                          "counters": emu.counters}), flush=True)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+    print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
+                      "counters": emu.counters}), flush=True)
+    if threading.current_thread() is threading.main_thread():
+        signal.alarm(0)  # stopped cleanly: a caller in the same process (a test) lives on
     return status
 
 

@@ -195,6 +195,13 @@ class DeviceKind:
     def parse(self, t: Table, base: DeviceSpec, step_s: float) -> DeviceSpec:
         raise NotImplementedError
 
+    def network_peers(self, spec: DeviceSpec) -> list[tuple[str, str]]:
+        """Network addresses a device of this spec would reach: ``(scenario key, host or multicast group)``, checked
+        by :func:`check_network` before anything is built (default: a python-can ``udp_multicast`` channel)."""
+        if getattr(spec, "interface", None) == "udp_multicast":
+            return [("channel", str(getattr(spec, "channel", "")))]
+        return []
+
     def momentum_wheel(self, spec: DeviceSpec):
         """``(spin_axis_B, inertia_kg_m2, speed0_rad_s)`` when a device of this spec is a momentum wheel the truth
         must carry in its dynamics (composition builds the wheel cluster from these before any device), else
@@ -237,6 +244,65 @@ CAN_INTERFACES = {
 CAN_INTERFACES["served"] = CAN_INTERFACES["hardware"]
 #: Network hosts a serial URL (socket://, rfc2217://) may name: a scenario never makes the stand connect out.
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "[::1]")
+
+
+#: What ``stand run --allow-remote`` says, for the sentence that refuses an address.
+ALLOW_REMOTE_FLAG = "stand run --allow-remote"
+
+
+def is_loopback_host(host: str) -> bool:
+    """``localhost`` or an address in 127.0.0.0/8 or ::1: a peer on this machine."""
+    import ipaddress
+
+    host = host.strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # any other name may resolve anywhere
+
+
+def is_local_multicast(group: str) -> bool:
+    """A multicast group whose datagrams stay on this host or its link: 224.0.0.0/24 (never routed), or an IPv6
+    interface-local (ffx1::/16) or link-local (ffx2::/16) group."""
+    import ipaddress
+
+    try:
+        addr = ipaddress.ip_address(group.strip("[]"))
+    except ValueError:
+        return False
+    if not addr.is_multicast:
+        return False
+    if addr.version == 4:
+        return addr in ipaddress.ip_network("224.0.0.0/24")
+    return addr.packed[1] & 0x0F in (1, 2)  # the scope nibble of ffXS::
+
+
+def check_network(specs, allow_remote=()) -> None:
+    """Before anything is built: every network address a device would reach is on this machine (loopback), or a
+    link-/host-local multicast group, or one the operator allowed on the command line (``--allow-remote``).
+
+    Raises ScenarioError naming the device's field, the value and the flag."""
+    from stand.errors import ScenarioError
+
+    allowed = {h.strip().strip("[]").lower() for h in allow_remote}
+    for i, spec in enumerate(specs):
+        for key, address in get(spec.kind).network_peers(spec):
+            value = str(getattr(spec, key, address))
+            if address.strip("[]").lower() in allowed:
+                continue
+            if key == "channel":  # a multicast group
+                if is_local_multicast(address):
+                    continue
+                raise ScenarioError(f"devices[{i}].{key}", value, "a multicast group that stays on this host or its "
+                                    "link (224.0.0.0/24, ff01::/16, ff02::/16); a scenario does not make the stand "
+                                    f"send to the network unless the operator allows that group: {ALLOW_REMOTE_FLAG} "
+                                    f"{address}")
+            if not is_loopback_host(address):
+                raise ScenarioError(f"devices[{i}].{key}", value, "a host on this machine (127.0.0.0/8, ::1, "
+                                    "localhost); a scenario does not make the stand connect to other hosts unless "
+                                    f"the operator allows that host: {ALLOW_REMOTE_FLAG} {address}")
 
 
 #: How an emulated serial device is wired to its host driver: ``pipe`` (in-process, the bytes never leave Python:

@@ -9,11 +9,19 @@ a magnetometer whose scenario table says ``field_source = "NAME"`` reads the cag
 Links: ``emulated`` (the cage emulator served over Modbus TCP on 127.0.0.1, stepped in sim time: coil L/R
 dynamics, supply slew and current limits, polarity relays, interlocks, lab field) and ``hardware`` (a real cage
 at ``url``, with its calibration file: coil constants and lab field from ``stand``'s calibration routine).
+
+A real cage switches itself off when its heartbeat stops for ``heartbeat_timeout_s`` (0.5 s on the nominal bench),
+which an operator's pause or a stalled loop would otherwise cause: on a hardware link a keepalive thread, apart from
+the loop, writes a heartbeat whenever the loop has not commanded the cage for a quarter of that timeout. Every
+command tick reads the cage's status back; a cage found off is logged (``cage_trip``), switched on again
+(``cage_reenabled``) or, when it refuses, ends the run as aborted; the summary counts both.
 """
 
 from __future__ import annotations
 
 import math
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +31,9 @@ from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_se
 NT = 1e-9
 #: The following error is scored after the cage has come up from zero to the first field (its supplies slew).
 SETTLE_S = 2.0
+#: The keepalive writes a heartbeat once the loop has been silent for this fraction of the cage's heartbeat timeout
+#: (and looks that often): three chances before the cage would trip.
+KEEPALIVE_FRACTION = 0.25
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,16 @@ class CageKind(DeviceKind):
     def needs(self, spec) -> dict[str, str]:
         return {"magnetic_field": f"the field cage {spec.name} reproduces"}
 
+    def network_peers(self, spec) -> list[tuple[str, str]]:
+        if spec.link == "hardware" and spec.url.startswith("tcp://"):
+            from drivers.cage.host import parse_url
+
+            try:
+                return [("url", parse_url(spec.url)[1])]
+            except ValueError:
+                return [("url", spec.url)]  # refused as not a host on this machine; the driver would refuse it too
+        return []
+
     def describe(self, spec) -> str:
         lead = f", commanded {spec.lead_s:g} s ahead" if spec.lead_s else ""
         if spec.link == "hardware":
@@ -114,6 +135,13 @@ class Cage(Device):
         self._prev_target = None
         self._err2_sum, self._err_peak, self._n = 0.0, 0.0, 0
         self._lags: list[tuple] = []  # (truth b_B, cage b_B) per tick, to estimate the lag at the end
+        # pymodbus's client is not thread-safe: the loop and the keepalive take turns on it
+        self._io = threading.Lock()
+        self._events = None
+        self._last_command_s = time.monotonic()
+        self._keepalive: threading.Thread | None = None
+        self._stop_keepalive = threading.Event()
+        self.trips = self.reenabled = self.keepalive_heartbeats = self.keepalive_errors = 0
         if spec.link == "hardware":
             self.host = CageHost.open(spec.url, calibration=CageCalibration.load(spec.calibration))
         else:
@@ -130,13 +158,68 @@ class Cage(Device):
             except BaseException:
                 self.emulator.close()
                 raise
-        self.host.enable()
+        try:
+            status = self.host.enable()
+            if spec.link == "hardware":
+                self._start_keepalive(float(status.limits["heartbeat_timeout_s"]))
+        except BaseException:
+            self.close()
+            raise
+
+    # -- the heartbeat while the loop is not commanding (paused, stalled) -----------------------------------------
+
+    def _start_keepalive(self, timeout_s: float) -> None:
+        period_s = max(timeout_s, 1e-3) * KEEPALIVE_FRACTION
+        self._keepalive = threading.Thread(target=self._keep_alive, args=(period_s,), daemon=True,
+                                           name=f"cage-keepalive {self.name}")
+        self._keepalive.start()
+
+    def _keep_alive(self, period_s: float) -> None:
+        from drivers.errors import DriverError
+
+        while not self._stop_keepalive.wait(period_s):
+            if time.monotonic() - self._last_command_s < period_s:
+                continue  # the loop is commanding: every command carries a heartbeat
+            with self._io:
+                try:
+                    self.host.heartbeat()
+                    self.keepalive_heartbeats += 1
+                    self._last_command_s = time.monotonic()
+                except DriverError:
+                    self.keepalive_errors += 1  # the loop's next command meets the same fault and reports it
+
+    def _log(self, kind: str, message: str, **fields) -> None:
+        if self._events is not None:
+            self._events.log(kind, message, **fields)
+
+    def _switched_off(self, t_s: float) -> None:
+        """The cage is off although the stand switched it on: log why, switch it on again, or end the run."""
+        from drivers.errors import DriverError
+
+        self.trips += 1
+        st = self.host.status()
+        why = ", ".join(sorted(st.interlocks)) or f"none engaged now (last: {st.last_interlock})"
+        counted = {k: st.values[k] for k in ("heartbeat_trips", "over_temperature_trips")}
+        self._log("cage_trip", f"{self.name}: the cage switched its outputs off by t = {t_s:.3f} s; interlocks: "
+                  f"{why}; its trip counters: {counted}", t_s=t_s, interlocks=sorted(st.interlocks), **counted)
+        try:
+            self.host.enable()
+        except DriverError as exc:
+            self._log("cage_reenable_failed", f"{self.name}: {exc}", t_s=t_s)
+            raise DriverError(f"{self.name}: the cage switched its outputs off by t = {t_s:.3f} s ({why}) and "
+                              f"refused to switch them on again: {exc}") from None
+        self.reenabled += 1
+        self._log("cage_reenabled", f"{self.name}: outputs switched on again at t = {t_s:.3f} s", t_s=t_s)
+
+    def start(self, events) -> None:
+        self._events = events
 
     def stimulus_field_B(self) -> tuple[float, float, float]:
         """The field at the test position now (T, body axes = cage axes): what a magnetometer in the cage sees."""
         if self.emulator is not None:
             return tuple(float(x) for x in self.emulator.cage_field_T())
-        return self.host.take_field().b_T
+        with self._io:
+            return self.host.take_field().b_T
 
     def columns(self):
         n = self.name
@@ -154,7 +237,13 @@ class Cage(Device):
                 target = tuple(b + (b - p) * self.spec.lead_s / dt for b, p in zip(target, self._prev_target,
                                                                                   strict=True))
             self._prev_target = self.truth.b_B()
-            self.host.command_field(target)
+            with self._io:
+                self.host.command_field(target)
+                self._last_command_s = time.monotonic()
+                # emulated: the model says it without a request (a run at full speed makes ~10 commands a sim s)
+                on = self.emulator.model.output_on if self.emulator is not None else self.host.take_field().output_on
+                if not on:
+                    self._switched_off(t_s)
             self._b_cmd = tuple(target)
         self._k += 1
         if t_s >= SETTLE_S:
@@ -167,14 +256,17 @@ class Cage(Device):
             self._lags.append((*true, *cage))
 
     def row(self):
-        f = self.host.take_field()
+        with self._io:
+            f = self.host.take_field()
         return (*self._b_cmd, *self.stimulus_field_B(), *f.currents_A, float(len(f.interlocks)))
 
     def activity(self) -> int:
         return self.host.counters.get("received", 0)
 
     def summary(self) -> dict:
-        out = {"host": dict(self.host.counters)}
+        out = {"host": dict(self.host.counters), "trips": self.trips, "reenabled": self.reenabled}
+        if self.spec.link == "hardware":
+            out["keepalive"] = {"heartbeats": self.keepalive_heartbeats, "errors": self.keepalive_errors}
         if self.emulator is not None:
             out["emulator"] = dict(self.emulator.counters)
         if self._n:
@@ -193,11 +285,17 @@ class Cage(Device):
         return round(best * self.step_s, 6)
 
     def close(self) -> None:
-        try:
-            self.host.safe_off()
-        except Exception:  # a cage that stopped answering is already off (its heartbeat watchdog)
-            pass
-        self.host.close()
+        self._stop_keepalive.set()
+        if self._keepalive is not None:
+            self._keepalive.join(5.0)
+        host = getattr(self, "host", None)
+        if host is not None:
+            try:
+                with self._io:
+                    host.safe_off()
+            except Exception:  # a cage that stopped answering is already off (its heartbeat watchdog)
+                pass
+            host.close()
         if self.emulator is not None:
             self.emulator.close()
 

@@ -88,3 +88,43 @@ def test_a_broken_map_is_refused_naming_the_entry(tmp_path, edit, message):
     path.write_text(text.replace(edit[0], edit[1], 1))
     with pytest.raises(ValueError, match=message):
         load_map(path)
+
+
+_any_value = st.one_of(
+    st.none(), st.booleans(), st.integers(), st.integers(min_value=10**308, max_value=10**400),
+    st.floats(), st.floats(min_value=1e300), st.complex_numbers(), st.text(max_size=12), st.binary(max_size=8),
+    st.sampled_from(["none", "x", "negative_x", "output_on", "3", "1e400", "nan"]),
+    st.lists(st.one_of(st.text(max_size=12), st.integers(), st.lists(st.integers(), max_size=2)), max_size=4),
+    st.frozensets(st.sampled_from(["negative_x", "negative_y", "output_on", "bogus"])),
+    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2), st.builds(object),
+)
+
+
+@given(_regs, _any_value)
+def test_encode_of_any_value_gives_words_or_an_encode_error(reg, value):
+    """Issue 22: out-of-range or wrong-type values raised OverflowError / TypeError from the codec."""
+    try:
+        words = reg.encode(value)
+    except EncodeError as exc:
+        assert reg.name in str(exc)
+        return
+    assert len(words) == reg.words and all(isinstance(w, int) and 0 <= w <= 0xFFFF for w in words)
+
+
+@given(_regs, st.one_of(st.integers(), st.floats(), st.text(max_size=4), st.none(), st.builds(object)))
+def test_words_from_raw_of_any_value_gives_words_or_an_encode_error(reg, raw):
+    try:
+        words = reg.words_from_raw(raw)
+    except EncodeError as exc:
+        assert reg.name in str(exc)
+        return
+    assert isinstance(raw, int) and reg.raw_from_words(words) == raw
+
+
+@given(st.dictionaries(st.sampled_from([*MAP.holding, "no_such_register"]), _any_value, max_size=6))
+def test_map_encode_of_any_values_gives_words_or_an_encode_error(values):
+    try:
+        start, words = MAP.encode("holding", values)
+    except EncodeError:
+        return
+    assert 0 <= start and all(0 <= w <= 0xFFFF for w in words)

@@ -81,7 +81,8 @@ def test_external_bdot_closes_the_detumble_over_can_udp_multicast_in_a_private_n
         f"({sys.executable} {EXTERNAL} --interface udp_multicast --channel {group} --idle-s 10 "
         f"> {tmp_path}/fc.log 2>&1 &) && "
         f"{sys.executable} -m stand.cli run detumble_external --set devices.mtq.interface=udp_multicast "
-        f"--set devices.mtq.channel={group} --speed {SPEED} --duration 3600 --out {out} --no-progress; "
+        f"--set devices.mtq.channel={group} --allow-remote {group} --speed {SPEED} --duration 3600 --out {out} "
+        "--no-progress; "
         "rc=$?; sleep 1; exit $rc"
     )
     proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=stand_env(), cwd=tmp_path, capture_output=True,
