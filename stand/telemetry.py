@@ -65,9 +65,8 @@ class Recorder:
     def record(self, row: tuple) -> None:
         if self.error is not None:
             raise TelemetryError(self.error)
-        if len(row) != self.width:  # refused here, where the loop can say when; the writer would only lose it
-            self.error = self.width_error(len(row))
-            raise TelemetryError(self.error)
+        if len(row) != self.width:  # refused here, where the loop can say when; the rows before are still written
+            raise TelemetryError(self.width_error(len(row)))
         self._buffer.append(row)
         if len(self._buffer) >= BATCH_ROWS or self._clock() - self._last_handoff >= FLUSH_S:
             self._handoff()
