@@ -167,12 +167,14 @@ def _prepare(args):
     return sc, speed, case, out, created, scene
 
 
-def _verdict_on_disk(out: Path, summary: dict) -> bool:
-    """PASS only if summary.json, read back from disk, says so too (a run never exits 0 without it)."""
+def _summary_on_disk(out: Path) -> dict | None:
+    """summary.json read back (None when it cannot be): the exit code follows what the run left, not what it meant
+    to write, so a run never exits 0 without its summary."""
     try:
-        return json.loads((out / "summary.json").read_text()).get("pass") is True and summary["pass"] is True
+        data = json.loads((out / "summary.json").read_text())
     except (OSError, ValueError):
-        return False
+        return None
+    return data if isinstance(data, dict) else None
 
 
 def cmd_run(args) -> int:
@@ -236,7 +238,12 @@ def _report(summary: dict, result, sc, out: Path, case, limit_text) -> int:
     status = summary["status"]
     if summary["error"]:
         print(f"stand: run {status}: {summary['error']}", file=sys.stderr)
-    passed = _verdict_on_disk(out, summary)
+    on_disk = _summary_on_disk(out)
+    if on_disk is None or on_disk.get("status") != status:
+        print(f"stand: error: {out / 'summary.json'} does not hold this run's summary after writing it",
+              file=sys.stderr)
+        status = "aborted"
+    passed = summary["pass"] is True and on_disk is not None and on_disk.get("pass") is True
     verdict = "PASS" if passed else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status, "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")

@@ -262,3 +262,23 @@ def test_a_disk_that_fills_mid_run_leaves_a_whole_summary(tmp_path):
     assert summary["status"] == "aborted" and not summary["pass"] and "telemetry" in summary["error"]
     assert "No space left on device" in summary["error"] and "report_error" in summary
     assert result["rows"] > 0 and "Traceback" not in result["err"]
+
+
+def test_no_exit_0_without_the_summary_on_disk(tmp_path, monkeypatch, capsys):
+    """The criteria hold, but summary.json is gone when the verdict is given (a disk that lost it, another program):
+    `stand run` reads it back and does not exit 0."""
+    from stand import report
+
+    real = report.write_summary
+
+    def lose_it(scene, result, out, *a, **k):
+        summary = real(scene, result, out, *a, **k)
+        (out / "summary.json").unlink()
+        return summary
+
+    monkeypatch.setattr(report, "write_summary", lose_it)
+    out = tmp_path / "lost"
+    lenient = ["--set", "criteria.detumbled.max=100"]
+    assert main(["run", "--duration", "30", "--out", str(out), "--no-progress", *lenient]) == 3
+    captured = capsys.readouterr()
+    assert "PASS: detumble" not in captured.out and "does not hold this run's summary" in captured.err
