@@ -28,7 +28,8 @@ EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
   1    a criterion failed
   2    a usage or scenario error (one sentence names the field, the value and what is allowed)
-  3    the run was aborted: a device fault, a plug-in exception, a full disk (summary and log kept)
+  3    the run was aborted: a device fault, a plug-in exception, a full disk, a record that is not whole
+       (summary and log kept)
   130  stopped by the operator (Ctrl-C or SIGTERM; summary and log kept)"""
 
 
