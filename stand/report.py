@@ -120,8 +120,7 @@ def unvouched(scene: Scene, result: RunResult, tel, out_dir: Path, duration_s: f
     telemetry writer ended cleanly, whatever the loop believed."""
     sc = scene.scenario
     if result.status != "completed":  # it says so itself; what follows would only repeat it
-        return [f"the run {'was ' if result.status == 'stopped' else ''}{result.status}"
-                + (f": {result.error}" if result.error else "")]
+        return [f"the run was {result.status}" + (f": {result.error}" if result.error else "")]
     why = [f"the run reported an error: {result.error}"] if result.error else []
     step_ns = getattr(scene.truth, "step_ns", None) or seconds_to_ns(sc.step_s)
     wanted_s = sc.duration_s if duration_s is None else duration_s
@@ -226,7 +225,10 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
         write_markdown(summary, made, out_dir)
     except OSError as exc:  # a full disk: the summary above is what matters, and it is whole
         summary["report_error"] = f"plots or report.md not written: {exc.strerror or exc}"
-        write_summary_file(out_dir, summary)
+        try:
+            write_summary_file(out_dir, summary)
+        except OSError:
+            pass  # the summary written above stays, whole; only this note is lost
     return summary
 
 
