@@ -168,6 +168,22 @@ def _prepare(args):
     return sc, speed, case, out, created, scene
 
 
+def _escaped(exc: BaseException, out: Path):
+    """The result of a run that something escaped the loop from (a plug-in's ``sys.exit()``, another
+    BaseException): aborted, with what the telemetry shows; the loop's own handling comes first, this is the
+    backstop so that `stand run` never ends without its summary."""
+    from .loop import RunResult
+    from .telemetry import load
+
+    try:
+        t = load(out)["t_s"]
+        end_s = float(t[-1]) if len(t) else 0.0
+    except (OSError, ValueError, KeyError):
+        end_s = 0.0
+    return RunResult("aborted", end_s, 0.0, 0, {"ticks": 0}, f"the run was ended from inside the loop by "
+                     f"{type(exc).__name__}({exc}) after t = {end_s:g} s (a plug-in may not end the stand's process)")
+
+
 def _summary_on_disk(out: Path) -> dict | None:
     """summary.json read back (None when it cannot be): the exit code follows what the run left, not what it meant
     to write, so a run never exits 0 without its summary."""
@@ -217,6 +233,10 @@ def cmd_run(args) -> int:
                     result = run(scene, out, speed=speed, duration_s=args.duration,
                                  progress=args.progress if args.progress is not None else sys.stderr.isatty(),
                                  observer=live.observer if live is not None else None)
+                except KeyboardInterrupt:
+                    raise
+                except BaseException as exc:  # noqa: BLE001 - a plug-in's sys.exit(): the run still ends with a summary
+                    result = _escaped(exc, out)
                 finally:
                     if live is not None:
                         live.close(result.status if result is not None else "aborted")

@@ -296,6 +296,16 @@ class Wide:
         return (1.0,) if self.t < self.bad_after_s else (1.0, 2.0)
 
 
+class Exits:
+    """Calls sys.exit(0) in update() at t = 1 s."""
+    def __init__(self, devices, period_s):
+        pass
+    def update(self, t_s):
+        if t_s >= 1.0:
+            import sys
+            sys.exit(0)
+
+
 class Raises:
     """Raises in update() from t = at_s on."""
     def __init__(self, devices, period_s, at_s=0.0):
@@ -497,3 +507,15 @@ def test_a_long_run_holds_no_more_memory_than_a_short_one(scenario_dict, write_s
     short_run = _memory_held_at_the_end(scenario_dict, write_scenario, tmp_path, 100.0)
     long_run = _memory_held_at_the_end(scenario_dict, write_scenario, tmp_path, 1000.0)
     assert (long_run - short_run) / 9000 < 4.0, (short_run, long_run)
+
+
+def test_a_plugin_calling_sys_exit_0_does_not_end_stand_run_with_exit_0(scenario_dict, write_scenario, tmp_path):
+    """`stand run` never exits 0 without its summary: a plug-in's sys.exit(0) ends the run aborted, summary written."""
+    from stand.cli import main
+
+    path = write_scenario(with_plugin(scenario_dict, tmp_path, "Exits"))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--duration", "30", "--out", str(out), "--no-progress"]) == 3
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "aborted" and not summary["pass"]
+    assert (out / "report.md").exists()
