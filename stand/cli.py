@@ -168,10 +168,11 @@ def _prepare(args):
     return sc, speed, case, out, created, scene
 
 
-def _escaped(exc: BaseException, out: Path):
+def _escaped(exc: BaseException, out: Path, stopped: bool = False):
     """The result of a run that something escaped the loop from (a plug-in's ``sys.exit()``, another
-    BaseException): aborted, with what the telemetry shows; the loop's own handling comes first, this is the
-    backstop so that `stand run` never ends without its summary."""
+    BaseException, a signal outside the loop's own handling): aborted (stopped for a signal), with what the
+    telemetry shows; the loop's own handling comes first, this is the backstop so that `stand run` never ends
+    without its summary."""
     from .loop import RunResult
     from .telemetry import load
 
@@ -180,6 +181,9 @@ def _escaped(exc: BaseException, out: Path):
         end_s = float(t[-1]) if len(t) else 0.0
     except (OSError, ValueError, KeyError):
         end_s = 0.0
+    if stopped:
+        return RunResult("stopped", end_s, 0.0, 0, {"ticks": 0}, f"stopped by the operator ({type(exc).__name__}) "
+                         f"after t = {end_s:g} s")
     return RunResult("aborted", end_s, 0.0, 0, {"ticks": 0}, f"the run was ended from inside the loop by "
                      f"{type(exc).__name__}({exc}) after t = {end_s:g} s (a plug-in may not end the stand's process)")
 
@@ -233,10 +237,8 @@ def cmd_run(args) -> int:
                     result = run(scene, out, speed=speed, duration_s=args.duration,
                                  progress=args.progress if args.progress is not None else sys.stderr.isatty(),
                                  observer=live.observer if live is not None else None)
-                except KeyboardInterrupt:
-                    raise
                 except BaseException as exc:  # noqa: BLE001 - a plug-in's sys.exit(): the run still ends with a summary
-                    result = _escaped(exc, out)
+                    result = _escaped(exc, out, stopped=isinstance(exc, KeyboardInterrupt | Stopped))
                 finally:
                     if live is not None:
                         live.close(result.status if result is not None else "aborted")
