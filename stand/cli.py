@@ -28,7 +28,8 @@ EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
   1    a criterion failed
   2    a usage or scenario error (one sentence names the field, the value and what is allowed)
-  3    the run was aborted: a device fault, a plug-in exception, a full disk (summary and log kept)
+  3    the run was aborted: a device fault, a plug-in exception, a full disk, a record that is not whole
+       (summary and log kept)
   130  stopped by the operator (Ctrl-C or SIGTERM; summary and log kept)"""
 
 
@@ -86,11 +87,122 @@ def _speed(args, sc) -> float | None:
     return speed
 
 
+def _reserve_out(args, sc) -> tuple[Path, bool]:
+    """The run's folder, made now, and whether this run created it. ``--out`` may name a new or empty folder; the
+    default ``runs/NAME-TIME`` is made with an exclusive mkdir, with ``-2``, ``-3``, ... when another run started
+    in the same second took the name, so two runs never share a folder. Any failure is a ScenarioError on --out."""
+    if args.out:
+        out = Path(args.out)
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
+        created = not out.exists()
+        _mkdir_out(out, exist_ok=True)
+        return out, created
+    base = Path("runs") / f"{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    _mkdir_out(base.parent, exist_ok=True)
+    for k in range(1, MAX_SAME_SECOND + 1):
+        out = base if k == 1 else base.with_name(f"{base.name}-{k}")
+        try:
+            _mkdir_out(out, exist_ok=False)
+            return out, True
+        except FileExistsError:
+            continue
+    raise ScenarioError("--out", None, f"a folder name: {base} and {MAX_SAME_SECOND - 1} numbered ones beside it are "
+                        "taken; name one with --out")
+
+
+#: Runs started in the same second that still get a folder of their own (runs/NAME-TIME-2 ... -N).
+MAX_SAME_SECOND = 1000
+
+
+def _mkdir_out(path: Path, exist_ok: bool) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=exist_ok)
+    except FileExistsError:
+        if not exist_ok:
+            raise
+        raise ScenarioError("--out", str(path), "a directory (a file of that name is in the way)") from None
+    except OSError as exc:
+        raise ScenarioError("--out", str(path), f"a folder the stand can create and write in "
+                            f"({exc.strerror or exc})") from None
+
+
+def _unreserve(out: Path | None, created: bool) -> None:
+    """Nothing ran: take back the placeholder summary and the folder this run made, leaving no empty folder."""
+    if out is None:
+        return
+    for name in ("summary.json", "view.json"):
+        (out / name).unlink(missing_ok=True)
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+
+
+def _prepare(args):
+    """Scenario, speed, case, the run's folder (made, with a placeholder summary) and the scene, before t = 0."""
+    from .compose import build
+    from .report import reserve_summary
+
+    case = base = None
+    if args.campaign is not None or args.case is not None:
+        sc, base, case = _campaign_case(args)
+    else:
+        sc = _load_scenario(args.scenario, args.seed, args.set)
+    speed = _speed(args, sc)
+    if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
+        raise ScenarioError("--duration", args.duration, f"seconds from the step ({sc.step_s:g} s) to "
+                            f"100 times the scenario's duration ({sc.duration_s * 100:g} s)")
+    out, created = _reserve_out(args, sc)
+    try:
+        try:
+            reserve_summary(out, sc)
+        except OSError as exc:
+            raise ScenarioError("--out", str(out), f"a folder the stand can write in ({exc.strerror or exc})") from None
+        from . import scenario as scenario_mod
+
+        if case is None:
+            base = scenario_mod.find(args.scenario).parent if args.scenario else None
+        scene = build(sc, speed, base, duration_s=args.duration, out_dir=out,
+                      allow_remote=getattr(args, "allow_remote", ()))
+    except BaseException:
+        _unreserve(out, created)
+        raise
+    return sc, speed, case, out, created, scene
+
+
+def _escaped(exc: BaseException, out: Path, stopped: bool = False):
+    """The result of a run that something escaped the loop from (a plug-in's ``sys.exit()``, another
+    BaseException, a signal outside the loop's own handling): aborted (stopped for a signal), with what the
+    telemetry shows; the loop's own handling comes first, this is the backstop so that `stand run` never ends
+    without its summary."""
+    from .loop import RunResult
+    from .telemetry import load
+
+    try:
+        t = load(out)["t_s"]
+        end_s = float(t[-1]) if len(t) else 0.0
+    except (OSError, ValueError, KeyError):
+        end_s = 0.0
+    if stopped:
+        return RunResult("stopped", end_s, 0.0, 0, {"ticks": 0}, f"stopped by the operator ({type(exc).__name__}) "
+                         f"after t = {end_s:g} s")
+    return RunResult("aborted", end_s, 0.0, 0, {"ticks": 0}, f"the run was ended from inside the loop by "
+                     f"{type(exc).__name__}({exc}) after t = {end_s:g} s (a plug-in may not end the stand's process)")
+
+
+def _summary_on_disk(out: Path) -> dict | None:
+    """summary.json read back (None when it cannot be): the exit code follows what the run left, not what it meant
+    to write, so a run never exits 0 without its summary."""
+    try:
+        data = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
 def cmd_run(args) -> int:
     from drivers.errors import DriverError
 
     from .adcs import PluginError
-    from .compose import build
     from .loop import Stopped, run
     from .report import limit_text, write_summary
 
@@ -102,31 +214,13 @@ def cmd_run(args) -> int:
                     from .view.server import LiveSession
 
                     live = LiveSession.from_args(args.view, args.view_token)
-                case = None
-                if args.campaign is not None or args.case is not None:
-                    sc, base, case = _campaign_case(args)
-                else:
-                    sc = _load_scenario(args.scenario, args.seed, args.set)
-                speed = _speed(args, sc)
-                if args.duration is not None and not (sc.step_s <= args.duration <= sc.duration_s * 100):
-                    raise ScenarioError("--duration", args.duration, f"seconds from the step ({sc.step_s:g} s) to "
-                                        f"100 times the scenario's duration ({sc.duration_s * 100:g} s)")
-                out = Path(args.out) if args.out else Path("runs") / f"{sc.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-                if out.exists() and (not out.is_dir() or any(out.iterdir())):
-                    raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
-                from . import scenario as scenario_mod
-
-                if case is None:
-                    base = scenario_mod.find(args.scenario).parent if args.scenario else None
-                scene = build(sc, speed, base, duration_s=args.duration, out_dir=out,
-                              allow_remote=getattr(args, "allow_remote", ()))
+                sc, speed, case, out, created, scene = _prepare(args)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
             except (KeyboardInterrupt, Stopped):
                 print("stand: stopped by the operator before the run started; nothing was written", file=sys.stderr)
                 return EXIT_STOPPED
             with scene:
-                out.mkdir(parents=True, exist_ok=True)
                 from .view.state import write_view_json
 
                 write_view_json(sc, out, args.duration)
@@ -137,32 +231,44 @@ def cmd_run(args) -> int:
                         print(f"stand: live view at {live.start(sc, out, args.duration)} (Ctrl-C stops the run)",
                               flush=True)
                     except ViewError as exc:
-                        (out / "view.json").unlink(missing_ok=True)
-                        if not any(out.iterdir()):
-                            out.rmdir()  # nothing ran: leave no folder behind
+                        _unreserve(out, created)  # nothing ran: leave no folder behind
                         return fail(str(exc))
                 result = None
                 try:
                     result = run(scene, out, speed=speed, duration_s=args.duration,
                                  progress=args.progress if args.progress is not None else sys.stderr.isatty(),
                                  observer=live.observer if live is not None else None)
+                except BaseException as exc:  # noqa: BLE001 - a plug-in's sys.exit(): the run still ends with a summary
+                    result = _escaped(exc, out, stopped=isinstance(exc, KeyboardInterrupt | Stopped))
                 finally:
                     if live is not None:
                         live.close(result.status if result is not None else "aborted")
                 signals.defer()
-            summary = write_summary(scene, result, out)
+            summary = write_summary(scene, result, out, duration_s=args.duration)
     except OSError as exc:
         print(f"stand: error: the run's results could not be written in {out}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_ABORTED
+    return _report(summary, result, sc, out, case, limit_text)
+
+
+def _report(summary: dict, result, sc, out: Path, case, limit_text) -> int:
+    """Print the criteria, the timing and the verdict; the exit code from the summary as written."""
     for c in summary["criteria"]:
         print(f"{'PASS' if c['pass'] else 'FAIL'}  {c['name']}: {limit_text(c)}")
     t = result.timing
     if t.get("paced"):
         print(f"paced at x{t['speed_factor']:g} real time: {t['overruns']} overruns (ticks more than a period late), "
               f"lateness p99 {t.get('lateness_ms_p99', 0):.3f} ms, worst {t.get('lateness_ms_max', 0):.3f} ms")
-    if result.error:
-        print(f"stand: run {result.status}: {result.error}", file=sys.stderr)
-    verdict = "PASS" if summary["pass"] else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(result.status, "FAIL")
+    status = summary["status"]
+    if summary["error"]:
+        print(f"stand: run {status}: {summary['error']}", file=sys.stderr)
+    on_disk = _summary_on_disk(out)
+    if on_disk is None or on_disk.get("status") != status:
+        print(f"stand: error: {out / 'summary.json'} does not hold this run's summary after writing it",
+              file=sys.stderr)
+        status = "aborted"
+    passed = summary["pass"] is True and on_disk is not None and on_disk.get("pass") is True
+    verdict = "PASS" if passed else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status, "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")
     if case is not None:
@@ -170,11 +276,11 @@ def cmd_run(args) -> int:
 
         same, text = compare_case(case, out)
         print(text, file=sys.stdout if same is not False else sys.stderr)
-    if result.status == "aborted":
+    if status == "aborted":
         return EXIT_ABORTED
-    if result.status == "stopped":
+    if status == "stopped":
         return EXIT_STOPPED
-    return EXIT_PASS if summary["pass"] else EXIT_FAIL
+    return EXIT_PASS if passed else EXIT_FAIL
 
 
 def _campaign_case(args):

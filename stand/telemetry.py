@@ -65,9 +65,18 @@ class Recorder:
     def record(self, row: tuple) -> None:
         if self.error is not None:
             raise TelemetryError(self.error)
+        if len(row) != self.width:  # refused here, where the loop can say when; the rows before are still written
+            raise TelemetryError(self.width_error(len(row)))
         self._buffer.append(row)
         if len(self._buffer) >= BATCH_ROWS or self._clock() - self._last_handoff >= FLUSH_S:
             self._handoff()
+
+    def width_error(self, n: int) -> str:
+        """The sentence for a row of ``n`` values: the declared columns, their count and widths."""
+        declared = ", ".join(f"{name} {w}" for name, w, _ in self.columns)
+        return (f"a telemetry row has {n} values but the {len(self.columns)} columns declared hold {self.width} "
+                f"({declared}): each device's row() and the controller's telemetry() must return as many values as "
+                "their columns declare; the rows before are kept")
 
     def _handoff(self) -> None:
         if self._buffer:
@@ -77,28 +86,59 @@ class Recorder:
         self._last_handoff = self._clock()
 
     def _writer(self) -> None:
-        while True:
-            batch = self._queue.get()
-            if batch is None:
-                break
-            if self.error is not None:
-                continue  # drain the queue; nothing more is written after a failure
+        """The thread: writes batches until close(). Whatever stops it, of any exception type, is kept in ``error``,
+        which record() and close() raise, so the loop ends the run as aborted instead of scoring a partial log."""
+        try:
+            while True:
+                batch = self._queue.get()
+                if batch is None:
+                    return
+                if self.error is None:  # after a failure the queue is drained; nothing more is written
+                    self._write(batch)
+        except BaseException as exc:  # noqa: BLE001 - reported through record() and close(), never lost
+            self.error = self.error or (f"the telemetry writer stopped ({type(exc).__name__}: {exc}); the rows "
+                                        "written before are kept")
+
+    def _rows_array(self, batch: list) -> np.ndarray:
+        """The batch as an (n, width) array; at a row that is not ``width`` numbers, the rows before it and the
+        error (so they are written and the run ends)."""
+        try:
             arr = np.asarray(batch, dtype="<f8")
-            if arr.ndim != 2 or arr.shape[1] != self.width:
-                self.error = f"a telemetry row has {arr.shape[-1]} values; the schema has {self.width}."
-                continue
+            if arr.ndim == 2 and arr.shape[1] == self.width:
+                return arr
+        except (ValueError, TypeError):
+            pass
+        good = []
+        for row in batch:  # only after a failure: find the first bad row
             try:
-                # Whole rows only: a short write (disk full) is cut back to the last whole row.
-                start = self._file.tell()
-                self._file.write(arr.tobytes())
-                self._file.flush()
-            except OSError as exc:
-                self.error = (f"writing the telemetry failed ({exc.strerror or exc}); the rows written before are "
-                              "kept")
-                try:
-                    self._file.truncate(start + ((self._file.tell() - start) // (8 * self.width)) * 8 * self.width)
-                except OSError:
-                    pass
+                one = np.asarray(row, dtype="<f8")
+            except (ValueError, TypeError) as exc:
+                self.error = (f"a telemetry row at t = {row[0]!r} s is not {self.width} numbers ({exc}); the rows "
+                              "before are kept")
+                break
+            if one.shape != (self.width,):
+                self.error = (f"a telemetry row at t = {row[0]!r} s has shape {one.shape}; the {len(self.columns)} "
+                              f"columns declared hold {self.width} numbers; the rows before are kept")
+                break
+            good.append(one)
+        return np.asarray(good, dtype="<f8").reshape(-1, self.width)
+
+    def _write(self, batch: list) -> None:
+        arr = self._rows_array(batch)
+        if not len(arr):
+            return
+        start = self._file.tell()
+        try:
+            # Whole rows only: a short write (disk full) is cut back to the last whole row.
+            self._file.write(arr.tobytes())
+            self._file.flush()
+        except OSError as exc:
+            self.error = (f"writing the telemetry failed ({exc.strerror or exc}); the rows written before are "
+                          "kept")
+            try:
+                self._file.truncate(start + ((self._file.tell() - start) // (8 * self.width)) * 8 * self.width)
+            except OSError:
+                pass
 
     def close(self) -> None:
         """Write what is buffered and stop the writer. Idempotent."""

@@ -144,3 +144,145 @@ def test_a_full_disk_ends_the_run_aborted_and_keeps_a_whole_summary(tmp_path, mo
     rows = telemetry.load(out)["t_s"]
     assert 64 * 3 <= len(rows) < 6000
     assert any(e["kind"] == "aborted" for e in _events(out))
+
+
+# --------------------------------------------------------------------------- issue 22: folders, --out, a full disk
+SAME_SECOND = """
+import sys, time
+from pathlib import Path
+time.strftime = lambda *a, **k: "20260101-000000"  # both runs start in the same second
+go = Path(sys.argv[1])
+deadline = time.monotonic() + 60
+while not go.exists() and time.monotonic() < deadline:
+    time.sleep(0.005)
+from stand.cli import main
+sys.exit(main(["run", "--duration", "2", "--no-progress"]))
+"""
+
+
+def test_two_runs_started_in_the_same_second_get_a_folder_each(tmp_path):
+    go = tmp_path / "go"
+    procs = [subprocess.Popen([sys.executable, "-c", SAME_SECOND, str(go)], cwd=tmp_path, env=stand_env(),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    try:
+        time.sleep(3.0)  # both have imported the stand and wait at the same line
+        go.touch()
+        outputs = [p.communicate(timeout=120) for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    assert [p.returncode for p in procs] == [1, 1], outputs  # 2 s do not detumble: both ran to the end
+    folders = sorted(d.name for d in (tmp_path / "runs").iterdir())
+    assert folders == ["detumble-20260101-000000", "detumble-20260101-000000-2"], folders
+    for name in folders:
+        out = tmp_path / "runs" / name
+        assert json.loads((out / "summary.json").read_text())["status"] == "completed"
+        assert len(telemetry.load(out)["t_s"]) == 21  # one run's rows, not two runs' interleaved
+        assert sum(e["kind"] == "start" for e in _events(out)) == 1
+    said = sorted(o[0].strip().splitlines()[-1].rsplit("results in ", 1)[1] for o in outputs)
+    assert said == [f"runs/{n}" for n in folders]
+
+
+@pytest.mark.parametrize("where", ["/proc/nope", "/proc/self/nope/run"])
+def test_an_output_folder_that_cannot_be_made_is_one_sentence_naming_out(tmp_path, capsys, where):
+    assert main(["run", "--duration", "1", "--out", where, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stand: error: --out = '{where}' is not allowed") and len(err.strip().splitlines()) == 1
+
+
+def test_a_full_disk_at_the_end_still_leaves_a_whole_summary(tmp_path, monkeypatch):
+    """Nothing can be created any more when the run ends (the temporary file for the rename fails): the summary
+    is written over the space reserved for it before t = 0, as strict JSON."""
+    import errno
+
+    from stand import report
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(report, "write_text_atomic", full)
+    out = tmp_path / "full"
+    assert main(["run", "--duration", "5", "--out", str(out), "--no-progress"]) == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed" and summary["sim_duration_s"] == 5.0 and not summary["pass"]
+    assert [c["name"] for c in summary["criteria"]] == ["detumbled", "no rejected frames"]
+
+
+FILL_THE_DISK = """
+import json, os, subprocess, sys, time
+from pathlib import Path
+mnt = Path(sys.argv[1]); keep = Path(sys.argv[2])
+subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(mnt)], check=True)
+out = mnt / "run"
+stand = subprocess.Popen([sys.executable, "-m", "stand.cli", "run", "--duration", "600", "--speed", "20", "--out",
+                          str(out), "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+rows = out / "telemetry" / "rows.f64"
+deadline = time.monotonic() + 60
+while time.monotonic() < deadline and (not rows.exists() or rows.stat().st_size == 0):
+    time.sleep(0.05)
+with open(mnt / "filler", "wb") as f:  # another program fills the disk mid-run
+    try:
+        while True:
+            f.write(b"\\0" * 65536)
+            f.flush()
+    except OSError:
+        pass
+try:
+    _, err = stand.communicate(timeout=120)
+finally:
+    if stand.poll() is None:
+        stand.kill()
+keep.mkdir()
+for name in ("summary.json", "events.jsonl"):
+    if (out / name).exists():
+        (keep / name).write_bytes((out / name).read_bytes())
+(keep / "result.json").write_text(json.dumps({"code": stand.returncode, "err": err,
+                                              "rows": rows.stat().st_size}))
+"""
+
+
+def _mount_namespace_ok() -> bool:
+    try:
+        return subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                              capture_output=True, timeout=30).returncode == 0
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+
+
+@pytest.mark.skipif(not _mount_namespace_ok(), reason="needs `unshare -rm` and a tmpfs mount in a user namespace "
+                    "(a real full disk; test_a_full_disk_at_the_end_still_leaves_a_whole_summary covers the logic)")
+def test_a_disk_that_fills_mid_run_leaves_a_whole_summary(tmp_path):
+    """A real full disk: a 4 MB tmpfs that another program fills while the run goes (in a private mount namespace).
+    The run ends aborted (exit 3) and summary.json, reserved before t = 0, is whole JSON saying why."""
+    mnt, keep = tmp_path / "mnt", tmp_path / "keep"
+    mnt.mkdir()
+    done = subprocess.run(["unshare", "-rm", sys.executable, "-c", FILL_THE_DISK, str(mnt), str(keep)],
+                          env=stand_env(), cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    result = json.loads((keep / "result.json").read_text())
+    assert result["code"] == 3, result["err"]
+    summary = json.loads((keep / "summary.json").read_text())
+    assert summary["status"] == "aborted" and not summary["pass"] and "telemetry" in summary["error"]
+    assert "No space left on device" in summary["error"] and "report_error" in summary
+    assert result["rows"] > 0 and "Traceback" not in result["err"]
+
+
+def test_no_exit_0_without_the_summary_on_disk(tmp_path, monkeypatch, capsys):
+    """The criteria hold, but summary.json is gone when the verdict is given (a disk that lost it, another program):
+    `stand run` reads it back and does not exit 0."""
+    from stand import report
+
+    real = report.write_summary
+
+    def lose_it(scene, result, out, *a, **k):
+        summary = real(scene, result, out, *a, **k)
+        (out / "summary.json").unlink()
+        return summary
+
+    monkeypatch.setattr(report, "write_summary", lose_it)
+    out = tmp_path / "lost"
+    lenient = ["--set", "criteria.detumbled.max=100"]
+    assert main(["run", "--duration", "30", "--out", str(out), "--no-progress", *lenient]) == 3
+    captured = capsys.readouterr()
+    assert "PASS: detumble" not in captured.out and "does not hold this run's summary" in captured.err
