@@ -602,8 +602,8 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
            "host": os.uname().nodename, "pid": os.getpid()}
     files: dict[str, bytes] = {}
     with _RUN_LOCK, tempfile.TemporaryDirectory(prefix="stand-case-") as tmp:
-        t_lock = time.time()
         watchdog = _watchdog(task)
+        t_lock = time.time()
         out = Path(tmp) / "run"
         try:
             sc = parse(task["data"], task["source"])
@@ -645,6 +645,7 @@ def _watchdog(task: dict) -> threading.Timer | None:
     limit = task.get("exit_after_s")
     if not limit or task.get("client_pid") == os.getpid():  # never end the operator's own process
         return None
+    warm()  # a worker the nanny restarted has imported nothing yet: that is not the case's time
 
     def overrun():
         print(f"stand: campaign case {task['index']} still running after the per-case limit of {limit:g} s; "
