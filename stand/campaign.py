@@ -868,6 +868,8 @@ class _Dask:
             yield (index, *self._outcome(f))
 
     def _outcome(self, f) -> tuple:
+        import asyncio
+
         from distributed.scheduler import KilledWorker
 
         try:
@@ -877,8 +879,8 @@ class _Dask:
                           f"of {self.case_timeout_s:g} s); not run again: {_raised(exc)}")
         except KeyboardInterrupt:
             raise
-        except Exception as exc:  # the scheduler or the link failed, not the case: not recorded, resume later
-            return None, _Lost(_raised(exc))
+        except (Exception, asyncio.CancelledError) as exc:  # the scheduler or the link failed, not the case: not
+            return None, _Lost(_raised(exc))  # recorded, the next invocation runs it
         except BaseException as exc:  # a SystemExit that escaped a worker: the case's doing, recorded
             return None, _raised(exc)
 

@@ -168,7 +168,7 @@ def _expected(field: str, value, scene):
                                             "environment.eop=none"]], ids=["dipole", "igrf"])
 def test_each_dispersed_field_changes_the_scene_that_runs(scenario_dict, write_scenario, tmp_path, overrides):
     text = SHIPPED.read_text()
-    if overrides:  # the IAU 2006 Earth has no era0_deg: the epoch turns it, and that dispersion would not apply
+    if overrides:  # era0_deg is unused under IAU 2006: the scenario refuses its dispersion there (last entry)
         text = text[:text.index('[[dispersions]]\nfield = "environment.era0_deg"')]
     spec = spec_for(write_scenario, scenario_dict, text, tmp_path, overrides=overrides, duration_s=SHORT_S)
     disp = spec.dispersions()

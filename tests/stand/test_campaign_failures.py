@@ -196,8 +196,10 @@ BAD_FILES = [
     ('field = "spacecraft.mass_kg"\ndistribution = "normal"\nsigma = 0.1\n[dispersions.min]\nx = 1',
      "dispersions[0] (spacecraft.mass_kg).min = {'x': 1} is not allowed: one number, finite"),
     # A percentage of zero is zero: every case would draw the nominal, silently.
-    ('field = "environment.era0_deg"\ndistribution = "normal"\nsigma_percent = 10.0',
+    ('field = "environment.era0_deg"\ndistribution = "normal"\nmean = 0.0\nsigma_percent = 10.0',
      "era0_deg).sigma_percent = 10.0 is not allowed: a percentage of a mean that is not zero (the mean is 0.0"),
+    ('field = "spacecraft.omega_BN_B_deg_s"\ndistribution = "normal"\nmean = [0.0, 0.0, 0.0]\nsigma_percent = 5.0',
+     "omega_BN_B_deg_s).sigma_percent = 5.0 is not allowed: a percentage of a mean that is not zero"),
     ('field = "devices.mtq.mag_bias_nT"\ndistribution = "normal"\nmean = [0.0, 50.0, 0.0]\nsigma_percent = 10.0',
      "use sigma in the field's unit"),
 ]
