@@ -719,7 +719,10 @@ class _Slot:
 
     def give(self, task: dict) -> None:
         self.task, self.since = task, time.monotonic()
-        self.conn.send(task)
+        try:
+            self.conn.send(task)
+        except OSError:  # the worker died since it said ready: the pool sees its end and gives the case again
+            pass
 
     def end(self, kill: bool = False) -> None:
         if not kill and self.proc.is_alive():
@@ -875,8 +878,9 @@ class _Dask:
         try:
             return f.result(), None
         except KilledWorker as exc:  # the scheduler gave up after the case ended its workers again and again
-            return None, (f"its Dask worker died each time it ran it (killed, crashed, or over the per-case limit "
-                          f"of {self.case_timeout_s:g} s); not run again: {_raised(exc)}")
+            limit = f", or over the per-case limit of {self.case_timeout_s:g} s" if self.case_timeout_s else ""
+            return None, (f"its Dask worker died each time it ran it (killed, crashed{limit}); not run again: "
+                          f"{_raised(exc)}")
         except KeyboardInterrupt:
             raise
         except (Exception, asyncio.CancelledError) as exc:  # the scheduler or the link failed, not the case: not
