@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import MISSING, ScenarioError
+from .errors import MISSING, ScenarioError, shown
 
 DISTRIBUTIONS = ("normal", "uniform", "rotation", "uniform_rotation", "choice")
 #: Keys each distribution takes (besides ``field`` and ``distribution``).
@@ -70,6 +70,19 @@ KEYS = {
     "choice": ("values", "weights"),
 }
 MAX_RUNS = 100_000
+#: Default wall-clock limit of one case (``--case-timeout``): the backstop for a case that hangs. A full-orbit
+#: detumble takes 5 to 20 s on a loaded 2-core machine; an hour leaves room for long scenarios on slow workers.
+CASE_TIMEOUT_S = 3600.0
+MAX_CASE_TIMEOUT_S = 30 * 86400.0
+#: Times a case may end its worker process (os._exit, a signal, a crash) before it is recorded as an error.
+WORKER_DEATHS = 2
+#: Exit code of a Dask worker process ended by the per-case limit.
+EXIT_OVERRUN = 70
+#: The HTTP address of the scheduler of a Dask LocalCluster the stand starts (bench, tests): loopback, any free port.
+#: ``dashboard_address=None`` is not "none": the scheduler still serves HTTP on 8787 and warns when it is taken.
+DASK_HTTP_ADDRESS = "127.0.0.1:0"
+#: Largest bound of an integer uniform dispersion (whole numbers a float holds exactly).
+MAX_INTEGER = 2**53
 CASE_DIGITS = 5
 #: Files of a run that travel back from the worker (plots are drawn for the campaign, not per run).
 RUN_FILES = ("summary.json", "events.jsonl", "telemetry/schema.json", "telemetry/rows.f64")
@@ -208,7 +221,7 @@ class _Params:
     def error(self, key, value, allowed) -> CampaignError:
         return CampaignError(str(ScenarioError(f"{self.where}.{key}", value, allowed)))
 
-    def numbers(self, key, default=MISSING, *, lo=-math.inf, lo_open=False) -> np.ndarray:
+    def numbers(self, key, default=MISSING, *, lo=-math.inf, lo_open=False, hi=math.inf) -> np.ndarray:
         value = self.entry.get(key, default)
         n = "one number" if not self.shape else f"a number or a list of shape {list(self.shape)} (one per axis)"
         if value is MISSING:
@@ -223,6 +236,8 @@ class _Params:
         if np.any(arr < lo) or (lo_open and np.any(arr == lo)):
             bound = f"{'>' if lo_open else '>='} {lo:g}"
             raise self.error(key, value, f"a number {bound}" if not self.shape else f"{n}, each {bound}")
+        if np.any(arr > hi):
+            raise self.error(key, value, f"a number <= {hi:g}" if not self.shape else f"{n}, each <= {hi:g}")
         return np.broadcast_to(arr, self.shape).astype(float)
 
 
@@ -279,30 +294,57 @@ def _dispersion(entry, k: int, scenario: dict) -> Dispersion:
                                 f"{'mean' if dist == 'normal' else 'min and max'} (numbers, one per axis for a "
                                 "vector).")
     p = _Params(entry, where, shape)
-    if dist == "uniform":
-        integer = entry.get("integer", False)
-        if not isinstance(integer, bool):
-            raise p.error("integer", integer, "true or false")
-        lo, hi = p.numbers("min"), p.numbers("max")
-        if np.any(lo > hi) or (not integer and np.any(lo == hi)):
-            raise p.error("max", entry["max"], f"a bound above min ({entry['min']!r}) on every axis")
-        if integer and (np.any(lo != np.round(lo)) or np.any(hi != np.round(hi))):
-            raise p.error("min", entry["min"], "whole numbers when integer = true")
-        return Dispersion(fld, dist, shape, nominal, {"min": lo, "max": hi, "integer": integer})
-    mean = p.numbers("mean") if "mean" in entry else p.numbers("mean", nominal)
-    if ("sigma" in entry) == ("sigma_percent" in entry):
-        raise p.error("sigma", entry.get("sigma", MISSING), "exactly one of sigma (in the field's unit) or "
+    return Dispersion(fld, dist, shape, nominal, _uniform(p) if dist == "uniform" else _normal(p, nominal))
+
+
+def _uniform(p: _Params) -> dict:
+    """min, max and integer of a uniform dispersion, checked."""
+    integer = p.entry.get("integer", False)
+    if not isinstance(integer, bool):
+        raise p.error("integer", integer, "true or false")
+    lo, hi = p.numbers("min"), p.numbers("max")
+    if np.any(lo > hi) or (not integer and np.any(lo == hi)):
+        raise p.error("max", p.entry["max"], f"a bound above min ({p.entry['min']!r}) on every axis")
+    if integer and (np.any(lo != np.round(lo)) or np.any(hi != np.round(hi))):
+        raise p.error("min", p.entry["min"], "whole numbers when integer = true")
+    if integer and (np.any(np.abs(lo) > MAX_INTEGER) or np.any(np.abs(hi) > MAX_INTEGER)):
+        raise p.error("max", p.entry["max"], f"whole numbers from -2**53 to 2**53 when integer = true (min "
+                      f"{p.entry['min']!r})")
+    with np.errstate(over="ignore"):
+        finite_span = bool(np.all(np.isfinite(hi - lo)))
+    if not finite_span:  # numpy cannot draw from a range wider than the largest float
+        raise p.error("max", p.entry["max"], f"a bound whose distance to min ({p.entry['min']!r}) is a finite number")
+    return {"min": lo, "max": hi, "integer": integer}
+
+
+def _normal(p: _Params, nominal) -> dict:
+    """mean, sigma and bounds of a (truncated) normal dispersion, checked."""
+    mean = p.numbers("mean") if "mean" in p.entry else p.numbers("mean", nominal)
+    if ("sigma" in p.entry) == ("sigma_percent" in p.entry):
+        raise p.error("sigma", p.entry.get("sigma", MISSING), "exactly one of sigma (in the field's unit) or "
                       "sigma_percent (of the mean) is required")
-    sigma = p.numbers("sigma", lo=0.0) if "sigma" in entry else \
-        np.abs(mean) * p.numbers("sigma_percent", lo=0.0) / 100.0
-    lo = p.numbers("min") if "min" in entry else np.full(shape, -np.inf)
-    hi = p.numbers("max") if "max" in entry else np.full(shape, np.inf)
+    if "sigma" in p.entry:
+        sigma = p.numbers("sigma", lo=0.0)
+    else:
+        percent = p.numbers("sigma_percent", lo=0.0)
+        if np.any((mean == 0) & (percent > 0)):
+            # A percentage of zero is zero: the field would be drawn at its mean in every case, silently.
+            raise p.error("sigma_percent", p.entry["sigma_percent"], f"a percentage of a mean that is not zero (the "
+                          f"mean is {_to_python(mean)!r}: a percentage of zero is zero, so every case would draw "
+                          "it unchanged); use sigma in the field's unit")
+        with np.errstate(over="ignore"):
+            sigma = np.abs(mean) * percent / 100.0
+    if not np.all(np.isfinite(sigma)):
+        raise p.error("sigma_percent", p.entry["sigma_percent"], "a percentage whose sigma (of the mean "
+                      f"{_to_python(mean)!r}) is a finite number")
+    lo = p.numbers("min") if "min" in p.entry else np.full(p.shape, -np.inf)
+    hi = p.numbers("max") if "max" in p.entry else np.full(p.shape, np.inf)
     if np.any(lo >= hi):
-        raise p.error("max", entry.get("max"), f"a bound above min ({entry.get('min')!r}) on every axis")
+        raise p.error("max", p.entry.get("max"), f"a bound above min ({p.entry.get('min')!r}) on every axis")
     if np.any(mean < lo) or np.any(mean > hi):
-        raise p.error("mean", _to_python(mean), f"a mean within [min, max] on every axis (min {entry.get('min')!r}, "
-                      f"max {entry.get('max')!r})")
-    return Dispersion(fld, dist, shape, nominal, {"mean": mean, "sigma": sigma, "min": lo, "max": hi})
+        raise p.error("mean", _to_python(mean), f"a mean within [min, max] on every axis (min {p.entry.get('min')!r}, "
+                      f"max {p.entry.get('max')!r})")
+    return {"mean": mean, "sigma": sigma, "min": lo, "max": hi}
 
 
 def _rotation(entry, where, fld, dist, nominal) -> Dispersion:
@@ -314,7 +356,8 @@ def _rotation(entry, where, fld, dist, nominal) -> Dispersion:
                             f"{dist} dispersion applies to quaternions (attitudes and mounts).")
     params = {}
     if dist == "rotation":
-        params["sigma_deg"] = _Params(entry, where, (3,)).numbers("sigma_deg", lo=0.0)
+        # Beyond half a turn a "small rotation" wraps around; any attitude is uniform_rotation.
+        params["sigma_deg"] = _Params(entry, where, (3,)).numbers("sigma_deg", lo=0.0, hi=180.0)
     return Dispersion(fld, dist, (4,), [float(x) for x in q], params)
 
 
@@ -328,8 +371,9 @@ def _choice(entry, where, fld, nominal) -> Dispersion:
         w = np.full(len(values), 1.0 / len(values))
     else:
         w = _Params(entry, where, (len(values),)).numbers("weights", lo=0.0)
-        if w.sum() <= 0:
+        if w.max() <= 0:
             raise p.error("weights", weights, "weights with a positive sum")
+        w = w / w.max()  # first to at most 1, so that the sum of huge weights cannot overflow
         w = w / w.sum()
     return Dispersion(fld, "choice", (), nominal, {"values": values, "weights": w})
 
@@ -362,7 +406,10 @@ def parse_dispersions(text: str, scenario: dict, source: str = "<string>") -> Di
     if not isinstance(entries, list) or not entries:
         raise CampaignError(f"dispersions in {source} is not allowed: at least one [[dispersions]] entry with "
                             "field and distribution is required.")
-    items = tuple(_dispersion(e, k, scenario) for k, e in enumerate(entries))
+    try:
+        items = tuple(_dispersion(e, k, scenario) for k, e in enumerate(entries))
+    except CampaignError as exc:  # the entry's sentence, with the file it is in
+        raise CampaignError(f"{source}: {exc}") from None
     fields = [d.field for d in items]
     dup = sorted({f for f in fields if fields.count(f) > 1})
     if dup:
@@ -498,14 +545,16 @@ def _culprit(spec: Spec, disp: Dispersions, task: dict, exc: ScenarioError) -> s
     from .scenario import parse
 
     base = spec.scenario_dict()
-    for d in disp.items:
+    for k, d in enumerate(disp.items):
         data = apply(base, {d.field: task["values"][d.field]}, task["seed"], spec.duration_s)
         try:
             parse(data, task["source"])
         except ScenarioError as alone:
-            return (f"the dispersion of {d.field} ({d.distribution}, in {disp.source}) drew "
-                    f"{task['values'][d.field]!r}, which the scenario refuses: {alone}")
-    return f"the dispersed values together are refused by the scenario: {exc}"
+            return (f"dispersions[{k}] ({d.field}, {d.distribution}, in {disp.source}) drew "
+                    f"{shown(task['values'][d.field])}, which the scenario refuses (a value it does not allow, or a "
+                    f"key its other settings leave unused, which would not be applied): {alone}")
+    return (f"the values of dispersions {', '.join(d.field for d in disp.items)} (in {disp.source}) are refused "
+            f"together by the scenario: {exc}")
 
 
 # ------------------------------------------------------------------------------------------------- one run
@@ -521,8 +570,28 @@ def digest(summary: dict, rows: bytes) -> str:
     return h.hexdigest()
 
 
-def run_case(task: dict) -> dict:
-    """Run one case in a temporary folder and return its record and files (what a worker sends back)."""
+def _error_record(task: dict, reason: str, t_start: float | None = None) -> dict:
+    """The record of a case that gave no summary: an error, counted as failed, with the reason in one line."""
+    now = time.time()
+    return {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
+            "host": os.uname().nodename, "pid": os.getpid(), "status": "error", "passed": False, "error": reason,
+            "criteria": [], "timing": {"worker_start": now if t_start is None else t_start, "worker_end": now}}
+
+
+def _raised(exc: BaseException) -> str:
+    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code)."""
+    if isinstance(exc, SystemExit):
+        return f"SystemExit: the run's code called sys.exit({exc.code!r})"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def run_case(task: dict, *, interruptible: bool = False) -> dict:
+    """Run one case in a temporary folder and return its record and files (what a worker sends back).
+
+    Anything the run raises, SystemExit and other BaseExceptions included, is recorded as an error case: a
+    plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
+    process): Ctrl-C stops the campaign instead of being recorded.
+    """
     t_start = time.time()
     from .compose import build
     from .loop import run
@@ -533,6 +602,7 @@ def run_case(task: dict) -> dict:
            "host": os.uname().nodename, "pid": os.getpid()}
     files: dict[str, bytes] = {}
     with _RUN_LOCK, tempfile.TemporaryDirectory(prefix="stand-case-") as tmp:
+        watchdog = _watchdog(task)
         t_lock = time.time()
         out = Path(tmp) / "run"
         try:
@@ -542,15 +612,20 @@ def run_case(task: dict) -> dict:
                 out.mkdir()
                 result = run(scene, out, progress=False)
                 t_ran = time.time()
+            if interruptible and result.status == "stopped":
+                raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
             summary = write_summary(scene, result, out, plots=False)
             for name in RUN_FILES:
                 p = out / name
                 if p.exists():
                     files[name] = p.read_bytes()
-        except Exception as exc:  # one failing run is recorded; the campaign goes on
-            rec.update(status="error", passed=False, error=f"{type(exc).__name__}: {exc}", criteria=[],
-                       timing={"worker_start": t_start, "worker_end": time.time()})
-            return {"record": rec, "files": files}
+        except BaseException as exc:  # one failing run is recorded; the campaign goes on
+            if interruptible and isinstance(exc, KeyboardInterrupt):
+                raise
+            return {"record": _error_record(task, _raised(exc), t_start), "files": {}}
+        finally:
+            if watchdog is not None:
+                watchdog.cancel()
     t_end = time.time()
     rec.update(status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
                criteria=[{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
@@ -563,6 +638,26 @@ def run_case(task: dict) -> dict:
     return {"record": rec, "files": files}
 
 
+def _watchdog(task: dict) -> threading.Timer | None:
+    """On a Dask worker, the per-case limit: a case still running after ``exit_after_s`` ends its worker process
+    (a thread cannot be stopped); the nanny starts a new one and the scheduler's retries end in KilledWorker,
+    which the client records as an error. The local pool enforces the limit from the client instead."""
+    limit = task.get("exit_after_s")
+    if not limit or task.get("client_pid") == os.getpid():  # never end the operator's own process
+        return None
+    warm()  # a worker the nanny restarted has imported nothing yet: that is not the case's time
+
+    def overrun():
+        print(f"stand: campaign case {task['index']} still running after the per-case limit of {limit:g} s; "
+              "ending this worker process", file=sys.stderr, flush=True)
+        os._exit(EXIT_OVERRUN)
+
+    timer = threading.Timer(limit, overrun)
+    timer.daemon = True
+    timer.start()
+    return timer
+
+
 # ------------------------------------------------------------------------------------------------ executors
 def warm() -> None:
     """Import what a run needs once per worker process, so the first case's timings are its own."""
@@ -572,53 +667,173 @@ def warm() -> None:
         devices.get(name)
 
 
+def _worker_main(conn) -> None:
+    """A local pool worker: cases from ``conn`` one at a time, each answered with its record and files."""
+    import signal
+
+    # Ctrl-C goes to the whole process group; the client stops the campaign and ends its workers. A worker that
+    # acted on it would record a half-run case as "stopped".
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warm()
+    conn.send(("ready", None))  # a case's wall-clock limit starts when it is handed over, not before the imports
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):  # the client is gone
+            return
+        if task is None:
+            return
+        result = run_case(task)
+        try:
+            conn.send(("result", result))
+        except Exception as exc:  # noqa: BLE001 - e.g. a value that does not pickle: the case is still recorded
+            conn.send(("result", {"record": _error_record(task, f"its result could not be sent back: "
+                                                                 f"{_raised(exc)}"), "files": {}}))
+
+
+def _exit_text(code: int | None) -> str:
+    import signal
+
+    if code is not None and code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class _Slot:
+    """One worker process of the local pool and the case it runs."""
+
+    def __init__(self, ctx):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child,), name="stand-campaign-worker")
+        self.proc.start()
+        child.close()
+        self.task: dict | None = None
+        self.since = 0.0
+        self.ready = False
+
+    def idle(self) -> bool:
+        return self.ready and self.task is None
+
+    def give(self, task: dict) -> None:
+        self.task, self.since = task, time.monotonic()
+        try:
+            self.conn.send(task)
+        except OSError:  # the worker died since it said ready: the pool sees its end and gives the case again
+            pass
+
+    def end(self, kill: bool = False) -> None:
+        if not kill and self.proc.is_alive():
+            try:
+                self.conn.send(None)
+            except OSError:
+                kill = True
+            self.proc.join(5.0)
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join()
+        self.conn.close()
+
+
 class _LocalPool:
-    """A process pool on this machine (spawned workers: nothing of the parent's threads or buses is inherited)."""
+    """Worker processes on this machine (spawned: nothing of the parent's threads or buses is inherited), each
+    watched by the client: a worker that dies is replaced and its case given again, up to ``deaths`` times, then
+    recorded as an error; a case over ``case_timeout_s`` of wall time is recorded as an error and its worker
+    replaced. The other cases never notice (a shared pool would lose every pending case with one worker)."""
 
     name = "local"
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, case_timeout_s: float = 0.0, deaths: int = 2):
         import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
 
-        self.workers = workers
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=warm)
+        self.workers, self.case_timeout_s, self.deaths = workers, case_timeout_s, deaths
+        self.ctx = multiprocessing.get_context("spawn")
+        self.slots: list[_Slot] = []
 
-    def submit(self, task):
-        return self.pool.submit(run_case, task)
+    def results(self, tasks: list[dict]):
+        """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
+        from collections import deque
 
-    def as_completed(self, futures):
-        from concurrent.futures import as_completed
+        pending = deque(tasks)
+        died: dict[int, list[str]] = {}
+        self.slots = [_Slot(self.ctx) for _ in range(min(self.workers, len(pending)))]
+        while pending or any(s.task is not None for s in self.slots):
+            for s in self.slots:
+                if s.idle() and pending:
+                    s.give(pending.popleft())
+            watched = [s for s in self.slots if s.task is not None or not s.ready]
+            self._wait(watched)
+            for s in watched:
+                outcome = self._check(s, died, pending)
+                if outcome is not None:
+                    yield outcome
 
-        return as_completed(futures)
+    def _wait(self, watched: list[_Slot]) -> None:
+        from multiprocessing.connection import wait
 
-    def close(self, cancel: bool = False):
-        self.pool.shutdown(wait=True, cancel_futures=cancel)
+        timeout = None
+        busy = [s for s in watched if s.task is not None]
+        if self.case_timeout_s and busy:
+            now = time.monotonic()
+            timeout = max(0.0, min(s.since + self.case_timeout_s - now for s in busy))
+        wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout)
+
+    def _check(self, s: _Slot, died: dict, pending) -> tuple | None:
+        if s.conn.poll():  # an answer waits (even if the process ended right after sending it)
+            try:
+                kind, result = s.conn.recv()
+            except (EOFError, OSError):
+                kind, result = None, None
+            if kind == "ready":
+                s.ready = True
+                return None
+            if kind == "result" and s.task is not None:
+                index, s.task = s.task["index"], None
+                return index, result, None
+        if not s.proc.is_alive():
+            s.proc.join()
+            if s.task is None:  # it died importing the stand: no case is to blame and none can run
+                raise CampaignError(f"--workers {self.workers}: a local worker process could not start "
+                                    f"({_exit_text(s.proc.exitcode)}); try --workers 0 to see why.")
+            task = s.task
+            died.setdefault(task["index"], []).append(_exit_text(s.proc.exitcode))
+            self._replace(s)
+            if len(died[task["index"]]) < self.deaths:
+                pending.appendleft(task)  # maybe a passing crash (out of memory): once more, first
+                return None
+            return task["index"], None, (f"its worker process died {len(died[task['index']])} times while running "
+                                         f"it ({', '.join(died[task['index']])}); not run again")
+        if s.task is not None and self.case_timeout_s and time.monotonic() - s.since >= self.case_timeout_s:
+            index = s.task["index"]
+            self._replace(s, kill=True)
+            return index, None, (f"still running after the per-case limit of {self.case_timeout_s:g} s of wall time "
+                                 "(--case-timeout); its worker process was ended")
+        return None
+
+    def _replace(self, s: _Slot, kill: bool = False) -> None:
+        """A new worker process in this slot, the old one ended (killed if it still runs)."""
+        s.end(kill=kill)
+        fresh = _Slot(self.ctx)
+        s.conn, s.proc, s.task, s.since, s.ready = fresh.conn, fresh.proc, None, 0.0, False
+
+    def close(self, cancel: bool = False) -> None:
+        for s in self.slots:
+            s.end(kill=cancel)
+        self.slots = []
 
 
 class _Inline:
-    """Every case in this process, one after another (``workers = 0``: debugging and tests)."""
+    """Every case in this process, one after another (``workers = 0``: debugging and tests). A case that ends
+    the process (``os._exit``, a crash) ends the campaign too: use a pool for untrusted code."""
 
     name = "inline"
     workers = 1
 
-    def submit(self, task):
-        from concurrent.futures import Future
-
-        f: Future = Future()
-        f.task = task
-        return f
-
-    def as_completed(self, futures):
-        for f in futures:
-            try:
-                f.set_result(run_case(f.task))
-            except BaseException as exc:
-                f.set_exception(exc)
-                if not isinstance(exc, Exception):
-                    raise
-            yield f
+    def results(self, tasks: list[dict]):
+        for task in tasks:
+            yield task["index"], run_case(task, interruptible=True), None
 
     def close(self, cancel: bool = False):
         pass
@@ -629,7 +844,7 @@ class _Dask:
 
     name = "dask"
 
-    def __init__(self, scheduler, key: str):
+    def __init__(self, scheduler, key: str, case_timeout_s: float = 0.0):
         try:
             from distributed import Client
         except ImportError:
@@ -639,22 +854,46 @@ class _Dask:
         except (OSError, TimeoutError) as exc:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
-        self.key = key
+        self.key, self.case_timeout_s = key, case_timeout_s
         self.client.run(warm)
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
 
-    def submit(self, task):
-        return self.client.submit(run_case, task, pure=False, key=f"stand-case-{self.key}-{task['index']}")
-
-    def as_completed(self, futures):
+    def results(self, tasks: list[dict]):
         from distributed import as_completed
 
-        return as_completed(futures, loop=self.client.loop)
+        limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
+        futures = {self.client.submit(run_case, {**t, **limit}, pure=False,
+                                      key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
+        for f in as_completed(list(futures), loop=self.client.loop):
+            index = futures.pop(f)
+            yield (index, *self._outcome(f))
+
+    def _outcome(self, f) -> tuple:
+        import asyncio
+
+        from distributed.scheduler import KilledWorker
+
+        try:
+            return f.result(), None
+        except KilledWorker as exc:  # the scheduler gave up after the case ended its workers again and again
+            limit = f", or over the per-case limit of {self.case_timeout_s:g} s" if self.case_timeout_s else ""
+            return None, (f"its Dask worker died each time it ran it (killed, crashed{limit}); not run again: "
+                          f"{_raised(exc)}")
+        except KeyboardInterrupt:
+            raise
+        except (Exception, asyncio.CancelledError) as exc:  # the scheduler or the link failed, not the case: not
+            return None, _Lost(_raised(exc))  # recorded, the next invocation runs it
+        except BaseException as exc:  # a SystemExit that escaped a worker: the case's doing, recorded
+            return None, _raised(exc)
 
     def close(self, cancel: bool = False):
         self.client.close(timeout=30)
+
+
+class _Lost(str):
+    """A reason that is not the case's: the case stays unrecorded and the next invocation runs it."""
 
 
 # ------------------------------------------------------------------------------------------------ progress
@@ -700,11 +939,33 @@ def finished(out: Path) -> dict[int, dict]:
     found = {}
     for p in sorted((Path(out) / "cases").glob("*/case.json")):
         try:
-            rec = json.loads(p.read_text())
-        except (OSError, json.JSONDecodeError):
+            rec = json.loads(p.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
             continue
-        found[int(rec["index"])] = rec
+        # A record that is not whole or not its folder's (damaged, edited) is not a finished case: a resume runs
+        # it again rather than aggregate what it cannot vouch for.
+        if _whole(rec, p.parent.name):
+            found[rec["index"]] = rec
     return found
+
+
+CRITERION_KEYS = frozenset(("name", "metric", "value", "limit", "pass"))
+
+
+def _is_digest(value) -> bool:
+    return value is None or (isinstance(value, str) and len(value) == 64
+                             and all(c in "0123456789abcdef" for c in value))
+
+
+def _whole(rec, folder: str) -> bool:
+    """Has a case record what aggregation reads, of the right types, in its own folder?"""
+    if not isinstance(rec, dict):
+        return False
+    index, crit = rec.get("index"), rec.get("criteria")
+    return (isinstance(index, int) and not isinstance(index, bool) and folder == f"{index:0{CASE_DIGITS}d}"
+            and isinstance(rec.get("seed"), int) and isinstance(rec.get("status"), str)
+            and isinstance(crit, list) and all(isinstance(c, dict) and CRITERION_KEYS <= set(c) for c in crit)
+            and _is_digest(rec.get("digest")))
 
 
 def _write_case(out: Path, result: dict, received: float) -> dict:
@@ -751,15 +1012,21 @@ def _prepare(out: Path, spec: Spec) -> None:
 
 
 def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, scheduler=None,
-                 progress: bool = False, plots: bool = True) -> dict:
+                 progress: bool = False, plots: bool = True, case_timeout_s: float = CASE_TIMEOUT_S,
+                 worker_deaths: int = WORKER_DEATHS) -> dict:
     """Run (or resume) a campaign into ``out`` and return its ``campaign.json`` content.
 
     ``workers``: processes of the local pool (0 runs every case in this process); ``scheduler``: a Dask
-    scheduler address, or a ``distributed`` cluster object, instead of the local pool. Ctrl-C cancels what is
-    not finished (resume later with the same command) and re-raises.
+    scheduler address, or a ``distributed`` cluster object, instead of the local pool. ``case_timeout_s``: wall
+    time after which a case is recorded as an error and its worker ended (0: no limit); ``worker_deaths``: how
+    many times a case may end its worker process before it is recorded as an error. Ctrl-C cancels what is not
+    finished (resume later with the same command) and re-raises; campaign.json is written in every case.
     """
     if not 1 <= runs <= MAX_RUNS:
         raise CampaignError(str(ScenarioError("--runs", runs, f"a whole number from 1 to {MAX_RUNS}")))
+    if not (isinstance(case_timeout_s, int | float) and 0 <= case_timeout_s <= MAX_CASE_TIMEOUT_S):
+        raise CampaignError(str(ScenarioError("--case-timeout", case_timeout_s, "seconds of wall time per case, "
+                                              f"from 0 (no limit) to {MAX_CASE_TIMEOUT_S:g}")))
     out = Path(out)
     t0 = time.time()
     tasks = validate(spec, runs)
@@ -771,42 +1038,47 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     for rec in done.values():
         bar.add(rec, resumed=True)
     todo = [t for t in tasks if t["index"] not in done]
+    del tasks
     if scheduler is not None:
-        executor = _Dask(scheduler, spec.key)
+        executor = _Dask(scheduler, spec.key, case_timeout_s)
     elif workers == 0:
         executor = _Inline()
     else:
-        executor = _LocalPool(workers)
-    lost: list[str] = []
-    cancel = True
+        executor = _LocalPool(workers, case_timeout_s, worker_deaths)
+    execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
+                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "lost": [],
+                 **({"scheduler": executor.address} if scheduler is not None else {})}
+    stopped = True
     bar.show()
     try:
-        futures = {executor.submit(t): t["index"] for t in todo}
-        del tasks, todo
-        for f in executor.as_completed(list(futures)):
-            index = futures.pop(f)
-            try:
-                result = f.result()
-            except Exception as exc:  # the worker itself was lost (killed, out of memory): not recorded, resume
-                lost.append(f"case {index}: {type(exc).__name__}: {exc}")
-                continue
-            rec = _write_case(out, result, time.time())
-            done[index] = rec
-            bar.add(rec)
-            bar.show()
-        cancel = False
+        _collect(executor, todo, out, done, bar, execution["lost"])
+        stopped = False
     finally:
-        executor.close(cancel=cancel)
-    bar.show(final=True)
-    t_end = time.time()
-    execution = {"executor": executor.name, "workers": executor.workers, "runs_this_session": bar.new,
-                 "resumed": resumed,
-                 "validate_s": round(t_ready - t0, 3), "wall_s": round(t_end - t_ready, 3),
-                 "lost": lost, **({"scheduler": executor.address} if scheduler is not None else {})}
+        executor.close(cancel=stopped)
+        bar.show(final=True)
+        execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3))
+        if stopped:  # campaign.json must not keep saying "running": what is recorded, counted as incomplete
+            execution["stopped"] = True
+            aggregate(out, runs, execution)
     result = aggregate(out, runs, execution)
     if plots:
         write_report(out, result)
     return result
+
+
+def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignProgress, lost: list[str]) -> None:
+    """Write every case the executor answers: its files, or an error record with the reason."""
+    meta = {t["index"]: {k: t[k] for k in ("index", "seed", "values", "scalars")} for t in todo}
+    for index, result, reason in executor.results(todo):
+        if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
+            lost.append(f"case {index}: {reason}")
+            continue
+        if result is None:
+            result = {"record": _error_record(meta[index], reason), "files": {}}
+        rec = _write_case(out, result, time.time())
+        done[index] = rec
+        bar.add(rec)
+        bar.show()
 
 
 # ---------------------------------------------------------------------------------------------- results
@@ -1087,10 +1359,40 @@ def load_case(campaign_dir: str | Path, index: int):
                             "by stand campaign.") from None
     if isinstance(index, bool) or not 0 <= index < MAX_RUNS:
         raise CampaignError(str(ScenarioError("--case", index, f"a case index from 0 to {MAX_RUNS - 1}")))
-    task = spec.case(index)
+    try:
+        task = spec.case(index)
+    except (CampaignError, ScenarioError):
+        raise
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:  # a campaign.json edited by hand
+        raise CampaignError(f"--campaign {d} is not allowed: the spec in its campaign.json does not rebuild case "
+                            f"{index} ({type(exc).__name__}: {exc}); a campaign.json as stand campaign wrote it."
+                            ) from None
     sc = parse(task["data"], task["source"])
-    rec = finished(d).get(index)
-    return sc, Path(spec.scenario_base), rec
+    return sc, Path(spec.scenario_base), _case_record(d, index)
+
+
+def _case_record(d: Path, index: int) -> dict | None:
+    """The record of case ``index`` to compare a re-run with, checked: a corrupt case.json is one sentence."""
+    path = case_dir(d, index) / "case.json"
+    redo = f"delete {path.parent} and run the campaign's command again to redo the case"
+    try:
+        rec = json.loads(path.read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CampaignError(f"{path} is not allowed: a case record (UTF-8 JSON) as stand campaign writes it; it "
+                            f"does not read ({exc}): {redo}.") from None
+    if not isinstance(rec, dict):
+        raise CampaignError(str(ScenarioError("the record", rec, f"a JSON object as stand campaign writes it: {redo}",
+                                              str(path))))
+    if rec.get("index") != index or isinstance(rec.get("index"), bool):
+        raise CampaignError(str(ScenarioError("index", rec.get("index", MISSING), f"this case's own index, {index}: "
+                                              + redo, str(path))))
+    dig = rec.get("digest")
+    if not _is_digest(dig):
+        raise CampaignError(str(ScenarioError("digest", dig, f"a SHA-256 in 64 hexadecimal digits, or none: {redo}",
+                                              str(path))))
+    return rec
 
 
 def compare_case(rec: dict | None, run_dir: str | Path) -> tuple[bool | None, str]:

@@ -45,7 +45,7 @@ def bench_campaign(quick: bool = False) -> list[dict]:
         if LocalCluster is not None:
             before = os.getloadavg()[0]
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                              dashboard_address=None) as cluster:
+                              dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:  # never port 8787
                 results["dask_2"] = cm.run_campaign(spec, Path(tmp) / "dask_2", runs, plots=False,
                                                     scheduler=cluster.scheduler_address)
             load["dask_2"] = (before, os.getloadavg()[0])

@@ -1,14 +1,15 @@
 """``stand campaign``: a scenario run many times with dispersed inputs (Monte Carlo).
 
     stand campaign SCENARIO --runs N --dispersions FILE --out DIR [--workers K | --scheduler ADDRESS]
-                   [--seed S] [--duration S] [--set KEY=VALUE]
+                   [--seed S] [--duration S] [--set KEY=VALUE] [--case-timeout S]
 
 Runs on a local process pool (``--workers``, default 1) or on a Dask distributed scheduler
 (``--scheduler tcp://HOST:PORT``; ``pip install 'adcs-stand[campaign]'``). Every case is reproducible from
 (seed, index) and writes its summary and telemetry under ``DIR/cases/NNNNN/``; running the same command again
 resumes (finished cases are not redone, more runs extend the campaign). ``DIR/campaign.json`` holds pass rates
 with 95 % intervals, metric distributions and the worst cases; ``DIR/report.md`` the plots.
-``stand run --campaign DIR --case K`` re-runs one case alone.
+``stand run --campaign DIR --case K`` re-runs one case alone. A case that raises anything (``sys.exit`` too), ends
+its worker process twice or runs longer than ``--case-timeout`` is recorded as an error and the others go on.
 Exit codes: 0 the pass rate reached --min-pass-rate (default: every run passed), 1 it did not, 2 usage or
 dispersion error, 130 stopped (finished cases kept; run again to resume).
 """
@@ -33,6 +34,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="simulated seconds of every run (default: the scenario's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scenario value for every case (repeatable)")
+    p.add_argument("--case-timeout", type=float, default=None, metavar="S",
+                   help="wall-clock seconds after which a case still running is recorded as an error and its worker "
+                        "ended (default 3600; 0: no limit)")
     p.add_argument("--min-pass-rate", type=float, default=1.0,
                    help="exit 0 when at least this fraction of the runs pass (default 1)")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -42,7 +46,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from stand.campaign import CampaignError, make_spec, run_campaign
+    from stand.campaign import CASE_TIMEOUT_S, CampaignError, make_spec, run_campaign
     from stand.errors import ScenarioError, fail
 
     workers = 1 if args.workers is None else args.workers
@@ -53,8 +57,9 @@ def run(args) -> int:
             raise ScenarioError("--min-pass-rate", args.min_pass_rate, "a fraction from 0 to 1")
         spec = make_spec(args.scenario, args.dispersions, args.seed, args.set, args.duration)
         progress = args.progress if args.progress is not None else sys.stderr.isatty()
+        timeout = CASE_TIMEOUT_S if args.case_timeout is None else args.case_timeout
         result = run_campaign(spec, args.out, args.runs, workers=workers, scheduler=args.scheduler,
-                              progress=progress)
+                              progress=progress, case_timeout_s=timeout)
     except (CampaignError, ScenarioError) as exc:
         return fail(str(exc))
     except KeyboardInterrupt:
