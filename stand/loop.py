@@ -271,20 +271,21 @@ class _Watchdog:
                 break
             except OverBudget:
                 continue
-        if self._main:
+        if self._main and self._thread is not None:
             # A SIGALRM sent just before the watchdog stopped must not reach the default action (the end of the
             # process) once the old handler is back: block it, take it if pending, restore, unblock.
             mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
             try:
                 if signal.SIGALRM in signal.sigpending():
                     signal.sigwait({signal.SIGALRM})
-                signal.signal(signal.SIGALRM, self._old_handler)
+                # None: a handler not set from Python, which cannot be put back; the default is what Python sets.
+                signal.signal(signal.SIGALRM, signal.SIG_DFL if self._old_handler is None else self._old_handler)
             finally:
                 signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
-    def text(self, step_s: float) -> str:
+    def text(self) -> str:
         token, took_s = self.over
-        call = f"update at t = {token * step_s:.3f} s" if token >= 0 else f"telemetry at t = {~token * step_s:.3f} s"
+        call = "update" if token >= 0 else "telemetry"
         return (f"the controller's {call} was still running after {took_s:.2f} s, over its budget of "
                 f"controller.budget_s = {self.budget_s:g} s, and was interrupted")
 
@@ -329,34 +330,44 @@ class _Flight:
             (observer, "observer_exception", "the operator page's feed"),
             (self.bar, "observer_exception", "the progress line")) if obj is not None})
 
+    def _own(self, fn, owner):
+        """``fn``, noted as ``owner``'s for the error that names what failed."""
+        self.known[id(fn)] = self.known[id(owner)]
+        return fn
+
     def plan(self):
         """What the tick calls, bound to locals once (the tick runs tens of thousands of times per orbit)."""
-        sc, devs, pacer = self.sc, self.devs, self.pacer
-        publishers = [(d.publish, d.every_ticks) for d in devs]
-        receivers = [d.receive for d in devs]
+        sc, pacer, truth, own = self.sc, self.pacer, self.truth, self._own
+        publishers, receivers, givers, parts = [], [], [], ([own(truth.b_B, truth)] if truth.has_field else [])
+        for d in self.devs:
+            publishers.append((own(d.publish, d), d.every_ticks))
+            receivers.append(own(d.receive, d))
+            parts.append(own(d.row, d))
+            if d.gives_dipole:
+                givers.append(own(d.dipole_B, d))
         if pacer.factor is not None:
             publishers.insert(0, (pacer.wait, 1))  # first: the tick's wall-clock deadline
         if pacer.factor is not None and sc.wall_time_links:
             # Frame-based scheduling when devices live in wall time (hardware and served links): measurements go
             # out at the start of a tick's wall-clock frame, actuator commands are taken in near its end, so a
             # flight computer outside that answers within the frame acts in the same tick, as the in-process
-            # controller does. Holding is the first "receiver", so the afap tick pays nothing for it.
+            # controller does. Holding is the first "receiver", so an afap tick pays nothing for it.
             hold, frame_end_s = pacer.hold, FRAME_END * sc.step_s
-            receivers.insert(0, lambda t: hold(t + frame_end_s))
-        givers = [d.dipole_B for d in devs if d.gives_dipole]
-        wheelers = [d.wheel_torque_Nm for d in sorted((d for d in devs if d.gives_wheel_torque),
-                                                      key=lambda d: d.wheel_index)]
-        step = self.truth.step
+            receivers.insert(0, own(lambda t: hold(t + frame_end_s), pacer))
+        wheelers = [own(d.wheel_torque_Nm, d) for d in sorted((d for d in self.devs if d.gives_wheel_torque),
+                                                               key=lambda d: d.wheel_index)]
+        step = truth.step
         if wheelers:
             def step(dipole, truth_step=step):
                 truth_step(dipole, tuple([torque() for torque in wheelers]))
-        parts = ([self.truth.b_B] if self.truth.has_field else []) + [d.row for d in devs]
-        ctl_row = getattr(self.controller, "telemetry", None)
+        ctl_update = ctl_row = None
+        if self.controller is not None:
+            ctl_update = own(self.controller.update, self.controller)
+            ctl_row = getattr(self.controller, "telemetry", None)
         if ctl_row is not None:
-            parts.append(ctl_row)  # last: the only flight code among them (the budget covers the whole row)
-        sinks = ([self.observer.record] if self.observer is not None else []) + (
+            parts.append(own(ctl_row, self.controller))  # last: the flight code's (the budget covers the row)
+        sinks = ([own(self.observer.record, self.observer)] if self.observer is not None else []) + (
             [self.bar.row] if self.bar.enabled else [])
-        ctl_update = self.controller.update if self.controller is not None else None
         ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if ctl_update is not None else 0
         busy = self.watchdog.busy if self.watchdog is not None else [None]
         return (publishers, receivers, givers, step, parts, sinks, ctl_update, ctl_every, busy,
@@ -366,7 +377,7 @@ class _Flight:
 def _start(f: _Flight) -> None:
     f.stage = START
     for d in f.devs:
-        f.fn = d.start
+        f.fn = d
         d.start(f.events)
     f.fn = None
 
@@ -447,10 +458,10 @@ def _chores(f: _Flight, k: int, t: float) -> int:
 
 
 def _culprit(f: _Flight, exc: BaseException) -> tuple[str, str, dict]:
-    """(event kind, who in words, event fields) of what raised: the owner of the method the loop was calling, else
-    the first known object among the traceback's frames (a callback, a wheel's torque inside the step), else what
-    the stage implies."""
-    hit = f.known.get(id(getattr(f.fn, "__self__", None)))
+    """(event kind, who in words, event fields) of what raised: the owner of what the loop was calling, else the
+    first known object among the traceback's frames (a callback, a wheel's torque inside the step), else what the
+    stage implies."""
+    hit = f.known.get(id(f.fn)) or f.known.get(id(getattr(f.fn, "__self__", None)))
     tb = exc.__traceback__
     while hit is None and tb is not None:
         hit = f.known.get(id(tb.tb_frame.f_locals.get("self")))
@@ -470,7 +481,7 @@ def _fault(f: _Flight, exc: BaseException) -> None:
     """End the run aborted, the event logged under what failed, with the traceback."""
     t = f.truth.t_s
     if isinstance(exc, OverBudget) and f.watchdog is not None and f.watchdog.over is not None:
-        kind, text, fields = "controller_over_budget", f.watchdog.text(f.sc.step_s), {}
+        kind, text, fields = "controller_over_budget", f.watchdog.text(), {}
     else:
         kind, who, fields = _culprit(f, exc)
         if isinstance(exc, FlightExit):
@@ -493,7 +504,7 @@ def _finish(f: _Flight) -> dict:
         f.status, f.error = "aborted", f.error or str(exc)
     if f.watchdog is not None and f.watchdog.over is not None and f.status == "completed":
         # Flight code swallowed every interrupt and finished late: over budget all the same.
-        f.status, f.error = "aborted", f"{f.watchdog.text(f.sc.step_s)} (it caught the interrupt)"
+        f.status, f.error = "aborted", f"{f.watchdog.text()} (it caught the interrupt)"
         f.events.log("controller_over_budget", f.error)
     f.bar.update(f.truth.t_s, force=True)
     counters = {}

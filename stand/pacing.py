@@ -16,11 +16,19 @@ import time
 
 import numpy as np
 
+from .errors import shown
+
 SPIN_S = 0.0005
 
 
+#: The pacing factors ``--speed`` takes (times real time): below, a tick's deadline runs past what a sleep can wait
+#: for (1e-300 overflows it); above, a paced run is a run as fast as possible with extra work.
+SPEED_RANGE = (1e-3, 1e6)
+
+
 def parse_speed(text: str) -> float | None:
-    """``afap`` -> None; ``realtime`` -> 1.0; a positive number -> that factor."""
+    """``afap`` -> None; ``realtime`` -> 1.0; a factor from 0.001 to 1e6 -> that factor (else ValueError, one
+    sentence naming --speed and what is allowed)."""
     t = str(text).strip().lower()
     if t == "afap":
         return None
@@ -30,8 +38,10 @@ def parse_speed(text: str) -> float | None:
         f = float(t)
     except ValueError:
         f = float("nan")
-    if not (f > 0 and f < float("inf")):
-        raise ValueError(f"--speed {text!r} is not allowed: use afap, realtime or a positive factor such as 2 or 0.5.")
+    lo, hi = SPEED_RANGE
+    if not lo <= f <= hi:  # nan, inf, 0, negative and subnormal factors included
+        raise ValueError(f"--speed {shown(text)} is not allowed: use afap, realtime or a factor of real time from "
+                         f"{lo:g} to {hi:.0f}, such as 2 or 0.5.")
     return f
 
 
