@@ -205,8 +205,8 @@ class _Watchdog:
 
     The loop writes a token into ``busy[0]`` before each call (the tick index for ``update``, its complement for
     the telemetry row) and None after: two list stores per call, no clock read, no system call. Arming a timer
-    instead (``setitimer`` before and after each call) measured 9.6 us per call on the shared 2-core machine this
-    was written on, against about 25 us for a whole tick of the default scenario; the two stores measured 0.08 us.
+    instead (``setitimer`` before and after each call) measured 4 to 9 us per call on the shared 2-core machine
+    this was written on, against about 25 us for a whole tick of the default scenario; the two stores, under 0.1 us.
     A thread looks at the token every tenth of the budget; a call holding the same token for the budget is
     interrupted: on the main thread by SIGALRM sent to it (its handler raises :class:`OverBudget`; a sleep, a
     blocking socket read or a Python loop are interrupted), on any other thread by an asynchronous exception

@@ -15,6 +15,7 @@ import tomllib
 import pytest
 
 from stand import scenario
+from stand.adcs import PluginError, check_controller, load_plugin
 from stand.compose import build
 from stand.errors import ScenarioError
 from stand.loop import run
@@ -38,6 +39,8 @@ class Stop(BaseException):
 
 class Fsw:
     def __init__(self, devices, period_s, how="none"):
+        if how == "sys.exit(0) in the constructor":
+            sys.exit(0)
         self.board, self.how = devices["mtq"], how
         self.caught = 0
 
@@ -132,6 +135,20 @@ def test_a_plugin_that_exits_or_raises_a_base_exception_aborts_the_run_with_its_
     fault = next(e for e in events if e["kind"] == "controller_exception")
     assert fault["t_s"] == 0.5 and any("fsw_loopfail.py" in line for line in fault["traceback"])
     assert [e["message"] for e in events if e["kind"] == "end"] == ["aborted"]
+
+
+def test_a_plugin_that_exits_at_import_or_construction_is_a_plugin_error(tmp_path):
+    sc = scenario.load(_scenario(tmp_path, "sys.exit(0) in the constructor"))
+    with pytest.raises(PluginError) as info:
+        build(sc, base=tmp_path)
+    assert str(info.value) == ("controller.module = 'fsw_loopfail:Fsw': constructing Fsw(devices, 0.1, **options) "
+                               "failed: SystemExit: 0.")
+    with pytest.raises(PluginError):
+        check_controller(sc, base=tmp_path)
+    (tmp_path / "exits_on_import.py").write_text("import sys\nsys.exit(0)\n")
+    with pytest.raises(PluginError) as info:
+        load_plugin("exits_on_import:Fsw", ".", base=tmp_path)
+    assert str(info.value).endswith(f"cannot be imported from {tmp_path} (SystemExit: 0).")
 
 
 def test_os_exit_is_guarded_during_a_run_and_the_real_one_again_after(tmp_path):
