@@ -211,9 +211,9 @@ class _Watchdog:
     interrupted: on the main thread by SIGALRM sent to it (its handler raises :class:`OverBudget`; a sleep, a
     blocking socket read or a Python loop are interrupted), on any other thread by an asynchronous exception
     (``PyThreadState_SetAsyncExc``: a Python loop is interrupted, a blocking system call only once it returns).
-    Either way a call is stopped between ``budget_s`` and ``1.1 * budget_s`` (at least 5 ms later) after it
-    began; a call that swallows the exception is interrupted again every ``budget_s``.
-    """
+    Either way a call is stopped once it has been seen running for ``budget_s``: between ``budget_s`` and
+    ``budget_s`` plus one look after it began. A call that swallows the exception is interrupted again every
+    ``budget_s``, and the run ends aborted all the same (``_finish``)."""
 
     def __init__(self, budget_s: float):
         self.budget_s = budget_s
@@ -224,7 +224,8 @@ class _Watchdog:
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
         self._ident = threading.get_ident()
-        self._main = threading.current_thread() is threading.main_thread()
+        # Signals are delivered to the main thread only (and SIGALRM is POSIX): elsewhere the asynchronous exception.
+        self._main = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_kill")
         self._old_handler = None
         self._async_sent = False
 
