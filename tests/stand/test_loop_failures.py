@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import tomllib
+from pathlib import Path
 
 import pytest
 
@@ -91,7 +92,7 @@ class Fsw:
 '''
 
 
-def _scenario(tmp_path, how: str | None, duration_s: float = 2.0, **controller) -> scenario.Scenario:
+def _scenario(tmp_path, how: str | None, duration_s: float = 2.0, **controller) -> Path:
     data = tomllib.loads((SCENARIO_DIR / "detumble.toml").read_text())
     data["scenario"]["duration_s"] = duration_s
     data["devices"][0]["channel"] = f"loopfail-{tmp_path.name}"
