@@ -11,33 +11,53 @@ Order inside a tick at sim time t (docs/architecture.md, "One tick"):
 5. a telemetry row is recorded when due; the device watch looks for silent devices once a second;
 6. the truth model advances one step, torques re-evaluated inside every integrator stage.
 
-A failure mid-run (a device fault, a plug-in exception, a full disk, the operator) ends the run cleanly: the
-event is logged, the telemetry written so far stays readable, and the summary says what happened.
+A failure mid-run (a device fault, a plug-in exception or exit, flight code over its time budget, a full disk,
+the operator) ends the run cleanly: the event is logged under the name of what failed (``device_exception`` with
+the device's name, ``controller_exception``, ``controller_over_budget``, ``truth_exception``,
+``writer_exception``, ``pacer_exception``, ``observer_exception``), the telemetry written so far stays readable,
+and the summary's error names it. Only Ctrl-C (KeyboardInterrupt) and :class:`Stopped` mean the operator.
 """
 
 from __future__ import annotations
 
+import ctypes
 import gc
+import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
 
-from drivers.errors import DriverError
 from sim.time import seconds_to_ns
 
 from .compose import Scene, ticks_per
 from .pacing import Pacer
-from .telemetry import EventLog, Recorder, TelemetryError
+from .scenario import DEFAULT_BUDGET_S
+from .telemetry import EventLog, Recorder
 
 #: Where in a paced tick's wall-clock frame commands from devices in wall time are taken in (fraction of the tick).
 FRAME_END = 0.8
-#: Lines of a plug-in's traceback kept in the event log.
+#: Lines of a traceback kept in the event log.
 TRACEBACK_LINES = 40
 
 
 class Stopped(Exception):
     """The operator stopped the run (SIGTERM; Ctrl-C arrives as KeyboardInterrupt)."""
+
+
+class OverBudget(BaseException):
+    """Raised inside flight code that ran past its time budget, by the budget watchdog. A BaseException, so a
+    plug-in's ``except Exception`` around its own work does not swallow it."""
+
+
+class FlightExit(BaseException):
+    """``os._exit`` called from the loop's thread while a run is on (see :class:`_ExitGuard`)."""
+
+    def __init__(self, code):
+        super().__init__(code)
+        self.code = code
 
 
 class DeviceWatch:
@@ -122,6 +142,10 @@ class Progress:
             self.stream.write("\n")
         self.stream.flush()
 
+    def row(self, t_s: float, row: tuple) -> None:
+        """A telemetry row was recorded (what the loop hands its row sinks)."""
+        self.update(t_s)
+
 
 #: Wall-clock period of the observer's control poll (pause, stop from the operator page).
 POLL_S = 0.25
@@ -144,142 +168,397 @@ def _obey(command: str, observer, events: EventLog, pacer: Pacer, t: float, cloc
         raise Stopped("stop from the operator page")
 
 
+class _ExitGuard:
+    """``os._exit`` from the loop's thread raises :class:`FlightExit` for the duration of a run.
+
+    Why: ``os._exit`` ends the process at once, skipping every ``finally``: no summary, buses left open, and the
+    exit code the plug-in chose (0 reads as a pass to a script or a CI job). A run must end "aborted" with its
+    record instead, as for any exception in flight code. Only calls from the loop's own thread are caught: other
+    threads of the process (a campaign's executor, a Dask worker) keep the real function. Not covered: a name
+    bound before the run (``from os import _exit``), ``posix._exit``, ``os.abort``, signals sent to the process.
+    """
+
+    def __init__(self):
+        self.real = os._exit
+        self.ident = threading.get_ident()
+
+    def _exit(self, code):
+        if threading.get_ident() == self.ident:
+            raise FlightExit(code)
+        self.real(code)
+
+    def __enter__(self):
+        os._exit = self._exit
+        return self
+
+    def __exit__(self, *exc):
+        if os._exit == self._exit:  # bound methods compare equal, never identical
+            os._exit = self.real
+
+
+#: How often the budget watchdog looks at the running call: a tenth of the budget, within these bounds (s).
+WATCH_PERIOD_S = (0.005, 0.25)
+
+
+class _Watchdog:
+    """Interrupts a call into flight code (``update``, ``telemetry``) that runs past ``controller.budget_s``.
+
+    The loop writes a token into ``busy[0]`` before each call (the tick index for ``update``, its complement for
+    the telemetry row) and None after: two list stores per call, no clock read, no system call. Arming a timer
+    instead (``setitimer`` before and after each call) measured 4 to 9 us per call on the shared 2-core machine
+    this was written on, against about 25 us for a whole tick of the default scenario; the two stores, under 0.1 us.
+    A thread looks at the token every tenth of the budget; a call holding the same token for the budget is
+    interrupted: on the main thread by SIGALRM sent to it (its handler raises :class:`OverBudget`; a sleep, a
+    blocking socket read or a Python loop are interrupted), on any other thread by an asynchronous exception
+    (``PyThreadState_SetAsyncExc``: a Python loop is interrupted, a blocking system call only once it returns).
+    Either way a call is stopped once it has been seen running for ``budget_s``: between ``budget_s`` and
+    ``budget_s`` plus one look after it began. A call that swallows the exception is interrupted again every
+    ``budget_s``, and the run ends aborted all the same (``_finish``)."""
+
+    def __init__(self, budget_s: float):
+        self.budget_s = budget_s
+        self.period_s = min(max(budget_s / 10.0, WATCH_PERIOD_S[0]), WATCH_PERIOD_S[1])
+        self.busy: list = [None]
+        self.over: tuple | None = None  # (token, seconds it had run) of the call that ran over
+        self.active = False
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._ident = threading.get_ident()
+        # Signals are delivered to the main thread only (and SIGALRM is POSIX): elsewhere the asynchronous exception.
+        self._main = threading.current_thread() is threading.main_thread() and hasattr(signal, "pthread_kill")
+        self._old_handler = None
+        self._async_sent = False
+
+    def start(self) -> None:
+        if self._main:
+            self._old_handler = signal.signal(signal.SIGALRM, self._alarm)
+        self.active = True
+        self._thread = threading.Thread(target=self._watch, name="stand-flight-budget", daemon=True)
+        self._thread.start()
+
+    def _alarm(self, signum, frame):
+        if self.active:
+            raise OverBudget()
+
+    def _watch(self) -> None:
+        seen, since, fired = None, 0.0, None
+        while not self._done.wait(self.period_s):
+            token, now = self.busy[0], time.monotonic()
+            if token is None or token != seen:
+                seen, since, fired = token, now, None
+            elif now - since >= self.budget_s and (fired is None or now - fired >= self.budget_s):
+                self.over, fired = (token, now - since), now
+                self._interrupt()
+
+    def _interrupt(self) -> None:
+        if not self.active:
+            return
+        if self._main:
+            signal.pthread_kill(self._ident, signal.SIGALRM)
+        else:
+            ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(self._ident), ctypes.py_object(OverBudget))
+            self._async_sent = True
+
+    def stop(self) -> None:
+        """Called first when the run ends: no interrupt reaches the code after it."""
+        self.active = False  # the SIGALRM handler now ignores a signal still on its way
+        for _ in range(3):  # an asynchronous exception already sent may land here, once
+            try:
+                self._done.set()
+                if self._thread is not None:
+                    self._thread.join()
+                if self._async_sent:  # drop one sent but not yet raised (NULL clears it)
+                    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(self._ident), None)
+                break
+            except OverBudget:
+                continue
+        if self._main and self._thread is not None:
+            # A SIGALRM sent just before the watchdog stopped must not reach the default action (the end of the
+            # process) once the old handler is back: block it, take it if pending, restore, unblock.
+            mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+            try:
+                if signal.SIGALRM in signal.sigpending():
+                    signal.sigwait({signal.SIGALRM})
+                # None: a handler not set from Python, which cannot be put back; the default is what Python sets.
+                signal.signal(signal.SIGALRM, signal.SIG_DFL if self._old_handler is None else self._old_handler)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+    def text(self) -> str:
+        token, took_s = self.over
+        call = "update" if token >= 0 else "telemetry"
+        return (f"the controller's {call} was still running after {took_s:.2f} s, over its budget of "
+                f"controller.budget_s = {self.budget_s:g} s, and was interrupted")
+
+
+# What the loop was doing when something raised (``_Flight.stage``), and the word the error uses for it.
+PUBLISH, CONTROL, RECEIVE, DIPOLE, ROW, WRITER, OBSERVER, TRUTH, CHORES, START = range(10)
+STAGE_WORDS = ("publish", "update", "receive", "dipole", "telemetry row", "record", "feed", "wheel torque",
+               "activity", "start")
+
+
+class _Flight:
+    """One run's objects and the loop's schedule, bound once; ``k``, ``stage`` and ``fn`` say where it was."""
+
+    def __init__(self, scene: Scene, out_dir, speed, duration_s, progress: bool, clock, sleep, observer):
+        sc = self.sc = scene.scenario
+        self.truth, self.controller, self.observer = scene.truth, scene.controller, observer
+        self.clock, self.sleep = clock, sleep
+        self.duration_s = sc.duration_s if duration_s is None else duration_s
+        self.n_steps = seconds_to_ns(self.duration_s) // self.truth.step_ns
+        self.events = EventLog(out_dir)
+        self.recorder = Recorder(out_dir, columns(scene))
+        self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
+        self.bar = Progress(self.n_steps * sc.step_s, progress)
+        self.devs = list(scene.devices.values())
+        self.watches = [DeviceWatch(d, self.events) for d in self.devs if d.silent_after_s is not None]
+        self.watch_every = ticks_per(1.0, sc.step_s)
+        self.poll_every = ticks_per(1.0 / POLL_S, sc.step_s)
+        self.next_poll = 0.0
+        budget_s = sc.controller.params.get("budget_s", DEFAULT_BUDGET_S)
+        self.watchdog = _Watchdog(budget_s) if self.controller is not None else None
+        self.k, self.stage, self.fn = 0, START, None
+        self.status, self.error, self.wall0, self.wall_s = "completed", None, clock(), 0.0
+        # Who is who when something raises: the object whose method failed -> (event kind, name in the error).
+        self.known = {id(d): ("device_exception", d) for d in self.devs}
+        self.known.update({id(w): ("device_exception", w.device) for w in self.watches})
+        self.known.update({id(obj): (kind, name) for obj, kind, name in (
+            (self.controller, "controller_exception", "the controller"),
+            (self.truth, "truth_exception", "the truth model (dynamics)"),
+            (self.recorder, "writer_exception", "the telemetry writer"),
+            (self.events, "writer_exception", "the event log"),
+            (self.pacer, "pacer_exception", "the pacer"),
+            (observer, "observer_exception", "the operator page's feed"),
+            (self.bar, "observer_exception", "the progress line")) if obj is not None})
+
+    def _own(self, fn, owner):
+        """``fn``, noted as ``owner``'s for the error that names what failed."""
+        self.known[id(fn)] = self.known[id(owner)]
+        return fn
+
+    def plan(self):
+        """What the tick calls, bound to locals once (the tick runs tens of thousands of times per orbit)."""
+        sc, pacer, truth, own = self.sc, self.pacer, self.truth, self._own
+        publishers, receivers, givers, parts = [], [], [], ([own(truth.b_B, truth)] if truth.has_field else [])
+        for d in self.devs:
+            publishers.append((own(d.publish, d), d.every_ticks))
+            receivers.append(own(d.receive, d))
+            parts.append(own(d.row, d))
+            if d.gives_dipole:
+                givers.append(own(d.dipole_B, d))
+        if pacer.factor is not None:
+            publishers.insert(0, (pacer.wait, 1))  # first: the tick's wall-clock deadline
+        if pacer.factor is not None and sc.wall_time_links:
+            # Frame-based scheduling when devices live in wall time (hardware and served links): measurements go
+            # out at the start of a tick's wall-clock frame, actuator commands are taken in near its end, so a
+            # flight computer outside that answers within the frame acts in the same tick, as the in-process
+            # controller does. Holding is the first "receiver", so an afap tick pays nothing for it.
+            hold, frame_end_s = pacer.hold, FRAME_END * sc.step_s
+            receivers.insert(0, own(lambda t: hold(t + frame_end_s), pacer))
+        wheelers = [own(d.wheel_torque_Nm, d) for d in sorted((d for d in self.devs if d.gives_wheel_torque),
+                                                               key=lambda d: d.wheel_index)]
+        step = truth.step
+        if wheelers:
+            def step(dipole, truth_step=step):
+                truth_step(dipole, tuple([torque() for torque in wheelers]))
+        ctl_update = ctl_row = None
+        if self.controller is not None:
+            ctl_update = own(self.controller.update, self.controller)
+            ctl_row = getattr(self.controller, "telemetry", None)
+        if ctl_row is not None:
+            parts.append(own(ctl_row, self.controller))  # last: the flight code's (the budget covers the row)
+        sinks = ([own(self.observer.record, self.observer)] if self.observer is not None else []) + (
+            [self.bar.row] if self.bar.enabled else [])
+        ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if ctl_update is not None else 0
+        busy = self.watchdog.busy if self.watchdog is not None else [None]
+        return (publishers, receivers, givers, step, parts, sinks, ctl_update, ctl_every, busy,
+                ticks_per(sc.record_rate_hz, sc.step_s))
+
+
+def _start(f: _Flight) -> None:
+    f.stage = START
+    for d in f.devs:
+        f.fn = d
+        d.start(f.events)
+    f.fn = None
+
+
+def _fly(f: _Flight) -> None:
+    """The ticks, from ``f.k`` to the end (docs/architecture.md, "One tick"). Nothing here calls more per tick
+    than the tick needs: ``stage`` (a local) and the loop variables say where an exception came from."""
+    publishers, receivers, givers, step, parts, sinks, ctl_update, ctl_every, busy, rec_every = f.plan()
+    truth, record, n_steps = f.truth, f.recorder.record, f.n_steps
+    k, next_chore, stage = f.k, 0, START
+    publish = receive = dipole = part = sink = None
+    try:
+        while True:
+            t = truth.t_ns / 1e9
+            stage = PUBLISH
+            for publish, every in publishers:
+                if every == 1 or k % every == 0:
+                    publish(t)
+            if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
+                stage = CONTROL
+                busy[0] = k
+                ctl_update(t)
+                busy[0] = None
+            stage = RECEIVE
+            for receive in receivers:
+                receive(t)
+            stage = DIPOLE
+            dx = dy = dz = 0.0
+            for dipole in givers:
+                m = dipole()
+                dx, dy, dz = dx + m[0], dy + m[1], dz + m[2]
+            if k % rec_every == 0 or k == n_steps:
+                stage = TRUTH
+                row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
+                stage = ROW
+                busy[0] = ~k
+                for part in parts:
+                    row = (*row, *part())
+                busy[0] = None
+                stage = WRITER
+                record(row)
+                stage = OBSERVER
+                for sink in sinks:
+                    sink(t, row)
+            if k >= next_chore:
+                stage = CHORES
+                next_chore = _chores(f, k, t)
+                if k >= n_steps:
+                    break
+            stage = TRUTH
+            step((dx, dy, dz))
+            k += 1
+    except BaseException:
+        busy[0] = None
+        f.k, f.stage = k, stage
+        f.fn = (publish, ctl_update, receive, dipole, part, record, sink)[stage] if stage <= OBSERVER else None
+        raise
+    f.k = k
+
+
+def _chores(f: _Flight, k: int, t: float) -> int:
+    """The observer's control poll (at most every ``POLL_S`` of wall time) and the device watch (once a second of
+    sim time), when due; returns the next tick either is due, or the last tick."""
+    observer, nxt = f.observer, f.n_steps
+    if observer is not None:
+        if k % f.poll_every == 0 and f.clock() >= f.next_poll:
+            f.next_poll = f.clock() + POLL_S
+            command = observer.poll_control()
+            if command is not None:
+                _obey(command, observer, f.events, f.pacer, t, f.clock, f.sleep)
+        nxt = min(nxt, (k // f.poll_every + 1) * f.poll_every)
+    if f.watches:
+        if k % f.watch_every == 0:
+            for w in f.watches:
+                w.check(t)
+        nxt = min(nxt, (k // f.watch_every + 1) * f.watch_every)
+    return nxt
+
+
+def _culprit(f: _Flight, exc: BaseException) -> tuple[str, str, dict]:
+    """(event kind, who in words, event fields) of what raised: the owner of what the loop was calling, else the
+    first known object among the traceback's frames (a callback, a wheel's torque inside the step), else what the
+    stage implies."""
+    hit = f.known.get(id(f.fn)) or f.known.get(id(getattr(f.fn, "__self__", None)))
+    tb = exc.__traceback__
+    while hit is None and tb is not None:
+        hit = f.known.get(id(tb.tb_frame.f_locals.get("self")))
+        tb = tb.tb_next
+    if hit is None:
+        default = {CONTROL: f.controller, TRUTH: f.truth, WRITER: f.recorder, OBSERVER: f.observer}.get(f.stage)
+        hit = f.known.get(id(default), ("loop_exception", "the stand's loop"))
+    kind, who = hit
+    if kind == "device_exception":
+        return kind, f"device {who.name} ({STAGE_WORDS[f.stage]})", {"device": who.name}
+    if kind == "controller_exception":
+        return kind, f"the controller ({'telemetry' if f.stage == ROW else 'update'})", {}
+    return kind, who, {}
+
+
+def _fault(f: _Flight, exc: BaseException) -> None:
+    """End the run aborted, the event logged under what failed, with the traceback."""
+    t = f.truth.t_s
+    if isinstance(exc, OverBudget) and f.watchdog is not None and f.watchdog.over is not None:
+        kind, text, fields = "controller_over_budget", f.watchdog.text(), {}
+    else:
+        kind, who, fields = _culprit(f, exc)
+        if isinstance(exc, FlightExit):
+            what = f"called os._exit({exc.code!r})"
+        else:
+            what = f"raised {type(exc).__name__}" + (f": {exc}" if str(exc) else "")
+        text = f"{who} {what}"
+    f.status, f.error = "aborted", f"at t = {t:.3f} s {text}"
+    lines = traceback.format_exception(type(exc), exc, exc.__traceback__)
+    f.events.log(kind, f.error, t_s=t, **fields, traceback="".join(lines).splitlines()[-TRACEBACK_LINES:])
+
+
+def _finish(f: _Flight) -> dict:
+    """Close the telemetry, log how the run ended; the devices' counters."""
+    f.wall_s = f.clock() - f.wall0
+    gc.unfreeze()
+    try:
+        f.recorder.close()
+    except Exception as exc:  # the last rows could not be written (a TelemetryError, one sentence)
+        f.status, f.error = "aborted", f.error or str(exc)
+    if f.watchdog is not None and f.watchdog.over is not None and f.status == "completed":
+        # Flight code swallowed every interrupt and finished late: over budget all the same.
+        f.status, f.error = "aborted", f"{f.watchdog.text()} (it caught the interrupt)"
+        f.events.log("controller_over_budget", f.error)
+    f.bar.update(f.truth.t_s, force=True)
+    counters = {}
+    for d in f.devs:
+        try:
+            counters[d.name] = d.summary()
+        except Exception as exc:  # a summary must not hide how the run ended
+            counters[d.name] = {"summary_error": str(exc)}
+    for w in f.watches:
+        counters[w.name]["silences"] = w.silences
+    if f.error:
+        f.events.log(f.status, f.error)
+    f.events.log("end", f.status, ticks=f.k, wall_time_s=f.wall_s)
+    f.events.close()
+    return counters
+
+
 def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float | None = None,
         progress: bool = False, clock=time.monotonic, sleep=time.sleep, observer=None) -> RunResult:
     """Run the scene, recording into ``out_dir``. Returns how it went; never leaves a bus open.
 
-    Whatever ends the run (the end, a device fault, a plug-in exception, a full disk, the operator), the
-    telemetry written so far stays readable and the event log says what happened.
+    Whatever ends the run (the end, a device fault, a plug-in exception or ``sys.exit``/``os._exit``, flight code
+    over its time budget, a full disk, the operator), the telemetry written so far stays readable and the event
+    log says what happened and what failed. Only KeyboardInterrupt and :class:`Stopped` (the operator) end it
+    "stopped"; anything else raised ends it "aborted".
 
     ``observer`` (the operator page's live feed, optional): ``observer.record(t_s, row)`` is called with every
     telemetry row and must only keep it (no I/O, no waiting); ``observer.poll_control()`` is called at most every
     ``POLL_S`` of wall time and returns None, ``"pause"`` or ``"stop"``.
     """
-    sc = scene.scenario
-    truth = scene.truth
-    duration = sc.duration_s if duration_s is None else duration_s
-    n_steps = seconds_to_ns(duration) // truth.step_ns
-    events = EventLog(out_dir)
-    recorder = Recorder(out_dir, columns(scene))
-    pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
-    bar = Progress(n_steps * sc.step_s, progress)
-    devs = list(scene.devices.values())
-    publishers = [(d.publish, d.every_ticks) for d in devs]
-    receivers = [d.receive for d in devs]
-    givers = [d.dipole_B for d in devs if d.gives_dipole]
-    wheelers = [d.wheel_torque_Nm for d in sorted((d for d in devs if d.gives_wheel_torque),
-                                                  key=lambda d: d.wheel_index)] or None
-    rows = [d.row for d in devs]
-    controller = scene.controller
-    ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if controller is not None else 0
-    rec_every = ticks_per(sc.record_rate_hz, sc.step_s)
-    has_field = truth.has_field
-    ctl_row = getattr(controller, "telemetry", None)
-    watches = [DeviceWatch(d, events) for d in devs if d.silent_after_s is not None]
-    watch_every = ticks_per(1.0, sc.step_s)
-    status, error = "completed", None
-    events.log("start", f"scenario {sc.name} for {duration:g} s", speed=speed)
-    # The tick below runs tens of thousands of times per orbit: what it calls is bound to locals once here, and
-    # the dipoles travel as tuples of floats (no arrays, no float() per tick).
-    wait = pacer.wait if pacer.factor is not None else None
-    # Frame-based scheduling when devices live in wall time (hardware and served links): measurements go out at
-    # the start of a tick's wall-clock frame, actuator commands are taken in near its end, so a flight computer
-    # outside that answers within the frame acts in the same tick, as the in-process controller does.
-    hold = pacer.hold if (pacer.factor is not None and sc.wall_time_links) else None
-    frame_end_s = FRAME_END * sc.step_s
-    step = truth.step
-    ctl_update = controller.update if controller is not None else None
-    show = bar.update if progress else None
-    record = recorder.record
-    observe = observer.record if observer is not None else None
-    poll_every = ticks_per(1.0 / POLL_S, sc.step_s)
-    next_poll = 0.0
-    k = 0
-    wall0 = clock()
+    f = _Flight(scene, out_dir, speed, duration_s, progress, clock, sleep, observer)
+    f.events.log("start", f"scenario {f.sc.name} for {f.duration_s:g} s", speed=speed)
     # What exists now (the libraries, the scene) lives as long as the run: kept out of the collector, a full
     # collection no longer walks that whole heap every few thousand ticks (up to 60 ms each; unfrozen at the end).
     gc.freeze()
+    watchdog = f.watchdog
     try:  # from here on whatever ends the run (a device's start included) leaves a readable record
-        for d in devs:
-            d.start(events)
-        wall0 = clock()
-        pacer.begin()
-        while True:
-            t = truth.t_ns / 1e9
-            if wait is not None:
-                wait(t)
-            for publish, every in publishers:
-                if every == 1 or k % every == 0:
-                    publish(t)
-            if ctl_update is not None and k % ctl_every == 0 and k < n_steps:
-                ctl_update(t)
-            if hold is not None:
-                hold(t + frame_end_s)
-            dx = dy = dz = 0.0
-            for receive in receivers:
-                receive(t)
-            for dipole in givers:
-                m = dipole()
-                dx, dy, dz = dx + m[0], dy + m[1], dz + m[2]
-            if k % rec_every == 0 or k == n_steps:
-                row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
-                if has_field:
-                    row += truth.b_B()
-                for device_row in rows:
-                    row += device_row()
-                if ctl_row is not None:
-                    row += tuple(ctl_row())
-                record(row)
-                if observe is not None:
-                    observe(t, row)
-                if show is not None:
-                    show(t)
-            if observe is not None and k % poll_every == 0 and clock() >= next_poll:
-                next_poll = clock() + POLL_S
-                command = observer.poll_control()
-                if command is not None:
-                    _obey(command, observer, events, pacer, t, clock, sleep)
-            if k % watch_every == 0:
-                for w in watches:
-                    w.check(t)
-            if k >= n_steps:
-                break
-            if wheelers is None:
-                step((dx, dy, dz))
-            else:
-                step((dx, dy, dz), tuple([torque() for torque in wheelers]))
-            k += 1
+        with _ExitGuard():
+            _start(f)
+            f.wall0 = clock()
+            f.pacer.begin()
+            if watchdog is not None:
+                watchdog.start()
+            _fly(f)
     except KeyboardInterrupt:
-        status, error = "stopped", f"stopped by the operator (Ctrl-C) at t = {truth.t_s:.3f} s"
+        f.status, f.error = "stopped", f"stopped by the operator (Ctrl-C) at t = {f.truth.t_s:.3f} s"
     except Stopped as exc:
-        status, error = "stopped", f"stopped by the operator ({exc}) at t = {truth.t_s:.3f} s"
-    except TelemetryError as exc:
-        status, error = "aborted", f"at t = {truth.t_s:.3f} s: {exc}"
-    except (DriverError, ValueError, FloatingPointError, OSError) as exc:
-        status, error = "aborted", f"at t = {truth.t_s:.3f} s: {exc}"
-    except Exception as exc:  # the controller (a plug-in) raised: the run ends, its record stays
-        status, error = "aborted", f"at t = {truth.t_s:.3f} s the controller raised {type(exc).__name__}: {exc}"
-        events.log("controller_exception", error, t_s=truth.t_s,
-                   traceback=traceback.format_exc().splitlines()[-TRACEBACK_LINES:])
+        f.status, f.error = "stopped", f"stopped by the operator ({exc}) at t = {f.truth.t_s:.3f} s"
+    except BaseException as exc:  # SystemExit, GeneratorExit and the like from flight code included
+        _fault(f, exc)
     finally:
-        wall = clock() - wall0
-        gc.unfreeze()
-        try:
-            recorder.close()
-        except TelemetryError as exc:
-            status, error = "aborted", error or str(exc)
-        bar.update(truth.t_s, force=True)
-        counters = {}
-        for d in devs:
-            try:
-                counters[d.name] = d.summary()
-            except Exception as exc:  # a summary must not hide how the run ended
-                counters[d.name] = {"summary_error": str(exc)}
-        for w in watches:
-            counters[w.name]["silences"] = w.silences
-        if error:
-            events.log(status, error)
-        events.log("end", status, ticks=k, wall_time_s=wall)
-        events.close()
-    timing = {"ticks": k, **pacer.stats()}
-    return RunResult(status, k * sc.step_s, wall, k, timing, error, counters)
+        if watchdog is not None:
+            watchdog.stop()
+        counters = _finish(f)
+    timing = {"ticks": f.k, **f.pacer.stats()}
+    return RunResult(f.status, f.k * f.sc.step_s, f.wall_s, f.k, timing, f.error, counters)

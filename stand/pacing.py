@@ -18,14 +18,22 @@ from __future__ import annotations
 import math
 import time
 
+from .errors import shown
+
 SPIN_S = 0.0005
 #: Lateness histogram: FINE_BINS bins of FINE_S, then COARSE_BINS bins of COARSE_S; later still goes in the last bin.
 FINE_S, FINE_BINS = 1e-6, 10_000
 COARSE_S, COARSE_BINS = 1e-4, 9_900
 
 
+#: The pacing factors ``--speed`` takes (times real time): below, a tick's deadline runs past what a sleep can wait
+#: for (1e-300 overflows it); above, a paced run is a run as fast as possible with extra work.
+SPEED_RANGE = (1e-3, 1e6)
+
+
 def parse_speed(text: str) -> float | None:
-    """``afap`` -> None; ``realtime`` -> 1.0; a positive number -> that factor."""
+    """``afap`` -> None; ``realtime`` -> 1.0; a factor from 0.001 to 1e6 -> that factor (else ValueError, one
+    sentence naming --speed and what is allowed)."""
     t = str(text).strip().lower()
     if t == "afap":
         return None
@@ -35,8 +43,10 @@ def parse_speed(text: str) -> float | None:
         f = float(t)
     except ValueError:
         f = float("nan")
-    if not (f > 0 and f < float("inf")):
-        raise ValueError(f"--speed {text!r} is not allowed: use afap, realtime or a positive factor such as 2 or 0.5.")
+    lo, hi = SPEED_RANGE
+    if not lo <= f <= hi:  # nan, inf, 0, negative and subnormal factors included
+        raise ValueError(f"--speed {shown(text)} is not allowed: use afap, realtime or a factor of real time from "
+                         f"{lo:g} to {hi:.0f}, such as 2 or 0.5.")
     return f
 
 

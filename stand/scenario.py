@@ -21,7 +21,7 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
                    sun_sensor: type = "coarse" | "fine", port, rate_hz, noise_mA | noise_deg, fov_half_deg, ...
                    gyro: port, output_rate_hz, ideal, arw_deg_sqrt_h, bias_instability_deg_h, delay_s, ...
                    reaction_wheel: interface, channel, wheel, spin_axis_B, inertia_kg_m2, max_torque_Nm, ...
-    [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, ...
+    [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, budget_s, ...
                    (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name)
     [[criteria]]   name, metric, max | min, at_s
     [recording]    rate_hz
@@ -55,6 +55,8 @@ DEFAULT_SCENARIO = SCENARIO_DIR / "detumble.toml"
 
 TORQUES = ("magnetic", "gravity_gradient")
 CONTROLLER_KINDS = ("bdot", "none", "plugin", "external", "pointing")
+#: ``controller.budget_s`` when not given: wall-clock seconds one call into the flight code may take.
+DEFAULT_BUDGET_S = 1.0
 #: Devices the reference pointing ADCS (``controller.kind = "pointing"``) takes by name: option -> device kind.
 POINTING_DEVICES = {"star_tracker": "star_tracker", "gyro": "gyro", "magnetorquer": "magnetorquer",
                     "sun_sensor": "sun_sensor"}
@@ -691,7 +693,8 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
         t.check_unknown()
         return ControllerSpec(kind, 1.0 / step_s)
     rate_hz = rate(t, "rate_hz", step_s)
-    params: dict = {}
+    # Wall-clock seconds one call into the flight code may take before the run ends aborted (stand.loop._Watchdog).
+    params: dict = {"budget_s": t.number("budget_s", DEFAULT_BUDGET_S, lo=0.01, hi=3600.0)}
     if kind == "bdot":
         _bdot(t, rate_hz, step_s, devices, params)
     elif kind == "pointing":

@@ -9,11 +9,14 @@ Plug-in API (``[controller] kind = "plugin"``, ``module = "package.module:ClassN
 driver, whatever its link (``take_sample``/``command_dipole`` for a magnetorquer, ``take_solution`` for a star
 tracker, ``take_sun`` for a sun sensor), and is called once per control period as ``update(t_s)``. Optional:
 ``telemetry_columns()`` -> ``[(name, width, unit), ...]`` and ``telemetry()`` -> a tuple of floats recorded with
-every telemetry row, and ``close()`` at the end. An exception in ``update`` ends the run "aborted" (exit 3) with
-the traceback in ``events.jsonl`` and the summary and plots written. ``examples/plugin_template.py`` is a
-complete template; ``docs/plugins.md`` documents the API. The reference B-dot below is written against the same
-API (``BDot.from_devices``), and so is the reference pointing ADCS, :class:`stand.adcs.pointing.PointingController`
-(gyro ``take_rate``, reaction wheels ``take_speed``/``command_torque``; docs/adcs.md).
+every telemetry row, and ``close()`` at the end. Anything raised in ``update`` or ``telemetry`` (``sys.exit`` too;
+``os._exit`` is turned into an exception while the run is on), and a call over ``controller.budget_s`` of wall
+time, ends the run "aborted" (exit 3) with the traceback in ``events.jsonl`` and the summary and plots written
+(stand.loop); Ctrl-C alone means the operator. At import or construction, the same is a PluginError (exit 2).
+``examples/plugin_template.py`` is a complete template; ``docs/plugins.md`` documents the API. The reference
+B-dot below is written against the same API (``BDot.from_devices``), and so is the reference pointing ADCS,
+:class:`stand.adcs.pointing.PointingController` (gyro ``take_rate``, reaction wheels
+``take_speed``/``command_torque``; docs/adcs.md).
 """
 
 from __future__ import annotations
@@ -136,7 +139,9 @@ def _import_installed(module_name: str, spec: str):
     sys.path[:] = [p for p in sys.path if p not in ("", ".", cwd)]
     try:
         return importlib.import_module(module_name)
-    except Exception as exc:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
         raise PluginError(f"controller.module = {spec!r}: {module_name!r} cannot be imported "
                           f"({type(exc).__name__}: {exc}).") from None
     finally:
@@ -163,7 +168,9 @@ def _import_from(folder: Path, module_name: str, spec: str):
         module = importlib.import_module(module_name)
         _PLUGIN_FOLDERS[top] = folder
         return module
-    except Exception as exc:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
         raise PluginError(f"controller.module = {spec!r}: {module_name!r} cannot be imported from {folder} "
                           f"({type(exc).__name__}: {exc}).") from None
     finally:
@@ -244,7 +251,9 @@ def build_controller(sc, devices: dict, base: Path | None = None):
     hosts = {name: d.host for name, d in devices.items()}
     try:
         return cls(hosts, period, **p["options"])
-    except Exception as exc:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
         raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, {period:g}, "
                           f"**options) failed: {type(exc).__name__}: {exc}.") from None
 
@@ -279,7 +288,9 @@ def check_controller(sc, base: Path | None = None) -> None:
     cls = load_plugin(p["module"], p.get("path"), base)
     try:
         obj = cls({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz, **p["options"])
-    except Exception as exc:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
         raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, "
                           f"{1.0 / ctl.rate_hz:g}, **options) failed: {type(exc).__name__}: {exc}.") from None
     if not callable(getattr(obj, "update", None)):
