@@ -248,7 +248,11 @@ class Sky:
             out[f"{body}_radius_rad"] = np.arcsin(radius / n[:, 0])
         rn = np.linalg.norm(r, axis=-1)
         out["earth_radius_rad"] = np.arcsin(np.minimum(1.0, R_EARTH / rn))
-        out["sun_fraction"] = shadow_fraction(r, r_sun) if len(t) else np.zeros(0)
+        # A row without a finite position (a run that diverged) is drawn as "no value", not a crash of the server.
+        known = np.all(np.isfinite(r), axis=-1)
+        out["sun_fraction"] = np.full(len(t), np.nan)
+        if known.any():
+            out["sun_fraction"][known] = shadow_fraction(r[known], r_sun[known])
         out["q_EN"] = quat_from_dcm(C) if len(t) else np.zeros((0, 4))
         r_E = np.einsum("nij,nj->ni", C, r)
         out["lat_deg"] = np.degrees(np.arcsin(r_E[:, 2] / rn)) if len(t) else np.zeros(0)
