@@ -599,9 +599,15 @@ def test_a_run_paused_from_the_page_resumes_when_the_page_server_dies(tmp_path):
     ('{"epoch": "2026-03-20T12:00:00Z", "duration_s": 60, "devices": [], "earth_rotation": {"model": "flat"}}',
      "its earth_rotation"),
 ])
-def test_view_of_a_corrupt_view_json_says_which_file_and_what(run_dir, tmp_path, capsys, text, why):
+def test_view_of_a_corrupt_view_json_says_which_file_and_what(run_dir, tmp_path, capsys, monkeypatch, text, why):
     import shutil
+    import threading
 
+    class Interrupted(threading.Event):  # a view that does serve is stopped at once, as by Ctrl-C
+        def wait(self, timeout=None):
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr("stand.commands.view.threading.Event", Interrupted)
     out = tmp_path / "run"
     shutil.copytree(run_dir, out)
     (out / "view.json").write_text(text)
