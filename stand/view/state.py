@@ -396,6 +396,7 @@ class LiveFeed:
         self._tell: str | None = None  # a status for the server, sent by the sender thread
         self._lost_logged = False
         self.pushes = 0
+        self.rows_taken = 0  # rows the sender took from the deque (all the loop recorded, unless some were dropped)
         self.cpu_s = 0.0
         self.error: str | None = None
         self._stop = threading.Event()
@@ -501,6 +502,7 @@ class LiveFeed:
         new = [rows.popleft() for _ in range(len(rows))]  # the loop appends on the right meanwhile
         if not new:
             return
+        self.rows_taken += len(new)
         keep = []
         nxt = self._next_t
         for row in new:

@@ -110,6 +110,7 @@ def test_live_feed_decimates_and_the_source_controls(run_dir):
     for row in flat[150:301]:
         feed.record(row[0], tuple(row))
     feed.push()
+    assert len(feed.rows) == 0 and feed.rows_taken == 301  # sent rows are let go (a run's rows are not kept)
     samples, events = source.snapshot()
     assert samples["t_s"][0] == 0.0 and samples["t_s"][-1] == pytest.approx(30.0)
     # every 0.5 s, plus the newest row of the first push (14.9 s) shown at once
