@@ -61,6 +61,16 @@ def _loopback(host: str) -> bool:
         return host.lower() == "localhost"
 
 
+def _plain_address(address: str) -> str:
+    """A socket's local address as a browser would write it in Host (no zone, IPv4 for an IPv4-mapped one)."""
+    address = address.split("%", 1)[0].lower()
+    try:
+        mapped = ipaddress.ip_address(address)
+    except ValueError:
+        return address
+    return str(mapped.ipv4_mapped) if mapped.version == 6 and mapped.ipv4_mapped else address
+
+
 def _split_host(value: str) -> tuple[str, int | None]:
     """``Host`` header -> (lower-case name without brackets, port or None when absent)."""
     value = value.strip().lower()
@@ -242,7 +252,7 @@ class ViewServer:
         sock = request.transport.get_extra_info("sockname") if request.transport is not None else None
         if not sock:
             return "the connection's local address is unknown"
-        local, port = str(sock[0]).split("%", 1)[0].lower(), int(sock[1])
+        local, port = _plain_address(str(sock[0])), int(sock[1])
         names = {local} | ({self.host.lower()} if self.host not in WILDCARD_HOSTS else set())
         if _loopback(local):
             names |= {"localhost", "127.0.0.1", "::1"}
