@@ -145,6 +145,7 @@ class ViewServer:
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._stars: collections.OrderedDict[float, bytes] = collections.OrderedDict()  # LRU
+        self._own_names: set[str] | None = None
         self.sent = 0
 
     # -- lifecycle ---------------------------------------------------------------------------------------
@@ -257,7 +258,9 @@ class ViewServer:
         if _loopback(local):
             names |= {"localhost", "127.0.0.1", "::1"}
         if self.host in WILDCARD_HOSTS:
-            names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+            if self._own_names is None:  # getfqdn may ask the DNS: once per server, not per request
+                self._own_names = {socket.gethostname().lower(), socket.getfqdn().lower()}
+            names |= self._own_names
         name, given_port = _split_host(given)
         if name in names and given_port in (port, None if port == 80 else port):
             return None
@@ -292,8 +295,8 @@ class ViewServer:
             except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
                 summary = None
         return _json({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
-                                  "run_dir": str(src.run_dir), "token_required": bool(self.token),
-                                  "control_from": None if self.token else self.host})
+                      "run_dir": str(src.run_dir), "token_required": bool(self.token),
+                      "control_from": None if self.token else self.host})
 
     async def _samples(self, request):
         loop = asyncio.get_running_loop()
