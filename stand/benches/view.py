@@ -175,7 +175,7 @@ def _run_once(sc, out: Path, browser, with_page: bool, pin: bool = False) -> tup
                 live.close()
                 stats["pushes_sent"] = live.feed.pushes
                 stats["sender_cpu_s"] = live.feed.cpu_s
-                stats["rows"] = len(live.feed.rows)
+                stats["rows"] = live.feed.rows_taken
                 if browser is not None:
                     s = browser.execute_script("const s = window.standView.stats; return {pushes: s.pushes, "
                                                "draws: s.draws, last_draw_ms: s.lastDrawMs}")

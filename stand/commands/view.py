@@ -6,7 +6,8 @@
 
 Serving prints the page's URL and runs until Ctrl-C (the page has a time slider, play/pause and speed). The
 export writes ``panorama_<t>s.png`` for each time (default: start, middle, end). ``stand run --view`` serves the
-same page live. Exit codes: 0 served or written, 2 a usage error (one sentence naming the value).
+same page live. Exit codes: 0 served or written, 2 a usage error or a run folder whose ``view.json`` or
+``summary.json`` cannot be used (one sentence naming the value or the file).
 """
 
 from __future__ import annotations
@@ -65,8 +66,12 @@ def run(args) -> int:
         src = server.ReplaySource(args.run_dir)
         view = server.ViewServer(src, host, port, args.token)
         url = view.start()
-    except (ValueError, FileNotFoundError) as exc:
+    except ValueError as exc:  # a bad option, or a view.json / summary.json the page cannot use (named)
         return _fail(str(exc))
+    except OSError as exc:
+        if exc.filename is None:  # our own FileNotFoundError: the sentence is in the message
+            return _fail(str(exc))
+        return _fail(f"{exc.filename} cannot be read: {exc.strerror or exc}.")
     print(f"stand: replay of {args.run_dir} at {url} (Ctrl-C to stop serving)", flush=True)
     stop = threading.Event()
     try:

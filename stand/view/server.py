@@ -5,17 +5,26 @@ Routes: ``/`` the page; ``/assets/...`` its script and style (shipped in the whe
 live run has pushed); ``/api/stars`` the catalog; ``/api/events`` the event log; ``/ws`` a websocket on which a
 live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run.
 
-Control is accepted only from the address the server is bound to, unless a token is configured; then only with
-the token (header ``X-Stand-Token``), from anywhere that can reach the server. Binding anywhere but 127.0.0.1
-requires a token. A control request must be JSON and, when the browser sends an Origin, come from the page
-itself, so another site open in the operator's browser cannot pause the run.
+Every request that names a host (browsers always do) must name one the server listens on: the address the
+connection reached, ``localhost`` when that is a loopback address, the bound host as given, and the machine's
+own name when bound to every interface; anything else is refused (403), so a page of another site whose name was
+re-pointed at this machine (DNS rebinding) reads nothing and controls nothing. Control is accepted only from the
+address the server is bound to, unless a token is configured; then only with the token (header
+``X-Stand-Token``), from anywhere that can reach the server. Binding anywhere but 127.0.0.1 requires a token. A
+control request must name the host, be JSON and, when the browser sends an Origin, come from the page itself
+(``http://`` and the same host), so another site open in the operator's browser cannot pause the run.
+
+Every JSON the server sends is strict JSON (:func:`state.dumps`: NaN and infinities become null).
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
 import hmac
+import ipaddress
 import json
+import math
 import os
 import socket
 import threading
@@ -31,6 +40,49 @@ ASSETS = Path(__file__).with_name("assets")
 LOCAL = "127.0.0.1"
 #: Longest wait for the server thread to bind (or fail to).
 START_TIMEOUT_S = 10.0
+#: ``/api/stars?mag=M``: the magnitude limits served (the catalog's faintest is Hp 9; nothing is brighter than
+#: -2), rounded to this step, and how many distinct tables are kept (each about 1.2 MB at Hp 9).
+STAR_MAG_RANGE = (-2.0, 9.0)
+STAR_MAG_STEP = 0.1
+STAR_CACHE_TABLES = 4
+#: The server process of ``stand run --view`` tells the run it is alive (and how many pages are open) this often.
+HEARTBEAT_S = 1.0
+WILDCARD_HOSTS = ("0.0.0.0", "::", "")
+
+
+def _json(data, status: int = 200) -> web.Response:
+    return web.Response(text=state.dumps(data), status=status, content_type="application/json")
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host.split("%", 1)[0]).is_loopback
+    except ValueError:
+        return host.lower() == "localhost"
+
+
+def _plain_address(address: str) -> str:
+    """A socket's local address as a browser would write it in Host (no zone, IPv4 for an IPv4-mapped one)."""
+    address = address.split("%", 1)[0].lower()
+    try:
+        mapped = ipaddress.ip_address(address)
+    except ValueError:
+        return address
+    return str(mapped.ipv4_mapped) if mapped.version == 6 and mapped.ipv4_mapped else address
+
+
+def _split_host(value: str) -> tuple[str, int | None]:
+    """``Host`` header -> (lower-case name without brackets, port or None when absent)."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        name, _, rest = value[1:].partition("]")
+        port = rest[1:] if rest.startswith(":") else ""
+    else:
+        name, _, port = value.rpartition(":") if value.count(":") == 1 else (value, "", "")
+    try:
+        return name, int(port) if port else None
+    except ValueError:
+        return name, -1
 
 
 class ViewError(ValueError):
@@ -92,7 +144,8 @@ class ViewServer:
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._stars: dict[float, bytes] = {}
+        self._stars: collections.OrderedDict[float, bytes] = collections.OrderedDict()  # LRU
+        self._own_names: set[str] | None = None
         self.sent = 0
 
     # -- lifecycle ---------------------------------------------------------------------------------------
@@ -162,7 +215,7 @@ class ViewServer:
     def _push(self, message: dict) -> None:
         if self._loop is None or not self.sockets:
             return
-        text = json.dumps(message)
+        text = state.dumps(message)
         try:
             self._loop.call_soon_threadsafe(lambda: self._loop.create_task(self._broadcast(text)))
         except RuntimeError:  # the loop closed while the run ends
@@ -192,8 +245,35 @@ class ViewServer:
         app.router.add_post("/api/control", self._control)
         return app
 
+    def host_refusal(self, request) -> str | None:
+        """Why the request's Host header does not name this server (DNS rebinding), or None."""
+        given = request.headers.get("Host")
+        if given is None:
+            return "the request names no host"
+        sock = request.transport.get_extra_info("sockname") if request.transport is not None else None
+        if not sock:
+            return "the connection's local address is unknown"
+        local, port = _plain_address(str(sock[0])), int(sock[1])
+        names = {local} | ({self.host.lower()} if self.host not in WILDCARD_HOSTS else set())
+        if _loopback(local):
+            names |= {"localhost", "127.0.0.1", "::1"}
+        if self.host in WILDCARD_HOSTS:
+            if self._own_names is None:  # getfqdn may ask the DNS: once per server, not per request
+                self._own_names = {socket.gethostname().lower(), socket.getfqdn().lower()}
+            names |= self._own_names
+        name, given_port = _split_host(given)
+        if name in names and given_port in (port, None if port == 80 else port):
+            return None
+        return (f"Host {given!r} is not an address this view listens on (it answers as "
+                f"{local if ':' not in local else '[' + local + ']'}:{port}"
+                f"{' or localhost:' + str(port) if _loopback(local) else ''})")
+
     @web.middleware
     async def _headers(self, request, handler):
+        if "Host" in request.headers:
+            why = self.host_refusal(request)
+            if why is not None:
+                return _json({"error": why}, status=403)
         resp = await handler(request)
         # The page loads nothing from elsewhere; say so to the browser too.
         resp.headers.setdefault("Content-Security-Policy", "default-src 'self'; connect-src 'self' ws: wss:; "
@@ -212,53 +292,67 @@ class ViewServer:
             try:
                 summary = {k: v for k, v in json.loads(path.read_text()).items()
                            if k in ("pass", "status", "error", "criteria")}
-            except json.JSONDecodeError:
+            except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
                 summary = None
-        return web.json_response({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
-                                  "run_dir": str(src.run_dir), "token_required": bool(self.token),
-                                  "control_from": None if self.token else self.host})
+        return _json({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
+                      "run_dir": str(src.run_dir), "token_required": bool(self.token),
+                      "control_from": None if self.token else self.host})
 
     async def _samples(self, request):
         loop = asyncio.get_running_loop()
         samples, events = await loop.run_in_executor(None, self.source.snapshot)
-        body = json.dumps({"samples": state.encode(samples) if samples else {}, "events": events,
-                           "status": self.source.status})
+        body = state.dumps({"samples": state.encode(samples) if samples else {}, "events": events,
+                            "status": self.source.status})
         resp = web.Response(text=body, content_type="application/json")
         resp.enable_compression()
         return resp
 
     async def _stars_route(self, request):
+        lo, hi = STAR_MAG_RANGE
+        text = request.query.get("mag", "9")
         try:
-            mag = float(request.query.get("mag", "9"))
+            mag = float(text)
         except ValueError:
-            raise web.HTTPBadRequest(text="mag must be a number (Hp magnitude limit, up to 9).") from None
-        key = min(max(mag, -2.0), 9.0)
-        if key not in self._stars:
+            mag = math.nan
+        if not lo <= mag <= hi:  # NaN too
+            return _json({"error": f"mag {text!r} is not allowed: an Hp magnitude limit from {lo:g} to {hi:g}."},
+                         status=400)
+        key = round(round(mag / STAR_MAG_STEP) * STAR_MAG_STEP, 3)
+        body = self._stars.get(key)
+        if body is None:
             loop = asyncio.get_running_loop()
             table = await loop.run_in_executor(None, state.star_table, self.source.meta, key)
-            self._stars[key] = json.dumps(table).encode()
-        resp = web.Response(body=self._stars[key], content_type="application/json")
+            body = self._stars[key] = state.dumps(table).encode()
+            while len(self._stars) > STAR_CACHE_TABLES:
+                self._stars.popitem(last=False)
+        self._stars.move_to_end(key)
+        resp = web.Response(body=body, content_type="application/json")
         resp.enable_compression()
         return resp
 
     async def _events(self, request):
-        return web.json_response(state.read_events(self.source.run_dir))
+        return _json(state.read_events(self.source.run_dir))
 
     async def _ws(self, request):
         ws = web.WebSocketResponse(heartbeat=20.0)
         await ws.prepare(request)
         self.sockets.add(ws)
+        self.source.pages = len(self.sockets)
         try:
-            await ws.send_str(json.dumps({"type": "status", "status": self.source.status}))
+            await ws.send_str(state.dumps({"type": "status", "status": self.source.status}))
             async for msg in ws:
                 if msg.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
                     break
         finally:
             self.sockets.discard(ws)
+            self.source.pages = len(self.sockets)
         return ws
 
     def control_refusal(self, request) -> str | None:
         """Why a control request is refused, or None."""
+        host = self.host_refusal(request)
+        if host is not None:
+            return host
         if self.token:
             given = request.headers.get("X-Stand-Token", "")
             if not hmac.compare_digest(given.encode(), self.token.encode()):
@@ -266,24 +360,24 @@ class ViewServer:
         elif request.remote != self.host:
             return f"control is accepted only from {self.host}, the address the view is bound to"
         origin = request.headers.get("Origin")
-        if origin is not None and origin.split("://", 1)[-1] != request.host:
-            return f"control must come from the page itself (Origin {origin!r})"
+        if origin is not None and origin.lower() != "http://" + request.headers["Host"].strip().lower():
+            return f"control must come from the page itself (Origin {origin!r}, Host {request.headers['Host']!r})"
         if request.content_type != "application/json":
             return "control requests are JSON"
         return None
 
     async def _control(self, request):
         if self.source.mode != "live":
-            return web.json_response({"error": "a replay has no run to control"}, status=409)
+            return _json({"error": "a replay has no run to control"}, status=409)
         why = self.control_refusal(request)
         if why is not None:
-            return web.json_response({"error": why}, status=403)
+            return _json({"error": why}, status=403)
         try:
             command = (await request.json()).get("command")
             status = self.source.request(command)
         except (ValueError, AttributeError) as exc:
-            return web.json_response({"error": str(exc)}, status=400)
-        return web.json_response({"status": status})
+            return _json({"error": str(exc)}, status=400)
+        return _json({"status": status})
 
 
 class PipeLink:
@@ -293,8 +387,11 @@ class PipeLink:
         self.conn = conn
 
     def send(self, message) -> None:
-        kind, rows = message
-        self.conn.send_bytes(b"R" + np.ascontiguousarray(rows, dtype="<f8").tobytes())
+        kind, data = message
+        if kind == "status":
+            self.conn.send_bytes(b"S" + data.encode())
+        else:
+            self.conn.send_bytes(b"R" + np.ascontiguousarray(data, dtype="<f8").tobytes())
 
     def receive(self) -> list:
         out = []
@@ -304,8 +401,10 @@ class PipeLink:
 
 
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
-    """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``F`` + the
-    run's status when it ended, ``C`` to end the process; control commands go back as Python objects."""
+    """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
+    status the run's side set by itself (a pause it released), ``F`` + the run's status when it ended, ``C`` to end
+    the process; back go control commands and, every ``HEARTBEAT_S``, ``{"pages": n}`` (the run's side releases a
+    pause when these stop)."""
     # Under contention the run's loop comes first; the page can wait a few milliseconds.
     os.nice(5)
     lock = threading.Lock()
@@ -322,29 +421,40 @@ def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str 
         conn.send_bytes(b"error " + str(exc).encode())
         return
     conn.send_bytes(b"ready " + url.encode())
-    width = None
     try:
-        while True:
-            if not conn.poll(1.0):
-                if os.getppid() == 1:  # the run's process is gone
-                    break
-                continue
-            data = conn.recv_bytes()
-            tag, data = data[:1], data[1:]
-            if tag == b"F":
-                source.finished(data.decode())
-                continue
-            if tag == b"C":
-                break
+        _relay(conn, source, lambda: control({"pages": source.pages}))
+    except (EOFError, OSError):
+        pass
+    finally:
+        view.close(linger_s=0.5 if view.sockets else 0.0)
+
+
+def _relay(conn, source, heartbeat) -> None:
+    """serve_live's loop: rows and statuses in, a heartbeat out every HEARTBEAT_S, until told to end."""
+    width = None
+    beat = 0.0
+    while True:
+        if time.monotonic() - beat >= HEARTBEAT_S:
+            beat = time.monotonic()
+            heartbeat()
+        if not conn.poll(HEARTBEAT_S):
+            if os.getppid() == 1:  # the run's process is gone
+                return
+            continue
+        data = conn.recv_bytes()
+        tag, data = data[:1], data[1:]
+        if tag == b"F":
+            source.finished(data.decode())
+        elif tag == b"S":
+            source.released(data.decode())
+        elif tag == b"C":
+            return
+        else:
             if width is None:
                 cols = source._schema()
                 width = sum(int(c["width"]) for c in cols) if cols else None
             if width:
                 source.ingest(np.frombuffer(data, dtype="<f8").reshape(-1, width))
-    except (EOFError, OSError):
-        pass
-    finally:
-        view.close(linger_s=0.5 if view.sockets else 0.0)
 
 
 class LiveSession:
@@ -389,7 +499,7 @@ class LiveSession:
             self._end()
             raise ViewError(reply.split(" ", 1)[1])
         self.url = reply.split(" ", 1)[1]
-        self.feed = state.LiveFeed(PipeLink(self.conn), meta)
+        self.feed = state.LiveFeed(PipeLink(self.conn), meta, events_path=Path(run_dir) / "events.jsonl")
         self.feed.start()
         return self.url
 

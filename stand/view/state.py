@@ -18,6 +18,7 @@ up, +y is on the left) and +z is up.
 from __future__ import annotations
 
 import base64
+import collections
 import json
 import math
 import threading
@@ -40,6 +41,39 @@ DEFAULT_TRACKER_FOV_DEG = (20.0, 15.0)
 #: Most samples a replay sends the page for the whole run (the slider's resolution is duration / this).
 MAX_SAMPLES = 6000
 PROJECTIONS = ("equirectangular", "hammer")
+#: Most samples a live run's server keeps for pages that open mid-run: the newest ``LIVE_RECENT_SAMPLES`` as the
+#: feed sent them, the older ones thinned evenly in time (a long paced run would otherwise grow without end).
+LIVE_MAX_SAMPLES = 2 * MAX_SAMPLES
+LIVE_RECENT_SAMPLES = 2000
+#: Most telemetry rows the live feed holds between two sends (ten a second); when the sender cannot keep up, or
+#: the page's server is gone, the oldest are dropped from the view (never from the telemetry on disk).
+LIVE_MAX_PENDING_ROWS = 100_000
+#: A pause from the page is released (the run resumes, with an event in the log) when the page's server has been
+#: silent this long (it says it is alive every second) ...
+SERVER_SILENT_S = 15.0
+#: ... or when no page has been open for this long during the pause.
+UNATTENDED_PAUSE_S = 600.0
+
+
+# --------------------------------------------------------------------------------------------------- strict JSON
+
+def _finite_or_none(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+
+
+def dumps(obj) -> str:
+    """JSON a browser can parse: NaN and infinities (a criterion a tracker that never solved could not score, an
+    event's time) become ``null``; Python's ``json`` would write ``NaN``, which ``JSON.parse`` refuses."""
+    try:
+        return json.dumps(obj, allow_nan=False)
+    except ValueError:
+        return json.dumps(_finite_or_none(obj), allow_nan=False)
 
 
 # --------------------------------------------------------------------------------------------------- metadata
@@ -105,23 +139,78 @@ def write_view_json(sc, run_dir, duration_s: float | None = None) -> Path:
     return path
 
 
+class RunFileError(ValueError):
+    """A run folder's ``view.json`` or ``summary.json`` the page cannot use (one sentence naming the file)."""
+
+
+def _number(x, positive: bool = False) -> bool:
+    ok = isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+    return ok and (x > 0 if positive else True)
+
+
+def _meta_problem(meta) -> str | None:
+    """What in a ``view.json`` the page could not draw from, or None."""
+    if not isinstance(meta, dict):
+        return f"it holds a JSON {type(meta).__name__}, not an object"
+    try:
+        Epoch.from_iso(meta.get("epoch"))
+    except (ValueError, TypeError, AttributeError):
+        return f"its epoch {meta.get('epoch')!r} is not an ISO 8601 UTC time"
+    for key in ("duration_s", "step_s", "record_rate_hz"):
+        if key in meta or key == "duration_s":
+            if not _number(meta.get(key), positive=True):
+                return f"its {key} {meta.get(key)!r} is not a positive number"
+    er = meta.get("earth_rotation", {})
+    if not isinstance(er, dict) or er.get("model", "iau2006") not in ("iau2006", "uniform") \
+            or not _number(er.get("era0_rad", 0.0)):
+        return f"its earth_rotation {er!r} is not {{\"model\": \"iau2006\" or \"uniform\", \"era0_rad\": NUMBER}}"
+    devices = meta.get("devices")
+    if not isinstance(devices, list):
+        return f"its devices {devices!r} are not a list"
+    for i, d in enumerate(devices):
+        if not (isinstance(d, dict) and isinstance(d.get("name"), str) and isinstance(d.get("kind"), str)
+                and isinstance(d.get("q_SB"), list) and len(d["q_SB"]) == 4 and all(map(_number, d["q_SB"]))
+                and isinstance(d.get("fovs"), list) and all(isinstance(f, dict) for f in d["fovs"])):
+            name = d.get("name") if isinstance(d, dict) else None
+            return (f"its device {i + 1} ({name!r}) lacks a name, a kind, a q_SB of 4 numbers or a list of fields "
+                    "of view")
+    if not isinstance(meta.get("criteria", []), list):
+        return "its criteria are not a list"
+    return None
+
+
+def _read_json(path: Path):
+    try:
+        return json.loads(path.read_text())
+    except UnicodeDecodeError:
+        raise RunFileError(f"{path} is not readable: it is not UTF-8 text.") from None
+    except json.JSONDecodeError as exc:
+        raise RunFileError(f"{path} is not readable: it is not valid JSON ({exc.msg} at line {exc.lineno}, "
+                           f"column {exc.colno}).") from None
+
+
 def load_meta(run_dir) -> dict:
-    """``view.json`` of a run, or the same rebuilt from the scenario its summary names."""
+    """``view.json`` of a run, or the same rebuilt from the scenario its summary names; a file the page cannot use
+    raises :class:`RunFileError` naming it and what is wrong."""
     run_dir = Path(run_dir)
     path = run_dir / VIEW_FILE
     if path.is_file():
-        return json.loads(path.read_text())
+        meta = _read_json(path)
+        why = _meta_problem(meta)
+        if why is not None:
+            raise RunFileError(f"{path} is not a view description the page can use: {why}.")
+        return meta
     summary = run_dir / "summary.json"
     if not summary.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: it holds neither {VIEW_FILE} nor summary.json.")
     from stand.errors import ScenarioError
     from stand.scenario import find, load
 
-    data = json.loads(summary.read_text())
-    source = data.get("source")
+    data = _read_json(summary)
+    source = data.get("source") if isinstance(data, dict) else None
     try:
         meta = describe(load(find(source)))
-        if data.get("status") == "completed" and data.get("sim_duration_s"):
+        if data.get("status") == "completed" and _number(data.get("sim_duration_s"), positive=True):
             meta["duration_s"] = float(data["sim_duration_s"])  # a --duration run
         return meta
     except (ScenarioError, TypeError, OSError):
@@ -159,7 +248,11 @@ class Sky:
             out[f"{body}_radius_rad"] = np.arcsin(radius / n[:, 0])
         rn = np.linalg.norm(r, axis=-1)
         out["earth_radius_rad"] = np.arcsin(np.minimum(1.0, R_EARTH / rn))
-        out["sun_fraction"] = shadow_fraction(r, r_sun) if len(t) else np.zeros(0)
+        # A row without a finite position (a run that diverged) is drawn as "no value", not a crash of the server.
+        known = np.all(np.isfinite(r), axis=-1)
+        out["sun_fraction"] = np.full(len(t), np.nan)
+        if known.any():
+            out["sun_fraction"][known] = shadow_fraction(r[known], r_sun[known])
         out["q_EN"] = quat_from_dcm(C) if len(t) else np.zeros((0, 4))
         r_E = np.einsum("nij,nj->ni", C, r)
         out["lat_deg"] = np.degrees(np.arcsin(r_E[:, 2] / rn)) if len(t) else np.zeros(0)
@@ -268,24 +361,42 @@ def split_rows(rows, columns: list[dict]) -> dict:
 class LiveFeed:
     """The loop's observer during ``stand run --view``: the loop's side of the live page.
 
-    The loop calls :meth:`record` for every telemetry row (it appends a reference to the row and returns: no
-    copy, no lock, no numpy) and :meth:`poll_control` a few times per second. A sender thread wakes ``push_hz``
-    times a second, keeps the rows appended since that are at least ``duration / max_samples`` apart (and the
-    newest), and hands them as one array to ``link.send(("rows", array))``; ``link.receive()`` returns the control
-    commands that arrived from the page since the last call. Deriving the sky, encoding and serving happen at the
-    other end of the link (:class:`LiveSource`, in the server's own process for ``stand run --view``), so they
-    never hold this process's interpreter lock while the loop runs.
+    The loop calls :meth:`record` for every telemetry row (it appends a reference to the row to a bounded deque
+    and returns: no copy, no lock, no numpy) and :meth:`poll_control` a few times per second. A sender thread
+    wakes ``push_hz`` times a second, takes the rows appended since (so the deque holds at most one period's rows,
+    and never more than ``max_pending`` when the sender falls behind or is gone), keeps those at least
+    ``duration / max_samples`` apart (and the newest), and hands them as one array to
+    ``link.send(("rows", array))``; ``link.receive()`` returns what came from the page's server since the last
+    call: control commands (``"pause"``, ``"stop"``, None) and, every second, ``{"pages": n}``, the number of
+    pages open. Deriving the sky, encoding and serving happen at the other end of the link (:class:`LiveSource`,
+    in the server's own process for ``stand run --view``), so they never hold this process's interpreter lock.
+
+    A pause from the page never outlives the page: :meth:`poll_control` releases it (the run resumes, and a
+    ``view_lost`` or ``pause_unattended`` event says why in ``events_path``) when the server is gone (its pipe
+    broke, or it has been silent for ``server_silent_s``) or when no page has been open for
+    ``unattended_pause_s`` of the pause.
     """
 
-    def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES):
+    def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES, *,
+                 max_pending: int = LIVE_MAX_PENDING_ROWS, events_path=None, clock=time.monotonic,
+                 server_silent_s: float = SERVER_SILENT_S, unattended_pause_s: float = UNATTENDED_PAUSE_S):
         self.link = link
-        self.rows: list = []
+        self.rows: collections.deque = collections.deque(maxlen=max_pending)
         self.push_period_s = 1.0 / push_hz
         self.spacing_s = max(meta["duration_s"] / max_samples, 1.0 / meta.get("record_rate_hz", 10.0))
+        self.events_path = Path(events_path) if events_path is not None else None
+        self.clock = clock
+        self.server_silent_s, self.unattended_pause_s = server_silent_s, unattended_pause_s
         self._control: str | None = None
-        self._taken = 0
         self._next_t = -math.inf
+        now = clock()
+        self._heard_s = now  # when the server last said it is alive
+        self._page_seen_s = now  # when a page was last open
+        self._paused_s = now  # when the current pause began
+        self._tell: str | None = None  # a status for the server, sent by the sender thread
+        self._lost_logged = False
         self.pushes = 0
+        self.rows_taken = 0  # rows the sender took from the deque (all the loop recorded, unless some were dropped)
         self.cpu_s = 0.0
         self.error: str | None = None
         self._stop = threading.Event()
@@ -296,7 +407,53 @@ class LiveFeed:
         self.rows.append(row)
 
     def poll_control(self) -> str | None:
-        return self._control
+        command = self._control
+        if command != "pause" and self.error is None:
+            return command
+        return self._check(command)
+
+    def _check(self, command: str | None) -> str | None:
+        """The page's command, unless the page that paused the run is gone (then the run resumes, logged)."""
+        now = self.clock()
+        gone = self._gone(now)
+        if command != "pause":
+            if gone and not self._lost_logged:
+                self._lost_logged = True
+                self._log("view_lost", f"{gone}; the run goes on without its live page")
+            return command
+        if gone:
+            self._lost_logged = True
+            self._log("view_lost", f"{gone}; the run paused from it resumes")
+        elif now - max(self._paused_s, self._page_seen_s) > self.unattended_pause_s:
+            self._log("pause_unattended", f"paused with no operator page open for "
+                      f"{now - max(self._paused_s, self._page_seen_s):.0f} s (limit {self.unattended_pause_s:g} s); "
+                      "the run resumes")
+        else:
+            return command
+        self._control = None
+        self._tell = "running"
+        return None
+
+    def _gone(self, now: float) -> str | None:
+        """Why the page's server is gone, or None."""
+        if self.error is not None:
+            return f"the operator page's server is gone ({self.error})"
+        if self._thread is not None and not self._thread.is_alive() and not self._stop.is_set():
+            return "the live view's sender thread ended"
+        if now - self._heard_s > self.server_silent_s:
+            return (f"the operator page's server has not answered for {now - self._heard_s:.0f} s "
+                    f"(limit {self.server_silent_s:g} s)")
+        return None
+
+    def _log(self, kind: str, message: str) -> None:
+        """One line in the run's event log (the loop's own log is line-buffered and appends too)."""
+        if self.events_path is None:
+            return
+        try:
+            with open(self.events_path, "a") as f:
+                f.write(json.dumps({"kind": kind, "message": message}) + "\n")
+        except OSError:
+            pass  # a full disk: the run's summary counts its own lost events; this one is not worth a crash
 
     # -- the sender ----------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -322,13 +479,30 @@ class LiveFeed:
         finally:
             self.cpu_s = time.thread_time() - c0  # what the sender took from the run's process (stand bench view)
 
+    def _take(self, message) -> None:
+        """One message from the server: a heartbeat with the number of open pages, or a control command."""
+        now = self.clock()
+        if isinstance(message, dict):
+            self._heard_s = now
+            if message.get("pages", 0) > 0:
+                self._page_seen_s = now
+            return
+        self._heard_s = now
+        if message == "pause" and self._control != "pause":
+            self._paused_s = now
+        self._control = message
+
     def push(self) -> None:
-        for command in self.link.receive():
-            self._control = command
-        n = len(self.rows)
-        new, self._taken = self.rows[self._taken:n], n
+        for message in self.link.receive():
+            self._take(message)
+        if self._tell is not None:
+            status, self._tell = self._tell, None
+            self.link.send(("status", status))
+        rows = self.rows
+        new = [rows.popleft() for _ in range(len(rows))]  # the loop appends on the right meanwhile
         if not new:
             return
+        self.rows_taken += len(new)
         keep = []
         nxt = self._next_t
         for row in new:
@@ -349,14 +523,21 @@ class LiveSource:
 
     mode = "live"
 
-    def __init__(self, run_dir, meta: dict, control=None):
+    def __init__(self, run_dir, meta: dict, control=None, max_samples: int = LIVE_MAX_SAMPLES,
+                 recent_samples: int = LIVE_RECENT_SAMPLES):
+        if not 0 < recent_samples < max_samples:
+            raise ValueError(f"recent_samples {recent_samples} is not allowed: from 1 to max_samples - 1 "
+                             f"({max_samples - 1}).")
         self.run_dir = Path(run_dir)
         self.meta = meta
         self.sky = Sky(meta)
         self.control = control or (lambda command: None)
         self.status = "running"
+        self.pages = 0  # pages open (the server counts its websockets); the feed hears it every second
+        self.max_samples, self.recent_samples = max_samples, recent_samples
         self._columns: list[dict] | None = None
         self._history: list[dict] = []
+        self._held = 0  # samples in _history
         self._events: list[dict] = []
         self._events_pos = 0
         self.listeners: list = []  # callables(message dict)
@@ -381,6 +562,12 @@ class LiveSource:
         self._notify({"type": "status", "status": self.status})
         return self.status
 
+    def released(self, status: str = "running") -> None:
+        """The run's side resumed a pause by itself (its page or server was gone too long)."""
+        if self.status == "paused":
+            self.status = status
+            self._notify({"type": "status", "status": self.status})
+
     def finished(self, run_status: str = "completed") -> None:
         events = self._new_events()
         self.status = "finished"
@@ -402,10 +589,28 @@ class LiveSource:
         with self._lock:
             derived = self.sky.derive(split_rows(rows, cols))
             self._history.append(derived)
+            self._held += len(rows)
+            if self._held > self.max_samples:
+                self._thin()
             self.pushes += 1
             events = self._new_events()
         self._notify({"type": "samples", "samples": encode(derived), "status": self.status,
                       **({"events": events} if events else {})})
+
+    def _thin(self) -> None:
+        """Bound the history: the newest ``recent_samples`` stay as they came, the older ones are thinned evenly in
+        time to half of what is left of ``max_samples`` (so this runs once per many pushes, not at every one)."""
+        merged = self._merged()
+        n = len(merged["t_s"])
+        cut = n - self.recent_samples
+        idx = np.append(decimate(merged["t_s"][:cut], max(2, (self.max_samples - self.recent_samples) // 2)),
+                        np.arange(cut, n))
+        self._history = [{k: np.asarray(v)[idx] for k, v in merged.items()}]
+        self._held = len(idx)
+
+    def _merged(self) -> dict:
+        keys = self._history[0].keys()
+        return {k: np.concatenate([np.asarray(h[k]) for h in self._history]) for k in keys}
 
     def _new_events(self) -> list[dict]:
         path = self.run_dir / "events.jsonl"
@@ -435,9 +640,7 @@ class LiveSource:
             self._new_events()
             if not self._history:
                 return {}, list(self._events)
-            keys = self._history[0].keys()
-            merged = {k: np.concatenate([np.asarray(h[k]) for h in self._history]) for k in keys}
-            return merged, list(self._events)
+            return self._merged(), list(self._events)
 
 
 class LocalLink:
@@ -450,10 +653,13 @@ class LocalLink:
         source.control = self.inbox.append
 
     def send(self, message) -> None:
-        kind, rows = message
-        self.source.ingest(rows)
+        kind, data = message
+        if kind == "status":
+            self.source.released(data)
+        else:
+            self.source.ingest(data)
 
     def receive(self) -> list:
         out = list(self.inbox)
         self.inbox.clear()
-        return out
+        return [*out, {"pages": self.source.pages}]

@@ -292,3 +292,80 @@ def test_attitude_panel_matches_the_rotations_module(browser, replay, run_dir, f
     assert np.allclose(page["dcm"], C, atol=2e-4)
     axis, angle = page["axis"], math.radians(page["angle_deg"])
     assert np.allclose(np.asarray(page["q"]), [math.cos(angle / 2), *(np.sin(angle / 2) * np.asarray(axis))], atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------- issue 22, item 5
+
+@pytest.fixture(scope="module")
+def nan_run(tmp_path_factory):
+    """detumble_star_tracker for 60 s: the tracker never solves in time, so three criteria have no value (NaN in
+    summary.json, as the stand writes it) and the tracker's first rows are NaN. One criterion carries a ``reason``
+    and a null value, as a summary that gives reasons writes it."""
+    out = tmp_path_factory.mktemp("viewnan") / "run"
+    assert main(["run", "detumble_star_tracker", "--duration", "60", "--out", str(out), "--no-progress"]) == 1
+    text = (out / "summary.json").read_text()
+    assert text.count("NaN") == 3
+    summary = json.loads(text)
+    roll = next(c for c in summary["criteria"] if c["name"] == "tracker roll error p95")
+    roll.update(value=None, reason="the tracker gave no valid solution in the last quarter orbit")
+    (out / "summary.json").write_text(json.dumps(summary))
+    with open(out / "events.jsonl", "a") as f:
+        f.write(json.dumps({"kind": "odd", "message": "an event with a NaN time", "t_s": math.nan}) + "\n")
+    return out
+
+
+def test_page_works_with_nan_in_the_summary_and_the_telemetry(browser, nan_run):
+    from stand.telemetry import load
+
+    assert np.isnan(load(nan_run)["st1.err_roll"][:5]).all()
+    with server.ViewServer(server.ReplaySource(nan_run)) as view:
+        _open(browser, view.url)
+        assert _severe(browser) == []
+        assert browser.execute_script("return window.standView.store.n") == 601
+        lines = [e.text for e in browser.find_elements("css selector", "#verdict > div")]
+        assert lines[0].startswith("FAIL (completed)")
+        by_name = {line.split(": ")[0][2:]: line for line in lines[1:]}
+        assert by_name["tracker cross-boresight error p95"].endswith(": n/a (max 6)")
+        assert by_name["tracker roll error p95"] == ("✗ tracker roll error p95: n/a (max 30)\n"
+                                                     "the tracker gave no valid solution in the last quarter orbit")
+        assert by_name["no rejected frames"] == "✓ no rejected frames: 0 frames (max 0)"
+        # the event with no time is listed without one; seeking into the NaN rows draws, and draws again after
+        assert "odd an event with a NaN time" in browser.find_element("id", "events").text
+        for t in (0.0, 0.5, 30.0):
+            _seek(browser, t)
+        assert browser.execute_script("return window.standView.loadError || null") is None
+        assert _severe(browser) == []
+        browser.save_screenshot(str(nan_run / "page_nan.png"))
+
+
+def test_a_live_page_keeps_drawing_nan_rows(browser, run_dir, tmp_path):
+    """Rows whose every value but the time is NaN (a run that diverged), and an event with a NaN time, pushed to
+    an open page: it takes them and goes on drawing."""
+    from stand.telemetry import load
+
+    out = tmp_path / "live"
+    shutil.copytree(run_dir, out)
+    meta = state.load_meta(out)
+    tel = load(out)
+    schema = json.loads((out / "telemetry" / "schema.json").read_text())["columns"]
+    flat = np.column_stack([np.asarray(tel[c["name"]]).reshape(len(tel["t_s"]), -1) for c in schema])
+    source = state.LiveSource(out, meta)
+    source.ingest(flat[:100])
+    with server.ViewServer(source) as view:
+        _open(browser, view.url)
+        _wait(browser, "return window.standView.status === 'running' && !!window.standView.ws && "
+                       "window.standView.ws.readyState === 1")
+        with open(out / "events.jsonl", "a") as f:
+            f.write(json.dumps({"kind": "odd", "message": "NaN time", "t_s": math.nan}) + "\n")
+        bad = flat[100:150].copy()
+        bad[:, 1:] = np.nan
+        source.ingest(bad)
+        source.ingest(flat[150:200])
+        _wait(browser, "return window.standView.store.n === 200")
+        n = browser.execute_script("return window.standView.stats.draws")
+        _wait(browser, f"return window.standView.stats.draws > {n}")
+        for t in (12.0, 16.0):  # inside the NaN rows, then after them
+            _seek(browser, t)
+        assert "NaN time" in browser.find_element("id", "events").text
+        assert browser.execute_script("return window.standView.loadError || null") is None
+        assert _severe(browser) == []

@@ -779,7 +779,16 @@
       const div = document.createElement("div");
       div.className = c.pass ? "pass" : "fail";
       const lim = Object.entries(c.limit || {}).map(([k, v]) => `${k} ${v}`).join(", ");
-      div.textContent = `${c.pass ? "✓" : "✗"} ${c.name}: ${fmt(c.value)} ${c.unit || ""} (${lim})`;
+      // A value the run could not measure (a tracker that never solved) comes as null: "n/a", and why if the
+      // summary says.
+      const value = typeof c.value === "number" && Number.isFinite(c.value) ? `${fmt(c.value)} ${c.unit || ""}` : "n/a";
+      div.textContent = `${c.pass ? "✓" : "✗"} ${c.name}: ${value} (${lim})`;
+      div.title = div.textContent + (c.reason ? ": " + c.reason : "");
+      if (c.reason) {
+        const why = document.createElement("span");
+        why.className = "reason"; why.textContent = c.reason;
+        div.appendChild(why);
+      }
       box.appendChild(div);
     }
   }
@@ -789,7 +798,7 @@
     if (force || box.childElementCount !== S.events.length) {
       box.innerHTML = "";
       for (const ev of S.events) {
-        const div = document.createElement("div"), t = ev.t_s;
+        const div = document.createElement("div"), t = Number.isFinite(ev.t_s) ? ev.t_s : undefined;
         div.innerHTML = `<span class="k">${t !== undefined ? "t=" + (+t).toFixed(1) + " s" : ""} ${ev.kind}</span> `;
         div.appendChild(document.createTextNode(ev.message || ""));
         div.title = ev.message || "";
