@@ -395,7 +395,9 @@ class DatagramDecoder:
 
     ``counters``: ``datagrams`` (decoded), ``crc_errors`` (an identifier byte whose datagram failed
     its CRC: a corrupted datagram or a false start), ``value_errors`` (CRC good, a field outside its
-    table), ``bytes_dropped``.
+    table), ``bytes_dropped``, ``undecodable`` (stretches of bytes between two datagrams that held
+    no good one: a corrupted or cut datagram, noise; each stretch counts once however many false
+    starts it held). ``last_rejected`` says why the latest bytes were dropped.
     """
 
     def __init__(self, codec: DatagramCodec, direction: str) -> None:
@@ -404,7 +406,9 @@ class DatagramDecoder:
         ids = codec.ids_to_host if direction == DEVICE_TO_HOST else codec.ids_to_device
         self._lengths = {i: codec.by_id[i].length for i in ids}
         self._buf = bytearray()
-        self.counters = {"datagrams": 0, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0}
+        self._dropping = False  # inside a stretch of undecodable bytes
+        self.last_rejected: str | None = None
+        self.counters = {"datagrams": 0, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0, "undecodable": 0}
 
     def reset(self) -> None:
         """Forget any partial datagram (after a reconnect)."""
@@ -426,17 +430,24 @@ class DatagramDecoder:
             if consumed == 0:
                 break
             if datagram is None:
+                if not self._dropping:
+                    self._dropping = True
+                    c["undecodable"] += 1
                 if buf[0] in lengths:
                     c["crc_errors"] += 1
+                    head = bytes(buf[:lengths[buf[0]]]).hex().upper()
+                    self.last_rejected = f"{self.codec.device} bytes {head} hold no datagram with a good CRC-16"
                 c["bytes_dropped"] += consumed
             else:
+                self._dropping = False
                 spec = self.codec.by_id[datagram[0]]
                 try:
                     out.append(self.codec.decode_payload(spec, datagram[1:-2], datagram.hex().upper()))
                     c["datagrams"] += 1
-                except DatagramRejected:
+                except DatagramRejected as exc:
                     c["value_errors"] += 1
                     c["bytes_dropped"] += consumed
+                    self.last_rejected = str(exc)
             del buf[:consumed]
         return out
 
@@ -606,8 +617,11 @@ class DatagramEmulator(SerialEndpoint):
     A device's emulator calls :meth:`_receive` and its own publishing from ``service(t_s)``, fills
     :meth:`_apply` (one decoded command) and :meth:`next_due_s` (for :meth:`run`).
 
-    ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
-    ``rejected_other``, ``bytes_dropped``; a device adds its own.
+    ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc`` (identifier
+    bytes whose datagram failed its CRC), ``rejected_undecodable`` (stretches of bytes that held no
+    good datagram, each once), ``rejected_other`` (a good CRC, a value outside its table),
+    ``bytes_dropped``; a device adds its own. :attr:`rejected_frames` counts what the host sent that
+    was dropped, each bad stretch or datagram once; ``last_rejected`` says why the latest was.
     """
 
     def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, name: str,
@@ -619,8 +633,8 @@ class DatagramEmulator(SerialEndpoint):
         self.codec = codec
         self._decoder = DatagramDecoder(codec, HOST_TO_DEVICE)
         self.counters: dict[str, int] = {
-            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_other": 0,
-            "bytes_dropped": 0,
+            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_undecodable": 0,
+            "rejected_other": 0, "bytes_dropped": 0,
         }
         self._clock_offset_s = float(clock_offset_s)
         self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
@@ -674,12 +688,24 @@ class DatagramEmulator(SerialEndpoint):
         before = dict(dec.counters)
         messages = dec.feed(data)
         c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
+        c["rejected_undecodable"] += dec.counters["undecodable"] - before["undecodable"]
         c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
         c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
         for msg in messages:
             c["frames_received"] += 1
             self._apply(msg, t_s)
         return len(messages)
+
+    @property
+    def rejected_frames(self) -> int:
+        """What the host sent that was dropped: stretches of undecodable bytes and datagrams with a value outside
+        their table, each counted once."""
+        return self.counters["rejected_undecodable"] + self.counters["rejected_other"]
+
+    @property
+    def last_rejected(self) -> str | None:
+        """Why the latest bytes from the host were dropped, or None."""
+        return self._decoder.last_rejected
 
     def _apply(self, msg: Any, t_s: float) -> None:  # pragma: no cover - every device overrides it
         """Apply one decoded command at sim time ``t_s`` (the device's hook)."""
