@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
-from drivers.serial_port import SerialEndpoint, open_port, port_name
+from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
 
 __all__ = [
     "DEVICE_TO_HOST",
@@ -620,8 +620,15 @@ class DatagramEmulator(SerialEndpoint):
     ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc`` (identifier
     bytes whose datagram failed its CRC), ``rejected_undecodable`` (stretches of bytes that held no
     good datagram, each once), ``rejected_other`` (a good CRC, a value outside its table),
-    ``bytes_dropped``; a device adds its own. :attr:`rejected_frames` counts what the host sent that
-    was dropped, each bad stretch or datagram once; ``last_rejected`` says why the latest was.
+    ``bytes_dropped``, ``tx_dropped``; a device adds its own. :attr:`rejected_frames` counts what the
+    host sent that was dropped, each bad stretch or datagram once; ``last_rejected`` says why the
+    latest was.
+
+    On a port it opened itself (a real line to a flight computer: a device path, a pty, a URL) the
+    emulator never waits to write, as a device's UART does not: a datagram goes out as far as the
+    line takes it at once, the rest of it before the next one, and a datagram the line has no room
+    for is dropped whole and counted (``tx_dropped``), so a flight computer that stops reading
+    cannot stall the stand. An open port handed in (the stand's in-process line) is written as it is.
     """
 
     def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, name: str,
@@ -634,8 +641,9 @@ class DatagramEmulator(SerialEndpoint):
         self._decoder = DatagramDecoder(codec, HOST_TO_DEVICE)
         self.counters: dict[str, int] = {
             "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_undecodable": 0,
-            "rejected_other": 0, "bytes_dropped": 0,
+            "rejected_other": 0, "bytes_dropped": 0, "tx_dropped": 0,
         }
+        self._tx_rest = b""  # the part of the last datagram the line has not taken yet (owned ports)
         self._clock_offset_s = float(clock_offset_s)
         self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
         #: Sends dropped silently while True (a device that went quiet; for tests and fault injection).
@@ -715,10 +723,29 @@ class DatagramEmulator(SerialEndpoint):
             return
         frame = self.codec.encode(msg)
         try:
-            self.port.write(frame)
+            if self._owns_port:
+                if not self._send_available(frame):
+                    return
+            else:
+                self.port.write(frame)
         except Exception as exc:
             raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
         self.counters["sent"] += 1
+
+    def _send_available(self, frame: bytes) -> bool:
+        """Write ``frame`` as far as the line takes it now, after what is left of the previous one; False (and
+        ``tx_dropped`` counted) when the line has no room for it."""
+        if self._tx_rest:
+            self._tx_rest = self._tx_rest[write_available(self.port, self._tx_rest):]
+            if self._tx_rest:
+                self.counters["tx_dropped"] += 1
+                return False
+        n = write_available(self.port, frame)
+        if n == 0:
+            self.counters["tx_dropped"] += 1
+            return False
+        self._tx_rest = frame[n:]
+        return True
 
     def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
         raise NotImplementedError

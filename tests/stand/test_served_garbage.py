@@ -280,3 +280,25 @@ def test_bad_frame_bytes_never_hide_the_valid_frames_after_them_on_a_serial_can_
         got.append(msg.arbitration_id)
     assert got == [0x100, 0x101, 0x102]
     assert bus.counters["rejected_undecodable"] == (2 if fill == b"\xaa" else 0)
+
+
+def test_served_gyro_whose_flight_computer_stops_reading_drops_datagrams_and_the_run_goes_on(pty_pair, tmp_path):
+    """Nobody reads the other end of the line: a real gyro streams on into the void. The line fills (about 36 kB
+    through socat) and from then on the emulator drops each datagram it has no room for, counted, and never waits
+    (before, its write blocked 2 s and the run aborted)."""
+    stand_end, _ = pty_pair
+    gyro = {"name": "imu", "kind": "gyro", "link": "served", "port": stand_end, "output_rate_hz": 100.0,
+            "ideal": True}
+    data = small_scenario([gyro], 40.0)
+    data["dynamics"]["step_s"] = 0.01  # a sample every tick at 100 Hz
+    path = tmp_path / "served.toml"
+    path.write_text(to_toml(data))
+    out = tmp_path / "out"
+    code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"], tmp_path,
+                                  lambda: None, timeout_s=120)
+    assert code == 0, log
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed", log
+    emu = summary["device_counters"]["imu"]["emulator_counters"]
+    # 40 s at 100 Hz is 96 kB of RATE datagrams, more than the line holds.
+    assert emu["tx_dropped"] > 0 and emu["sent"] + emu["tx_dropped"] == emu["samples"] >= 3900
