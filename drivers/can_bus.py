@@ -139,6 +139,14 @@ def open_device_bus(interface: str, channel: str) -> can.BusABC:
     return bus
 
 
+def _descriptor(port) -> int | None:
+    try:
+        fd = port.fileno()
+    except Exception:  # noqa: BLE001 - loop:// and other URL ports without one
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
+
+
 def _link_failed(exc: BaseException) -> bool:
     """True when ``exc`` (raised by a python-can ``recv``) says the line or socket itself failed (an OSError
     somewhere in its chain: pyserial's SerialException is one), not that a frame could not be decoded."""
@@ -162,6 +170,11 @@ class ServedBus:
     as :class:`DriverError`. A serial-line interface hands over one stray byte per ``recv``: the drain goes on while
     the port holds bytes, at most ``max_per_drain`` frames and skips per drain, so a flood waits for the next tick.
 
+    On a serial line the frames go out without waiting, as a device's transmit buffer does: as far as the line takes
+    them at once, the rest of a frame before the next one, and a frame the line has no room for is dropped whole and
+    counted in ``counters["tx_dropped"]`` (a flight computer that stopped reading cannot stall the stand; the
+    emulator's ``sent`` still counts the frame: it left the device).
+
     ``own_ids`` are the frame ids the served node transmits. A frame with one of them that this node did not send
     (on a bus that loops frames back, more than the echoes of what it sent) comes from another node serving the same
     device on this bus (a second stand or emulator): it is counted in ``counters["foreign_own_id"]``, described in
@@ -170,7 +183,7 @@ class ServedBus:
 
     def __init__(self, bus: can.BusABC, own_ids=frozenset(), max_per_drain: int = 4096) -> None:
         self.wrapped = bus
-        self.counters = {"rejected_undecodable": 0, "foreign_own_id": 0}
+        self.counters = {"rejected_undecodable": 0, "foreign_own_id": 0, "tx_dropped": 0}
         self.last_rejected: str | None = None
         self.conflict: str | None = None
         self.max_per_drain = max_per_drain
@@ -178,6 +191,28 @@ class ServedBus:
         self._echoes_due = 0 if loops_back(bus) else None  # frames of ours still to come back on a looping bus
         self._own_ids = frozenset(own_ids)
         self._taken = 0
+        self._tx_rest = b""  # the part of the last frame the line has not taken yet
+        if self._port is not None and _descriptor(self._port) is not None:
+            # python-can's serial-line interfaces write each frame with the port's write(), which waits for a full
+            # line: its writes go through _write_available instead (one os.write on the port's descriptor).
+            self._port.write = self._write_available
+
+    def _write_available(self, data) -> int:
+        from drivers.serial_port import write_available
+
+        port = self._port
+        if self._tx_rest:
+            self._tx_rest = self._tx_rest[write_available(port, self._tx_rest):]
+            if self._tx_rest:
+                self.counters["tx_dropped"] += 1
+                return len(data)
+        data = bytes(data)
+        n = write_available(port, data)
+        if n == 0:
+            self.counters["tx_dropped"] += 1
+        else:
+            self._tx_rest = data[n:]
+        return len(data)
 
     @property
     def channel_info(self) -> str:

@@ -302,3 +302,24 @@ def test_served_gyro_whose_flight_computer_stops_reading_drops_datagrams_and_the
     emu = summary["device_counters"]["imu"]["emulator_counters"]
     # 30 s at 100 Hz is 72 kB of RATE datagrams, twice what the line holds.
     assert emu["tx_dropped"] > 0 and emu["sent"] + emu["tx_dropped"] == emu["samples"] >= 2900
+
+
+def test_served_magnetorquer_whose_flight_computer_stops_reading_drops_frames_and_the_run_goes_on(pty_pair, tmp_path):
+    """The same on python-can's CAN-over-serial line: before, each send waited for the full line (0.5 s) and then
+    the run aborted on the CAN write timeout."""
+    stand_end, _ = pty_pair
+    mtq = {"name": "mtq", "kind": "magnetorquer", "link": "served", "interface": "serial", "channel": stand_end,
+           "sample_rate_hz": 100.0}
+    data = small_scenario([mtq], 30.0)
+    data["dynamics"]["step_s"] = 0.01
+    path = tmp_path / "served.toml"
+    path.write_text(to_toml(data))
+    out = tmp_path / "out"
+    code, log = run_stand_polling(["run", str(path), "--speed", "8", "--out", str(out), "--no-progress"], tmp_path,
+                                  lambda: None, timeout_s=120)
+    assert code == 0, log
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "completed", log
+    # 30 s of 100 Hz samples (plus status and heartbeat) is about 55 kB on the line, more than it holds.
+    emu = summary["device_counters"]["mtq"]["emulator"]
+    assert 0 < emu["tx_dropped"] < emu["sent"] and emu["sent"] >= 3000
