@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
-from drivers.serial_port import SerialEndpoint, open_port, port_name
+from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
 
 __all__ = [
     "DEVICE_TO_HOST",
@@ -395,7 +395,9 @@ class DatagramDecoder:
 
     ``counters``: ``datagrams`` (decoded), ``crc_errors`` (an identifier byte whose datagram failed
     its CRC: a corrupted datagram or a false start), ``value_errors`` (CRC good, a field outside its
-    table), ``bytes_dropped``.
+    table), ``bytes_dropped``, ``undecodable`` (stretches of bytes between two datagrams that held
+    no good one: a corrupted or cut datagram, noise; each stretch counts once however many false
+    starts it held). ``last_rejected`` says why the latest bytes were dropped.
     """
 
     def __init__(self, codec: DatagramCodec, direction: str) -> None:
@@ -404,7 +406,9 @@ class DatagramDecoder:
         ids = codec.ids_to_host if direction == DEVICE_TO_HOST else codec.ids_to_device
         self._lengths = {i: codec.by_id[i].length for i in ids}
         self._buf = bytearray()
-        self.counters = {"datagrams": 0, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0}
+        self._dropping = False  # inside a stretch of undecodable bytes
+        self.last_rejected: str | None = None
+        self.counters = {"datagrams": 0, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0, "undecodable": 0}
 
     def reset(self) -> None:
         """Forget any partial datagram (after a reconnect)."""
@@ -426,17 +430,24 @@ class DatagramDecoder:
             if consumed == 0:
                 break
             if datagram is None:
+                if not self._dropping:
+                    self._dropping = True
+                    c["undecodable"] += 1
                 if buf[0] in lengths:
                     c["crc_errors"] += 1
+                    head = bytes(buf[:lengths[buf[0]]]).hex().upper()
+                    self.last_rejected = f"{self.codec.device} bytes {head} hold no datagram with a good CRC-16"
                 c["bytes_dropped"] += consumed
             else:
+                self._dropping = False
                 spec = self.codec.by_id[datagram[0]]
                 try:
                     out.append(self.codec.decode_payload(spec, datagram[1:-2], datagram.hex().upper()))
                     c["datagrams"] += 1
-                except DatagramRejected:
+                except DatagramRejected as exc:
                     c["value_errors"] += 1
                     c["bytes_dropped"] += consumed
+                    self.last_rejected = str(exc)
             del buf[:consumed]
         return out
 
@@ -606,8 +617,18 @@ class DatagramEmulator(SerialEndpoint):
     A device's emulator calls :meth:`_receive` and its own publishing from ``service(t_s)``, fills
     :meth:`_apply` (one decoded command) and :meth:`next_due_s` (for :meth:`run`).
 
-    ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
-    ``rejected_other``, ``bytes_dropped``; a device adds its own.
+    ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc`` (identifier
+    bytes whose datagram failed its CRC), ``rejected_undecodable`` (stretches of bytes that held no
+    good datagram, each once), ``rejected_other`` (a good CRC, a value outside its table),
+    ``bytes_dropped``, ``tx_dropped``; a device adds its own. :attr:`rejected_frames` counts what the
+    host sent that was dropped, each bad stretch or datagram once; ``last_rejected`` says why the
+    latest was.
+
+    On a port it opened itself (a real line to a flight computer: a device path, a pty, a URL) the
+    emulator never waits to write, as a device's UART does not: a datagram goes out as far as the
+    line takes it at once, the rest of it before the next one, and a datagram the line has no room
+    for is dropped whole and counted (``tx_dropped``), so a flight computer that stops reading
+    cannot stall the stand. An open port handed in (the stand's in-process line) is written as it is.
     """
 
     def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, name: str,
@@ -619,9 +640,10 @@ class DatagramEmulator(SerialEndpoint):
         self.codec = codec
         self._decoder = DatagramDecoder(codec, HOST_TO_DEVICE)
         self.counters: dict[str, int] = {
-            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_other": 0,
-            "bytes_dropped": 0,
+            "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_undecodable": 0,
+            "rejected_other": 0, "bytes_dropped": 0, "tx_dropped": 0,
         }
+        self._tx_rest = b""  # the part of the last datagram the line has not taken yet (owned ports)
         self._clock_offset_s = float(clock_offset_s)
         self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
         #: Sends dropped silently while True (a device that went quiet; for tests and fault injection).
@@ -674,12 +696,24 @@ class DatagramEmulator(SerialEndpoint):
         before = dict(dec.counters)
         messages = dec.feed(data)
         c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
+        c["rejected_undecodable"] += dec.counters["undecodable"] - before["undecodable"]
         c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
         c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
         for msg in messages:
             c["frames_received"] += 1
             self._apply(msg, t_s)
         return len(messages)
+
+    @property
+    def rejected_frames(self) -> int:
+        """What the host sent that was dropped: stretches of undecodable bytes and datagrams with a value outside
+        their table, each counted once."""
+        return self.counters["rejected_undecodable"] + self.counters["rejected_other"]
+
+    @property
+    def last_rejected(self) -> str | None:
+        """Why the latest bytes from the host were dropped, or None."""
+        return self._decoder.last_rejected
 
     def _apply(self, msg: Any, t_s: float) -> None:  # pragma: no cover - every device overrides it
         """Apply one decoded command at sim time ``t_s`` (the device's hook)."""
@@ -689,10 +723,29 @@ class DatagramEmulator(SerialEndpoint):
             return
         frame = self.codec.encode(msg)
         try:
-            self.port.write(frame)
+            if self._owns_port:
+                if not self._send_available(frame):
+                    return
+            else:
+                self.port.write(frame)
         except Exception as exc:
             raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
         self.counters["sent"] += 1
+
+    def _send_available(self, frame: bytes) -> bool:
+        """Write ``frame`` as far as the line takes it now, after what is left of the previous one; False (and
+        ``tx_dropped`` counted) when the line has no room for it."""
+        if self._tx_rest:
+            self._tx_rest = self._tx_rest[write_available(self.port, self._tx_rest):]
+            if self._tx_rest:
+                self.counters["tx_dropped"] += 1
+                return False
+        n = write_available(self.port, frame)
+        if n == 0:
+            self.counters["tx_dropped"] += 1
+            return False
+        self._tx_rest = frame[n:]
+        return True
 
     def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
         raise NotImplementedError

@@ -20,10 +20,17 @@ does not take the bytes in time; :func:`write_available` writes only what a port
 before a writer would block. :class:`SerialEndpoint` is the serial
 sibling of :class:`drivers.endpoint.BusEndpoint`: an owned port, idempotent ``close()``, context
 manager.
+
+A port named by a device path (``/dev/ttyUSB0``, a pty, a socat link) is held exclusively while open (pyserial's
+``exclusive=True``, an advisory ``flock`` every stand and emulator takes): a second stand or ``stand emulate``
+opening a port that one already serves is refused with a :class:`~drivers.errors.ConnectError` saying the port is
+in use, instead of both reading from one line and each getting part of the bytes. URLs (``loop://``,
+``socket://``) are not locked.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import select
 import threading
@@ -34,8 +41,11 @@ from typing import Any
 from drivers.endpoint import Endpoint
 from drivers.errors import ConnectError, DeviceTimeoutError
 
-__all__ = ["FdPort", "PipePort", "SerialEndpoint", "open_port", "pipe_pair", "port_name", "pty_pair", "wait_readable",
-           "write_available"]
+__all__ = ["FdPort", "PipePort", "SerialEndpoint", "check_free", "hold_exclusively", "open_port", "pipe_pair",
+           "port_name", "pty_pair", "wait_readable", "write_available"]
+
+#: errno values that say another open file holds the port: flock's EWOULDBLOCK, TIOCEXCL's EBUSY.
+_BUSY = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EBUSY)
 
 
 class FdPort:
@@ -313,11 +323,62 @@ def open_port(
         raise ConnectError(f"{name}: opening serial port {url!r} needs pyserial, which is part of "
                            "the base install (pip install adcs-stand).", where=url, reason="pyserial missing") from None
 
+    # A device path is held exclusively (flock): two stands or emulators on one line would each get part of the bytes.
+    extra = {"exclusive": True} if "://" not in url else {}
     try:
-        ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=write_timeout)
+        ser = serial.serial_for_url(url, baudrate=baudrate, timeout=timeout, write_timeout=write_timeout, **extra)
     except (serial.SerialException, ValueError, OSError) as exc:
+        if getattr(exc, "errno", None) in _BUSY:
+            raise _in_use(name, url) from exc
         raise ConnectError(f"{name}: cannot open serial port {url!r}: {exc}", where=url, reason=str(exc)) from exc
     return ser, True
+
+
+def _in_use(name: str, url: str) -> ConnectError:
+    return ConnectError(f"{name}: serial port {url!r} is in use: another program (a stand run or a stand emulate?) "
+                        "has it open; stop that one or name another port.", where=url, reason="in use")
+
+
+def check_free(name: str, path: str) -> None:
+    """:class:`ConnectError` "in use" when another open file holds the exclusive lock on the device ``path``; nothing
+    is held after the check. For openers that write to the line as they open it (python-can's ``slcan`` sends its
+    open command), so they never write into a line another stand serves; :func:`hold_exclusively` takes the lock
+    once open. A path that cannot be opened here is left to the opener to report."""
+    import fcntl
+
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno == errno.EBUSY:
+            raise _in_use(name, path) from exc
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in _BUSY:
+            raise _in_use(name, path) from exc
+    finally:
+        os.close(fd)  # closing the descriptor releases its lock
+
+
+def hold_exclusively(port: Any, name: str, url: str) -> None:
+    """Take the exclusive lock on an open port that pyserial opened without it (python-can's serial-line CAN
+    interfaces), as :func:`open_port` does for device paths; :class:`ConnectError` "in use" when another open file
+    holds it. A port without a file descriptor (``loop://``, ``socket://``) is left as it is."""
+    import fcntl
+
+    try:
+        fd = port.fileno()
+    except Exception:  # noqa: BLE001 - URL ports without a usable descriptor
+        return
+    if not isinstance(fd, int) or fd < 0:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in _BUSY:
+            raise _in_use(name, url) from exc
+        raise ConnectError(f"{name}: cannot lock serial port {url!r}: {exc}", where=url, reason=str(exc)) from exc
 
 
 def port_name(port: Any) -> str:

@@ -20,7 +20,8 @@ Behaviour (times are sim seconds passed to :meth:`GyroEmulator.service`; no cloc
 - Commands with a bad CRC or a value outside its range are counted and ignored (no replies).
 
 ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
-``rejected_other``, ``bytes_dropped``, ``samples``, ``samples_skipped``, ``saturations``,
+``rejected_undecodable`` (each stretch of bytes that held no good datagram, once), ``rejected_other``,
+``bytes_dropped``, ``samples``, ``samples_skipped``, ``saturations``,
 ``commands_applied``.
 """
 

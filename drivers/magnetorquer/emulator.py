@@ -41,7 +41,7 @@ import numpy as np
 
 from drivers.can_bus import data_frame, loops_back
 from drivers.endpoint import BusEndpoint
-from drivers.errors import DriverError, ProtocolError
+from drivers.errors import DriverError, ProtocolError, frame_hex
 from drivers.magnetorquer.codec import (
     MODES,
     Counters,
@@ -140,6 +140,12 @@ class EmulatorConfig:
 _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False
 _OFF = (0.0, 0.0, 0.0)
+
+#: How the emulator names each kind of frame it drops (``last_rejected``).
+_WHY = {"rejected_unknown_id": "a frame with an id the board does not take",
+        "rejected_length": "a frame of the wrong length for its id",
+        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
+
 _EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
@@ -204,6 +210,8 @@ class MagnetorquerEmulator(BusEndpoint):
         self._decode = codec.decode
         self._encode = codec.encode
 
+        #: Why the latest frame was rejected (naming it in candump notation), or None.
+        self.last_rejected: str | None = None
         self.counters: dict[str, int] = {
             "sent": 0,
             "received": 0,
@@ -317,15 +325,26 @@ class MagnetorquerEmulator(BusEndpoint):
             n += 1
         return n
 
-    def _reject(self, key: str) -> None:
+    @property
+    def rejected_frames(self) -> int:
+        """Frames from the bus dropped as unknown, of the wrong length or undecodable, each counted once (not
+        commands refused in the wrong mode, nor other devices' traffic)."""
+        c = self.counters
+        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
+
+    def _reject(self, key: str, msg: can.Message | None = None) -> None:
         self.counters[key] += 1
+        if msg is not None:
+            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
+            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
+            self.last_rejected = f"{_WHY[key]}: frame {frame}{kind}"
         self._board["rejected_frames"] += 1
 
     def _handle(self, msg: can.Message, t_s: float) -> None:
         self.counters["received"] += 1
         frame_id = msg.arbitration_id
         if msg.is_error_frame or msg.is_remote_frame:
-            self._reject("rejected_other")
+            self._reject("rejected_other", msg)
             return
         if msg.is_extended_id or frame_id not in self._accept:
             if not msg.is_extended_id and frame_id in self._own_ids:
@@ -333,23 +352,23 @@ class MagnetorquerEmulator(BusEndpoint):
                 # from another node, and not an error.
                 self.counters["echoes"] += 1
                 return
-            self._reject("rejected_unknown_id")
+            self._reject("rejected_unknown_id", msg)
             return
         data = msg.data
         if len(data) != self._lengths[frame_id]:
-            self._reject("rejected_length")
+            self._reject("rejected_length", msg)
             return
         try:
             cmd = self._decode(frame_id, data)
         except ProtocolError:
-            self._reject("rejected_other")
+            self._reject("rejected_other", msg)
             return
         if type(cmd) is DipoleCommand:
             self._apply_dipole(cmd, t_s)
         elif type(cmd) is ModeCommand:
             self._apply_mode(cmd)
         else:  # pragma: no cover - board_rx_ids only holds the two commands
-            self._reject("rejected_other")
+            self._reject("rejected_other", msg)
 
     def _accepted(self) -> None:
         self.counters["commands_accepted"] += 1

@@ -40,7 +40,7 @@ import can
 
 from drivers.can_bus import data_frame
 from drivers.endpoint import BusEndpoint
-from drivers.errors import DriverError, ProtocolError
+from drivers.errors import DriverError, ProtocolError, frame_hex
 from drivers.reaction_wheel.codec import (
     MODES,
     Heartbeat,
@@ -55,6 +55,12 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulatorConfig"]
 
 SpeedSource = Callable[[float], Any]
+
+#: How the emulator names each kind of frame it drops (``last_rejected``).
+_WHY = {"rejected_unknown_id": "a frame with an id the wheel does not take",
+        "rejected_length": "a frame of the wrong length for its id",
+        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
+
 _EPS_S = 1e-6
 
 
@@ -136,6 +142,8 @@ class ReactionWheelEmulator(BusEndpoint):
         self.name = name or f"rw{wheel} emulator"
         self._owns_bus = owns_bus
         self._closed = False
+        #: Why the latest frame was rejected (naming it in candump notation), or None.
+        self.last_rejected: str | None = None
         self.counters: dict[str, int] = {
             "sent": 0, "received": 0, "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0,
             "other_wheels": 0, "commands_accepted": 0, "saturations": 0, "watchdog_expiries": 0,
@@ -200,8 +208,19 @@ class ReactionWheelEmulator(BusEndpoint):
             self.counters["watchdog_expiries"] += 1
             self._board["watchdog_expiries"] += 1
 
-    def _reject(self, key: str) -> None:
+    @property
+    def rejected_frames(self) -> int:
+        """Frames from the bus dropped as unknown, of the wrong length or undecodable, each counted once (not
+        commands refused in the wrong mode, nor other devices' traffic)."""
+        c = self.counters
+        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
+
+    def _reject(self, key: str, msg: can.Message | None = None) -> None:
         self.counters[key] += 1
+        if msg is not None:
+            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
+            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
+            self.last_rejected = f"{_WHY[key]}: frame {frame}{kind}"
         self._board["rejected_frames"] += 1
 
     def _handle(self, msg: can.Message, t_s: float) -> None:
@@ -209,21 +228,21 @@ class ReactionWheelEmulator(BusEndpoint):
         c["received"] += 1
         fid = msg.arbitration_id
         if msg.is_error_frame or msg.is_remote_frame:
-            self._reject("rejected_other")
+            self._reject("rejected_other", msg)
             return
         if msg.is_extended_id or fid not in self.codec.wheel_rx_ids:
             if not msg.is_extended_id and fid in self.codec.all_wheel_ids:
                 c["other_wheels"] += 1  # a sibling's traffic on a shared bus: not an error
             else:
-                self._reject("rejected_unknown_id")
+                self._reject("rejected_unknown_id", msg)
             return
         if len(msg.data) != self.codec.lengths[fid]:
-            self._reject("rejected_length")
+            self._reject("rejected_length", msg)
             return
         try:
             cmd = self.codec.decode(fid, msg.data)
         except ProtocolError:
-            self._reject("rejected_other")
+            self._reject("rejected_other", msg)
             return
         self._apply(cmd, t_s)
 

@@ -45,7 +45,9 @@ reads no clock there; :meth:`StarTrackerEmulator.run` is the stand-alone wall-cl
 ``counters``: ``bytes_received``, ``frames_received`` (good, for this address), ``sent``,
 ``rejected_crc``, ``rejected_address``, ``rejected_unknown_id``, ``rejected_length``,
 ``rejected_other`` (short, bad escape, oversize, bad value), ``commands_nacked``, ``solutions``,
-``exposures_skipped``, ``published``, ``tx_dropped``.
+``exposures_skipped``, ``published``, ``tx_dropped``. Each frame rejected counts once, in one ``rejected_*``
+counter; :attr:`StarTrackerEmulator.rejected_frames` is their sum without ``rejected_address`` (frames for
+another device are not bad), and ``last_rejected`` says why the latest one was dropped.
 """
 
 from __future__ import annotations
@@ -290,6 +292,8 @@ class StarTrackerEmulator(SerialEndpoint):
         }
         self._dev = {"frames_received": 0, "frames_sent": 0, "rejected_crc": 0, "rejected_other": 0,
                      "commands_nacked": 0, "solutions": 0}
+        #: Why the latest rejected frame was dropped (a sentence naming the frame), or None.
+        self.last_rejected: str | None = None
         #: Reply silently dropped while True (a device that went quiet; for tests and fault injection).
         self.silent = False
         self.mode = "BOOT"
@@ -496,6 +500,8 @@ class StarTrackerEmulator(SerialEndpoint):
         if slip_bad:
             self.counters["rejected_other"] += slip_bad
             self._dev["rejected_other"] += slip_bad
+            self.last_rejected = (f"{slip_bad} SLIP frame(s) with a bad escape or longer than "
+                                  f"{self._decoder.max_body} bytes")
         for body in bodies:
             self._handle(body, t_s)
         return len(bodies)
@@ -508,6 +514,7 @@ class StarTrackerEmulator(SerialEndpoint):
             if kind == "address":
                 self.counters["rejected_address"] += 1
                 return
+            self.last_rejected = str(exc)
             if kind == "crc":
                 self.counters["rejected_crc"] += 1
                 self._dev["rejected_crc"] += 1
@@ -525,6 +532,13 @@ class StarTrackerEmulator(SerialEndpoint):
         reply = self._apply(msg, t_s)
         if reply is not None:
             self._send(reply)
+
+    @property
+    def rejected_frames(self) -> int:
+        """Frames from the host dropped as undecodable or invalid, each counted once (not those for another
+        address)."""
+        c = self.counters
+        return c["rejected_crc"] + c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
 
     def _nack(self, command_id: int, error: str) -> None:
         self.counters["commands_nacked"] += 1

@@ -19,7 +19,8 @@ Behaviour (times are sim seconds passed to :meth:`SunSensorEmulator.service`; no
 - Commands with a bad CRC or a value outside its range are counted and ignored.
 
 ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
-``rejected_other``, ``bytes_dropped``, ``samples``, ``samples_skipped``, ``saturations``,
+``rejected_undecodable`` (each stretch of bytes that held no good datagram, once), ``rejected_other``,
+``bytes_dropped``, ``samples``, ``samples_skipped``, ``saturations``,
 ``requests``, ``commands_applied``.
 """
 

@@ -23,7 +23,10 @@ start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and print
 The cage is the Helmholtz cage controller (``drivers.cage.emulator``, register map
 ``docs/cage_register_map.md``) on Modbus TCP (``tcp://HOST:PORT``) or Modbus RTU (a serial port),
 running its coils in wall time with the nominal bench configuration.
-Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error.
+Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error (a port another stand or emulator
+holds is refused as in use: serial ports and serial-line CAN adapters are opened exclusively).
+What a flight computer sends that the device cannot decode is counted and dropped, never an error
+(``rejected_*`` in the counters printed at the end).
 """
 
 from __future__ import annotations
@@ -167,8 +170,9 @@ def run_magnetorquer(args) -> int:
     """The CAN magnetorquer board (with its magnetometer) on a python-can bus, in wall time."""
     import time
 
-    from drivers.can_bus import open_bus
+    from drivers.can_bus import ServedBus, open_device_bus
     from drivers.errors import DriverError
+    from drivers.magnetorquer.codec import MagnetorquerCodec
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
 
     interface, _, channel = args.port.partition(":")
@@ -182,11 +186,14 @@ def run_magnetorquer(args) -> int:
     except ValueError:
         return _fail(f"--field-nT {args.field_nT!r} is not allowed; give three numbers X,Y,Z in nT.")
     try:
-        bus = open_bus(interface, channel)
+        # A serial-line adapter is held exclusively (a second emulator on it is refused: exit 2); what the flight
+        # computer sends that the board cannot decode is counted and dropped, never raised (ServedBus).
+        bus = ServedBus(open_device_bus(interface, channel), own_ids=MagnetorquerCodec().board_tx_ids)
     except DriverError as exc:
         return _fail(str(exc))
     old = _stop_on_sigterm()
     emu = MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed, owns_bus=True)
+    status = 0
     with emu:
         print(f"stand emulate: magnetorquer board on CAN {interface}:{channel}"
               + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
@@ -197,11 +204,17 @@ def run_magnetorquer(args) -> int:
                 time.sleep(0.001)
         except KeyboardInterrupt:
             pass
+        except DriverError as exc:  # the adapter lost
+            print(f"stand emulate: {exc}", file=sys.stderr)
+            status = 1
         finally:
             if old is not None:
                 signal.signal(signal.SIGTERM, old)
-        print(json.dumps({"device": args.device, "port": args.port, "counters": emu.counters}), flush=True)
-    return 0
+        if bus.conflict:
+            print(f"stand emulate: {bus.conflict}", file=sys.stderr)
+        print(json.dumps({"device": args.device, "port": args.port, "counters": {**emu.counters, **bus.counters},
+                          "rejected_frames": emu.rejected_frames + bus.counters["rejected_undecodable"]}), flush=True)
+    return status
 
 
 def run_cage(args) -> int:

@@ -373,6 +373,43 @@ def check_can(t: Table, link: str, interface: str, channel: str) -> None:
         raise t.error("channel", channel.replace("\x00", "\\0"), "a channel name without NUL bytes")
 
 
+class Rejections:
+    """What a served device drops of what the flight computer outside sends, for the event log and the summary.
+
+    A served device counts and drops what it cannot decode (a bad CRC, a cut frame, a bad SLIP escape, a CAN frame
+    its adapter cannot decode or with an id it does not take) and goes on, as a real one does. ``count()`` reads the
+    device's count, ``reason()`` the latest reason; :meth:`check`, called by the device each tick, logs a
+    ``frames_rejected`` event at the first rejected frame and at each tenfold count after it (1, 10, 100...), so
+    a flood of garbage cannot flood the log, and once a ``device_conflict`` when ``conflict()`` says another node
+    serves the same device. The whole count goes to the summary (``rejected_frames``)."""
+
+    def __init__(self, name: str, count, reason, conflict=None):
+        self.name = name
+        self.count, self.reason, self.conflict = count, reason, conflict
+        self.events = None
+        self._next = 1
+        self._conflict_logged = False
+
+    def start(self, events) -> None:
+        self.events = events
+
+    def check(self, t_s: float) -> None:
+        if self.events is None:
+            return
+        n = self.count()
+        if n >= self._next:
+            self.events.log("frames_rejected", f"{self.name}: {n} frame{'' if n == 1 else 's'} from outside rejected "
+                            f"by t = {t_s:.3f} s, counted and dropped (the run goes on); the latest: {self.reason()}",
+                            t_s=t_s, device=self.name, count=n)
+            while self._next <= n:
+                self._next *= 10
+        if self.conflict is not None and not self._conflict_logged:
+            text = self.conflict()
+            if text:
+                self._conflict_logged = True
+                self.events.log("device_conflict", f"{self.name}: {text}", t_s=t_s, device=self.name)
+
+
 #: Longest wall-clock wait for a datagram to cross an in-process serial line.
 SETTLE_TIMEOUT_S = 1.0
 
@@ -389,6 +426,18 @@ class SerialDevice(Device):
     host = None
     emulator = None
     _close_line = None  # releases the emulated serial line
+    rejections = None  # a served emulator's Rejections (serve())
+
+    def serve(self, emulator) -> None:
+        """The served link: ``emulator`` on a real port, for a flight computer outside. What it rejects of what the
+        flight computer sends goes to the event log (:class:`Rejections`, checked by :meth:`check_rejections`) and
+        to the summary (``rejected_frames``)."""
+        self.emulator = emulator
+        self.rejections = Rejections(self.name, lambda: emulator.rejected_frames, lambda: emulator.last_rejected)
+
+    def start(self, events) -> None:
+        if self.rejections is not None:
+            self.rejections.start(events)
 
     def open_emulated(self, port: str, make_emulator, make_host) -> None:
         """The emulated link: an in-process serial line of kind ``port`` (:func:`serial_line`) with
@@ -409,6 +458,8 @@ class SerialDevice(Device):
             out["host_counters"] = dict(self.host.counters)
         if self.emulator is not None:
             out["emulator_counters"] = dict(self.emulator.counters)
+        if self.rejections is not None:
+            out["rejected_frames"] = self.rejections.count()
         return out
 
     def close(self) -> None:

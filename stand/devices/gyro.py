@@ -235,13 +235,13 @@ class ServedGyro(_GyroDevice):
 
         super().__init__(spec, ctx)
         self._push, source = rate_source(spec, ctx)
-        self.emulator = GyroEmulator(spec.port, source, _config(spec), baudrate=spec.baudrate,
-                                     name=f"{spec.name} emulator")
+        self.serve(GyroEmulator(spec.port, source, _config(spec), baudrate=spec.baudrate, name=f"{spec.name} emulator"))
 
     def publish(self, t_s: float) -> None:
         if self._push is not None:
             self._push(t_s)
         self.emulator.service(t_s)
+        self.rejections.check(t_s)
 
     def _latest(self):
         return self.emulator.latest_rate

@@ -20,26 +20,18 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, Rejections, can_endpoint
 
 NAN3 = (math.nan, math.nan, math.nan)
-#: python-can's serial-line interfaces ignore recv()'s timeout and block for the port's own: keep it short, so a
-#: poll that finds nothing costs a millisecond, not the default 0.1 s.
-SERIAL_LINE_TIMEOUT_S = 1e-3
-SERIAL_WRITE_TIMEOUT_S = 0.5
 
 
 def _open(spec: MagnetorquerSpec):
-    from drivers.can_bus import open_bus
+    """A real adapter (hardware and served links): serial-line interfaces with short timeouts, held exclusively."""
+    from drivers.can_bus import open_device_bus
 
-    if spec.interface not in ("serial", "slcan"):
-        return open_bus(spec.interface, spec.channel)
-    bus = open_bus(spec.interface, spec.channel, timeout=SERIAL_LINE_TIMEOUT_S)
-    # A peer that stops reading must not block the loop: a write that cannot finish in time is a CAN error.
-    port = getattr(bus, "_ser", None) or getattr(bus, "serialPortOrig", None)
-    if port is not None:
-        port.write_timeout = SERIAL_WRITE_TIMEOUT_S
-    return bus
+    return open_device_bus(spec.interface, spec.channel)
+
+
 #: A board whose magnetometer has sent nothing for this many sample periods is reported silent.
 SILENT_PERIODS = 5
 
@@ -262,18 +254,32 @@ class HardwareBoard(_Board):
 
 
 class ServedBoard(_Board):
-    """The emulator on a real adapter for a flight computer outside; the stand holds no host driver."""
+    """The emulator on a real adapter for a flight computer outside; the stand holds no host driver. What the flight
+    computer sends that the board cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
+        from drivers.can_bus import ServedBus
+
         super().__init__(spec)
-        self._buses.append(_open(spec))
+        self.link = ServedBus(_open(spec), own_ids=_codec().board_tx_ids)
+        self._buses.append(self.link)
         try:
-            self.emulator = _emulator(spec, ctx, self._buses[0])
+            self.emulator = _emulator(spec, ctx, self.link)
         except BaseException:
             self.close()
             raise
         # Silence here means the flight computer stopped commanding.
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
+        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
+
+    def rejected_frames(self) -> int:
+        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
+
+    def _last_rejected(self):
+        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
+
+    def start(self, events):
+        self.rejections.start(events)
 
     def publish(self, t_s):
         self.emulator.publish(t_s)
@@ -281,6 +287,7 @@ class ServedBoard(_Board):
     def receive(self, t_s):
         self.emulator.receive(t_s)
         self._m = self.emulator.dipole_xyz_at(t_s)
+        self.rejections.check(t_s)
 
     def row(self):
         s = self.emulator.last_sample
@@ -290,7 +297,7 @@ class ServedBoard(_Board):
         return self.emulator.counters["commands_accepted"]
 
     def summary(self):
-        return {"emulator": dict(self.emulator.counters)}
+        return {"emulator": {**self.emulator.counters, **self.link.counters}, "rejected_frames": self.rejected_frames()}
 
 
 KIND = MagnetorquerKind()

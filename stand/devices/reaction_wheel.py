@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.rotations import dcm
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, Rejections, can_endpoint
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -238,17 +238,33 @@ class EmulatedWheel(_Wheel):
 
 
 class ServedWheel(_Wheel):
+    """The emulator on a real adapter for a flight computer outside. What the flight computer sends that the wheel
+    cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
+
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
+        from drivers.can_bus import ServedBus, open_device_bus
+        from drivers.reaction_wheel.codec import ReactionWheelCodec
 
         super().__init__(spec, ctx)
         self.motor = motor_of(spec)
-        self._buses.append(open_bus(spec.interface, spec.channel))
+        self.link = ServedBus(open_device_bus(spec.interface, spec.channel),
+                              own_ids=ReactionWheelCodec(spec.wheel).wheel_tx_ids)
+        self._buses.append(self.link)
         try:
-            self.emulator = _emulator(spec, self._buses[0], self._source)
+            self.emulator = _emulator(spec, self.link, self._source)
         except BaseException:
             self.close()
             raise
+        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
+
+    def rejected_frames(self) -> int:
+        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
+
+    def _last_rejected(self):
+        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
+
+    def start(self, events):
+        self.rejections.start(events)
 
     def publish(self, t_s):
         self.emulator.publish(t_s)
@@ -256,20 +272,27 @@ class ServedWheel(_Wheel):
     def receive(self, t_s):
         self.emulator.receive(t_s)
         self._step_motor(self.emulator.command_at(t_s))
+        self.rejections.check(t_s)
 
     def activity(self):
         return self.emulator.counters["commands_accepted"]
+
+    def summary(self):
+        out = super().summary()
+        out["emulator_counters"].update(self.link.counters)
+        out["rejected_frames"] = self.rejected_frames()
+        return out
 
 
 class HardwareWheel(_Wheel):
     """The host on a real wheel: the truth's rotor is driven by the motor torque the wheel reports."""
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
+        from drivers.can_bus import open_device_bus
         from drivers.reaction_wheel.host import ReactionWheelHost
 
         super().__init__(spec, ctx)
-        self._buses.append(open_bus(spec.interface, spec.channel))
+        self._buses.append(open_device_bus(spec.interface, spec.channel))
         self.host = ReactionWheelHost(self._buses[0], spec.wheel, name=spec.name)
 
     def publish(self, t_s):

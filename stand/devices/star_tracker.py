@@ -513,11 +513,12 @@ class ServedTracker(TrackerDevice):
         from drivers.star_tracker.emulator import StarTrackerEmulator
 
         super().__init__(spec, ctx)
-        self.emulator = StarTrackerEmulator(spec.port, _measure(spec, ctx, self), _config(spec), ctx.rng,
-                                            name=f"{spec.name} emulator", baudrate=spec.baudrate)
+        self.serve(StarTrackerEmulator(spec.port, _measure(spec, ctx, self), _config(spec), ctx.rng,
+                                       name=f"{spec.name} emulator", baudrate=spec.baudrate))
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
+        self.rejections.check(t_s)
 
     def activity(self) -> int:
         # Silence here means the flight computer stopped talking to the tracker.

@@ -285,11 +285,12 @@ class ServedSunSensor(_SunSensorDevice):
 
         super().__init__(spec, ctx)
         # Serviced every tick so that a REQUEST_SAMPLE from outside is answered within one step.
-        self.emulator = SunSensorEmulator(spec.port, self._source(ctx), _config(spec), baudrate=spec.baudrate,
-                                          name=f"{spec.name} emulator")
+        self.serve(SunSensorEmulator(spec.port, self._source(ctx), _config(spec), baudrate=spec.baudrate,
+                                     name=f"{spec.name} emulator"))
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
+        self.rejections.check(t_s)
 
     def _latest(self):
         return self.emulator.latest_sample

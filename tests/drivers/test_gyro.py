@@ -154,7 +154,7 @@ def test_decoder_whole_split_at_every_position_and_byte_by_byte():
         assert dec.feed(raw[:cut]) + dec.feed(raw[cut:]) == msgs
     dec = DatagramDecoder(CODEC, DEVICE_TO_HOST)
     assert [m for b in raw for m in dec.feed(bytes([b]))] == msgs
-    assert dec.counters == {"datagrams": 5, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0}
+    assert dec.counters == {"datagrams": 5, "crc_errors": 0, "value_errors": 0, "bytes_dropped": 0, "undecodable": 0}
 
 
 def test_decoder_resynchronises_after_a_corrupted_datagram_and_garbage():
@@ -165,6 +165,8 @@ def test_decoder_resynchronises_after_a_corrupted_datagram_and_garbage():
     out = dec.feed(b"\x93\x93garbage" + bytes(corrupted))
     assert out == [msgs[0], msgs[2], msgs[3]]
     assert dec.counters["crc_errors"] >= 3 and dec.counters["datagrams"] == 3
+    # Two bad stretches (the garbage, the corrupted datagram), however many false starts they held.
+    assert dec.counters["undecodable"] == 2
 
 
 @settings(max_examples=80, deadline=None)

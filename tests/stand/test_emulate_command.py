@@ -180,3 +180,68 @@ def test_magnetorquer_port_must_name_interface_and_channel(capsys):
 
     assert main(["emulate", "magnetorquer", "--port", "can0", "--duration", "1"]) == 2
     assert "INTERFACE:CHANNEL" in capsys.readouterr().err
+
+
+# -- a port in use -------------------------------------------------------------------------------------------------
+
+
+def _stand(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stand.cli", *argv], cwd=REPO, capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_a_port_one_emulator_serves_is_refused_to_a_second_emulator_and_to_a_run(pty_pair, tmp_path, capsys):
+    from tests.stand.conftest import to_toml
+    from tests.stand.test_gyro_wheel_links import small_scenario
+
+    stand_end, peer_end = pty_pair
+    first, banner = _emulate(stand_end, "--duration", "30")
+    try:
+        assert "star tracker at address" in banner
+        second = _stand("emulate", "star-tracker", "--port", stand_end, "--duration", "2")
+        assert second.returncode == 2, second.stdout + second.stderr
+        assert f"serial port {stand_end!r} is in use" in second.stderr and "Traceback" not in second.stderr
+        # A run serving a tracker on that port is refused the same way, before t = 0.
+        served = {"name": "st1", "kind": "star_tracker", "link": "served", "port": stand_end}
+        path = tmp_path / "served.toml"
+        path.write_text(to_toml(small_scenario([served], 5.0)))
+        capsys.readouterr()
+        assert main(["run", str(path), "--speed", "2", "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+        assert f"serial port {stand_end!r} is in use" in capsys.readouterr().err
+        # The first emulator never lost a byte to them: it still answers on the line.
+        with StarTrackerHost(peer_end, name="fc") as host:
+            assert _first_solution(host) is not None
+    finally:
+        first.terminate()
+        out, _ = _finish(first)
+    assert json.loads(out.strip().splitlines()[-1])["counters"]["rejected_crc"] == 0
+
+
+def test_a_serial_can_line_one_board_serves_is_refused_to_a_second_board(pty_pair):
+    stand_end, _ = pty_pair
+    first = subprocess.Popen([sys.executable, "-m", "stand.cli", "emulate", "magnetorquer", "--port",
+                              f"serial:{stand_end}", "--duration", "30"], cwd=REPO, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert "magnetorquer board on CAN serial" in first.stdout.readline()
+        second = _stand("emulate", "magnetorquer", "--port", f"serial:{stand_end}", "--duration", "2")
+        assert second.returncode == 2, second.stdout + second.stderr
+        assert f"serial port {stand_end!r} is in use" in second.stderr and "Traceback" not in second.stderr
+    finally:
+        first.terminate()
+        _finish(first)
+    assert first.returncode == 0
+
+
+def test_open_port_holds_a_device_path_exclusively_and_lets_go_on_close(pty_pair):
+    from drivers.errors import ConnectError
+    from drivers.serial_port import open_port
+
+    stand_end, _ = pty_pair
+    port, owned = open_port(stand_end, name="first")
+    assert owned
+    with pytest.raises(ConnectError, match=r"second: serial port .* is in use"):
+        open_port(stand_end, name="second")
+    port.close()
+    again, _ = open_port(stand_end, name="third")  # closing released it
+    again.close()
