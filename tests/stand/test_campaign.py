@@ -167,8 +167,10 @@ def _expected(field: str, value, scene):
 @pytest.mark.parametrize("overrides", [[], ["environment.magnetic_field=igrf", "environment.earth_rotation=iau2006",
                                             "environment.eop=none"]], ids=["dipole", "igrf"])
 def test_each_dispersed_field_changes_the_scene_that_runs(scenario_dict, write_scenario, tmp_path, overrides):
-    spec = spec_for(write_scenario, scenario_dict, SHIPPED.read_text(), tmp_path, overrides=overrides,
-                    duration_s=SHORT_S)
+    text = SHIPPED.read_text()
+    if overrides:  # era0_deg is unused under IAU 2006: the scenario refuses its dispersion there (last entry)
+        text = text[:text.index('[[dispersions]]\nfield = "environment.era0_deg"')]
+    spec = spec_for(write_scenario, scenario_dict, text, tmp_path, overrides=overrides, duration_s=SHORT_S)
     disp = spec.dispersions()
     nominal = parse(spec.scenario_dict(), "nominal")
     task = spec.case(3, disp)
