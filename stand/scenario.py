@@ -400,6 +400,8 @@ def set_value(data: dict, item: str) -> None:
     except tomllib.TOMLDecodeError:
         value = text.strip()
     parts = key.strip().split(".")
+    if any(not part.strip() for part in parts):
+        raise ScenarioError("--set", item, "a dotted key without an empty part, e.g. devices.mtq.channel=can1")
     node: Any = data
     for i, part in enumerate(parts[:-1]):
         if isinstance(node, list):
@@ -411,6 +413,14 @@ def set_value(data: dict, item: str) -> None:
             node = node.setdefault(part, {})
             if not isinstance(node, dict | list):
                 raise ScenarioError("--set", item, f"a key inside a table ({'.'.join(parts[:i + 1])} is a value)")
+    if isinstance(node, list):
+        names = [str(d.get("name")) for d in node if isinstance(d, dict)]
+        where = ".".join(parts[:-1])
+        if parts[-1] not in names:
+            raise ScenarioError("--set", item, f"a name of an entry of {where} ({', '.join(names) or 'none'}) "
+                                "and one of its keys, e.g. devices.mtq.channel=can1")
+        raise ScenarioError("--set", item, f"a key inside the entry: {key.strip()} names an entry of {where}, so "
+                            f"set one of its keys, e.g. {key.strip()}.KEY=VALUE")
     if not isinstance(node, dict):
         raise ScenarioError("--set", item, "a key of a table")
     node[parts[-1]] = value  # an inline table replaces the whole table: --set 'controller={kind = "external"}'
@@ -793,6 +803,19 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     return ControllerSpec(kind, rate_hz, params)
 
 
+def _unusable(v) -> bool:
+    """A value with a non-finite number or a NUL byte anywhere inside."""
+    if isinstance(v, float):
+        return not math.isfinite(v)
+    if isinstance(v, str):
+        return "\x00" in v
+    if isinstance(v, list):
+        return any(_unusable(x) for x in v)
+    if isinstance(v, dict):
+        return any(_unusable(x) for x in v.values())
+    return False
+
+
 def _pointing(t: Table, devices) -> dict:
     """The options of the reference pointing ADCS: the devices it reads and commands must exist, be of the right
     kind and have a host driver in the stand (not served); the rest is checked by its constructor."""
@@ -807,19 +830,8 @@ def _pointing(t: Table, devices) -> dict:
     opt = Table(options, t._name("options"), t.source)
     opt.check_unknown(tuple(OPTIONS))
 
-    def bad(v) -> bool:
-        if isinstance(v, float):
-            return not math.isfinite(v)
-        if isinstance(v, str):
-            return "\x00" in v
-        if isinstance(v, list):
-            return any(bad(x) for x in v)
-        if isinstance(v, dict):
-            return any(bad(x) for x in v.values())
-        return False
-
     for key, value in options.items():
-        if bad(value):
+        if _unusable(value):
             raise opt.error(key, value, "finite numbers and text without NUL bytes")
     if "modes" in options:
         opt.table("modes").check_unknown(tuple(f.name for f in fields(ModeConfig)))
