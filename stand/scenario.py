@@ -804,9 +804,9 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
 
 
 def _unusable(v) -> bool:
-    """A value with a non-finite number or a NUL byte anywhere inside."""
+    """A value with a non-finite or subnormal number or a NUL byte anywhere inside."""
     if isinstance(v, float):
-        return not math.isfinite(v)
+        return not math.isfinite(v) or 0.0 < abs(v) < sys.float_info.min
     if isinstance(v, str):
         return "\x00" in v
     if isinstance(v, list):
@@ -832,7 +832,7 @@ def _pointing(t: Table, devices) -> dict:
 
     for key, value in options.items():
         if _unusable(value):
-            raise opt.error(key, value, "finite numbers and text without NUL bytes")
+            raise opt.error(key, value, "finite numbers of normal size (no subnormals) and text without NUL bytes")
     if "modes" in options:
         opt.table("modes").check_unknown(tuple(f.name for f in fields(ModeConfig)))
     by_name = {d.name: d for d in devices}
