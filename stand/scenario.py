@@ -866,10 +866,11 @@ DEG_H_RAD_S = math.radians(1.0) / 3600.0
 DATASHEET_KEYS = {
     # 1-sigma noise of a solution, about the boresight's cross axes and about the boresight (roll).
     "star_tracker": {"noise_cross_arcsec": (MISSING, 0.0, 3600.0), "noise_roll_arcsec": (MISSING, 0.0, 3600.0)},
-    # Angle random walk, rate random walk, bias instability (the Allan deviation's floor) and the averaging time
-    # of that floor, and the bound on the turn-on bias (taken as 3 sigma).
-    "gyro": {"arw_deg_sqrt_h": (MISSING, 0.0, 100.0), "rrw_deg_h_sqrt_h": (0.0, 0.0, 1e4),
-             "bias_instability_deg_h": (0.0, 0.0, 1e4), "bias_instability_tau_s": (189.0, 1.0, 1e7),
+    # Angle random walk, rate random walk and the bound on the turn-on bias (taken as 3 sigma): what the MEKF's
+    # model holds. A bias instability is a bounded, correlated wander its random-walk bias cannot represent (turned
+    # into a random walk it made the bias estimate noisy and the knowledge through a 900 s tracker outage 50 %
+    # worse): the filter does not take it, and the simulated gyro's instability stays an unmodelled error.
+    "gyro": {"arw_deg_sqrt_h": (MISSING, 0.0, 100.0), "rrw_deg_h_sqrt_h": (MISSING, 0.0, 1e4),
              "turn_on_bias_deg_h": (MISSING, 0.0, 1e5)},
 }
 #: The filter options each kind's datasheet sets (they cannot be given beside it).
@@ -917,15 +918,11 @@ def _datasheets(t: Table, options: dict, by_name: dict) -> dict:
 
 
 def _gyro_tuning(v: dict, margin: float) -> dict:
-    """MEKF noise from a gyro datasheet. The filter's bias is a random walk: a bias instability B with its Allan
-    floor at tau behaves over that time like a Gauss-Markov bias of sigma 0.664 B / 0.617 and correlation
-    tau / 1.89 (sim.sensors.Gyro), whose driving noise adds sigma * sqrt(2 / correlation) to the rate random walk."""
+    """MEKF noise from a gyro datasheet, each figure times the margin."""
     arw = v["arw_deg_sqrt_h"] * math.radians(1.0) / 60.0
     rrw = v["rrw_deg_h_sqrt_h"] * DEG_H_RAD_S / 60.0
-    gm_sigma = 0.664 * v["bias_instability_deg_h"] * DEG_H_RAD_S / 0.617
-    rrw_total = math.hypot(rrw, gm_sigma * math.sqrt(2.0 * 1.89 / v["bias_instability_tau_s"]))
-    # A floor far below any real gyro keeps the bias covariance from collapsing to zero with a perfect datasheet.
-    return {"gyro_arw_rad_s05": max(arw * margin, 1e-12), "gyro_rrw_rad_s15": max(rrw_total * margin, 1e-15),
+    # Floors far below any real gyro keep the covariance from collapsing to zero with a perfect datasheet.
+    return {"gyro_arw_rad_s05": max(arw * margin, 1e-12), "gyro_rrw_rad_s15": max(rrw * margin, 1e-15),
             "sigma_bias_rad_s": max(v["turn_on_bias_deg_h"] * DEG_H_RAD_S / 3.0 * margin, 1e-12)}
 
 
