@@ -22,10 +22,19 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
                    gyro: port, output_rate_hz, ideal, arw_deg_sqrt_h, bias_instability_deg_h, delay_s, ...
                    reaction_wheel: interface, channel, wheel, spin_axis_B, inertia_kg_m2, max_torque_Nm, ...
     [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, ...
-                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name)
-    [[criteria]]   name, metric, max | min, at_s
+                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name;
+                   [controller.datasheet.NAME] of its star tracker and gyro, datasheet_margin: what its filter is
+                   tuned from, never the simulated devices' own noise)
+    [[criteria]]   name, metric, max | min, at_s (metrics that take a time only)
     [recording]    rate_hz
     [rendezvous]   shadows on a docking target during an approach (``stand shadow``; see stand.rendezvous)
+
+A key the run would ignore is refused, not accepted: one another setting leaves unused (``era0_deg`` under
+``earth_rotation = "iau2006"``, ``eop`` under ``"uniform"``, ``igrf_degree`` under a dipole, ``gravity_degree``
+without ``"jgm3"``, an ``[environment]`` setting of a model nothing in the scene evaluates, ``at_s`` of a metric
+without a time, a controller key of another kind), because a campaign dispersing it would record different
+inputs for identical runs. A required key given without its unit (``duration = 10``) is named as the mistake,
+with the key it probably meant. Numbers are finite and of normal size (a subnormal rate has an infinite period).
 """
 
 from __future__ import annotations
