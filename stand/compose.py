@@ -29,7 +29,7 @@ from . import devices
 from .adcs import build_controller
 from .devices import BuildContext
 from .errors import ScenarioError
-from .scenario import Scenario
+from .scenario import Scenario, earth_models
 
 
 @dataclass(frozen=True)
@@ -53,12 +53,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     ScenarioError past the machine's limits: ``check_budget`` for a run of ``duration_s`` into ``out_dir``)."""
     o, env = sc.orbit, sc.environment
     dev = device_needs(sc)
-    field_why = dev["magnetic_field"] + (["magnetic torque"] if "magnetic" in sc.torques else [])
+    # The same reasons the loader refuses [environment] settings of models nothing evaluates by.
+    field_why, rotation_why = earth_models(sc.torques, o, sc.devices)
     needs_field = bool(field_why)
     if needs_field and env.magnetic_field == "igrf":
         field_why.append(f"degree {env.igrf_degree}")
-    rotation_why = [why for why, on in (("the field model", needs_field), ("harmonic gravity", o.gravity == "jgm3"),
-                                        ("drag", o.drag is not None)) if on]
     needs_rotation = bool(rotation_why)
     needs_eop = needs_rotation and env.earth_rotation == "iau2006" and env.eop == "iers"
     sun_why = [w for w, on in (("third-body Sun", "sun" in o.third_bodies), ("radiation pressure", o.srp))

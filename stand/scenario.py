@@ -22,10 +22,19 @@ Layout (see ``fixtures/scenarios/detumble.toml`` for a complete, commented examp
                    gyro: port, output_rate_hz, ideal, arw_deg_sqrt_h, bias_instability_deg_h, delay_s, ...
                    reaction_wheel: interface, channel, wheel, spin_axis_B, inertia_kg_m2, max_torque_Nm, ...
     [controller]   kind = "bdot" | "none" | "plugin" | "external" | "pointing", rate_hz, budget_s, ...
-                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name)
-    [[criteria]]   name, metric, max | min, at_s
+                   (pointing: [controller.options] of stand.adcs.pointing.PointingController, devices by name;
+                   [controller.datasheet.NAME] of its star tracker and gyro, datasheet_margin: what its filter is
+                   tuned from, never the simulated devices' own noise)
+    [[criteria]]   name, metric, max | min, at_s (metrics that take a time only)
     [recording]    rate_hz
     [rendezvous]   shadows on a docking target during an approach (``stand shadow``; see stand.rendezvous)
+
+A key the run would ignore is refused, not accepted: one another setting leaves unused (``era0_deg`` under
+``earth_rotation = "iau2006"``, ``eop`` under ``"uniform"``, ``igrf_degree`` under a dipole, ``gravity_degree``
+without ``"jgm3"``, an ``[environment]`` setting of a model nothing in the scene evaluates, ``at_s`` of a metric
+without a time, a controller key of another kind), because a campaign dispersing it would record different
+inputs for identical runs. A required key given without its unit (``duration = 10``) is named as the mistake,
+with the key it probably meant. Numbers are finite and of normal size (a subnormal rate has an infinite period).
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ from __future__ import annotations
 import difflib
 import math
 import re
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -126,6 +136,13 @@ class Table:
         return f"{self.path}.{key}" if self.path else key
 
     def error(self, key: str, value, allowed: str) -> ScenarioError:
+        if value is MISSING and key not in self.data:
+            # A required key is missing: when the table has it under another spelling (``duration = 10`` for
+            # ``duration_s``), that key is the mistake to name, not the missing one.
+            meant = [k for k in self.data if k not in self.used and key in _likely_meant(k, (key,))]
+            if meant:
+                return self.error(meant[0], self.data[meant[0]], f"this key is not known here; did you mean "
+                                  f"{key!r} (units are part of the key's name)?")
         return ScenarioError(self._name(key), value, allowed, self.source)
 
     def raw(self, key: str, default=MISSING):
@@ -146,6 +163,10 @@ class Table:
             raise self.error(key, value, f"{kind}{rng} is expected")
         if not math.isfinite(value):
             raise self.error(key, value, f"a finite number{rng} is expected")
+        if 0 < abs(value) < sys.float_info.min:
+            # A subnormal has lost its precision and its inverse (a period, a rate) overflows to infinity.
+            raise self.error(key, value, f"a number of normal size{rng}, not a subnormal (below "
+                             f"{sys.float_info.min:.4g}, whose inverse overflows to infinity)")
         if (lo is not None and (value < lo or (lo_open and value == lo))) or (
             hi is not None and (value > hi or (hi_open and value == hi))
         ):
@@ -198,8 +219,29 @@ class Table:
         unknown = sorted(set(self.data) - self.used - set(allowed_extra))
         if unknown:
             key = unknown[0]
-            raise self.error(key, self.data[key], "this key is not known here (a typo?); known keys: "
-                             + ", ".join(sorted(self.used | set(allowed_extra))))
+            known = sorted(self.used | set(allowed_extra))
+            meant = _likely_meant(key, known)
+            hint = f"did you mean {' or '.join(repr(m) for m in meant)}?" if meant else "a typo?"
+            raise self.error(key, self.data[key], f"this key is not known here ({hint}); known keys: "
+                             + ", ".join(known))
+
+    def refuse_unused(self, key: str, setting: str, what_to_do: str) -> None:
+        """Refuse a key the scenario gives but whose value the run would ignore under ``setting``: a campaign that
+        dispersed it would record different inputs for identical runs."""
+        if key in self.data:
+            raise self.error(key, self.data[key], f"{setting} leaves this key unused (its value, or a campaign's "
+                             f"dispersion of it, would change nothing); {what_to_do}")
+
+
+def _likely_meant(key: str, known) -> list[str]:
+    """Known keys a given key probably meant: the same name with a unit suffix (``duration`` for ``duration_s``),
+    another unit (``duration_min``), or a close spelling."""
+    if not isinstance(key, str):
+        return []
+    stem = key.rsplit("_", 1)[0]
+    out = [k for k in known if k != key and (k.startswith(key + "_") or (k.rsplit("_", 1)[0] == stem and "_" in k
+                                                                          and "_" in key))]
+    return out or difflib.get_close_matches(key, [k for k in known if k != key], n=2, cutoff=0.8)
 
 
 def _range_text(lo, hi, lo_open, hi_open) -> str:
@@ -369,6 +411,8 @@ def set_value(data: dict, item: str) -> None:
     except tomllib.TOMLDecodeError:
         value = text.strip()
     parts = key.strip().split(".")
+    if any(not part.strip() for part in parts):
+        raise ScenarioError("--set", item, "a dotted key without an empty part, e.g. devices.mtq.channel=can1")
     node: Any = data
     for i, part in enumerate(parts[:-1]):
         if isinstance(node, list):
@@ -380,6 +424,14 @@ def set_value(data: dict, item: str) -> None:
             node = node.setdefault(part, {})
             if not isinstance(node, dict | list):
                 raise ScenarioError("--set", item, f"a key inside a table ({'.'.join(parts[:i + 1])} is a value)")
+    if isinstance(node, list):
+        names = [str(d.get("name")) for d in node if isinstance(d, dict)]
+        where = ".".join(parts[:-1])
+        if parts[-1] not in names:
+            raise ScenarioError("--set", item, f"a name of an entry of {where} ({', '.join(names) or 'none'}) "
+                                "and one of its keys, e.g. devices.mtq.channel=can1")
+        raise ScenarioError("--set", item, f"a key inside the entry: {key.strip()} names an entry of {where}, so "
+                            f"set one of its keys, e.g. {key.strip()}.KEY=VALUE")
     if not isinstance(node, dict):
         raise ScenarioError("--set", item, "a key of a table")
     node[parts[-1]] = value  # an inline table replaces the whole table: --set 'controller={kind = "external"}'
@@ -422,7 +474,8 @@ def parse(data: dict, source: str | None = None) -> Scenario:
 
     orbit = _orbit(root.table("orbit"))
     spacecraft = _spacecraft(root.table("spacecraft"), step_s, integrator)
-    environment = _environment(root.table("environment", required=False), epoch)
+    env_table = root.table("environment", required=False)
+    environment = _environment(env_table, epoch)
 
     devices_raw = root.raw("devices", [])
     if not isinstance(devices_raw, list):
@@ -432,6 +485,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     if len(set(names)) != len(names):
         raise root.error("devices", names, "device names must be unique")
     _check_refs(devices, source)
+    _check_environment_used(env_table, environment, epoch, torques, orbit, devices)
 
     controller = _controller(root.table("controller", required=False), step_s, devices)
     _check_torque_reach(spacecraft, orbit, devices, torques, controller, step_s, integrator, source)
@@ -479,10 +533,11 @@ def _check_pointing(sc: Scenario) -> None:
 def rate(t: Table, key: str, step_s: float, default=MISSING) -> float:
     """A rate in Hz whose period is a whole number of dynamics steps (rates are exact ratios)."""
     hz = t.number(key, default, lo=0, lo_open=True, hi=1.0 / step_s)
-    ratio = 1.0 / (hz * step_s)
-    if ratio > MAX_STEPS_PER_PERIOD:  # also a subnormal rate, whose period is infinite
+    # Compared before dividing: hz * step_s may underflow to 0 for a tiny rate.
+    if hz < 1.0 / (MAX_STEPS_PER_PERIOD * step_s):
         raise t.error(key, hz, f"a rate whose period is at most {MAX_STEPS_PER_PERIOD:g} dynamics steps "
                       f"({step_s:g} s), i.e. >= {1.0 / (MAX_STEPS_PER_PERIOD * step_s):.6g} Hz")
+    ratio = 1.0 / (hz * step_s)
     if abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise t.error(key, hz, f"a rate whose period is a whole number of dynamics steps ({step_s:g} s), "
                       f"e.g. {1.0 / step_s:g}, {0.5 / step_s:g} or {0.1 / step_s:g} Hz")
@@ -547,6 +602,9 @@ def _orbit(t: Table) -> OrbitSpec:
         srp=_coefficients(t, "srp", {"cr": (1.5, 0.0, 2.0), "area_m2": (None, 1e-6, 100.0)}),
     )
     t.check_unknown()
+    if spec.gravity != "jgm3":
+        t.refuse_unused("gravity_degree", f"orbit.gravity = {spec.gravity!r} (only the JGM-3 field has a degree)",
+                        "remove it, or set gravity = 'jgm3'")
     return spec
 
 
@@ -644,11 +702,47 @@ def _environment(t: Table, epoch: Epoch) -> EnvironmentSpec:
         igrf_degree=int(t.number("igrf_degree", 13, lo=1, hi=13, integer=True)),
         eop=t.choice("eop", ("iers", "none"), "iers"),
     )
-    if spec.magnetic_field == "igrf" and not 1900.0 <= epoch.decimal_year <= 2030.0:
+    t.check_unknown()
+    if spec.magnetic_field == "dipole":
+        t.refuse_unused("igrf_degree", "environment.magnetic_field = 'dipole'",
+                        "remove it, or set magnetic_field = 'igrf' for the IGRF field it truncates")
+    if spec.earth_rotation == "iau2006":
+        t.refuse_unused("era0_deg", "environment.earth_rotation = 'iau2006' (the Earth's angle follows from the "
+                        "epoch and UT1)", "remove it, or set earth_rotation = 'uniform' for the angle at the epoch, "
+                        "or disperse scenario.epoch instead")
+    else:
+        t.refuse_unused("eop", "environment.earth_rotation = 'uniform' (no UT1 or polar motion)",
+                        "remove it, or set earth_rotation = 'iau2006' for the IERS corrections")
+    return spec
+
+
+def earth_models(torques, orbit: OrbitSpec, devices) -> tuple[list[str], list[str]]:
+    """Why the scene evaluates the geomagnetic field and the Earth's rotation, ``(field reasons, rotation reasons)``;
+    a list is empty when nothing does (stand.compose builds exactly these models)."""
+    from stand import devices as kinds
+
+    field_why = [why for d in devices if (why := kinds.get(d.kind).needs(d).get("magnetic_field"))]
+    field_why += ["magnetic torque"] if "magnetic" in torques else []
+    rotation_why = [why for why, on in (("the field model", bool(field_why)), ("harmonic gravity", orbit.gravity ==
+                                        "jgm3"), ("drag", orbit.drag is not None)) if on]
+    return field_why, rotation_why
+
+
+def _check_environment_used(t: Table, env: EnvironmentSpec, epoch: Epoch, torques, orbit: OrbitSpec,
+                            devices) -> None:
+    """Refuse an [environment] setting of a model the scene never evaluates, and an IGRF epoch out of range."""
+    field_why, rotation_why = earth_models(torques, orbit, devices)
+    if not field_why:
+        for key in ("magnetic_field", "igrf_degree"):
+            t.refuse_unused(key, "a scene without a magnetic field (no magnetic torque in dynamics.torques, no "
+                            "magnetometer, magnetorquer or cage)", "remove it, or add what reads the field")
+    elif env.magnetic_field == "igrf" and not 1900.0 <= epoch.decimal_year <= 2030.0:
         raise t.error("magnetic_field", "igrf", "a scenario epoch within IGRF-14's validity, 1900.0 to 2030.0, "
                       "or magnetic_field = 'dipole'")
-    t.check_unknown()
-    return spec
+    if not rotation_why:
+        for key in ("earth_rotation", "era0_deg", "eop"):
+            t.refuse_unused(key, "a scene with nothing Earth-fixed (no magnetic field, harmonic gravity or drag)",
+                            "remove it, or add what turns with the Earth")
 
 
 def _device(t: Table, step_s: float) -> DeviceSpec:
@@ -683,8 +777,19 @@ def _check_refs(specs, source) -> None:
                                     source)
 
 
+#: The keys of each controller kind (beside ``kind``): a key of another kind is unused under this one.
+CONTROLLER_KEYS = {"bdot": ("rate_hz", "budget_s", "device", "gain_A_m2_s_per_T", "max_dipole_A_m2",
+                            "skip_coil_active", "duty_cycle"),
+                   "plugin": ("rate_hz", "budget_s", "module", "path", "options"),
+                   "pointing": ("rate_hz", "budget_s", "options", "datasheet", "datasheet_margin")}
+
+
 def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     kind = t.choice("kind", CONTROLLER_KINDS, "none")
+    for key in sorted({k for keys in CONTROLLER_KEYS.values() for k in keys} - set(CONTROLLER_KEYS.get(kind, ()))):
+        owners = [k for k, keys in CONTROLLER_KEYS.items() if key in keys]
+        t.refuse_unused(key, f"controller.kind = {kind!r}", f"remove it (it is a key of kind "
+                        f"{' or '.join(repr(o) for o in owners)})")
     served = [d.name for d in devices if d.link == "served"]
     if kind in ("none", "external"):
         if kind == "external" and not served:
@@ -710,6 +815,19 @@ def _controller(t: Table, step_s: float, devices) -> ControllerSpec:
     return ControllerSpec(kind, rate_hz, params)
 
 
+def _unusable(v) -> bool:
+    """A value with a non-finite or subnormal number or a NUL byte anywhere inside."""
+    if isinstance(v, float):
+        return not math.isfinite(v) or 0.0 < abs(v) < sys.float_info.min
+    if isinstance(v, str):
+        return "\x00" in v
+    if isinstance(v, list):
+        return any(_unusable(x) for x in v)
+    if isinstance(v, dict):
+        return any(_unusable(x) for x in v.values())
+    return False
+
+
 def _pointing(t: Table, devices) -> dict:
     """The options of the reference pointing ADCS: the devices it reads and commands must exist, be of the right
     kind and have a host driver in the stand (not served); the rest is checked by its constructor."""
@@ -724,20 +842,9 @@ def _pointing(t: Table, devices) -> dict:
     opt = Table(options, t._name("options"), t.source)
     opt.check_unknown(tuple(OPTIONS))
 
-    def bad(v) -> bool:
-        if isinstance(v, float):
-            return not math.isfinite(v)
-        if isinstance(v, str):
-            return "\x00" in v
-        if isinstance(v, list):
-            return any(bad(x) for x in v)
-        if isinstance(v, dict):
-            return any(bad(x) for x in v.values())
-        return False
-
     for key, value in options.items():
-        if bad(value):
-            raise opt.error(key, value, "finite numbers and text without NUL bytes")
+        if _unusable(value):
+            raise opt.error(key, value, "finite numbers of normal size (no subnormals) and text without NUL bytes")
     if "modes" in options:
         opt.table("modes").check_unknown(tuple(f.name for f in fields(ModeConfig)))
     by_name = {d.name: d for d in devices}
@@ -762,7 +869,73 @@ def _pointing(t: Table, devices) -> dict:
         raise opt.error("wheels", wheels, "a list of at least three reaction wheel device names")
     for name in wheels:
         check("wheels", name, "reaction_wheel")
-    return {**options, "wheels": list(wheels)}
+    return {**options, "wheels": list(wheels), **_datasheets(t, options, by_name)}
+
+
+ARCSEC_RAD = math.radians(1.0 / 3600.0)
+DEG_H_RAD_S = math.radians(1.0) / 3600.0
+#: What each datasheet gives, per device kind: key -> (default or MISSING if required, lo, hi), datasheet units.
+DATASHEET_KEYS = {
+    # 1-sigma noise of a solution, about the boresight's cross axes and about the boresight (roll).
+    "star_tracker": {"noise_cross_arcsec": (MISSING, 0.0, 3600.0), "noise_roll_arcsec": (MISSING, 0.0, 3600.0)},
+    # Angle random walk, rate random walk and the bound on the turn-on bias (taken as 3 sigma): what the MEKF's
+    # model holds. A bias instability is a bounded, correlated wander its random-walk bias cannot represent (turned
+    # into a random walk it made the bias estimate noisy and the knowledge through a 900 s tracker outage 50 %
+    # worse): the filter does not take it, and the simulated gyro's instability stays an unmodelled error.
+    "gyro": {"arw_deg_sqrt_h": (MISSING, 0.0, 100.0), "rrw_deg_h_sqrt_h": (MISSING, 0.0, 1e4),
+             "turn_on_bias_deg_h": (MISSING, 0.0, 1e5)},
+}
+#: The filter options each kind's datasheet sets (they cannot be given beside it).
+DATASHEET_OPTIONS = {"star_tracker": ("tracker_sigma_rad",),
+                     "gyro": ("gyro_arw_rad_s05", "gyro_rrw_rad_s15", "sigma_bias_rad_s")}
+#: The smallest tracker noise handed to the filter (arcsec): a noiseless tracker still quantises its quaternion.
+MIN_TRACKER_SIGMA_ARCSEC = 0.5
+
+
+def _datasheets(t: Table, options: dict, by_name: dict) -> dict:
+    """The reference ADCS's filter tuning from the datasheets the scenario declares, ``[controller.datasheet.NAME]``
+    for the star tracker and the gyro it uses, each noise figure times ``controller.datasheet_margin``: what a
+    flight team knows, never the simulated device's own settings (which may differ; docs/adcs.md)."""
+    sheets = t.table("datasheet", required=False)
+    margin = t.number("datasheet_margin", 1.0, lo=1.0, hi=10.0)
+    out: dict = {}
+    for role, kind in (("star_tracker", "star_tracker"), ("gyro", "gyro")):
+        name = options.get(role)
+        if name is None:
+            continue
+        given = [k for k in DATASHEET_OPTIONS[kind] if k in options]
+        if not sheets.has(name):
+            if len(given) < len(DATASHEET_OPTIONS[kind]):
+                raise sheets.error(name, MISSING, f"the datasheet of the {kind.replace('_', ' ')} the ADCS is tuned "
+                                   f"from: a table [controller.datasheet.{name}] of "
+                                   f"{', '.join(DATASHEET_KEYS[kind])} (or the options "
+                                   f"{', '.join(DATASHEET_OPTIONS[kind])})")
+            continue
+        if given:
+            raise sheets.error(name, sheets.raw(name), f"a datasheet or the option {given[0]}, not both (the datasheet "
+                               "sets it)")
+        sheet = sheets.table(name)
+        v = {k: sheet.number(k, d, lo=lo, hi=hi) for k, (d, lo, hi) in DATASHEET_KEYS[kind].items()}
+        sheet.check_unknown()
+        if kind == "star_tracker":
+            out["tracker_sigma_rad"] = [max(v[k], MIN_TRACKER_SIGMA_ARCSEC) * ARCSEC_RAD * margin
+                                        for k in ("noise_cross_arcsec", "noise_roll_arcsec")]
+        else:
+            out.update(_gyro_tuning(v, margin))
+    sheets.check_unknown()
+    if not out:
+        t.refuse_unused("datasheet_margin", "a controller without datasheets", "remove it, or declare the "
+                        "datasheets of the tracker and the gyro in [controller.datasheet.NAME] tables")
+    return out
+
+
+def _gyro_tuning(v: dict, margin: float) -> dict:
+    """MEKF noise from a gyro datasheet, each figure times the margin."""
+    arw = v["arw_deg_sqrt_h"] * math.radians(1.0) / 60.0
+    rrw = v["rrw_deg_h_sqrt_h"] * DEG_H_RAD_S / 60.0
+    # Floors far below any real gyro keep the covariance from collapsing to zero with a perfect datasheet.
+    return {"gyro_arw_rad_s05": max(arw * margin, 1e-12), "gyro_rrw_rad_s15": max(rrw * margin, 1e-15),
+            "sigma_bias_rad_s": max(v["turn_on_bias_deg_h"] * DEG_H_RAD_S / 3.0 * margin, 1e-12)}
 
 
 def _bdot(t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
@@ -811,6 +984,9 @@ def _criterion(t: Table, duration_s: float) -> Criterion:
     if metric in _metrics_at() and c.at_s is None:
         raise t.error("at_s", MISSING, f"a time in [0, {duration_s:g}] s for metric {metric!r}")
     t.check_unknown()
+    if metric not in _metrics_at():
+        t.refuse_unused("at_s", f"metric = {metric!r} (it takes no time)", "remove it, or choose a metric that "
+                        "takes one (" + ", ".join(sorted(_metrics_at())) + ")")
     return c
 
 

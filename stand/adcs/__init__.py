@@ -178,15 +178,12 @@ def _import_from(folder: Path, module_name: str, spec: str):
             sys.path.pop(0)
 
 
-#: The smallest tracker noise handed to the filter (arcsec): a noiseless tracker still quantises its quaternion.
-MIN_TRACKER_SIGMA_ARCSEC = 0.5
-
-
 def pointing_options(sc) -> dict:
     """The options of ``controller.kind = "pointing"`` with what the scenario already says filled in (an option
     the scenario gives wins): the spacecraft inertia, each device's mount, the wheels' axes, inertias and torque
-    limit, the tracker's noise, the gyro's random walks, the coarse sun heads' normals, and for nadir, target
-    and sun guidance the orbit at t = 0 and the epoch."""
+    limit, the coarse sun heads' normals, and for nadir, target and sun guidance the orbit at t = 0 and the
+    epoch. The filter's noise comes from the datasheets the scenario declares (stand.scenario), never from the
+    simulated devices' own noise settings."""
     opts = dict(sc.controller.params["options"])
     specs = {d.name: d for d in sc.devices}
     opts.setdefault("inertia_kg_m2", np.asarray(sc.spacecraft.inertia_kg_m2, dtype=float).tolist())
@@ -197,16 +194,7 @@ def pointing_options(sc) -> dict:
     if "star_tracker" in opts:
         st = specs[opts["star_tracker"]]
         opts.setdefault("star_tracker_q_TB", st.q_SB.tolist())
-        if st.source == "truth" and "noise_cross_arcsec" in st.emulator:
-            arcsec = np.radians(1.0 / 3600.0)
-            opts.setdefault("tracker_sigma_rad", [max(st.emulator[k], MIN_TRACKER_SIGMA_ARCSEC) * arcsec
-                                                  for k in ("noise_cross_arcsec", "noise_roll_arcsec")])
-    gyro = specs[opts["gyro"]]
-    opts.setdefault("gyro_q_SB", gyro.q_SB.tolist())
-    if not gyro.ideal and gyro.arw_rad_sqrt_s > 0:
-        opts.setdefault("gyro_arw_rad_s05", gyro.arw_rad_sqrt_s)
-    if not gyro.ideal and gyro.rrw_rad_s_sqrt_s > 0:
-        opts.setdefault("gyro_rrw_rad_s15", gyro.rrw_rad_s_sqrt_s)
+    opts.setdefault("gyro_q_SB", specs[opts["gyro"]].q_SB.tolist())
     for key in ("magnetorquer", "sun_sensor"):
         if key in opts:
             opts.setdefault(f"{key}_q_SB", specs[opts[key]].q_SB.tolist())

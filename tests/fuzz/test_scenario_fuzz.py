@@ -372,3 +372,71 @@ def test_random_overrides(items):
         assert "\n" not in str(exc)
         return
     parse_or_refuse(data)
+
+
+# --- --set paths of every shipped scenario, nested wrongly, and odd numbers at every rate and time (issue 22) --------
+
+def set_paths(node, prefix=()) -> list[str]:
+    """Every dotted --set key of a scenario, list entries by their name (by index where they have none)."""
+    out = [".".join(prefix)] if prefix else []
+    if isinstance(node, dict):
+        for k, v in node.items():
+            out += set_paths(v, (*prefix, str(k)))
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            out += set_paths(v, (*prefix, str(v.get("name", i)) if isinstance(v, dict) else str(i)))
+    return out
+
+
+#: Numbers no rate or time may take: subnormal (whose inverse is infinite), infinite, not a number.
+ODD_NUMBERS = ["5e-324", "1e-310", "-1e-310", "2.2e-308", "inf", "-inf", "nan"]
+ODD_VALUES = [*ODD_NUMBERS, "", "0", "-0.0", "1e308", "9223372036854775807", "[]", "{}", "{a = 1}", "[1e-310, 0, 0]",
+              "[[1]]", "x", "true", "2026-01-01T00:00:00Z"]
+
+
+def check_or_refuse(name: str, items: list[str]):
+    """What ``stand check`` does (load with the overrides, then the plan), or None when refused in one sentence."""
+    try:
+        return compose.plan(scenario.load(name, items))
+    except (ScenarioError, PluginError) as exc:
+        assert "\n" not in str(exc) and "Traceback" not in str(exc), str(exc)
+        return None
+
+
+@pytest.mark.parametrize("item", ["devices.mtq=3", "devices.mtq.link.x=1", "devices.mtq.q_SB.x=1", "a..b=1", ".x=1",
+                                  "x.=1", "orbit=", "devices=3", "devices.nope=1", "devices.0.name=1",
+                                  "scenario.name.x=1", "controller.rate_hz=1e-310", "controller.rate_hz=5e-324",
+                                  "recording.rate_hz=5e-324", "devices.mtq.sample_rate_hz=5e-324",
+                                  "controller.rate_hz=inf", "controller.rate_hz=nan", "scenario.duration_s=5e-324"])
+def test_set_items_of_the_issue_exit_2_with_one_sentence(item, capsys):
+    from stand.cli import main
+
+    assert main(["check", "detumble", "--set", item]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stand: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
+def test_odd_numbers_at_every_rate_and_time_are_refused(path):
+    for key in set_paths(shipped_data(path)):
+        if key.rsplit(".", 1)[-1].endswith(("_hz", "_s")):
+            for value in ODD_NUMBERS:
+                if value == "2.2e-308":  # the smallest normal double is a number like any other
+                    continue
+                assert check_or_refuse(path.stem, [f"{key}={value}"]) is None, (key, value)
+
+
+def test_a_rate_too_small_to_invert_names_the_field():
+    with pytest.raises(ScenarioError, match=r"devices\[1\]\.rate_hz = 5e-324 .*subnormal"):
+        scenario.load("acquisition", ["devices.css.rate_hz=5e-324"])
+    with pytest.raises(ScenarioError, match=r"controller\.rate_hz = 1e-300 .*a rate whose period is at most"):
+        scenario.load("detumble", ["controller.rate_hz=1e-300"])
+
+
+@FUZZ
+@given(which=st.sampled_from(SHIPPED), data=st.data(),
+       suffix=st.lists(st.sampled_from(["", "x", "0", "name", "mtq", "rate_hz", "duration"]), max_size=2),
+       value=st.sampled_from(ODD_VALUES) | st.text(max_size=12))
+def test_random_set_paths_of_every_shipped_scenario(which, data, suffix, value):
+    key = ".".join([data.draw(st.sampled_from(set_paths(shipped_data(which)))), *suffix])
+    check_or_refuse(which.stem, [f"{key}={value}"])

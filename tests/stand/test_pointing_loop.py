@@ -164,6 +164,7 @@ def test_a_commanded_wheel_moves_the_truth(scenario_dict, write_scenario, tmp_pa
                                  "inertia_kg_m2": 2e-3, "channel": f"test-pw-{next(_channel)}"}]
     scenario_dict["controller"] = {"kind": "none"}
     scenario_dict["criteria"] = []
+    del scenario_dict["environment"]  # nothing reads the field here: its settings would be unused, and refused
     sc = scenario.load(write_scenario(scenario_dict))
     with build(sc) as scene:
         H0 = np.array(scene.truth.angular_momentum_B())

@@ -73,6 +73,7 @@ def test_left_out_field_model_is_never_evaluated(scenario_dict, write_scenario, 
     scenario_dict["controller"] = {"kind": "none"}
     scenario_dict["dynamics"]["torques"] = ["gravity_gradient"]
     scenario_dict["criteria"] = [{"name": "spin", "metric": "final_rate_deg_s", "max": 100.0}]
+    del scenario_dict["environment"]  # nothing reads the field here: its settings would be unused, and refused
     sc = short(scenario_dict, write_scenario, 20.0)
     with build(sc) as scene:
         assert not scene.truth.has_field
