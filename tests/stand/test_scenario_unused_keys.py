@@ -117,7 +117,7 @@ def test_the_shipped_dispersion_file_validates_and_its_era0_entry_is_refused_und
     assert len(cm.validate(spec, 8)) == 8
     # The combination docs/campaigns.md mentions: the epoch turns the Earth there, era0_deg would change nothing.
     spec = cm.make_spec("detumble", DISPERSIONS, overrides=IGRF)
-    with pytest.raises(cm.CampaignError, match=r"case 0: the dispersion of environment\.era0_deg .*"
+    with pytest.raises(cm.CampaignError, match=r"case 0: dispersions\[\d+\] \(environment\.era0_deg, .*"
                        r"environment\.earth_rotation = 'iau2006'.* leaves this key unused"):
         cm.validate(spec, 1)
 
