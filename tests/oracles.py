@@ -51,3 +51,12 @@ def require_compiled(native: str, extension: str) -> None:
     if in_ci() and shutil.which("cc"):
         pytest.fail(f"CI: {reason}, although a C compiler ({shutil.which('cc')}) is here", pytrace=False)
     pytest.skip(reason)
+
+
+def require_tool(command: str, package: str) -> str:
+    """The path of the program ``command`` (a Debian package that `.ci/run` installs); skip locally, fail under CI,
+    when it is not on the PATH."""
+    path = shutil.which(command)
+    if path is None:
+        unavailable(f"{command} is not installed (apt-get install {package}, as .ci/run does)")
+    return path

@@ -4,7 +4,6 @@ socat pty pair; the calibration (least squares, storage) and the driver's errors
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import threading
 import time
@@ -17,6 +16,7 @@ from drivers.cage.emulator import CageEmulator
 from drivers.cage.host import CageHost, parse_url
 from drivers.cage.model import CageConfig
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+from tests.oracles import require_tool
 
 
 @pytest.fixture(autouse=True)
@@ -189,8 +189,8 @@ def test_an_emulator_cannot_serve_a_port_in_use():
         b.close()
 
 
-@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed (apt-get install socat)")
 def test_modbus_rtu_over_a_socat_pty_pair(tmp_path):
+    require_tool("socat", "socat")
     a, b = tmp_path / "cage-dev", tmp_path / "cage-host"
     socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

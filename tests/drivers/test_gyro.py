@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -23,6 +22,7 @@ from drivers.gyro import icd
 from drivers.gyro.codec import CLASSES, GyroCodec, GyroRate, SetOutputPeriod, SetTime
 from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
 from drivers.gyro.host import GyroHost
+from tests.oracles import require_tool
 
 from .datagram_helpers import PtyLink, datagram_strategy
 
@@ -333,8 +333,8 @@ emu.close()
 """
 
 
-@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed (apt-get install socat)")
 def test_gyro_emulator_in_another_process_over_a_socat_pty_pair(tmp_path):
+    require_tool("socat", "socat")
     a, b = tmp_path / "ttyGY_A", tmp_path / "ttyGY_B"
     socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

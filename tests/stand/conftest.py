@@ -1,5 +1,4 @@
 import itertools
-import shutil
 import subprocess
 import time
 import tomllib
@@ -8,6 +7,7 @@ from pathlib import Path
 import pytest
 
 from stand.scenario import DEFAULT_SCENARIO
+from tests.oracles import require_tool
 
 _channels = itertools.count()
 
@@ -60,8 +60,7 @@ def write_scenario(tmp_path):
 @pytest.fixture
 def pty_pair(tmp_path):
     """A socat pty pair (the stand's end, the peer's end) for cross-process serial tests; skipped without socat."""
-    if shutil.which("socat") is None:
-        pytest.skip("socat is not installed (apt-get install socat)")
+    require_tool("socat", "socat")
     a, b = tmp_path / "stand", tmp_path / "peer"
     proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

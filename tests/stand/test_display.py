@@ -12,6 +12,7 @@ from star_screen.geometry import default_bench
 from star_screen.outputs import FrameQueue
 from star_screen.render import Renderer
 from star_screen.state_message import DisplayState, encode
+from tests.oracles import require
 
 EPOCH = Epoch.from_iso("2026-01-01T00:00:00Z")
 W, H = 640, 360
@@ -156,7 +157,7 @@ def test_cli_display_node_usage_errors(argv, field, capsys):
 
 
 def test_cli_display_node_window_on_dummy_video(monkeypatch, capsys):
-    pytest.importorskip("pygame", reason="the display extra (pygame-ce) is not installed")
+    require("pygame", "the display extra (pygame-ce)")
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     argv = ["display-node", "--bind", "127.0.0.1:0", "--screen", f"{W}x{H}", "--window", "--windowed",
             "--timeout", "0.05"]

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -19,6 +18,7 @@ from drivers.serial_port import pty_pair
 from drivers.star_tracker.codec import NackError
 from drivers.star_tracker.host import StarTrackerHost
 from stand.cli import main
+from tests.oracles import require_tool
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = ["--boot-time-s", "0", "--interval-s", "0.05", "--delay-s", "0.01"]
@@ -82,8 +82,8 @@ def test_emulate_serves_a_pty_for_a_bounded_duration_and_prints_counters():
     assert report["counters"]["sent"] >= 2
 
 
-@pytest.mark.skipif(shutil.which("socat") is None, reason="socat is not installed (apt-get install socat)")
 def test_two_processes_over_a_socat_pty_pair_and_sigterm_stops_the_emulator(tmp_path):
+    require_tool("socat", "socat")
     a, b = tmp_path / "ttyST_A", tmp_path / "ttyST_B"
     socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

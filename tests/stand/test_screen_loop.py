@@ -22,6 +22,7 @@ from star_screen.collimated import matched_gain, screen_to_detector
 from star_screen.geometry import default_bench
 from star_screen.render import Renderer
 from star_screen.tracking.extract import extract_stars
+from tests.oracles import require
 from tests.stand.processes import stand_env
 
 EPOCH = Epoch.from_iso("2026-03-20T12:00:00Z")
@@ -207,7 +208,7 @@ def test_the_tracker_in_another_process_solves_the_screen_and_pre_distortion_rem
 def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_when_it_is_lit(
         pty_pair, tmp_path, monkeypatch):
     monkeypatch.setenv("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-    pytest.importorskip("pygame")
+    require("pygame", "the display extra (pygame-ce)")
     import tomllib
 
     from stand import telemetry

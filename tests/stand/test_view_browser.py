@@ -26,13 +26,16 @@ from sim.rotations import dcm
 from sim.time import Epoch
 from stand.cli import main
 from stand.view import server, state
+from tests.oracles import require, unavailable
 
 from .view_scenario import write as write_scenario
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 DRIVER = shutil.which("chromedriver") or ("/usr/bin/chromedriver" if os.path.exists("/usr/bin/chromedriver") else None)
-webdriver = pytest.importorskip("selenium.webdriver", reason="selenium is in the test extra")
-pytestmark = pytest.mark.skipif(not (CHROMIUM and DRIVER), reason="Chromium and chromium-driver are not installed")
+webdriver = require("selenium.webdriver")
+if not (CHROMIUM and DRIVER):
+    unavailable("Chromium and chromium-driver are not installed (apt-get install chromium chromium-driver, as .ci/run "
+                "does)")
 
 SUN_RGB = (255, 200, 0)
 VALID_RGB = (60, 220, 90)

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from star_screen.geometry import BrownConrady, Collimator, default_bench
+from tests.oracles import require
 
-pytest.importorskip("cv2")
+require("cv2", "the base install (opencv-contrib-python-headless)")
 
 
 def test_charuco_calibration_recovers_known_distortion():

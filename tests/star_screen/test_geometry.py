@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from star_screen.geometry import Bench, BrownConrady, Collimator, Screen, TrackerOptics, default_bench
+from tests.oracles import require
 
 
 def test_default_tracker_is_20_by_15_deg_on_1024_by_768():
@@ -52,7 +53,7 @@ def test_distortion_round_trip(x, y):
 
 
 def test_distortion_matches_opencv():
-    cv2 = pytest.importorskip("cv2")
+    cv2 = require("cv2", "the base install (opencv-contrib-python-headless)")
     pts = np.random.default_rng(1).uniform(-0.3, 0.3, (50, 2))
     obj = np.concatenate((pts, np.ones((50, 1))), axis=1)
     K = np.array([[1000.0, 0, 500], [0, 1000, 400], [0, 0, 1]])

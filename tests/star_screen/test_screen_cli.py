@@ -7,10 +7,11 @@ import pytest
 
 from stand.cli import main as cli_main
 from star_screen.attitude import q_SN_from_radec_roll
+from tests.oracles import require
 
 
 def test_screen_writes_png_and_truth(tmp_path):
-    cv2 = pytest.importorskip("cv2")
+    cv2 = require("cv2", "the base install (opencv-contrib-python-headless)")
     out = tmp_path / "frame"
     rc = cli_main(["screen", "--ra", "83.8", "--dec", "-5.4", "--roll", "15", "--out", str(out)])
     assert rc == 0
@@ -77,7 +78,7 @@ def _image_scenario(tmp_path, fov="[16.0, 12.0]", resolution="[640, 480]"):
 
 
 def test_screen_uses_the_scenario_tracker_optics_and_epoch(tmp_path):
-    cv2 = pytest.importorskip("cv2")
+    cv2 = require("cv2", "the base install (opencv-contrib-python-headless)")
     out = tmp_path / "frame"
     sc = _image_scenario(tmp_path)
     rc = cli_main(["screen", "--scenario", str(sc), "--tracker", "st1", "--ra", "83.8", "--dec", "-5.4",

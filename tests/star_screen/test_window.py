@@ -7,8 +7,9 @@ from star_screen.attitude import q_SN_from_radec_roll
 from star_screen.geometry import default_bench
 from star_screen.render import Renderer
 from star_screen.window import ScreenWindow, decode_corner_code, encode_corner_code
+from tests.oracles import require
 
-pytest.importorskip("pygame", reason="the display extra (pygame-ce) is not installed")
+require("pygame", "the display extra (pygame-ce)")
 
 W, H = 640, 360
 
