@@ -1,100 +1,47 @@
-"""``stand emulate DEVICE --port URL``: run one device emulator alone, so a flight computer or a
-terminal can be wired to it.
+"""``stand emulate KIND --port PORT``: run one device emulator alone, so a flight computer or a terminal can be
+wired to it.
 
-    stand emulate magnetorquer --port INTERFACE:CHANNEL [--field-nT X,Y,Z] [--duration S] [--seed N]
-    stand emulate star-tracker --port URL [--address N] [--duration S] [--baud B]
-                  [--ra DEG --dec DEG --roll DEG] [--rate-deg-s X,Y,Z] [--seed N]
-                  [--noise-cross-arcsec A] [--noise-roll-arcsec A] [--boot-time-s S]
-                  [--interval-s S] [--delay-s S]
-    stand emulate star-tracker --source screen --port URL --screen-bind HOST:PORT
-                  [--pre-distortion on|off] [--collimator-k1 K] [--collimator-shift-px DX,DY]
-                  [--panel-latency-s S] [--defocus-sigma-px S] [--read-noise-e E] [--background-e E]
-    stand emulate cage --port tcp://127.0.0.1:PORT | SERIAL [--duration S] [--baud B] [--seed N]
+    stand emulate KIND --port PORT [--duration S] [KIND'S OPTIONS]
+    stand emulate KIND --port PORT --scenario S [--name NAME] [--speed F] [--out DIR] [--duration S]
+    stand emulate KIND --help        (the kind's own options)
 
-The star tracker is the truth-plus-noise emulator (``drivers.star_tracker.emulator``) with a
-built-in measurement source: the boresight (+z of the tracker frame) at right ascension ``--ra``
-and declination ``--dec`` (GCRS), rolled by ``--roll`` about it (roll 0: celestial north along
-tracker -y, east along -x: north up and east left on the image), spinning at ``--rate-deg-s``
-(tracker axes; default at rest). No Sun, Moon or Earth in the field. With ``--source screen`` the
-tracker instead looks at the stand's star screen: it is the display node for the state a
-scenario's ``screen = "state"`` tracker sends, and sees the rendered screen through a collimator
-model (``stand.commands.screen_tracker``). Sim time is wall time since
-start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its counters as one JSON line.
-The cage is the Helmholtz cage controller (``drivers.cage.emulator``, register map
-``docs/cage_register_map.md``) on Modbus TCP (``tcp://HOST:PORT``) or Modbus RTU (a serial port),
-running its coils in wall time with the nominal bench configuration.
-Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error (a port another stand or emulator
-holds is refused as in use: serial ports and serial-line CAN adapters are opened exclusively).
-What a flight computer sends that the device cannot decode is counted and dropped, never an error
+Every kind that declares how it is served (``DeviceKind.serving``, :mod:`stand.devices.serving`) can be served,
+the shipped ones and those of the ``adcs_stand.devices`` entry point alike: KIND is the kind's name with ``-`` for
+``_`` (``star-tracker``, ``sun-sensor``, ``reaction-wheel``, ``gyro``, ``magnetorquer``, ``cage``). The kind says
+what ``--port`` is (a serial URL or path, a CAN ``INTERFACE:CHANNEL``, a Modbus endpoint) and which fixed values
+it serves open loop. With ``--scenario`` the device is fed by that scenario's truth instead: the scenario runs
+paced with the device on a ``served`` link and the flight computer outside.
+
+Sim time is wall time since start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its
+counters as one JSON line. Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error (a port
+another stand or emulator holds is refused as in use: serial ports and serial-line CAN adapters are opened
+exclusively). What a flight computer sends that the device cannot decode is counted and dropped, never an error
 (``rejected_*`` in the counters printed at the end).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+import importlib
 import math
-import signal
 import sys
-import threading
 
-import numpy as np
+from stand import devices
 
-from star_screen.attitude import q_SN_from_radec_roll
-
-DEVICES = ("star-tracker", "magnetorquer", "cage")
+COMMON = ("--port", "--duration", "--scenario", "--name", "--speed", "--out")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "emulate",
-        help="run one device emulator on a port (star-tracker on serial, magnetorquer on CAN, cage on Modbus)",
+        help="run one device emulator on a port (every kind that declares how it is served; "
+             "`stand emulate KIND --help` for its options)",
         description=__doc__.split("\n\n")[0],
     )
-    p.add_argument("device", help="device to emulate: " + ", ".join(DEVICES))
-    p.add_argument("--scenario", default=None,
-                   help="feed the device from this scenario's truth (closed loop: the stand runs the scenario paced "
-                        "with this device served on --port and the flight computer outside); without it the "
-                        "emulator runs open loop")
-    p.add_argument("--name", default=None, help="with --scenario: which device of that kind (default: the first)")
-    p.add_argument("--speed", default=None, help="with --scenario: realtime (default) or a factor")
-    p.add_argument("--out", default=None, help="with --scenario: the run's output directory")
-    p.add_argument("--port", required=True, help="star tracker: a serial URL or path (/dev/ttyUSB0, a pty or socat "
-                   "link, socket://...); magnetorquer: INTERFACE:CHANNEL of python-can (socketcan:can0, virtual:adcs); "
-                   "cage: tcp://127.0.0.1:PORT (Modbus TCP) or a serial port (Modbus RTU)")
-    p.add_argument("--field-nT", default="20000,0,-40000",
-                   help="magnetorquer: the field its magnetometer sees, sensor axes, nT, as X,Y,Z")
-    p.add_argument("--address", type=lambda s: int(s, 0), default=None, help="device address (default 0x21)")
-    p.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
-    p.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
-    p.add_argument("--ra", type=float, default=0.0, help="boresight right ascension, deg (default 0)")
-    p.add_argument("--dec", type=float, default=0.0, help="boresight declination, deg in [-90, 90] (default 0)")
-    p.add_argument("--roll", type=float, default=0.0, help="roll about the boresight, deg (default 0)")
-    p.add_argument("--rate-deg-s", default="0,0,0", help="constant spin in tracker axes, deg/s, as X,Y,Z")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    p.add_argument("--noise-cross-arcsec", type=float, default=None, help="1-sigma noise across the boresight")
-    p.add_argument("--noise-roll-arcsec", type=float, default=None, help="1-sigma noise about the boresight")
-    p.add_argument("--boot-time-s", type=float, default=None, help="boot time, s (default 1)")
-    p.add_argument("--interval-s", type=float, default=None, help="time between exposures, s (default 0.2)")
-    p.add_argument("--delay-s", type=float, default=None, help="output delay after mid-exposure, s (default 0.1)")
-    scr = p.add_argument_group("star tracker looking at the star screen (--source screen)")
-    scr.add_argument("--source", choices=("spin", "screen"), default="spin",
-                     help="star tracker: spin (built-in attitude, truth plus noise; default) or screen (display "
-                          "node for the stand's screen state, collimator, camera, image solver)")
-    scr.add_argument("--screen-bind", default="127.0.0.1:5600",
-                     help="HOST:PORT the display node listens on for the stand's state (default 127.0.0.1:5600)")
-    scr.add_argument("--pre-distortion", choices=("on", "off"), default="on",
-                     help="render for the ChArUco-calibrated bench (on, default) or the nominal one (off)")
-    scr.add_argument("--collimator-k1", type=float, default=0.0,
-                     help="radial distortion k1 of the physical collimator (OpenCV model; default 0)")
-    scr.add_argument("--collimator-shift-px", default="0,0",
-                     help="physical collimator axis off the nominal one, screen px, as DX,DY (default 0,0)")
-    scr.add_argument("--panel-latency-s", type=float, default=0.016,
-                     help="from a rendered frame to its light on the panel, s (default 0.016: one 60 Hz frame)")
-    scr.add_argument("--defocus-sigma-px", type=float, default=0.8,
-                     help="tracker defocus blur, detector px (default 0.8)")
-    scr.add_argument("--read-noise-e", type=float, default=10.0, help="camera read noise, e- rms (default 10)")
-    scr.add_argument("--background-e", type=float, default=20.0, help="camera background, e- per pixel (default 20)")
+    p.add_argument("device", help="device kind to emulate, e.g. star-tracker, gyro, sun-sensor, reaction-wheel, "
+                                  "magnetorquer, cage")
+    p.add_argument("options", nargs=argparse.REMAINDER,
+                   help="--port PORT and the kind's options (`stand emulate KIND --help` lists them)")
     p.set_defaults(func=run)
     return p
 
@@ -104,173 +51,73 @@ def _fail(msg: str) -> int:
     return 2
 
 
-class SpinSource:
-    """Built-in measurement source: ``q_TN(t) = q0 (x) exp(omega t / 2)``, no bright body in view."""
-
-    def __init__(self, q0: np.ndarray, omega_rad_s: np.ndarray) -> None:
-        self.q0 = np.asarray(q0, dtype=float)
-        self.omega = np.asarray(omega_rad_s, dtype=float)
-        self.rate = float(np.linalg.norm(self.omega))
-
-    def __call__(self, t_s: float):
-        from drivers.star_tracker.emulator import TrackerTruth
-        from sim.rotations import hamilton
-
-        if self.rate > 0:
-            angle = self.rate * t_s
-            axis = self.omega / self.rate
-            dq = np.concatenate([[math.cos(angle / 2)], math.sin(angle / 2) * axis])
-            q = hamilton(self.q0, dq)
-        else:
-            q = self.q0
-        return TrackerTruth(q_TN=tuple(float(x) for x in q), omega_TN_T=tuple(float(x) for x in self.omega))
-
-
-#: After a SIGTERM the emulator has this long to stop cleanly; then SIGALRM's default action ends the process
-#: (a write to an output nobody drains, or a server thread that does not stop, cannot keep it alive).
-SIGTERM_GRACE_S = 10
-
-
-def _stop_on_sigterm():
-    """SIGTERM stops like Ctrl-C, and for sure within ``SIGTERM_GRACE_S``; returns the previous handler (None off
-    the main thread)."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-
-    def _term(signum, frame):
-        signal.signal(signal.SIGALRM, signal.SIG_DFL)
-        signal.alarm(SIGTERM_GRACE_S)
-        raise KeyboardInterrupt
-
-    return signal.signal(signal.SIGTERM, _term)
-
-
-def serve_until_stopped(emu, duration_s: float | None, start=None) -> int:
-    """Run an emulator's own loop until ``duration_s``, Ctrl-C or SIGTERM; a device error (the port lost) is
-    printed and gives exit status 1. ``start`` runs first, inside the same handling (e.g. setting time zero)."""
-    from drivers.errors import DriverError
-
-    old = _stop_on_sigterm()
-    try:
-        if start is not None:
-            start()
-        emu.run(duration_s)
-    except KeyboardInterrupt:
-        pass
-    except DriverError as exc:
-        print(f"stand emulate: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        if old is not None:
-            signal.signal(signal.SIGTERM, old)
-    return 0
-
-
-def run_magnetorquer(args) -> int:
-    """The CAN magnetorquer board (with its magnetometer) on a python-can bus, in wall time."""
-    import time
-
-    from drivers.can_bus import ServedBus, open_device_bus
-    from drivers.errors import DriverError
-    from drivers.magnetorquer.codec import MagnetorquerCodec
-    from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
-
-    interface, _, channel = args.port.partition(":")
-    if not interface or not channel:
-        return _fail(f"--port {args.port!r} is not allowed for the magnetorquer; give INTERFACE:CHANNEL, "
-                     "e.g. socketcan:can0 or virtual:adcs.")
-    try:
-        field_T = tuple(float(x) * 1e-9 for x in args.field_nT.split(","))
-        if len(field_T) != 3 or not all(math.isfinite(x) for x in field_T):
-            raise ValueError
-    except ValueError:
-        return _fail(f"--field-nT {args.field_nT!r} is not allowed; give three numbers X,Y,Z in nT.")
-    try:
-        # A serial-line adapter is held exclusively (a second emulator on it is refused: exit 2); what the flight
-        # computer sends that the board cannot decode is counted and dropped, never raised (ServedBus).
-        bus = ServedBus(open_device_bus(interface, channel), own_ids=MagnetorquerCodec().board_tx_ids)
-    except DriverError as exc:
-        return _fail(str(exc))
-    old = _stop_on_sigterm()
-    emu = MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed, owns_bus=True)
-    status = 0
-    with emu:
-        print(f"stand emulate: magnetorquer board on CAN {interface}:{channel}"
-              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
-        t0 = time.monotonic()
+def servable() -> dict[str, str]:
+    """``stand emulate`` names -> kind names, for every kind that declares how it is served."""
+    out = {}
+    for name in devices.kind_names():
         try:
-            while args.duration is None or time.monotonic() - t0 < args.duration:
-                emu.service(time.monotonic() - t0)
-                time.sleep(0.001)
-        except KeyboardInterrupt:
-            pass
-        except DriverError as exc:  # the adapter lost
-            print(f"stand emulate: {exc}", file=sys.stderr)
-            status = 1
-        finally:
-            if old is not None:
-                signal.signal(signal.SIGTERM, old)
-        if bus.conflict:
-            print(f"stand emulate: {bus.conflict}", file=sys.stderr)
-        print(json.dumps({"device": args.device, "port": args.port, "counters": {**emu.counters, **bus.counters},
-                          "rejected_frames": emu.rejected_frames + bus.counters["rejected_undecodable"]}), flush=True)
-    return status
+            kind = devices.get(name)
+        except Exception:  # noqa: BLE001 - a broken plug-in kind is not listed; `stand emulate` of it says why
+            continue
+        if getattr(kind, "serving", None) is not None:
+            out[name.replace("_", "-")] = name
+    return out
 
 
-def run_cage(args) -> int:
-    """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time."""
-    from drivers.cage.emulator import MAX_REQUEST_RATE_HZ, CageEmulator
-    from drivers.cage.host import parse_url
-    from drivers.errors import DriverError
-
-    try:
-        kind, host, port = parse_url(args.port)
-    except ValueError as exc:
-        return _fail(str(exc))
-    emu = CageEmulator(rng=args.seed, max_request_rate_hz=MAX_REQUEST_RATE_HZ)  # serves outside clients: limited
-    old = _stop_on_sigterm()  # from before the banner: a SIGTERM any time after it stops cleanly
-    status = 0
-    try:
-        try:
-            if kind == "tcp":
-                emu.serve_tcp(host, port)
-            else:
-                emu.serve_rtu(host, baudrate=args.baud)
-        except DriverError as exc:
-            emu.close()
-            return _fail(str(exc))
-        with emu:
-            print(f"stand emulate: cage on {emu.where}" + (f" for {args.duration:g} s" if args.duration else
-                                                          " until Ctrl-C") + OPEN_LOOP, flush=True)
-            status = serve_until_stopped(emu, args.duration)
-    except KeyboardInterrupt:
-        emu.close()
-    finally:
-        if old is not None:
-            signal.signal(signal.SIGTERM, old)
-    print(json.dumps({"device": args.device, "port": args.port, "t_s": round(emu.t_s, 3),
-                      "counters": emu.counters}), flush=True)
-    if threading.current_thread() is threading.main_thread():
-        signal.alarm(0)  # stopped cleanly: a caller in the same process (a test) lives on
-    return status
+class UsageError(Exception):
+    pass
 
 
-OPEN_LOOP = "; open loop (no --scenario: a fixed source, not a simulated spacecraft)"
-#: Device names of this command -> device kinds of scenarios, and how --port becomes the link's port fields.
-SERVED_KINDS = {"star-tracker": "star_tracker", "magnetorquer": "magnetorquer"}
+class _KindParser(argparse.ArgumentParser):
+    """A usage error becomes one sentence and exit status 2 through ``_fail`` (the caller may be a test in the
+    same process, not a shell)."""
+
+    def error(self, message):
+        raise UsageError(message)
 
 
-def run_served(args) -> int:
+def kind_parser(command: str, serving) -> argparse.ArgumentParser:
+    """The options of ``stand emulate COMMAND``: the common ones, then the kind's declared ones."""
+    p = _KindParser(prog=f"stand emulate {command}", description=serving.summary)
+    p.add_argument("--port", required=True, help=serving.port_help)
+    p.add_argument("--duration", type=float, default=None, help="stop after S seconds (default: until Ctrl-C)")
+    closed = p.add_argument_group("closed loop (fed by a scenario's truth)")
+    closed.add_argument("--scenario", default=None,
+                        help="the stand runs this scenario paced with this device served on --port and the flight "
+                             "computer outside; without it the emulator runs open loop")
+    closed.add_argument("--name", default=None, help="which device of that kind (default: the first)")
+    closed.add_argument("--speed", default=None, help="realtime (default) or a factor")
+    closed.add_argument("--out", default=None, help="the run's output directory")
+    groups = {}
+    for opt in serving.options:
+        where = p if opt.group is None else groups.setdefault(opt.group, p.add_argument_group(opt.group))
+        kw = {"help": opt.help, "default": opt.default, "type": opt.type}
+        if opt.choices is not None:
+            kw["choices"] = opt.choices
+        where.add_argument(opt.flag, **kw)
+    return p
+
+
+def _resolve(serve):
+    if isinstance(serve, str):  # "module:function", imported on use
+        module, _, attr = serve.partition(":")
+        return getattr(importlib.import_module(module), attr)
+    return serve
+
+
+def run_served(args, kind, serving) -> int:
     """The closed-loop path: the scenario runs paced with this device served on --port (link = "served"), the
     rest of the scenario as it is; the same path as ``stand run`` of a scenario with a served device."""
     from stand import scenario as scenario_mod
     from stand.cli import main as stand_main
     from stand.errors import ScenarioError
 
-    kind = SERVED_KINDS.get(args.device)
-    if kind is None:
-        return _fail(f"--scenario is not available for {args.device!r} yet; closed loop: "
-                     + ", ".join(SERVED_KINDS) + ".")
+    if serving.port_fields is None:
+        return _fail(f"--scenario is not available for {args.device!r}: it serves open loop only.")
+    try:
+        fields = serving.port_fields(args.port, args)
+    except ValueError as exc:
+        return _fail(str(exc))
     try:
         sc = scenario_mod.load(args.scenario)
     except ScenarioError as exc:
@@ -280,15 +127,7 @@ def run_served(args) -> int:
         return _fail(f"--scenario {args.scenario!r} has no {kind} device" + (f" named {args.name!r}" if args.name
                                                                               else "") + ".")
     name = names[0]
-    sets = [f"devices.{name}.link=served"]
-    if kind == "magnetorquer":
-        interface, _, channel = args.port.partition(":")
-        if not interface or not channel:
-            return _fail(f"--port {args.port!r} is not allowed for the magnetorquer; give INTERFACE:CHANNEL, "
-                         "e.g. socketcan:can0 or serial:/dev/ttyUSB0.")
-        sets += [f"devices.{name}.interface={interface}", f"devices.{name}.channel={channel}"]
-    else:
-        sets += [f"devices.{name}.port={args.port}", f"devices.{name}.baudrate={args.baud}"]
+    sets = [f"devices.{name}.link=served"] + [f"devices.{name}.{key}={value}" for key, value in fields.items()]
     print(f"stand emulate: {args.device} {name!r} of scenario {sc.name}, served on {args.port} and fed by the "
           "scenario's truth (closed loop with the flight computer on the other end)", flush=True)
     argv = ["run", args.scenario, "--speed", args.speed or "realtime"]
@@ -301,61 +140,32 @@ def run_served(args) -> int:
     return stand_main(argv)
 
 
+def _unknown_options(command: str, kind: str, unknown: list[str], kinds: dict[str, str]) -> str:
+    """One sentence for options the kind does not take, naming the kinds that do."""
+    flag = next((u.partition("=")[0] for u in unknown if u.startswith("-")), unknown[0])
+    owners = [k.replace("_", " ") for k in kinds.values()
+              if any(o.flag == flag for o in devices.get(k).serving.options)]
+    where = f"; it is for the {' and the '.join(owners)} only" if owners else ""
+    return (f"{flag} is not an option of the {kind.replace('_', ' ')}{where} (`stand emulate {command} --help` "
+            "lists its options).")
+
+
 def run(args) -> int:
-    if args.device not in DEVICES:
-        return _fail(f"device {args.device!r} is not known; available: {', '.join(DEVICES)}.")
-    if args.source != "spin" and args.device != "star-tracker":
-        return _fail(f"--source {args.source} is for the star tracker only.")
-    if args.scenario is not None:
-        if args.source == "screen":
-            return _fail("--source screen does not take --scenario: the tracker looks at the screen of a scenario "
-                         "that `stand run` drives (screen = 'state' in its table), on --screen-bind.")
-        return run_served(args)
-
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        return _fail(f"--duration {args.duration!r} is not allowed; give a positive number of seconds.")
-    if args.device == "magnetorquer":
-        return run_magnetorquer(args)
-    if args.device == "cage":
-        return run_cage(args)
-    if not -90.0 <= args.dec <= 90.0:
-        return _fail(f"--dec {args.dec!r} is not allowed; give a declination from -90 to 90 deg.")
+    kinds = servable()
+    kind = kinds.get(args.device)
+    if kind is None:
+        return _fail(f"device {args.device!r} is not known; available: {', '.join(kinds)}.")
+    serving = devices.get(kind).serving
+    parser = kind_parser(args.device, serving)
     try:
-        rate = np.array([float(x) for x in args.rate_deg_s.split(",")])
-        if rate.shape != (3,) or not np.all(np.isfinite(rate)):
-            raise ValueError
-    except ValueError:
-        return _fail(f"--rate-deg-s {args.rate_deg_s!r} is not allowed; give three numbers X,Y,Z in deg/s.")
-    if args.address is not None and not 0 <= args.address <= 255:
-        return _fail(f"--address {args.address!r} is not allowed; give a number from 0 to 255.")
-
-    if args.source == "screen":
-        from stand.commands.screen_tracker import run_screen
-
-        return run_screen(args, _fail)
-
-    from drivers.errors import DriverError
-    from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator
-
-    overrides = {
-        "noise_cross_arcsec": args.noise_cross_arcsec,
-        "noise_roll_arcsec": args.noise_roll_arcsec,
-        "boot_time_s": args.boot_time_s,
-        "output_interval_s": args.interval_s,
-        "output_delay_s": args.delay_s,
-        "address": args.address,
-    }
-    try:
-        config = EmulatorConfig(**{k: v for k, v in overrides.items() if v is not None})
-        source = SpinSource(q_SN_from_radec_roll(args.ra, args.dec, args.roll), np.radians(rate))
-        emu = StarTrackerEmulator(args.port, source, config, rng=args.seed, baudrate=args.baud)
-    except (ValueError, DriverError) as exc:
-        return _fail(str(exc))
-
-    with emu:
-        print(f"stand emulate: star tracker at address 0x{emu.address:02X} on {args.port}"
-              + (f" for {args.duration:g} s" if args.duration else " until Ctrl-C") + OPEN_LOOP, flush=True)
-        status = serve_until_stopped(emu, args.duration)
-        print(json.dumps({"device": args.device, "port": args.port, "mode": emu.mode, "counters": emu.counters}),
-              flush=True)
-    return status
+        opts, unknown = parser.parse_known_args(args.options)
+        if unknown:
+            return _fail(_unknown_options(args.device, kind, unknown, kinds))
+    except UsageError as exc:
+        return _fail(f"{exc} (`stand emulate {args.device} --help` lists its options).")
+    opts.device = args.device
+    if opts.scenario is not None:
+        return run_served(opts, kind, serving)
+    if opts.duration is not None and not (math.isfinite(opts.duration) and opts.duration > 0):
+        return _fail(f"--duration {opts.duration!r} is not allowed; give a positive number of seconds.")
+    return _resolve(serving.serve)(opts, _fail)

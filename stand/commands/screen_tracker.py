@@ -281,7 +281,7 @@ def run_screen(args, fail) -> int:
     except (ValueError, DriverError) as exc:
         cam.close()
         return fail(str(exc))
-    from stand.commands.emulate import serve_until_stopped
+    from stand.devices.serving import serve_until_stopped
 
     with emu:
         cam.start()

@@ -191,6 +191,8 @@ class DeviceKind:
     #: What a device of this kind stimulates for the others (a Helmholtz cage: "magnetic_field"); stimulators are
     #: built, and step, before the devices that read them.
     provides: tuple[str, ...] = ()
+    #: How ``stand emulate`` serves this kind (:class:`stand.devices.serving.Serving`); None: it cannot be served.
+    serving = None
 
     def parse(self, t: Table, base: DeviceSpec, step_s: float) -> DeviceSpec:
         raise NotImplementedError

@@ -331,3 +331,61 @@ def _plot(tel, name: str, out_dir) -> str:
 
 
 KIND = CageKind()
+
+
+# -- how `stand emulate cage` serves it ----------------------------------------------------------------------------
+
+def _serve(args, fail) -> int:
+    """The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time with the nominal bench
+    configuration (``drivers.cage.emulator``, register map ``docs/cage_register_map.md``)."""
+    import signal
+    import threading
+
+    from drivers.cage.emulator import MAX_REQUEST_RATE_HZ, CageEmulator
+    from drivers.cage.host import parse_url
+    from drivers.errors import DriverError
+    from stand.devices.serving import banner, report, serve_until_stopped, stop_on_sigterm
+
+    try:
+        kind, host, port = parse_url(args.port)
+    except ValueError as exc:
+        return fail(str(exc))
+    emu = CageEmulator(rng=args.seed, max_request_rate_hz=MAX_REQUEST_RATE_HZ)  # serves outside clients: limited
+    old = stop_on_sigterm()  # from before the banner: a SIGTERM any time after it stops cleanly
+    status = 0
+    try:
+        try:
+            if kind == "tcp":
+                emu.serve_tcp(host, port)
+            else:
+                emu.serve_rtu(host, baudrate=args.baud)
+        except DriverError as exc:
+            emu.close()
+            return fail(str(exc))
+        with emu:
+            banner("cage", emu.where, args.duration)
+            status = serve_until_stopped(emu, args.duration)
+    except KeyboardInterrupt:
+        emu.close()
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+    report(args, t_s=round(emu.t_s, 3), counters=emu.counters)
+    if threading.current_thread() is threading.main_thread():
+        signal.alarm(0)  # stopped cleanly: a caller in the same process (a test) lives on
+    return status
+
+
+def _serving():
+    from stand.devices.serving import ServeOption, Serving
+
+    return Serving(
+        summary="The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time (open loop only).",
+        port_help="tcp://127.0.0.1:PORT (Modbus TCP) or a serial port (Modbus RTU)",
+        serve=_serve,
+        options=(ServeOption("--baud", "Modbus RTU baud rate (default 115200)", 115200, int),
+                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
+    )
+
+
+KIND.serving = _serving()

@@ -251,3 +251,37 @@ class ServedGyro(_GyroDevice):
 
 
 KIND = GyroKind()
+
+
+# -- how `stand emulate gyro` serves it ---------------------------------------------------------------------------
+
+def _serve(args, fail) -> int:
+    """The serial gyro in wall time, measuring a fixed rate (open loop)."""
+    from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
+    from stand.devices.serving import numbers, serve_serial
+
+    try:
+        rate_rad_s = tuple(math.radians(x) for x in numbers(args.rate_deg_s, 3, "--rate-deg-s", "deg/s (X,Y,Z)"))
+        config = GyroEmulatorConfig(output_period_s=args.period_s)
+    except ValueError as exc:
+        return fail(str(exc))
+    return serve_serial(args, fail, "gyro", lambda: GyroEmulator(args.port, lambda _t: rate_rad_s, config,
+                                                                 baudrate=args.baud))
+
+
+def _serving():
+    from stand.devices.serving import ServeOption, Serving, serial_port_fields
+
+    return Serving(
+        summary="The gyro on a serial line (datagrams of fixtures/devices/gyro.toml).",
+        port_help="a serial URL or path (/dev/ttyUSB0, a pty or socat link, socket://...)",
+        serve=_serve,
+        port_fields=serial_port_fields,
+        options=(ServeOption("--baud", "baud rate (default 460800)", 460800, int),
+                 ServeOption("--rate-deg-s", "open loop: the rate it measures, sensor axes, deg/s, as X,Y,Z "
+                                             "(default 0,0,0)", "0,0,0"),
+                 ServeOption("--period-s", "time between RATE datagrams, s (default 0.01)", 0.01, float)),
+    )
+
+
+KIND.serving = _serving()

@@ -312,3 +312,37 @@ class HardwareWheel(_Wheel):
 
 
 KIND = ReactionWheelKind()
+
+
+# -- how `stand emulate reaction-wheel` serves it -----------------------------------------------------------------
+
+def _serve(args, fail) -> int:
+    """One reaction wheel on a python-can bus in wall time, reporting a fixed speed (open loop: no rotor model)."""
+    from drivers.reaction_wheel.codec import ReactionWheelCodec
+    from drivers.reaction_wheel.emulator import ReactionWheelEmulator
+    from stand.devices.serving import serve_can
+
+    if not 0 <= args.wheel <= 15:
+        return fail(f"--wheel {args.wheel!r} is not allowed; give a wheel number from 0 to 15.")
+    if not math.isfinite(args.speed_rad_s):
+        return fail(f"--speed-rad-s {args.speed_rad_s!r} is not allowed; give a finite number of rad/s.")
+    speed = args.speed_rad_s
+    return serve_can(args, fail, f"reaction wheel {args.wheel}", ReactionWheelCodec(args.wheel).wheel_tx_ids,
+                     lambda bus: ReactionWheelEmulator(bus, lambda _t: speed, wheel=args.wheel, owns_bus=True))
+
+
+def _serving():
+    from stand.devices.serving import ServeOption, Serving, can_port_fields
+
+    return Serving(
+        summary="One reaction wheel (node 0x20 + wheel number) on a CAN bus.",
+        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
+        serve=_serve,
+        port_fields=can_port_fields("reaction wheel"),
+        options=(ServeOption("--wheel", "wheel number, 0 to 15 (default 0)", 0, int),
+                 ServeOption("--speed-rad-s", "open loop: the rotor speed it reports, rad/s (default 0)", 0.0,
+                             float)),
+    )
+
+
+KIND.serving = _serving()

@@ -328,3 +328,45 @@ class ModelSunSensor(_SunSensorDevice):
 
 
 KIND = SunSensorKind()
+
+
+# -- how `stand emulate sun-sensor` serves it ---------------------------------------------------------------------
+
+def _serve(args, fail) -> int:
+    """A fine or coarse sun sensor in wall time, seeing a fixed Sun (open loop)."""
+    from drivers.sun_sensor.emulator import SunEmulatorConfig, SunSensorEmulator
+    from stand.devices.serving import numbers, serve_serial
+
+    try:
+        if args.type == "fine":
+            values = tuple(math.radians(x) for x in numbers(args.angles_deg, 2, "--angles-deg", "deg (ALPHA,BETA)"))
+        else:
+            values = tuple(x * 1e-3 for x in numbers(args.currents_mA, 6, "--currents-mA", "mA (six heads)"))
+        config = SunEmulatorConfig(kind=args.type, output_period_s=args.period_s)
+    except ValueError as exc:
+        return fail(str(exc))
+    return serve_serial(args, fail, f"{args.type} sun sensor",
+                        lambda: SunSensorEmulator(args.port, lambda _t: (values, True), config, baudrate=args.baud))
+
+
+def _serving():
+    from stand.devices.serving import ServeOption, Serving, serial_port_fields
+
+    return Serving(
+        summary="A fine or coarse sun sensor on a serial line (datagrams of fixtures/devices/sun_sensor.toml).",
+        port_help="a serial URL or path (/dev/ttyUSB0, a pty or socat link, socket://...)",
+        serve=_serve,
+        port_fields=serial_port_fields,
+        options=(ServeOption("--baud", "baud rate (default 115200)", 115200, int),
+                 ServeOption("--type", "fine (two angles, default) or coarse (six head currents)", "fine", str,
+                             ("fine", "coarse")),
+                 ServeOption("--angles-deg", "open loop, fine: the Sun's angles alpha,beta, deg (default 0,0)",
+                             "0,0"),
+                 ServeOption("--currents-mA", "open loop, coarse: the six head currents, mA (default 0,...)",
+                             "0,0,0,0,0,0"),
+                 ServeOption("--period-s", "time between samples sent unasked, s; 0: only on request "
+                                           "(default 0.1)", 0.1, float)),
+    )
+
+
+KIND.serving = _serving()

@@ -118,8 +118,9 @@ def test_two_processes_over_a_socat_pty_pair_and_sigterm_stops_the_emulator(tmp_
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["emulate", "reaction-wheel", "--port", "loop://"],
-         "device 'reaction-wheel' is not known; available: star-tracker"),
+        (["emulate", "flux-capacitor", "--port", "loop://"],
+         "device 'flux-capacitor' is not known; available: magnetorquer, star-tracker, sun-sensor, cage, gyro, "
+         "reaction-wheel"),
         (["emulate", "star-tracker", "--port", "loop://", "--duration", "-1"], "--duration -1.0 is not allowed"),
         (["emulate", "star-tracker", "--port", "loop://", "--dec", "95"], "--dec 95.0 is not allowed"),
         (["emulate", "star-tracker", "--port", "loop://", "--rate-deg-s", "1,2"], "--rate-deg-s '1,2' is not allowed"),
