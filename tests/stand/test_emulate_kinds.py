@@ -172,3 +172,41 @@ def test_a_kind_of_an_installed_package_is_served_through_its_own_declaration(mo
     assert "--level -1 is not allowed" in capsys.readouterr().err
     assert main(["emulate", "probe-sensor", "--port", "x", "--scenario", "detumble"]) == 2  # no port_fields
     assert "--scenario is not available for 'probe-sensor'" in capsys.readouterr().err
+
+
+def test_gyro_closed_loop_serves_the_scenarios_true_rate_with_scenario_and_name(pty_pair, tmp_path):
+    import numpy as np
+
+    from drivers.gyro.host import GyroHost
+    from stand import telemetry
+    from tests.stand.conftest import to_toml
+    from tests.stand.processes import run_stand_polling
+    from tests.stand.test_gyro_wheel_links import RATE_LSB_RAD_S, small_scenario
+
+    stand_end, fc_end = pty_pair
+    gyros = [{"name": name, "kind": "gyro", "output_rate_hz": 10.0, "ideal": True} for name in ("imu0", "imu1")]
+    path = tmp_path / "gyros.toml"
+    path.write_text(to_toml(small_scenario(gyros, 20.0)))
+    out = tmp_path / "out"
+    samples = []
+    with GyroHost(fc_end, name="fc gyro") as host:
+
+        def take():
+            s = host.take_rate()
+            if s is not None:
+                samples.append(s)
+
+        code, log = run_stand_polling(["emulate", "gyro", "--port", stand_end, "--scenario", str(path), "--name",
+                                       "imu1", "--speed", "4", "--duration", "5", "--out", str(out)], tmp_path, take)
+    assert code == 0, log
+    assert "gyro 'imu1' of scenario links, served on" in log
+    summary = json.loads((out / "summary.json").read_text())["device_counters"]
+    # imu1 served to the host outside (no host of the stand's own), imu0 emulated as the scenario has it
+    assert summary["imu1"]["emulator_counters"]["sent"] >= 40 and "host_counters" not in summary["imu1"]
+    assert summary["imu0"]["host_counters"]["frames_received"] >= 40
+    tel = telemetry.load(out)
+    rows = {round(t * 1e6): k for k, t in enumerate(tel["t_s"])}
+    matched = [(s, rows[s.time_us]) for s in samples if s.time_us in rows]
+    assert len(matched) >= 20
+    for s, k in matched:  # the true body rate of its tick, to within half an LSB (ideal gyro, sensor = body axes)
+        assert np.max(np.abs(np.array(s.omega_rad_s) - tel["omega_BN_B"][k])) <= 0.5 * RATE_LSB_RAD_S * (1 + 1e-9)
