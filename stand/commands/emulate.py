@@ -151,11 +151,17 @@ def _unknown_options(command: str, kind: str, unknown: list[str], kinds: dict[st
 
 
 def run(args) -> int:
+    kind = args.device.replace("-", "_")
+    serving = None
+    if kind in devices.kind_names():
+        try:
+            serving = getattr(devices.get(kind), "serving", None)
+        except Exception as exc:  # noqa: BLE001 - an installed kind that does not import: say so, in one sentence
+            return _fail(f"device kind {kind!r} cannot be loaded: {type(exc).__name__}: {exc}.")
     kinds = servable()
-    kind = kinds.get(args.device)
-    if kind is None:
-        return _fail(f"device {args.device!r} is not known; available: {', '.join(kinds)}.")
-    serving = devices.get(kind).serving
+    if serving is None:
+        why = "declares no way to be served" if kind in devices.kind_names() else "is not known"
+        return _fail(f"device {args.device!r} {why}; available: {', '.join(kinds)}.")
     parser = kind_parser(args.device, serving)
     try:
         opts, unknown = parser.parse_known_args(args.options)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
+from stand.devices.serving import ServeOption, Serving, banner, report, serve_until_stopped, stop_on_sigterm
 
 NT = 1e-9
 #: The following error is scored after the cage has come up from zero to the first field (its supplies slew).
@@ -344,7 +345,6 @@ def _serve(args, fail) -> int:
     from drivers.cage.emulator import MAX_REQUEST_RATE_HZ, CageEmulator
     from drivers.cage.host import parse_url
     from drivers.errors import DriverError
-    from stand.devices.serving import banner, report, serve_until_stopped, stop_on_sigterm
 
     try:
         kind, host, port = parse_url(args.port)
@@ -377,8 +377,6 @@ def _serve(args, fail) -> int:
 
 
 def _serving():
-    from stand.devices.serving import ServeOption, Serving
-
     return Serving(
         summary="The Helmholtz cage controller on Modbus TCP or RTU, its coils running in wall time (open loop only).",
         port_help="tcp://127.0.0.1:PORT (Modbus TCP) or a serial port (Modbus RTU)",

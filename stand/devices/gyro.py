@@ -33,6 +33,7 @@ from stand.devices import (
     check_serial_url,
     settle_serial,
 )
+from stand.devices.serving import ServeOption, Serving, numbers, serial_port_fields, serve_serial
 
 DEG = math.pi / 180.0
 #: deg/sqrt(h) -> rad/sqrt(s); deg/h -> rad/s; deg/h/sqrt(h) -> rad/s/sqrt(s).
@@ -258,7 +259,6 @@ KIND = GyroKind()
 def _serve(args, fail) -> int:
     """The serial gyro in wall time, measuring a fixed rate (open loop)."""
     from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
-    from stand.devices.serving import numbers, serve_serial
 
     try:
         rate_rad_s = tuple(math.radians(x) for x in numbers(args.rate_deg_s, 3, "--rate-deg-s", "deg/s (X,Y,Z)"))
@@ -270,8 +270,6 @@ def _serve(args, fail) -> int:
 
 
 def _serving():
-    from stand.devices.serving import ServeOption, Serving, serial_port_fields
-
     return Serving(
         summary="The gyro on a serial line (datagrams of fixtures/devices/gyro.toml).",
         port_help="a serial URL or path (/dev/ttyUSB0, a pty or socat link, socket://...)",

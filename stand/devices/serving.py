@@ -139,14 +139,22 @@ def serve_serial(args, fail, what: str, make: Callable[[], Any]) -> int:
     JSON line at the end. A port that cannot be opened, or that another process holds, is a usage error."""
     from drivers.errors import DriverError
 
+    old = stop_on_sigterm()  # from before the banner: a SIGTERM any time after it stops cleanly
+    status = 0
     try:
-        emu = make()
-    except (ValueError, DriverError) as exc:
-        return fail(str(exc))
-    with emu:
-        banner(what, args.port, args.duration)
-        status = serve_until_stopped(emu, args.duration)
-        report(args, counters=emu.counters)
+        try:
+            emu = make()
+        except (ValueError, DriverError) as exc:
+            return fail(str(exc))
+        with emu:
+            banner(what, args.port, args.duration)
+            status = serve_until_stopped(emu, args.duration)
+            report(args, counters=emu.counters)
+    except KeyboardInterrupt:  # stopped while the port was being opened: nothing served, nothing to report
+        pass
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
     return status
 
 

@@ -48,6 +48,7 @@ from stand.devices import (
     check_serial_url,
     settle_serial,
 )
+from stand.devices.serving import ServeOption, Serving, numbers, serial_port_fields, serve_serial
 
 #: Coarse heads on the six body faces (+x, -x, +y, -y, +z, -z), rotated by the mount.
 HEAD_LABELS = ["+x face", "-x face", "+y face", "-y face", "+z face", "-z face"]
@@ -335,7 +336,6 @@ KIND = SunSensorKind()
 def _serve(args, fail) -> int:
     """A fine or coarse sun sensor in wall time, seeing a fixed Sun (open loop)."""
     from drivers.sun_sensor.emulator import SunEmulatorConfig, SunSensorEmulator
-    from stand.devices.serving import numbers, serve_serial
 
     try:
         if args.type == "fine":
@@ -350,8 +350,6 @@ def _serve(args, fail) -> int:
 
 
 def _serving():
-    from stand.devices.serving import ServeOption, Serving, serial_port_fields
-
     return Serving(
         summary="A fine or coarse sun sensor on a serial line (datagrams of fixtures/devices/sun_sensor.toml).",
         port_help="a serial URL or path (/dev/ttyUSB0, a pty or socat link, socket://...)",
