@@ -21,17 +21,25 @@ No clock is read outside :meth:`DatagramEmulator.run` and the host's monotonic d
 
 from __future__ import annotations
 
-import binascii
 import math
 import struct
 import time
-import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+from drivers.framing import crc16
+from drivers.icd_codec import (
+    DEVICE_TO_HOST,
+    HOST_TO_DEVICE,
+    FieldSpec,
+    MessageSpec,
+    field_specs,
+    load_icd,
+    wire_value,
+)
 from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
 
 __all__ = [
@@ -49,15 +57,6 @@ __all__ = [
     "take_datagram",
 ]
 
-HOST_TO_DEVICE = "host->device"
-DEVICE_TO_HOST = "device->host"
-
-
-def crc16(data: bytes | bytearray | memoryview) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
-    return binascii.crc_hqx(data, 0xFFFF)
-
-
 class DatagramRejected(ProtocolError):
     """A datagram cannot be accepted; ``kind`` says why (``short``, ``crc``, ``unknown_id``,
     ``direction``, ``length``, ``value``)."""
@@ -65,65 +64,6 @@ class DatagramRejected(ProtocolError):
     def __init__(self, kind: str, reason: str, **kw: Any) -> None:
         super().__init__(reason, **kw)
         self.kind = kind
-
-
-#: Wire type -> (struct code or None for 24-bit, size, min, max).
-_TYPES: dict[str, tuple[str | None, int, float, float]] = {
-    "u8": ("B", 1, 0, 0xFF),
-    "i8": ("b", 1, -0x80, 0x7F),
-    "u16": ("H", 2, 0, 0xFFFF),
-    "i16": ("h", 2, -0x8000, 0x7FFF),
-    "i24": (None, 3, -0x80_0000, 0x7F_FFFF),
-    "u32": ("I", 4, 0, 0xFFFF_FFFF),
-    "i32": ("i", 4, -0x8000_0000, 0x7FFF_FFFF),
-    "u64": ("Q", 8, 0, 0xFFFF_FFFF_FFFF_FFFF),
-    "f32": ("f", 4, -3.4028234663852886e38, 3.4028234663852886e38),
-}
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    name: str
-    type: str
-    attr: str
-    index: int | None
-    scale: float
-    lo: float
-    hi: float
-    enum: tuple[str, ...] | None
-    bits: tuple[str, ...] | None
-    unit: str
-    doc: str
-
-    @property
-    def is_float(self) -> bool:
-        return self.type == "f32"
-
-    @property
-    def size(self) -> int:
-        return _TYPES[self.type][1]
-
-
-@dataclass(frozen=True)
-class MessageSpec:
-    id: int
-    name: str
-    direction: str
-    doc: str
-    fields: tuple[FieldSpec, ...]
-    fmt: str
-    payload_len: int
-    cls: type
-
-    @property
-    def length(self) -> int:
-        """Whole datagram: identifier, payload, CRC."""
-        return self.payload_len + 3
-
-
-def load_icd(path: str | Path) -> dict[str, Any]:
-    with open(path, "rb") as f:
-        return tomllib.load(f)
 
 
 class DatagramCodec:
@@ -182,35 +122,13 @@ class DatagramCodec:
             raise ValueError(f"{where}: direction must be host->device or device->host; got {m['direction']!r}.")
         if not 0 <= int(m["id"]) <= 0xFF:
             raise ValueError(f"{where}: identifier must be 0..255; got {m['id']!r}.")
-        specs = []
-        covered: set[str] = set()
-        for f in m.get("fields", []):
-            if f["type"] not in _TYPES:
-                raise ValueError(f"{where}: field {f['name']} has type {f['type']!r}; allowed: {', '.join(_TYPES)}.")
-            _, _, tlo, thi = _TYPES[f["type"]]
-            enum = tuple(self.enums[f["enum"]]) if "enum" in f else None
-            bits = tuple(f["bits"]) if "bits" in f else None
-            if f["type"] == "f32":
-                lo, hi = float(f.get("min", tlo)), float(f.get("max", thi))
-            else:
-                lo, hi = int(f.get("min", tlo)), int(f.get("max", thi))
-                if not tlo <= lo <= hi <= thi:
-                    raise ValueError(f"{where}: field {f['name']} range {lo}..{hi} does not fit {f['type']}.")
-            if enum is not None:
-                hi = len(enum) - 1
-            if bits is not None:
-                hi = (1 << len(bits)) - 1
-                covered.update(bits)
-            else:
-                covered.add(f["attr"])
-            specs.append(FieldSpec(f["name"], f["type"], f.get("attr", ""), f.get("index"), float(f.get("scale", 1.0)),
-                                   lo, hi, enum, bits, f.get("unit", ""), f.get("doc", "")))
+        specs, covered = field_specs(m, self.enums, where)
         attrs = {x.name for x in fields(cls)}
         if covered != attrs:
             raise ValueError(f"{where} maps fields to {sorted(covered)}, but {cls.__name__} has {sorted(attrs)}.")
-        fmt = self._prefix + "".join(_TYPES[s.type][0] or "3s" for s in specs)
+        fmt = self._prefix + "".join(s.struct_code for s in specs)
         return MessageSpec(int(m["id"]), name, m["direction"], m.get("doc", ""), tuple(specs), fmt,
-                           struct.calcsize(fmt), cls)
+                           struct.calcsize(fmt), cls, overhead=3)
 
     # -- encode ---------------------------------------------------------------------------------
 
@@ -224,61 +142,10 @@ class DatagramCodec:
     def encode(self, msg: Any) -> bytes:
         """The whole datagram of ``msg``: identifier, payload, CRC."""
         spec = self.spec_of(msg)
-        values = [self._wire_value(spec, f, msg) for f in spec.fields]
+        order = self.byte_order
+        values = [wire_value(f, msg, f"{self.device} {spec.name}.{f.name}", order) for f in spec.fields]
         head = bytes((spec.id,)) + self._struct[spec.id].pack(*values)
         return head + crc16(head).to_bytes(2, self.byte_order)
-
-    def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Any) -> Any:
-        if f.bits is not None:
-            v = 0
-            for i, bit in enumerate(f.bits):
-                if getattr(msg, bit):
-                    v |= 1 << i
-            return v
-        value = getattr(msg, f.attr)
-        if f.index is not None:
-            try:
-                value = value[f.index]
-            except (TypeError, IndexError):
-                raise EncodeError(f"{self._where(spec, f)}: {f.attr} must be a sequence with an element {f.index}; "
-                                  f"got {value!r}.") from None
-        if f.enum is not None:
-            if isinstance(value, str) and value.upper() in f.enum:
-                return f.enum.index(value.upper())
-            if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
-                return value
-            allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
-            raise EncodeError(f"{self._where(spec, f)} = {value!r} is not allowed; allowed: {allowed}.")
-        t = type(value)
-        if t is not int and t is not float:
-            try:
-                value = float(value) if not isinstance(value, int) or isinstance(value, bool) else int(value)
-            except (TypeError, ValueError):
-                raise EncodeError(f"{self._where(spec, f)} = {value!r} is not a number.") from None
-        wire = value / f.scale if f.scale != 1.0 else value
-        if f.is_float:
-            if not (math.isfinite(wire) and f.lo <= wire <= f.hi):
-                raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
-                                  f"allowed a finite number from {f.lo:g} to {f.hi:g}.")
-            return float(wire)
-        if not math.isfinite(wire):
-            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is not finite; allowed: "
-                              f"{f.lo} to {f.hi} {f.unit}.".rstrip())
-        n = round(wire)
-        if not f.lo <= n <= f.hi:
-            extra = f"; in SI {f.lo * f.scale:.6g} to {f.hi * f.scale:.6g}" if f.scale != 1.0 else ""
-            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
-                              f"allowed {f.lo} to {f.hi} ({f.type}{extra}).")
-        if f.type == "i24":
-            return n.to_bytes(3, self.byte_order, signed=True)
-        return n
-
-    def _where(self, spec: MessageSpec, f: FieldSpec) -> str:
-        return f"{self.device} {spec.name}.{f.name}"
-
-    @staticmethod
-    def _si(f: FieldSpec, value: Any) -> str:
-        return f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
 
     # -- decode ---------------------------------------------------------------------------------
 

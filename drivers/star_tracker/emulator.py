@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DriverError, EncodeError
+from drivers.framing import SlipDecoder
 from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
     HOST_TO_DEVICE,
@@ -80,7 +81,6 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
-from drivers.star_tracker.slip import SlipDecoder
 
 __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
 

@@ -37,6 +37,7 @@ import time
 from typing import Any
 
 from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError
+from drivers.framing import SlipDecoder
 from drivers.serial_port import SerialEndpoint, open_port, port_name
 from drivers.star_tracker.codec import (
     DEVICE_TO_HOST,
@@ -55,7 +56,6 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
-from drivers.star_tracker.slip import SlipDecoder
 
 __all__ = ["StarTrackerHost"]
 

@@ -1,0 +1,213 @@
+"""The codec layer shared by the serial devices: field and message specifications read from a TOML
+ICD, and the encoding of one field's SI value to its wire value.
+
+No port, no clock, no framing. The datagram devices (:mod:`drivers.datagram`: the gyro, the sun
+sensor) and the star tracker (:mod:`drivers.star_tracker.codec`) build their messages from these
+pieces, so one field type table, one range check and one error sentence serve every serial ICD.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivers.errors import EncodeError
+
+__all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "load_icd",
+           "wire_value"]
+
+HOST_TO_DEVICE = "host->device"
+DEVICE_TO_HOST = "device->host"
+
+#: Wire type -> (struct code or None for 24-bit, size, min, max).
+TYPES: dict[str, tuple[str | None, int, float, float]] = {
+    "u8": ("B", 1, 0, 0xFF),
+    "i8": ("b", 1, -0x80, 0x7F),
+    "u16": ("H", 2, 0, 0xFFFF),
+    "i16": ("h", 2, -0x8000, 0x7FFF),
+    "i24": (None, 3, -0x80_0000, 0x7F_FFFF),
+    "u32": ("I", 4, 0, 0xFFFF_FFFF),
+    "i32": ("i", 4, -0x8000_0000, 0x7FFF_FFFF),
+    "u64": ("Q", 8, 0, 0xFFFF_FFFF_FFFF_FFFF),
+    "f32": ("f", 4, -3.4028234663852886e38, 3.4028234663852886e38),
+}
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    name: str
+    type: str
+    attr: str
+    index: int | None
+    scale: float
+    lo: float
+    hi: float
+    enum: tuple[str, ...] | None
+    bits: tuple[str, ...] | None
+    unit: str
+    doc: str
+
+    @property
+    def is_float(self) -> bool:
+        return self.type == "f32"
+
+    @property
+    def size(self) -> int:
+        return TYPES[self.type][1]
+
+    @property
+    def struct_code(self) -> str:
+        """The field's ``struct`` code (a 24-bit field travels as 3 raw bytes)."""
+        return TYPES[self.type][0] or "3s"
+
+
+@dataclass(frozen=True)
+class MessageSpec:
+    id: int
+    name: str
+    direction: str
+    doc: str
+    fields: tuple[FieldSpec, ...]
+    fmt: str
+    payload_len: int
+    cls: type
+    #: Bytes of the whole frame around the payload (identifier, address, CRC), before any escaping.
+    overhead: int = 0
+    #: A telemetry message a host may request or subscribe to (the star tracker's ICD says which).
+    telemetry: bool = False
+    #: ``(attr, tolerance)`` of tuple attributes that must have unit norm (the ICD's ``unit_norm``).
+    norms: tuple[tuple[str, float], ...] = ()
+
+    @property
+    def length(self) -> int:
+        """The whole frame: payload and overhead, before any escaping."""
+        return self.payload_len + self.overhead
+
+
+def load_icd(path: str | Path) -> dict[str, Any]:
+    """The ICD TOML as a dict."""
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+def field_specs(m: dict[str, Any], enums: dict[str, tuple[str, ...]], where: str) -> tuple[list[FieldSpec], set[str]]:
+    """The fields of the ICD message ``m`` and the dataclass attributes they cover; ValueError (naming
+    ``where``, the field and what is allowed) for a type or a range the wire cannot carry."""
+    specs = []
+    covered: set[str] = set()
+    for f in m.get("fields", []):
+        if f["type"] not in TYPES:
+            raise ValueError(f"{where}: field {f['name']} has type {f['type']!r}; allowed: {', '.join(TYPES)}.")
+        _, _, tlo, thi = TYPES[f["type"]]
+        enum = tuple(enums[f["enum"]]) if "enum" in f else None
+        bits = tuple(f["bits"]) if "bits" in f else None
+        if f["type"] == "f32":
+            lo, hi = float(f.get("min", tlo)), float(f.get("max", thi))
+        else:
+            lo, hi = int(f.get("min", tlo)), int(f.get("max", thi))
+            if not tlo <= lo <= hi <= thi:
+                raise ValueError(f"{where}: field {f['name']} range {lo}..{hi} does not fit {f['type']}.")
+        if enum is not None:
+            hi = len(enum) - 1
+        if bits is not None:
+            hi = (1 << len(bits)) - 1
+            covered.update(bits)
+        else:
+            covered.add(f["attr"])
+        specs.append(FieldSpec(f["name"], f["type"], f.get("attr", ""), f.get("index"), float(f.get("scale", 1.0)),
+                               lo, hi, enum, bits, f.get("unit", ""), f.get("doc", "")))
+    return specs, covered
+
+
+# -- encoding one field ---------------------------------------------------------------------------
+
+
+def wire_value(f: FieldSpec, msg: Any, where: str, byte_order: str = "little") -> Any:
+    """The wire value of field ``f`` of ``msg`` (an int, a float, or 3 bytes for i24); EncodeError naming
+    ``where`` (the device, message and field), the value and what is allowed."""
+    if f.bits is not None:
+        return _flags(f, msg, where)
+    value = getattr(msg, f.attr)
+    if f.index is not None:
+        value = _element(f, value, where)
+    if f.enum is not None:
+        return _enum_index(f, value, where)
+    wire = _number(value, where)
+    if f.scale != 1.0:
+        wire = wire / f.scale
+    if f.is_float:
+        return _float_wire(f, wire, value, where)
+    n = _int_wire(f, wire, value, where)
+    if f.type == "i24":
+        return n.to_bytes(3, byte_order, signed=True)
+    return n
+
+
+def _flags(f: FieldSpec, msg: Any, where: str) -> int:
+    v = 0
+    for i, bit in enumerate(f.bits or ()):
+        flag = getattr(msg, bit)
+        if not isinstance(flag, bool | int) and type(flag).__name__ != "bool_":
+            raise EncodeError(f"{where}: {bit} = {flag!r} is not a flag; allowed: True or False.")
+        if flag:
+            v |= 1 << i
+    return v
+
+
+def _element(f: FieldSpec, value: Any, where: str) -> Any:
+    try:
+        return value[f.index]
+    except (TypeError, IndexError):
+        raise EncodeError(f"{where}: {f.attr} must be a sequence with an element {f.index}; got {value!r}.") from None
+
+
+def _enum_index(f: FieldSpec, value: Any, where: str) -> int:
+    table = f.enum or ()
+    if isinstance(value, str) and value.upper() in table:
+        return table.index(value.upper())
+    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(table):
+        return value
+    allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(table))
+    raise EncodeError(f"{where} = {value!r} is not allowed; allowed: {allowed}.")
+
+
+def _number(value: Any, where: str) -> int | float:
+    t = type(value)
+    if t is int or t is float:
+        return value
+    if isinstance(value, int) and not isinstance(value, bool):
+        return int(value)
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise EncodeError(f"{where} = {value!r} is not a number.") from None
+
+
+def _si(f: FieldSpec, value: Any) -> str:
+    return f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
+
+
+def _float_wire(f: FieldSpec, wire: int | float, value: Any, where: str) -> float:
+    try:
+        x = float(wire)
+    except OverflowError:  # an int too large for a float is outside any f32 field
+        x = math.inf
+    if not (math.isfinite(x) and f.lo <= x <= f.hi):
+        raise EncodeError(f"{where} = {wire!r}{_si(f, value)} is outside the field: allowed a finite number from "
+                          f"{f.lo:g} to {f.hi:g}.")
+    return x
+
+
+def _int_wire(f: FieldSpec, wire: int | float, value: Any, where: str) -> int:
+    if isinstance(wire, float) and not math.isfinite(wire):
+        raise EncodeError(f"{where} = {wire!r}{_si(f, value)} is not finite; allowed: {f.lo} to {f.hi} "
+                          f"{f.unit}.".replace(" .", "."))
+    n = round(wire)
+    if not f.lo <= n <= f.hi:
+        extra = f"; in SI {f.lo * f.scale:.6g} to {f.hi * f.scale:.6g}" if f.scale != 1.0 else ""
+        raise EncodeError(f"{where} = {wire!r}{_si(f, value)} is outside the field: allowed {f.lo} to {f.hi} "
+                          f"({f.type}{extra}).")
+    return n
