@@ -29,7 +29,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+from drivers.errors import DeviceTimeoutError, DriverError, EncodeError, ProtocolError
 from drivers.framing import crc16
 from drivers.icd_codec import (
     DEVICE_TO_HOST,
@@ -40,7 +40,7 @@ from drivers.icd_codec import (
     load_icd,
     wire_value,
 )
-from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
+from drivers.serial_port import SerialHost, SerialServer, is_port_error, open_port, port_name, write_available
 
 __all__ = [
     "DEVICE_TO_HOST",
@@ -322,11 +322,7 @@ class DatagramDecoder:
 # -- endpoints ------------------------------------------------------------------------------------
 
 
-def _is_port_error(exc: BaseException) -> bool:
-    return isinstance(exc, (OSError, ValueError)) or type(exc).__name__.endswith("SerialException")
-
-
-class DatagramHost(SerialEndpoint):
+class DatagramHost(SerialHost):
     """Generic host side of a datagram device: the port (a URL it reopens after a failure, or an
     open object the caller keeps), sending commands, and receiving without ever raising on bad
     traffic. A device's host sets ``_kind`` (its device name) and fills :meth:`_accept_message`.
@@ -367,32 +363,7 @@ class DatagramHost(SerialEndpoint):
     def __repr__(self) -> str:
         return f"{type(self).__name__}({port_name(self.port)!r}, online={self.online}, counters={self.counters})"
 
-    # -- port -----------------------------------------------------------------------------------
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DriverError(f"{self.name}: closed; create a new one.")
-        if self._broken:
-            self._reopen()
-
-    def _reopen(self) -> None:
-        if self._url is None or not self._owns_port:
-            raise DriverError(f"{self.name}: the port {port_name(self.port)} failed and was not opened by the "
-                              "driver, so it cannot be reopened; open it again and create a new driver.")
-        try:
-            self.port.close()
-        except Exception:  # noqa: BLE001 - the port is already broken
-            pass
-        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name)
-        self._broken = False
-        self._decoder.reset()
-        self.counters["reconnects"] += 1
-
-    def _port_failed(self, what: str, exc: BaseException) -> DriverError:
-        self._broken = True
-        self.online = False
-        return ConnectError(f"{self.name}: cannot {what} {port_name(self.port)}: {exc}; the port will be reopened on "
-                            "the next call.", where=port_name(self.port), reason=str(exc))
+    # -- send and receive (the port's reopening is SerialHost's) ---------------------------------
 
     def send(self, msg: Any) -> None:
         """Encode and send one command (EncodeError naming the field before anything is sent)."""
@@ -403,7 +374,7 @@ class DatagramHost(SerialEndpoint):
         try:
             self.port.write(frame)
         except Exception as exc:
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise self._port_failed("write to", exc) from exc
             raise
         self.counters["sent"] += 1
@@ -423,7 +394,7 @@ class DatagramHost(SerialEndpoint):
             else:
                 return 0
         except Exception as exc:
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise self._port_failed("read from", exc) from exc
             raise
         if not data:
@@ -477,7 +448,7 @@ class DatagramHost(SerialEndpoint):
             self._read(block=True)
 
 
-class DatagramEmulator(SerialEndpoint):
+class DatagramEmulator(SerialServer):
     """Generic device side of a datagram device: the port, receiving commands (bad traffic counted,
     never raised), sending, a device clock that SET_TIME sets, and the wall-clock serving loop.
 
@@ -552,7 +523,7 @@ class DatagramEmulator(SerialEndpoint):
             n = port.in_waiting
             data = port.read(n) if n else b""
         except Exception as exc:
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
             raise
         if not data:
@@ -613,44 +584,6 @@ class DatagramEmulator(SerialEndpoint):
             return False
         self._tx_rest = frame[n:]
         return True
-
-    def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
-        raise NotImplementedError
-
-    def next_due_s(self) -> float | None:
-        """Sim time of the next datagram the device will publish unasked, or None."""
-        return None
-
-    def run(self, duration_s: float | None = None, *, stop: Callable[[], bool] | None = None,
-            clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.02) -> None:
-        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
-        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
-        import select
-
-        fileno = getattr(self.port, "fileno", None)
-        try:
-            fd = fileno() if fileno is not None else None
-        except Exception:  # loop:// and socket:// objects without a usable descriptor
-            fd = None
-        t0 = clock()
-        while True:
-            t = clock() - t0
-            if duration_s is not None and t >= duration_s:
-                break
-            if stop is not None and stop():
-                break
-            self.service(t)
-            wait = max_wait_s
-            due = self.next_due_s()
-            now = clock() - t0
-            if due is not None:
-                wait = min(wait, max(due - now, 0.0))
-            if duration_s is not None:
-                wait = min(wait, max(duration_s - now, 0.0))
-            if fd is not None:
-                select.select([fd], [], [], wait)
-            elif wait > 0:
-                time.sleep(min(wait, 0.001))
 
 
 # -- document ---------------------------------------------------------------------------------------

@@ -53,7 +53,6 @@ another device are not bad), and ``last_rejected`` says why the latest one was d
 from __future__ import annotations
 
 import math
-import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -63,7 +62,7 @@ import numpy as np
 
 from drivers.errors import DriverError, EncodeError
 from drivers.framing import SlipDecoder
-from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
+from drivers.serial_port import SerialServer, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
     HOST_TO_DEVICE,
     Ack,
@@ -225,7 +224,7 @@ def _small_rotation(v: Sequence[float]) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * angle), x * s, y * s, z * s)
 
 
-class StarTrackerEmulator(SerialEndpoint):
+class StarTrackerEmulator(SerialServer):
     """The star tracker, emulated on ``port`` (see the module docstring for the behaviour).
 
     Args:
@@ -681,43 +680,16 @@ class StarTrackerEmulator(SerialEndpoint):
             self.counters["sent"] += 1
             self._dev["frames_sent"] += 1
 
-    # -- stand-alone loop -----------------------------------------------------------------------
+    # -- stand-alone loop (SerialServer.run) -----------------------------------------------------
 
-    def run(
-        self,
-        duration_s: float | None = None,
-        *,
-        stop: Callable[[], bool] | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        max_wait_s: float = 0.02,
-    ) -> None:
-        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
-        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
-        import select
+    def next_due_s(self) -> float | None:
+        """Sim time of the next exposure or of the next solution waiting for its output delay, or None."""
+        due = None
+        if self._t_ready is not None:
+            due = self._t_ready + self._k_exposure * self.params["output_interval_s"]
+        if self._pending:
+            due = self._pending[0][0] if due is None else min(due, self._pending[0][0])
+        return due
 
-        fileno = getattr(self.port, "fileno", None)
-        try:
-            fd = fileno() if fileno is not None else None
-        except Exception:  # loop:// and socket:// objects without a usable descriptor
-            fd = None
-        t0 = clock()
-        while True:
-            t = clock() - t0
-            if duration_s is not None and t >= duration_s:
-                break
-            if stop is not None and stop():
-                break
-            self.service(t)
-            wait = max_wait_s
-            if self._t_ready is not None:
-                interval = self.params["output_interval_s"]
-                next_exp = self._t_ready + self._k_exposure * interval
-                wait = min(wait, max(next_exp - (clock() - t0), 0.0))
-            if self._pending:
-                wait = min(wait, max(self._pending[0][0] - (clock() - t0), 0.0))
-            if duration_s is not None:
-                wait = min(wait, max(duration_s - (clock() - t0), 0.0))
-            if fd is not None:
-                select.select([fd], [fd] if self._tx else [], [], wait)
-            elif wait > 0:
-                time.sleep(min(wait, 0.001))
+    def _wants_write(self) -> bool:
+        return bool(self._tx)
