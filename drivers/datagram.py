@@ -30,14 +30,17 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import DeviceTimeoutError, DriverError, EncodeError, ProtocolError
-from drivers.framing import crc16
+from drivers.framing import check_crc16_spec, crc16, crc16_doc
 from drivers.icd_codec import (
     DEVICE_TO_HOST,
     HOST_TO_DEVICE,
     FieldSpec,
     MessageSpec,
+    attr_text,
     field_specs,
+    index_messages,
     load_icd,
+    range_text,
     wire_value,
 )
 from drivers.serial_port import SerialHost, SerialServer, is_port_error, open_port, port_name, write_available
@@ -90,22 +93,11 @@ class DatagramCodec:
         self.byte_order: str = order
         self._prefix = ">" if order == "big" else "<"
         crc = proto["crc"]
-        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
-            raise ValueError(f"{device} ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}.")
+        check_crc16_spec(crc, f"{device} ICD")
         self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd.get("enums", {}).items()}
         self._classes = classes
-        self.messages: dict[str, MessageSpec] = {}
-        self.by_id: dict[int, MessageSpec] = {}
-        for m in icd["messages"]:
-            spec = self._message_spec(m)
-            if spec.id in self.by_id:
-                raise ValueError(f"{device} ICD: identifier 0x{spec.id:02X} is used twice.")
-            self.messages[spec.name] = spec
-            self.by_id[spec.id] = spec
-        if set(self.messages) != set(classes):
-            raise ValueError(
-                f"{device} ICD: messages {sorted(self.messages)} differ from the codec's {sorted(classes)}."
-            )
+        self.messages, self.by_id = index_messages((self._message_spec(m) for m in icd["messages"]), classes,
+                                                   f"{device} ICD", "identifier")
         self._by_cls = {spec.cls: spec for spec in self.messages.values()}
         self.ids_to_host = frozenset(s.id for s in self.messages.values() if s.direction == DEVICE_TO_HOST)
         self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
@@ -380,23 +372,7 @@ class DatagramHost(SerialHost):
         self.counters["sent"] += 1
 
     def _read(self, block: bool) -> int:
-        port = self.port
-        try:
-            n = port.in_waiting
-            if n:
-                data = port.read(n)
-            elif block:
-                data = port.read(1)
-                if data:
-                    more = port.in_waiting
-                    if more:
-                        data += port.read(more)
-            else:
-                return 0
-        except Exception as exc:
-            if is_port_error(exc):
-                raise self._port_failed("read from", exc) from exc
-            raise
+        data = self._read_port(block)
         if not data:
             return 0
         self.counters["bytes_received"] += len(data)
@@ -607,8 +583,7 @@ def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str,
         "- Datagram: `identifier u8 | payload | CRC u16`, one fixed length per identifier; no framing bytes. A "
         "receiver finds datagrams by their identifier and their CRC: when the CRC fails it drops the identifier "
         "byte and looks again from the next byte.",
-        f"- Checksum: {crc['name']} (poly 0x{crc['poly']:04X}, init 0x{crc['init']:04X}, no reflection, "
-        f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.",
+        crc16_doc(crc),
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- A datagram the receiver cannot accept (bad CRC, a field outside its table) is counted and dropped; "
         "nothing is answered to it.",
@@ -627,16 +602,8 @@ def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str,
                 f"| 0 | identifier | u8 | | | | 0x{s.id:02X} | datagram identifier |"]
         offset = 1
         for f in s.fields:
-            if f.enum is not None:
-                rng = ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
-            elif f.bits is not None:
-                rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
-            elif f.is_float:
-                rng = "finite"
-            else:
-                rng = f"{f.lo}..{f.hi}"
-            attr = ", ".join(f.bits) if f.bits is not None else (f.attr if f.index is None else f"{f.attr}[{f.index}]")
-            out.append(f"| {offset} | {f.name} | {f.type} | {f.unit} | {f.scale:.10g} | {attr} | {rng} | {f.doc} |")
+            out.append(f"| {offset} | {f.name} | {f.type} | {f.unit} | {f.scale:.10g} | {attr_text(f)} | "
+                       f"{range_text(f)} | {f.doc} |")
             offset += f.size
         out.append(f"| {offset} | crc | u16 | | | | | CRC-16 of bytes 0..{offset - 1} |")
     if codec.enums:

@@ -146,3 +146,15 @@ class SlipDecoder:
                 frames.append(body)
             del buf[:consumed]
         return frames
+
+
+def check_crc16_spec(crc: dict, what: str) -> None:
+    """ValueError (naming ``what``) unless the ICD's ``crc`` table asks for :func:`crc16`."""
+    if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
+        raise ValueError(f"{what}: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}.")
+
+
+def crc16_doc(crc: dict) -> str:
+    """The ICD document's checksum line."""
+    return (f"- Checksum: {crc['name']} (poly 0x{crc['poly']:04X}, init 0x{crc['init']:04X}, no reflection, "
+            f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.")

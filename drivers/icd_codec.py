@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -211,3 +212,40 @@ def _int_wire(f: FieldSpec, wire: int | float, value: Any, where: str) -> int:
         raise EncodeError(f"{where} = {wire!r}{_si(f, value)} is outside the field: allowed {f.lo} to {f.hi} "
                           f"({f.type}{extra}).")
     return n
+
+
+# -- the message table and the ICD document --------------------------------------------------------
+
+
+def index_messages(specs: Iterable[MessageSpec], names: Iterable[str], what: str,
+                   id_word: str) -> tuple[dict[str, MessageSpec], dict[int, MessageSpec]]:
+    """``(by name, by id)`` of ``specs``; ValueError (naming ``what``) for an id used twice or a set of
+    messages that differs from the codec's dataclasses ``names``."""
+    messages: dict[str, MessageSpec] = {}
+    by_id: dict[int, MessageSpec] = {}
+    for spec in specs:
+        if spec.id in by_id:
+            raise ValueError(f"{what}: {id_word} 0x{spec.id:02X} is used twice.")
+        messages[spec.name] = spec
+        by_id[spec.id] = spec
+    if set(messages) != set(names):
+        raise ValueError(f"{what}: messages {sorted(messages)} differ from the codec's {sorted(names)}.")
+    return messages, by_id
+
+
+def range_text(f: FieldSpec) -> str:
+    """What a field may carry, for the ICD document's tables."""
+    if f.enum is not None:
+        return ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
+    if f.bits is not None:
+        return ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
+    if f.is_float:
+        return "finite" if (f.lo, f.hi) == TYPES["f32"][2:] else f"finite, {f.lo:g}..{f.hi:g}"
+    return f"{f.lo}..{f.hi}"
+
+
+def attr_text(f: FieldSpec) -> str:
+    """The SI attribute(s) a field maps to, for the ICD document's tables."""
+    if f.bits is not None:
+        return ", ".join(f.bits)
+    return f.attr if f.index is None else f"{f.attr}[{f.index}]"

@@ -447,6 +447,27 @@ class SerialHost(SerialEndpoint):
         self._decoder.reset()
         self.counters["reconnects"] += 1
 
+    def _read_port(self, block: bool, limit: int | None = None) -> bytes:
+        """What the port holds now, at most ``limit`` bytes (None: all of it); with ``block``, wait up to one
+        poll slice (the port's timeout) for the first byte. A port failure marks the port for reopening."""
+        port = self.port
+        try:
+            n = port.in_waiting
+            if n:
+                return port.read(n if limit is None else min(n, limit))
+            if not block:
+                return b""
+            data = port.read(1)
+            if data:
+                more = port.in_waiting
+                if more:
+                    data += port.read(more if limit is None else min(more, limit))
+            return data
+        except Exception as exc:
+            if is_port_error(exc):
+                raise self._port_failed("read from", exc) from exc
+            raise
+
     def _port_failed(self, what: str, exc: BaseException) -> DriverError:
         self._broken = True
         self.online = False

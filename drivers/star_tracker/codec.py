@@ -24,13 +24,14 @@ from pathlib import Path
 from typing import Any
 
 from drivers.errors import DriverError, EncodeError, ProtocolError
-from drivers.framing import crc16, escape
+from drivers.framing import check_crc16_spec, crc16, escape
 from drivers.icd_codec import (
     DEVICE_TO_HOST,
     HOST_TO_DEVICE,
     FieldSpec,
     MessageSpec,
     field_specs,
+    index_messages,
     wire_value,
 )
 from drivers.icd_codec import load_icd as _load_icd
@@ -256,28 +257,15 @@ class StarTrackerCodec:
         if proto.get("byte_order") != "little":
             raise ValueError(f"star tracker ICD: byte_order must be 'little'; got {proto.get('byte_order')!r}.")
         crc = proto["crc"]
-        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
-            raise ValueError(
-                f"star tracker ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}."
-            )
+        check_crc16_spec(crc, "star tracker ICD")
         fr = proto["framing"]
         if (fr["end"], fr["esc"], fr["esc_end"], fr["esc_esc"]) != (0xC0, 0xDB, 0xDC, 0xDD):
             raise ValueError(f"star tracker ICD: the SLIP bytes {fr} differ from drivers.star_tracker.slip.")
         self.default_address: int = int(proto["default_address"])
         self.max_body: int = int(proto["max_body_bytes"])
         self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd["enums"].items()}
-        self.messages: dict[str, MessageSpec] = {}
-        self.by_id: dict[int, MessageSpec] = {}
-        for m in icd["messages"]:
-            spec = self._message_spec(m)
-            if spec.id in self.by_id:
-                raise ValueError(f"star tracker ICD: message id 0x{spec.id:02X} is used twice.")
-            self.messages[spec.name] = spec
-            self.by_id[spec.id] = spec
-        if set(self.messages) != set(CLASSES):
-            raise ValueError(
-                f"star tracker ICD: messages {sorted(self.messages)} differ from the codec's {sorted(CLASSES)}."
-            )
+        self.messages, self.by_id = index_messages((self._message_spec(m) for m in icd["messages"]), CLASSES,
+                                                   "star tracker ICD", "message id")
         self._by_cls = {spec.cls: spec for spec in self.messages.values()}
         self.params: dict[str, ParamSpec] = {}
         self.params_by_id: dict[int, ParamSpec] = {}

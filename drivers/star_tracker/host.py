@@ -176,24 +176,7 @@ class StarTrackerHost(SerialHost):
     def _read(self, block: bool, limit: int = _READ_CHUNK) -> int:
         """Read what is there, at most ``limit`` bytes (``block``: wait up to one poll slice for the
         first byte); decode it. Returns the number of bytes read."""
-        port = self.port
-        chunk = max(1, min(limit, _READ_CHUNK))
-        try:
-            n = port.in_waiting
-            if n:
-                data = port.read(min(n, chunk))
-            elif block:
-                data = port.read(1)
-                if data:
-                    more = port.in_waiting
-                    if more:
-                        data += port.read(min(more, chunk))
-            else:
-                return 0
-        except Exception as exc:
-            if is_port_error(exc):
-                raise self._port_failed("read from", exc) from exc
-            raise
+        data = self._read_port(block, max(1, min(limit, _READ_CHUNK)))
         if not data:
             return 0
         self.counters["bytes_received"] += len(data)

@@ -8,6 +8,8 @@ document cannot drift from the definition the codec and the emulator are built o
 
 from __future__ import annotations
 
+from drivers.framing import crc16_doc
+from drivers.icd_codec import attr_text, range_text
 from drivers.star_tracker.codec import StarTrackerCodec
 
 __all__ = ["render"]
@@ -40,8 +42,7 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         f"{_hex(fr['esc'])} {_hex(fr['esc_esc'])}.",
         "- Body (before escaping): `address u8 | message id u8 | payload | CRC u16`.",
         f"- Default address {_hex(p['default_address'])}; a device ignores frames for other addresses.",
-        f"- Checksum: {crc['name']} (poly {_hex(crc['poly'])}, init 0x{crc['init']:04X}, no reflection, "
-        f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.",
+        crc16_doc(crc),
         f"- At most {p['max_body_bytes']} body bytes; longer frames are dropped as oversize.",
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- Every frame the device cannot accept (bad CRC, bad escape, oversize, short) is counted and dropped; "
@@ -60,24 +61,9 @@ def render(codec: StarTrackerCodec | None = None) -> str:
                 "| offset | field | type | scale to SI | SI attribute | range / values | description |",
                 "|---|---|---|---|---|---|---|"]
         offset = 0
-        import struct
-
         for f in s.fields:
-            if f.enum is not None:
-                rng = ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
-            elif f.bits is not None:
-                rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
-            elif f.is_float:
-                rng = "finite" if (f.lo, f.hi) == (-3.4028234663852886e38, 3.4028234663852886e38) else \
-                    f"finite, {f.lo:g}..{f.hi:g}"
-            else:
-                rng = f"{f.lo}..{f.hi}"
-            attr = f.attr if f.index is None else f"{f.attr}[{f.index}]"
-            if f.bits is not None:
-                attr = ", ".join(f.bits)
-            out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr} | {rng} | {f.doc} |")
-            offset += struct.calcsize("<" + {"u8": "B", "u16": "H", "u32": "I", "u64": "Q", "i16": "h",
-                                             "i32": "i", "f32": "f"}[f.type])
+            out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr_text(f)} | {range_text(f)} | {f.doc} |")
+            offset += f.size
         for attr, tol in s.norms:
             out.append("")
             out.append(f"`{attr}` must have unit norm within {tol:g}; a frame outside it is rejected as a bad value.")
