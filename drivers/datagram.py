@@ -37,6 +37,7 @@ from drivers.icd_codec import (
     FieldSpec,
     MessageSpec,
     attr_text,
+    decode_fields,
     field_specs,
     index_messages,
     load_icd,
@@ -170,39 +171,9 @@ class DatagramCodec:
         return self.decode_payload(spec, data[1:-2], hx)
 
     def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Any:
-        raw = self._struct[spec.id].unpack(payload)
-        kw: dict[str, Any] = {}
-        tuples: dict[str, dict[int, Any]] = {}
-        for f, v in zip(spec.fields, raw, strict=True):
-            if f.type == "i24":
-                v = int.from_bytes(v, self.byte_order, signed=True)
-            if f.bits is not None:
-                if v >> len(f.bits):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = 0x{v:X} has undefined "
-                                           "bits set", frame_hex=hx, expected=f"<= 0x{f.hi:X}", computed=f"0x{v:X}")
-                for i, bit in enumerate(f.bits):
-                    kw[bit] = bool(v >> i & 1)
-                continue
-            if f.enum is not None:
-                if v >= len(f.enum):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is not in its table",
-                                           frame_hex=hx, expected=f"0..{len(f.enum) - 1}", computed=v)
-                val: Any = f.enum[v]
-            else:
-                if f.is_float and not math.isfinite(v):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} is not finite",
-                                           frame_hex=hx, expected="a finite number", computed=v)
-                if not f.lo <= v <= f.hi:
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is outside its range",
-                                           frame_hex=hx, expected=f"{f.lo}..{f.hi}", computed=v)
-                val = v * f.scale if f.scale != 1.0 else v
-            if f.index is not None:
-                tuples.setdefault(f.attr, {})[f.index] = val
-            else:
-                kw[f.attr] = val
-        for attr, items in tuples.items():
-            kw[attr] = tuple(items[i] for i in range(len(items)))
-        return spec.cls(**kw)
+        """The message of one datagram's payload; DatagramRejected for a value outside its table."""
+        return decode_fields(spec, self._struct[spec.id].unpack(payload), DatagramRejected, hx or payload,
+                             f"{self.device} ", self.byte_order)
 
     def lsb(self, message: str, field: str) -> float:
         """One wire step of a field, in SI."""

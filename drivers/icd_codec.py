@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,7 @@ class FieldSpec:
     unit: str
     doc: str
 
-    @property
+    @cached_property  # read for every field of every decoded frame: an attribute after the first read
     def is_float(self) -> bool:
         return self.type == "f32"
 
@@ -249,3 +250,61 @@ def attr_text(f: FieldSpec) -> str:
     if f.bits is not None:
         return ", ".join(f.bits)
     return f.attr if f.index is None else f"{f.attr}[{f.index}]"
+
+
+# -- decoding a payload ---------------------------------------------------------------------------
+
+
+def decode_fields(spec: MessageSpec, raw: tuple[Any, ...], exc: Callable[..., Exception], frame: str | bytes,
+                  prefix: str = "", byte_order: str = "little") -> Any:
+    """The message of ``spec`` from its unpacked wire values ``raw`` (SI units).
+
+    A value outside its table or range raises ``exc("value", reason, frame_hex=..., expected=..., computed=...)``
+    (the device codec's rejection), the reason naming ``prefix`` (the device), the message and the field;
+    ``frame`` is the frame in hex, or its bytes (made hex only when a value is refused).
+    """
+    kw: dict[str, Any] = {}
+    tuples: dict[str, dict[int, Any]] = {}
+    for f, v in zip(spec.fields, raw, strict=True):
+        if f.type == "i24":
+            v = int.from_bytes(v, byte_order, signed=True)
+        if f.bits is not None:
+            if v >> len(f.bits):
+                raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
+                               f"<= 0x{f.hi:X}", f"0x{v:X}")
+            for i, bit in enumerate(f.bits):
+                kw[bit] = bool(v >> i & 1)
+            continue
+        if f.enum is not None:
+            if v >= len(f.enum):
+                raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = {v} is not in its table",
+                               f"0..{len(f.enum) - 1}", v)
+            val: Any = f.enum[v]
+        else:
+            if not (f.lo <= v <= f.hi and (not f.is_float or math.isfinite(v))):
+                raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = {v!r} is outside its range",
+                               f"a finite number from {f.lo:g} to {f.hi:g}" if f.is_float else f"{f.lo}..{f.hi}", v)
+            val = v * f.scale if f.scale != 1.0 else v
+        if f.index is not None:
+            tuples.setdefault(f.attr, {})[f.index] = val
+        else:
+            kw[f.attr] = val
+    for attr, items in tuples.items():
+        kw[attr] = tuple(items[i] for i in range(len(items)))
+    if spec.norms:
+        _check_norms(spec, kw, exc, frame, prefix)
+    return spec.cls(**kw)
+
+
+def _check_norms(spec: MessageSpec, kw: dict[str, Any], exc: Callable[..., Exception], frame: str | bytes,
+                 prefix: str) -> None:
+    for attr, tol in spec.norms:
+        norm = math.sqrt(sum(x * x for x in kw[attr]))
+        if not abs(norm - 1.0) <= tol:
+            raise _refused(exc, frame, f"{prefix}{spec.name}.{attr} has norm {norm:.9g}, not a unit quaternion",
+                           f"1 within {tol:g}", f"{norm:.9g}")
+
+
+def _refused(exc: Callable[..., Exception], frame: str | bytes, reason: str, expected: str, computed: Any) -> Exception:
+    frame_hex = frame if isinstance(frame, str) else bytes(frame).hex().upper()
+    return exc("value", reason, frame_hex=frame_hex, expected=expected, computed=computed)

@@ -30,6 +30,7 @@ from drivers.icd_codec import (
     HOST_TO_DEVICE,
     FieldSpec,
     MessageSpec,
+    decode_fields,
     field_specs,
     index_messages,
     wire_value,
@@ -408,47 +409,5 @@ class StarTrackerCodec:
         return self.decode_payload(spec, payload, hx)
 
     def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Message:
-        raw = struct.unpack(spec.fmt, payload)
-        kw: dict[str, Any] = {}
-        tuples: dict[str, dict[int, float]] = {}
-        for f, v in zip(spec.fields, raw, strict=True):
-            if f.bits is not None:
-                if v >> len(f.bits):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
-                                        frame_hex=hx or payload.hex().upper(), expected=f"<= 0x{f.hi:X}",
-                                        computed=f"0x{v:X}")
-                for i, bit in enumerate(f.bits):
-                    kw[bit] = bool(v >> i & 1)
-                continue
-            if f.enum is not None:
-                if v >= len(f.enum):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is not in its table",
-                                        frame_hex=hx or payload.hex().upper(), expected=f"0..{len(f.enum) - 1}",
-                                        computed=v)
-                val: Any = f.enum[v]
-            elif f.is_float:
-                if not (math.isfinite(v) and f.lo <= v <= f.hi):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v!r} is outside its range",
-                                        frame_hex=hx or payload.hex().upper(),
-                                        expected=f"a finite number from {f.lo:g} to {f.hi:g}", computed=v)
-                val = v * f.scale if f.scale != 1.0 else v
-            elif f.scale != 1.0:
-                val = v * f.scale
-            else:
-                val = v
-            if not f.is_float and f.enum is None and not (f.lo <= v <= f.hi):
-                raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is outside its range",
-                                    frame_hex=hx or payload.hex().upper(), expected=f"{f.lo}..{f.hi}", computed=v)
-            if f.index is not None:
-                tuples.setdefault(f.attr, {})[f.index] = val
-            else:
-                kw[f.attr] = val
-        for attr, items in tuples.items():
-            kw[attr] = tuple(items[i] for i in range(len(items)))
-        for attr, tol in spec.norms:
-            norm = math.sqrt(sum(x * x for x in kw[attr]))
-            if not abs(norm - 1.0) <= tol:
-                raise FrameRejected("value", f"{spec.name}.{attr} has norm {norm:.9g}, not a unit quaternion",
-                                    frame_hex=hx or payload.hex().upper(), expected=f"1 within {tol:g}",
-                                    computed=f"{norm:.9g}")
-        return spec.cls(**kw)
+        """The message of one frame's payload; FrameRejected for a value outside its table or range."""
+        return decode_fields(spec, struct.unpack(spec.fmt, payload), FrameRejected, hx or payload)
