@@ -29,7 +29,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import DeviceTimeoutError, DriverError, EncodeError, ProtocolError
+from drivers.errors import DriverError, EncodeError, ProtocolError
 from drivers.framing import check_crc16_spec, crc16, crc16_doc
 from drivers.icd_codec import (
     DEVICE_TO_HOST,
@@ -38,9 +38,13 @@ from drivers.icd_codec import (
     MessageSpec,
     attr_text,
     decode_fields,
+    enums_doc,
     field_specs,
     index_messages,
     load_icd,
+    md_head,
+    message_heading,
+    messages_doc,
     range_text,
     wire_value,
 )
@@ -383,15 +387,8 @@ class DatagramHost(SerialHost):
         self.poll()
         while not ready():
             if time.monotonic() >= deadline:
-                self.counters["timeouts"] += 1
-                self.online = False
-                last = ("nothing has been received yet" if self._last_rx is None
-                        else f"the last good datagram came {time.monotonic() - self._last_rx:.3g} s ago")
-                raise DeviceTimeoutError(
-                    f"{self.name}: no {awaited} within {timeout:g} s on {port_name(self.port)}; {last}. Is the "
-                    f"{self._kind} powered, on this port and at {self.baudrate} baud?",
-                    device=self.name, awaited=awaited, timeout_s=timeout,
-                )
+                raise self._timed_out(awaited, timeout, "datagram",
+                                      f"Is the {self._kind} powered, on this port and at {self.baudrate} baud?")
             self._read(block=True)
 
 
@@ -558,18 +555,13 @@ def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str,
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- A datagram the receiver cannot accept (bad CRC, a field outside its table) is counted and dropped; "
         "nothing is answered to it.",
-        "",
-        "## Datagrams",
-        "",
-        "| identifier | datagram | direction | length (bytes) | description |",
-        "|---|---|---|---|---|",
+        *messages_doc(codec.messages.values(), "Datagrams", ("identifier", "datagram", "length (bytes)"),
+                      lambda s: s.length),
     ]
     for s in codec.messages.values():
-        out.append(f"| 0x{s.id:02X} | {s.name} | {s.direction} | {s.length} | {s.doc} |")
-    for s in codec.messages.values():
-        out += ["", f"### {s.name} (0x{s.id:02X}, {s.direction})", "",
-                "| offset | field | type | wire unit | scale to SI | SI attribute | range / values | description |",
-                "|---|---|---|---|---|---|---|---|",
+        out += [*message_heading(s),
+                *md_head("offset", "field", "type", "wire unit", "scale to SI", "SI attribute", "range / values",
+                         "description"),
                 f"| 0 | identifier | u8 | | | | 0x{s.id:02X} | datagram identifier |"]
         offset = 1
         for f in s.fields:
@@ -578,8 +570,6 @@ def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str,
             offset += f.size
         out.append(f"| {offset} | crc | u16 | | | | | CRC-16 of bytes 0..{offset - 1} |")
     if codec.enums:
-        out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
-        for name, values in codec.enums.items():
-            out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+        out += enums_doc(codec.enums)
     out += ["", "## Behaviour", ""] + [f"- {line}" for line in exchanges] + [""]
     return "\n".join(out)

@@ -308,3 +308,29 @@ def _check_norms(spec: MessageSpec, kw: dict[str, Any], exc: Callable[..., Excep
 def _refused(exc: Callable[..., Exception], frame: str | bytes, reason: str, expected: str, computed: Any) -> Exception:
     frame_hex = frame if isinstance(frame, str) else bytes(frame).hex().upper()
     return exc("value", reason, frame_hex=frame_hex, expected=expected, computed=computed)
+
+
+def md_head(*columns: str) -> list[str]:
+    """A Markdown table's header and rule."""
+    return ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+
+
+def enums_doc(enums: dict[str, tuple[str, ...]]) -> list[str]:
+    """The ICD document's section of enumeration tables."""
+    out = ["", "## Enumerations", "", *md_head("enumeration", "values")]
+    for name, values in enums.items():
+        out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+    return out
+
+
+def messages_doc(specs: Iterable[MessageSpec], title: str, columns: tuple[str, str, str],
+                 size: Callable[[MessageSpec], int]) -> list[str]:
+    """The ICD document's list of messages: ``columns`` names the id, the message and the size column."""
+    out = ["", f"## {title}", "", *md_head(columns[0], columns[1], "direction", columns[2], "description")]
+    out += [f"| 0x{s.id:02X} | {s.name} | {s.direction} | {size(s)} | {s.doc} |" for s in specs]
+    return out
+
+
+def message_heading(s: MessageSpec) -> list[str]:
+    """The heading of one message's field table."""
+    return ["", f"### {s.name} (0x{s.id:02X}, {s.direction})", ""]

@@ -426,6 +426,7 @@ class SerialHost(SerialEndpoint):
     _url: str | None
     _decoder: Any
     _broken: bool
+    _last_rx: float | None
 
     def _check_open(self) -> None:
         if self._closed:
@@ -467,6 +468,18 @@ class SerialHost(SerialEndpoint):
             if is_port_error(exc):
                 raise self._port_failed("read from", exc) from exc
             raise
+
+    def _timed_out(self, what: str, timeout_s: float, unit: str, hint: str,
+                   awaited: str | None = None) -> DeviceTimeoutError:
+        """The device went quiet: counted, marked offline, and a sentence naming ``what`` was awaited, the port,
+        when the last good ``unit`` came and the device's ``hint``."""
+        self.counters["timeouts"] += 1
+        self.online = False
+        last = ("nothing has been received yet" if self._last_rx is None
+                else f"the last good {unit} came {time.monotonic() - self._last_rx:.3g} s ago")
+        return DeviceTimeoutError(f"{self.name}: no {what} within {timeout_s:g} s on {port_name(self.port)}; {last}. "
+                                  f"{hint}", device=self.name, awaited=what if awaited is None else awaited,
+                                  timeout_s=timeout_s)
 
     def _port_failed(self, what: str, exc: BaseException) -> DriverError:
         self._broken = True

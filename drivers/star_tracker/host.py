@@ -293,16 +293,9 @@ class StarTrackerHost(SerialHost):
             self._read(block=True)
 
     def _timeout(self, awaited: str, timeout_s: float) -> DeviceTimeoutError:
-        self.counters["timeouts"] += 1
-        self.online = False
         self._decoder.reset()
-        last = ("nothing has been received yet" if self._last_rx is None
-                else f"the last good frame came {time.monotonic() - self._last_rx:.3g} s ago")
-        return DeviceTimeoutError(
-            f"{self.name}: no {awaited} from address 0x{self.address:02X} within {timeout_s:g} s on "
-            f"{port_name(self.port)}; {last}. Is the tracker powered, booted and on this port and address?",
-            device=self.name, awaited=awaited, timeout_s=timeout_s,
-        )
+        return self._timed_out(f"{awaited} from address 0x{self.address:02X}", timeout_s, "frame",
+                               "Is the tracker powered, booted and on this port and address?", awaited=awaited)
 
     def _command(self, cmd: Message, timeout_s: float | None) -> None:
         cid = self.codec.spec_of(cmd).id

@@ -9,7 +9,7 @@ document cannot drift from the definition the codec and the emulator are built o
 from __future__ import annotations
 
 from drivers.framing import crc16_doc
-from drivers.icd_codec import attr_text, range_text
+from drivers.icd_codec import attr_text, enums_doc, md_head, message_heading, messages_doc, range_text
 from drivers.star_tracker.codec import StarTrackerCodec
 
 __all__ = ["render"]
@@ -48,18 +48,11 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         "- Every frame the device cannot accept (bad CRC, bad escape, oversize, short) is counted and dropped; "
         "a command with an unknown id, a wrong length or a value outside its table gets a NACK. The host "
         "drops a reply with a value outside its range (below) and counts it per reason.",
-        "",
-        "## Messages",
-        "",
-        "| id | message | direction | payload bytes | description |",
-        "|---|---|---|---|---|",
+        *messages_doc(c.messages.values(), "Messages", ("id", "message", "payload bytes"), lambda s: s.payload_len),
     ]
     for s in c.messages.values():
-        out.append(f"| {_hex(s.id)} | {s.name} | {s.direction} | {s.payload_len} | {s.doc} |")
-    for s in c.messages.values():
-        out += ["", f"### {s.name} ({_hex(s.id)}, {s.direction})", "",
-                "| offset | field | type | scale to SI | SI attribute | range / values | description |",
-                "|---|---|---|---|---|---|---|"]
+        out += [*message_heading(s),
+                *md_head("offset", "field", "type", "scale to SI", "SI attribute", "range / values", "description")]
         offset = 0
         for f in s.fields:
             out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr_text(f)} | {range_text(f)} | {f.doc} |")
@@ -67,12 +60,9 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         for attr, tol in s.norms:
             out.append("")
             out.append(f"`{attr}` must have unit norm within {tol:g}; a frame outside it is rejected as a bad value.")
-    out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
-    for name, values in c.enums.items():
-        out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+    out += enums_doc(c.enums)
     out += ["", "## Parameters (SET_PARAM / GET_PARAM, value as f32 in the wire unit)", "",
-            "| id | parameter | unit | scale to SI | min | max | default | description |",
-            "|---|---|---|---|---|---|---|---|"]
+            *md_head("id", "parameter", "unit", "scale to SI", "min", "max", "default", "description")]
     for ps in c.params.values():
         kind = " (whole number)" if ps.integer else ""
         out.append(f"| {ps.id} | {ps.name} | {ps.unit} | {ps.scale:g} | {ps.lo:g} | {ps.hi:g} | {ps.default:g} | "
