@@ -108,6 +108,7 @@ class DatagramCodec:
         self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
         self.max_length = max(s.length for s in self.messages.values())
         self._struct = {s.id: struct.Struct(s.fmt) for s in self.messages.values()}
+        self._i24 = {s.id: tuple(i for i, f in enumerate(s.fields) if f.type == "i24") for s in self.messages.values()}
 
     def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
         name = m["name"]
@@ -176,8 +177,13 @@ class DatagramCodec:
 
     def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Any:
         """The message of one datagram's payload; DatagramRejected for a value outside its table."""
-        return decode_fields(spec, self._struct[spec.id].unpack(payload), DatagramRejected, hx or payload,
-                             f"{self.device} ", self.byte_order)
+        raw: Any = self._struct[spec.id].unpack(payload)
+        i24 = self._i24[spec.id]
+        if i24:  # the few 24-bit fields travel as 3 raw bytes; no per-field type test on the other messages
+            raw = list(raw)
+            for i in i24:
+                raw[i] = int.from_bytes(raw[i], self.byte_order, signed=True)
+        return decode_fields(spec, raw, DatagramRejected, hx or payload, f"{self.device} ")
 
     def lsb(self, message: str, field: str) -> float:
         """One wire step of a field, in SI."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -255,9 +255,9 @@ def attr_text(f: FieldSpec) -> str:
 # -- decoding a payload ---------------------------------------------------------------------------
 
 
-def decode_fields(spec: MessageSpec, raw: tuple[Any, ...], exc: Callable[..., Exception], frame: str | bytes,
-                  prefix: str = "", byte_order: str = "little") -> Any:
-    """The message of ``spec`` from its unpacked wire values ``raw`` (SI units).
+def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exception], frame: str | bytes,
+                  prefix: str = "") -> Any:
+    """The message of ``spec`` from its unpacked wire values ``raw`` (SI units; a 24-bit field already an int).
 
     A value outside its table or range raises ``exc("value", reason, frame_hex=..., expected=..., computed=...)``
     (the device codec's rejection), the reason naming ``prefix`` (the device), the message and the field;
@@ -266,8 +266,6 @@ def decode_fields(spec: MessageSpec, raw: tuple[Any, ...], exc: Callable[..., Ex
     kw: dict[str, Any] = {}
     tuples: dict[str, dict[int, Any]] = {}
     for f, v in zip(spec.fields, raw, strict=True):
-        if f.type == "i24":
-            v = int.from_bytes(v, byte_order, signed=True)
         if f.bits is not None:
             if v >> len(f.bits):
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
