@@ -21,18 +21,34 @@ No clock is read outside :meth:`DatagramEmulator.run` and the host's monotonic d
 
 from __future__ import annotations
 
-import binascii
 import math
 import struct
 import time
-import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
-from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError, ProtocolError
-from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
+from drivers.errors import DriverError, EncodeError, ProtocolError
+from drivers.framing import check_crc16_spec, crc16, crc16_doc
+from drivers.icd_codec import (
+    DEVICE_TO_HOST,
+    HOST_TO_DEVICE,
+    FieldSpec,
+    MessageSpec,
+    attr_text,
+    decode_fields,
+    enums_doc,
+    field_specs,
+    index_messages,
+    load_icd,
+    md_head,
+    message_heading,
+    messages_doc,
+    range_text,
+    wire_value,
+)
+from drivers.serial_port import SerialHost, SerialServer, is_port_error, open_port, port_name, write_available
 
 __all__ = [
     "DEVICE_TO_HOST",
@@ -49,15 +65,6 @@ __all__ = [
     "take_datagram",
 ]
 
-HOST_TO_DEVICE = "host->device"
-DEVICE_TO_HOST = "device->host"
-
-
-def crc16(data: bytes | bytearray | memoryview) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
-    return binascii.crc_hqx(data, 0xFFFF)
-
-
 class DatagramRejected(ProtocolError):
     """A datagram cannot be accepted; ``kind`` says why (``short``, ``crc``, ``unknown_id``,
     ``direction``, ``length``, ``value``)."""
@@ -65,65 +72,6 @@ class DatagramRejected(ProtocolError):
     def __init__(self, kind: str, reason: str, **kw: Any) -> None:
         super().__init__(reason, **kw)
         self.kind = kind
-
-
-#: Wire type -> (struct code or None for 24-bit, size, min, max).
-_TYPES: dict[str, tuple[str | None, int, float, float]] = {
-    "u8": ("B", 1, 0, 0xFF),
-    "i8": ("b", 1, -0x80, 0x7F),
-    "u16": ("H", 2, 0, 0xFFFF),
-    "i16": ("h", 2, -0x8000, 0x7FFF),
-    "i24": (None, 3, -0x80_0000, 0x7F_FFFF),
-    "u32": ("I", 4, 0, 0xFFFF_FFFF),
-    "i32": ("i", 4, -0x8000_0000, 0x7FFF_FFFF),
-    "u64": ("Q", 8, 0, 0xFFFF_FFFF_FFFF_FFFF),
-    "f32": ("f", 4, -3.4028234663852886e38, 3.4028234663852886e38),
-}
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    name: str
-    type: str
-    attr: str
-    index: int | None
-    scale: float
-    lo: float
-    hi: float
-    enum: tuple[str, ...] | None
-    bits: tuple[str, ...] | None
-    unit: str
-    doc: str
-
-    @property
-    def is_float(self) -> bool:
-        return self.type == "f32"
-
-    @property
-    def size(self) -> int:
-        return _TYPES[self.type][1]
-
-
-@dataclass(frozen=True)
-class MessageSpec:
-    id: int
-    name: str
-    direction: str
-    doc: str
-    fields: tuple[FieldSpec, ...]
-    fmt: str
-    payload_len: int
-    cls: type
-
-    @property
-    def length(self) -> int:
-        """Whole datagram: identifier, payload, CRC."""
-        return self.payload_len + 3
-
-
-def load_icd(path: str | Path) -> dict[str, Any]:
-    with open(path, "rb") as f:
-        return tomllib.load(f)
 
 
 class DatagramCodec:
@@ -150,27 +98,17 @@ class DatagramCodec:
         self.byte_order: str = order
         self._prefix = ">" if order == "big" else "<"
         crc = proto["crc"]
-        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
-            raise ValueError(f"{device} ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}.")
+        check_crc16_spec(crc, f"{device} ICD")
         self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd.get("enums", {}).items()}
         self._classes = classes
-        self.messages: dict[str, MessageSpec] = {}
-        self.by_id: dict[int, MessageSpec] = {}
-        for m in icd["messages"]:
-            spec = self._message_spec(m)
-            if spec.id in self.by_id:
-                raise ValueError(f"{device} ICD: identifier 0x{spec.id:02X} is used twice.")
-            self.messages[spec.name] = spec
-            self.by_id[spec.id] = spec
-        if set(self.messages) != set(classes):
-            raise ValueError(
-                f"{device} ICD: messages {sorted(self.messages)} differ from the codec's {sorted(classes)}."
-            )
+        self.messages, self.by_id = index_messages((self._message_spec(m) for m in icd["messages"]), classes,
+                                                   f"{device} ICD", "identifier")
         self._by_cls = {spec.cls: spec for spec in self.messages.values()}
         self.ids_to_host = frozenset(s.id for s in self.messages.values() if s.direction == DEVICE_TO_HOST)
         self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
         self.max_length = max(s.length for s in self.messages.values())
         self._struct = {s.id: struct.Struct(s.fmt) for s in self.messages.values()}
+        self._i24 = {s.id: tuple(i for i, f in enumerate(s.fields) if f.type == "i24") for s in self.messages.values()}
 
     def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
         name = m["name"]
@@ -182,35 +120,13 @@ class DatagramCodec:
             raise ValueError(f"{where}: direction must be host->device or device->host; got {m['direction']!r}.")
         if not 0 <= int(m["id"]) <= 0xFF:
             raise ValueError(f"{where}: identifier must be 0..255; got {m['id']!r}.")
-        specs = []
-        covered: set[str] = set()
-        for f in m.get("fields", []):
-            if f["type"] not in _TYPES:
-                raise ValueError(f"{where}: field {f['name']} has type {f['type']!r}; allowed: {', '.join(_TYPES)}.")
-            _, _, tlo, thi = _TYPES[f["type"]]
-            enum = tuple(self.enums[f["enum"]]) if "enum" in f else None
-            bits = tuple(f["bits"]) if "bits" in f else None
-            if f["type"] == "f32":
-                lo, hi = float(f.get("min", tlo)), float(f.get("max", thi))
-            else:
-                lo, hi = int(f.get("min", tlo)), int(f.get("max", thi))
-                if not tlo <= lo <= hi <= thi:
-                    raise ValueError(f"{where}: field {f['name']} range {lo}..{hi} does not fit {f['type']}.")
-            if enum is not None:
-                hi = len(enum) - 1
-            if bits is not None:
-                hi = (1 << len(bits)) - 1
-                covered.update(bits)
-            else:
-                covered.add(f["attr"])
-            specs.append(FieldSpec(f["name"], f["type"], f.get("attr", ""), f.get("index"), float(f.get("scale", 1.0)),
-                                   lo, hi, enum, bits, f.get("unit", ""), f.get("doc", "")))
+        specs, covered = field_specs(m, self.enums, where)
         attrs = {x.name for x in fields(cls)}
         if covered != attrs:
             raise ValueError(f"{where} maps fields to {sorted(covered)}, but {cls.__name__} has {sorted(attrs)}.")
-        fmt = self._prefix + "".join(_TYPES[s.type][0] or "3s" for s in specs)
+        fmt = self._prefix + "".join(s.struct_code for s in specs)
         return MessageSpec(int(m["id"]), name, m["direction"], m.get("doc", ""), tuple(specs), fmt,
-                           struct.calcsize(fmt), cls)
+                           struct.calcsize(fmt), cls, overhead=3)
 
     # -- encode ---------------------------------------------------------------------------------
 
@@ -224,61 +140,10 @@ class DatagramCodec:
     def encode(self, msg: Any) -> bytes:
         """The whole datagram of ``msg``: identifier, payload, CRC."""
         spec = self.spec_of(msg)
-        values = [self._wire_value(spec, f, msg) for f in spec.fields]
+        order = self.byte_order
+        values = [wire_value(f, msg, f"{self.device} {spec.name}.{f.name}", order) for f in spec.fields]
         head = bytes((spec.id,)) + self._struct[spec.id].pack(*values)
         return head + crc16(head).to_bytes(2, self.byte_order)
-
-    def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Any) -> Any:
-        if f.bits is not None:
-            v = 0
-            for i, bit in enumerate(f.bits):
-                if getattr(msg, bit):
-                    v |= 1 << i
-            return v
-        value = getattr(msg, f.attr)
-        if f.index is not None:
-            try:
-                value = value[f.index]
-            except (TypeError, IndexError):
-                raise EncodeError(f"{self._where(spec, f)}: {f.attr} must be a sequence with an element {f.index}; "
-                                  f"got {value!r}.") from None
-        if f.enum is not None:
-            if isinstance(value, str) and value.upper() in f.enum:
-                return f.enum.index(value.upper())
-            if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
-                return value
-            allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
-            raise EncodeError(f"{self._where(spec, f)} = {value!r} is not allowed; allowed: {allowed}.")
-        t = type(value)
-        if t is not int and t is not float:
-            try:
-                value = float(value) if not isinstance(value, int) or isinstance(value, bool) else int(value)
-            except (TypeError, ValueError):
-                raise EncodeError(f"{self._where(spec, f)} = {value!r} is not a number.") from None
-        wire = value / f.scale if f.scale != 1.0 else value
-        if f.is_float:
-            if not (math.isfinite(wire) and f.lo <= wire <= f.hi):
-                raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
-                                  f"allowed a finite number from {f.lo:g} to {f.hi:g}.")
-            return float(wire)
-        if not math.isfinite(wire):
-            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is not finite; allowed: "
-                              f"{f.lo} to {f.hi} {f.unit}.".rstrip())
-        n = round(wire)
-        if not f.lo <= n <= f.hi:
-            extra = f"; in SI {f.lo * f.scale:.6g} to {f.hi * f.scale:.6g}" if f.scale != 1.0 else ""
-            raise EncodeError(f"{self._where(spec, f)} = {wire!r}{self._si(f, value)} is outside the field: "
-                              f"allowed {f.lo} to {f.hi} ({f.type}{extra}).")
-        if f.type == "i24":
-            return n.to_bytes(3, self.byte_order, signed=True)
-        return n
-
-    def _where(self, spec: MessageSpec, f: FieldSpec) -> str:
-        return f"{self.device} {spec.name}.{f.name}"
-
-    @staticmethod
-    def _si(f: FieldSpec, value: Any) -> str:
-        return f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
 
     # -- decode ---------------------------------------------------------------------------------
 
@@ -311,39 +176,14 @@ class DatagramCodec:
         return self.decode_payload(spec, data[1:-2], hx)
 
     def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Any:
-        raw = self._struct[spec.id].unpack(payload)
-        kw: dict[str, Any] = {}
-        tuples: dict[str, dict[int, Any]] = {}
-        for f, v in zip(spec.fields, raw, strict=True):
-            if f.type == "i24":
-                v = int.from_bytes(v, self.byte_order, signed=True)
-            if f.bits is not None:
-                if v >> len(f.bits):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = 0x{v:X} has undefined "
-                                           "bits set", frame_hex=hx, expected=f"<= 0x{f.hi:X}", computed=f"0x{v:X}")
-                for i, bit in enumerate(f.bits):
-                    kw[bit] = bool(v >> i & 1)
-                continue
-            if f.enum is not None:
-                if v >= len(f.enum):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is not in its table",
-                                           frame_hex=hx, expected=f"0..{len(f.enum) - 1}", computed=v)
-                val: Any = f.enum[v]
-            else:
-                if f.is_float and not math.isfinite(v):
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} is not finite",
-                                           frame_hex=hx, expected="a finite number", computed=v)
-                if not f.lo <= v <= f.hi:
-                    raise DatagramRejected("value", f"{self.device} {spec.name}.{f.name} = {v} is outside its range",
-                                           frame_hex=hx, expected=f"{f.lo}..{f.hi}", computed=v)
-                val = v * f.scale if f.scale != 1.0 else v
-            if f.index is not None:
-                tuples.setdefault(f.attr, {})[f.index] = val
-            else:
-                kw[f.attr] = val
-        for attr, items in tuples.items():
-            kw[attr] = tuple(items[i] for i in range(len(items)))
-        return spec.cls(**kw)
+        """The message of one datagram's payload; DatagramRejected for a value outside its table."""
+        raw: Any = self._struct[spec.id].unpack(payload)
+        i24 = self._i24[spec.id]
+        if i24:  # the few 24-bit fields travel as 3 raw bytes; no per-field type test on the other messages
+            raw = list(raw)
+            for i in i24:
+                raw[i] = int.from_bytes(raw[i], self.byte_order, signed=True)
+        return decode_fields(spec, raw, DatagramRejected, hx or payload, f"{self.device} ")
 
     def lsb(self, message: str, field: str) -> float:
         """One wire step of a field, in SI."""
@@ -455,11 +295,7 @@ class DatagramDecoder:
 # -- endpoints ------------------------------------------------------------------------------------
 
 
-def _is_port_error(exc: BaseException) -> bool:
-    return isinstance(exc, (OSError, ValueError)) or type(exc).__name__.endswith("SerialException")
-
-
-class DatagramHost(SerialEndpoint):
+class DatagramHost(SerialHost):
     """Generic host side of a datagram device: the port (a URL it reopens after a failure, or an
     open object the caller keeps), sending commands, and receiving without ever raising on bad
     traffic. A device's host sets ``_kind`` (its device name) and fills :meth:`_accept_message`.
@@ -500,32 +336,7 @@ class DatagramHost(SerialEndpoint):
     def __repr__(self) -> str:
         return f"{type(self).__name__}({port_name(self.port)!r}, online={self.online}, counters={self.counters})"
 
-    # -- port -----------------------------------------------------------------------------------
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DriverError(f"{self.name}: closed; create a new one.")
-        if self._broken:
-            self._reopen()
-
-    def _reopen(self) -> None:
-        if self._url is None or not self._owns_port:
-            raise DriverError(f"{self.name}: the port {port_name(self.port)} failed and was not opened by the "
-                              "driver, so it cannot be reopened; open it again and create a new driver.")
-        try:
-            self.port.close()
-        except Exception:  # noqa: BLE001 - the port is already broken
-            pass
-        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name)
-        self._broken = False
-        self._decoder.reset()
-        self.counters["reconnects"] += 1
-
-    def _port_failed(self, what: str, exc: BaseException) -> DriverError:
-        self._broken = True
-        self.online = False
-        return ConnectError(f"{self.name}: cannot {what} {port_name(self.port)}: {exc}; the port will be reopened on "
-                            "the next call.", where=port_name(self.port), reason=str(exc))
+    # -- send and receive (the port's reopening is SerialHost's) ---------------------------------
 
     def send(self, msg: Any) -> None:
         """Encode and send one command (EncodeError naming the field before anything is sent)."""
@@ -536,29 +347,13 @@ class DatagramHost(SerialEndpoint):
         try:
             self.port.write(frame)
         except Exception as exc:
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise self._port_failed("write to", exc) from exc
             raise
         self.counters["sent"] += 1
 
     def _read(self, block: bool) -> int:
-        port = self.port
-        try:
-            n = port.in_waiting
-            if n:
-                data = port.read(n)
-            elif block:
-                data = port.read(1)
-                if data:
-                    more = port.in_waiting
-                    if more:
-                        data += port.read(more)
-            else:
-                return 0
-        except Exception as exc:
-            if _is_port_error(exc):
-                raise self._port_failed("read from", exc) from exc
-            raise
+        data = self._read_port(block)
         if not data:
             return 0
         self.counters["bytes_received"] += len(data)
@@ -598,19 +393,12 @@ class DatagramHost(SerialEndpoint):
         self.poll()
         while not ready():
             if time.monotonic() >= deadline:
-                self.counters["timeouts"] += 1
-                self.online = False
-                last = ("nothing has been received yet" if self._last_rx is None
-                        else f"the last good datagram came {time.monotonic() - self._last_rx:.3g} s ago")
-                raise DeviceTimeoutError(
-                    f"{self.name}: no {awaited} within {timeout:g} s on {port_name(self.port)}; {last}. Is the "
-                    f"{self._kind} powered, on this port and at {self.baudrate} baud?",
-                    device=self.name, awaited=awaited, timeout_s=timeout,
-                )
+                raise self._timed_out(awaited, timeout, "datagram",
+                                      f"Is the {self._kind} powered, on this port and at {self.baudrate} baud?")
             self._read(block=True)
 
 
-class DatagramEmulator(SerialEndpoint):
+class DatagramEmulator(SerialServer):
     """Generic device side of a datagram device: the port, receiving commands (bad traffic counted,
     never raised), sending, a device clock that SET_TIME sets, and the wall-clock serving loop.
 
@@ -685,7 +473,7 @@ class DatagramEmulator(SerialEndpoint):
             n = port.in_waiting
             data = port.read(n) if n else b""
         except Exception as exc:
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
             raise
         if not data:
@@ -747,44 +535,6 @@ class DatagramEmulator(SerialEndpoint):
         self._tx_rest = frame[n:]
         return True
 
-    def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
-        raise NotImplementedError
-
-    def next_due_s(self) -> float | None:
-        """Sim time of the next datagram the device will publish unasked, or None."""
-        return None
-
-    def run(self, duration_s: float | None = None, *, stop: Callable[[], bool] | None = None,
-            clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.02) -> None:
-        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
-        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
-        import select
-
-        fileno = getattr(self.port, "fileno", None)
-        try:
-            fd = fileno() if fileno is not None else None
-        except Exception:  # loop:// and socket:// objects without a usable descriptor
-            fd = None
-        t0 = clock()
-        while True:
-            t = clock() - t0
-            if duration_s is not None and t >= duration_s:
-                break
-            if stop is not None and stop():
-                break
-            self.service(t)
-            wait = max_wait_s
-            due = self.next_due_s()
-            now = clock() - t0
-            if due is not None:
-                wait = min(wait, max(due - now, 0.0))
-            if duration_s is not None:
-                wait = min(wait, max(duration_s - now, 0.0))
-            if fd is not None:
-                select.select([fd], [], [], wait)
-            elif wait > 0:
-                time.sleep(min(wait, 0.001))
-
 
 # -- document ---------------------------------------------------------------------------------------
 
@@ -807,41 +557,25 @@ def render_icd(codec: DatagramCodec, *, title: str, source: str, generator: str,
         "- Datagram: `identifier u8 | payload | CRC u16`, one fixed length per identifier; no framing bytes. A "
         "receiver finds datagrams by their identifier and their CRC: when the CRC fails it drops the identifier "
         "byte and looks again from the next byte.",
-        f"- Checksum: {crc['name']} (poly 0x{crc['poly']:04X}, init 0x{crc['init']:04X}, no reflection, "
-        f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.",
+        crc16_doc(crc),
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- A datagram the receiver cannot accept (bad CRC, a field outside its table) is counted and dropped; "
         "nothing is answered to it.",
-        "",
-        "## Datagrams",
-        "",
-        "| identifier | datagram | direction | length (bytes) | description |",
-        "|---|---|---|---|---|",
+        *messages_doc(codec.messages.values(), "Datagrams", ("identifier", "datagram", "length (bytes)"),
+                      lambda s: s.length),
     ]
     for s in codec.messages.values():
-        out.append(f"| 0x{s.id:02X} | {s.name} | {s.direction} | {s.length} | {s.doc} |")
-    for s in codec.messages.values():
-        out += ["", f"### {s.name} (0x{s.id:02X}, {s.direction})", "",
-                "| offset | field | type | wire unit | scale to SI | SI attribute | range / values | description |",
-                "|---|---|---|---|---|---|---|---|",
+        out += [*message_heading(s),
+                *md_head("offset", "field", "type", "wire unit", "scale to SI", "SI attribute", "range / values",
+                         "description"),
                 f"| 0 | identifier | u8 | | | | 0x{s.id:02X} | datagram identifier |"]
         offset = 1
         for f in s.fields:
-            if f.enum is not None:
-                rng = ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
-            elif f.bits is not None:
-                rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
-            elif f.is_float:
-                rng = "finite"
-            else:
-                rng = f"{f.lo}..{f.hi}"
-            attr = ", ".join(f.bits) if f.bits is not None else (f.attr if f.index is None else f"{f.attr}[{f.index}]")
-            out.append(f"| {offset} | {f.name} | {f.type} | {f.unit} | {f.scale:.10g} | {attr} | {rng} | {f.doc} |")
+            out.append(f"| {offset} | {f.name} | {f.type} | {f.unit} | {f.scale:.10g} | {attr_text(f)} | "
+                       f"{range_text(f)} | {f.doc} |")
             offset += f.size
         out.append(f"| {offset} | crc | u16 | | | | | CRC-16 of bytes 0..{offset - 1} |")
     if codec.enums:
-        out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
-        for name, values in codec.enums.items():
-            out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+        out += enums_doc(codec.enums)
     out += ["", "## Behaviour", ""] + [f"- {line}" for line in exchanges] + [""]
     return "\n".join(out)

@@ -36,13 +36,14 @@ import select
 import threading
 import time
 import tty
+from collections.abc import Callable
 from typing import Any
 
 from drivers.endpoint import Endpoint
-from drivers.errors import ConnectError, DeviceTimeoutError
+from drivers.errors import ConnectError, DeviceTimeoutError, DriverError
 
-__all__ = ["FdPort", "PipePort", "SerialEndpoint", "check_free", "hold_exclusively", "open_port", "pipe_pair",
-           "port_name", "pty_pair", "wait_readable", "write_available"]
+__all__ = ["FdPort", "PipePort", "SerialEndpoint", "SerialHost", "SerialServer", "check_free", "hold_exclusively",
+           "is_port_error", "open_port", "pipe_pair", "port_name", "pty_pair", "wait_readable", "write_available"]
 
 #: errno values that say another open file holds the port: flock's EWOULDBLOCK, TIOCEXCL's EBUSY.
 _BUSY = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EBUSY)
@@ -400,3 +401,133 @@ class SerialEndpoint(Endpoint):
     def _release(self) -> None:
         if self._owns_port and self.port is not None:
             self.port.close()
+
+
+def is_port_error(exc: BaseException) -> bool:
+    """True for what a failing port raises (an OS error, a closed port, pyserial's SerialException)."""
+    return isinstance(exc, (OSError, ValueError)) or type(exc).__name__.endswith("SerialException")
+
+
+class SerialHost(SerialEndpoint):
+    """The port handling every serial host driver shares: a port the driver opened from a URL is
+    reopened on the next call after it failed; an open port handed in is never reopened.
+
+    A host sets ``name``, ``baudrate``, ``poll_s``, ``_url``, ``_decoder`` (with ``reset()``),
+    ``counters`` (with ``reconnects``), ``online``, ``_closed`` and ``_broken``.
+    """
+
+    #: The reopened port's ``write_timeout`` (s).
+    write_timeout_s: float = 2.0
+    name: str
+    baudrate: int
+    poll_s: float
+    online: bool
+    counters: dict[str, int]
+    _url: str | None
+    _decoder: Any
+    _broken: bool
+    _last_rx: float | None
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: closed; create a new one.")
+        if self._broken:
+            self._reopen()
+
+    def _reopen(self) -> None:
+        if self._url is None or not self._owns_port:
+            raise DriverError(f"{self.name}: the port {port_name(self.port)} failed and was not opened by the "
+                              "driver, so it cannot be reopened; open it again and create a new driver.")
+        try:
+            self.port.close()
+        except Exception:  # noqa: BLE001 - the port is already broken
+            pass
+        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name,
+                                 write_timeout=self.write_timeout_s)
+        self._broken = False
+        self._decoder.reset()
+        self.counters["reconnects"] += 1
+
+    def _read_port(self, block: bool, limit: int | None = None) -> bytes:
+        """What the port holds now, at most ``limit`` bytes (None: all of it); with ``block``, wait up to one
+        poll slice (the port's timeout) for the first byte. A port failure marks the port for reopening."""
+        port = self.port
+        try:
+            n = port.in_waiting
+            if n:
+                return port.read(n if limit is None else min(n, limit))
+            if not block:
+                return b""
+            data = port.read(1)
+            if data:
+                more = port.in_waiting
+                if more:
+                    data += port.read(more if limit is None else min(more, limit))
+            return data
+        except Exception as exc:
+            if is_port_error(exc):
+                raise self._port_failed("read from", exc) from exc
+            raise
+
+    def _timed_out(self, what: str, timeout_s: float, unit: str, hint: str,
+                   awaited: str | None = None) -> DeviceTimeoutError:
+        """The device went quiet: counted, marked offline, and a sentence naming ``what`` was awaited, the port,
+        when the last good ``unit`` came and the device's ``hint``."""
+        self.counters["timeouts"] += 1
+        self.online = False
+        last = ("nothing has been received yet" if self._last_rx is None
+                else f"the last good {unit} came {time.monotonic() - self._last_rx:.3g} s ago")
+        return DeviceTimeoutError(f"{self.name}: no {what} within {timeout_s:g} s on {port_name(self.port)}; {last}. "
+                                  f"{hint}", device=self.name, awaited=what if awaited is None else awaited,
+                                  timeout_s=timeout_s)
+
+    def _port_failed(self, what: str, exc: BaseException) -> DriverError:
+        self._broken = True
+        self.online = False
+        return ConnectError(f"{self.name}: cannot {what} {port_name(self.port)}: {exc}; the port will be reopened on "
+                            "the next call.", where=port_name(self.port), reason=str(exc))
+
+
+class SerialServer(SerialEndpoint):
+    """The wall-clock serving loop every serial device emulator shares (``stand emulate``): the device
+    fills :meth:`service`, :meth:`next_due_s` and, when it queues output, :meth:`_wants_write`."""
+
+    def service(self, t_s: float) -> None:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def next_due_s(self) -> float | None:
+        """Sim time of the next frame the device will publish unasked, or None."""
+        return None
+
+    def _wants_write(self) -> bool:
+        """True while output waits for room on the line (the loop then also wakes when it can write)."""
+        return False
+
+    def run(self, duration_s: float | None = None, *, stop: Callable[[], bool] | None = None,
+            clock: Callable[[], float] = time.monotonic, max_wait_s: float = 0.02) -> None:
+        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
+        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
+        fileno = getattr(self.port, "fileno", None)
+        try:
+            fd = fileno() if fileno is not None else None
+        except Exception:  # loop:// and socket:// objects without a usable descriptor
+            fd = None
+        t0 = clock()
+        while True:
+            t = clock() - t0
+            if duration_s is not None and t >= duration_s:
+                break
+            if stop is not None and stop():
+                break
+            self.service(t)
+            wait = max_wait_s
+            due = self.next_due_s()
+            now = clock() - t0
+            if due is not None:
+                wait = min(wait, max(due - now, 0.0))
+            if duration_s is not None:
+                wait = min(wait, max(duration_s - now, 0.0))
+            if fd is not None:
+                select.select([fd], [fd] if self._wants_write() else [], [], wait)
+            elif wait > 0:
+                time.sleep(min(wait, 0.001))

@@ -1,6 +1,6 @@
 """Serial star tracker (ICD: ``fixtures/devices/star_tracker.toml``; document: ``docs/star_tracker_icd.md``).
 
-- :mod:`.slip`: sans-I/O SLIP framing (feed bytes, get frames; bad input counted);
+- :mod:`.slip`: the shared SLIP framer of :mod:`drivers.framing`, named for the tracker;
 - :mod:`.codec`: pure codec built from the TOML, messages as frozen dataclasses in SI units;
 - :mod:`.host`: :class:`StarTrackerHost`, the stand talking to a tracker;
 - :mod:`.emulator`: :class:`StarTrackerEmulator`, the stand being the tracker (truth plus noise);
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+from drivers.framing import SlipDecoder
 from drivers.star_tracker.codec import (
     Ack,
     Action,
@@ -29,7 +30,6 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
-from drivers.star_tracker.slip import SlipDecoder
 
 if TYPE_CHECKING:  # pragma: no cover
     from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator, TrackerTruth

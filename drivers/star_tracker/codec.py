@@ -17,16 +17,25 @@ expected vs computed (the CRC, the address, the length). Encoding a value outsid
 
 from __future__ import annotations
 
-import binascii
 import math
 import struct
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from drivers.errors import DriverError, EncodeError, ProtocolError
-from drivers.star_tracker.slip import escape
+from drivers.framing import check_crc16_spec, crc16, escape
+from drivers.icd_codec import (
+    DEVICE_TO_HOST,
+    HOST_TO_DEVICE,
+    FieldSpec,
+    MessageSpec,
+    decode_fields,
+    field_specs,
+    index_messages,
+    wire_value,
+)
+from drivers.icd_codec import load_icd as _load_icd
 
 __all__ = [
     "Ack",
@@ -50,15 +59,6 @@ __all__ = [
     "crc16",
     "default_icd_path",
 ]
-
-HOST_TO_DEVICE = "host->device"
-DEVICE_TO_HOST = "device->host"
-
-
-def crc16(data: bytes | bytearray) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
-    return binascii.crc_hqx(data, 0xFFFF)
-
 
 # -- messages (SI units) ------------------------------------------------------------------------
 
@@ -207,50 +207,6 @@ class NackError(DriverError):
 
 # -- the ICD ------------------------------------------------------------------------------------
 
-_TYPES = {
-    "u8": ("B", 0, 0xFF),
-    "u16": ("H", 0, 0xFFFF),
-    "u32": ("I", 0, 0xFFFF_FFFF),
-    "u64": ("Q", 0, 0xFFFF_FFFF_FFFF_FFFF),
-    "i16": ("h", -0x8000, 0x7FFF),
-    "i32": ("i", -0x8000_0000, 0x7FFF_FFFF),
-    "f32": ("f", -3.4028234663852886e38, 3.4028234663852886e38),
-}
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    name: str
-    type: str
-    attr: str
-    index: int | None
-    scale: float
-    lo: float
-    hi: float
-    enum: tuple[str, ...] | None
-    bits: tuple[str, ...] | None
-    doc: str
-
-    @property
-    def is_float(self) -> bool:
-        return self.type == "f32"
-
-
-@dataclass(frozen=True)
-class MessageSpec:
-    id: int
-    name: str
-    direction: str
-    telemetry: bool
-    doc: str
-    fields: tuple[FieldSpec, ...]
-    fmt: str
-    payload_len: int
-    cls: type
-    #: ``(attr, tolerance)`` of tuple attributes that must have unit norm (the ICD's ``unit_norm``).
-    norms: tuple[tuple[str, float], ...] = ()
-
-
 @dataclass(frozen=True)
 class ParamSpec:
     id: int
@@ -283,10 +239,8 @@ def default_icd_path() -> Path:
 
 
 def load_icd(path: str | Path | None = None) -> dict[str, Any]:
-    """The ICD TOML as a dict."""
-    path = default_icd_path() if path is None else Path(path)
-    with open(path, "rb") as f:
-        return tomllib.load(f)
+    """The ICD TOML as a dict (default: the fixture)."""
+    return _load_icd(default_icd_path() if path is None else path)
 
 
 class StarTrackerCodec:
@@ -304,28 +258,15 @@ class StarTrackerCodec:
         if proto.get("byte_order") != "little":
             raise ValueError(f"star tracker ICD: byte_order must be 'little'; got {proto.get('byte_order')!r}.")
         crc = proto["crc"]
-        if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
-            raise ValueError(
-                f"star tracker ICD: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}."
-            )
+        check_crc16_spec(crc, "star tracker ICD")
         fr = proto["framing"]
         if (fr["end"], fr["esc"], fr["esc_end"], fr["esc_esc"]) != (0xC0, 0xDB, 0xDC, 0xDD):
             raise ValueError(f"star tracker ICD: the SLIP bytes {fr} differ from drivers.star_tracker.slip.")
         self.default_address: int = int(proto["default_address"])
         self.max_body: int = int(proto["max_body_bytes"])
         self.enums: dict[str, tuple[str, ...]] = {k: tuple(v) for k, v in icd["enums"].items()}
-        self.messages: dict[str, MessageSpec] = {}
-        self.by_id: dict[int, MessageSpec] = {}
-        for m in icd["messages"]:
-            spec = self._message_spec(m)
-            if spec.id in self.by_id:
-                raise ValueError(f"star tracker ICD: message id 0x{spec.id:02X} is used twice.")
-            self.messages[spec.name] = spec
-            self.by_id[spec.id] = spec
-        if set(self.messages) != set(CLASSES):
-            raise ValueError(
-                f"star tracker ICD: messages {sorted(self.messages)} differ from the codec's {sorted(CLASSES)}."
-            )
+        self.messages, self.by_id = index_messages((self._message_spec(m) for m in icd["messages"]), CLASSES,
+                                                   "star tracker ICD", "message id")
         self._by_cls = {spec.cls: spec for spec in self.messages.values()}
         self.params: dict[str, ParamSpec] = {}
         self.params_by_id: dict[int, ParamSpec] = {}
@@ -351,30 +292,14 @@ class StarTrackerCodec:
             raise ValueError(f"star tracker ICD: message {name!r} has no dataclass in the codec.")
         if m["direction"] not in (HOST_TO_DEVICE, DEVICE_TO_HOST):
             raise ValueError(f"star tracker ICD: message {name} direction must be host->device or device->host.")
-        specs = []
-        covered: set[str] = set()
-        for f in m["fields"]:
-            char, tlo, thi = _TYPES[f["type"]]
-            enum = tuple(self.enums[f["enum"]]) if "enum" in f else None
-            bits = tuple(f["bits"]) if "bits" in f else None
-            lo = float(f.get("min", tlo)) if f["type"] == "f32" else int(f.get("min", tlo))
-            hi = float(f.get("max", thi)) if f["type"] == "f32" else int(f.get("max", thi))
-            if enum is not None:
-                hi = len(enum) - 1
-            if bits is not None:
-                hi = (1 << len(bits)) - 1
-                covered.update(bits)
-            else:
-                covered.add(f["attr"])
-            specs.append(FieldSpec(f["name"], f["type"], f["attr"], f.get("index"), float(f.get("scale", 1.0)),
-                                   lo, hi, enum, bits, f.get("doc", "")))
+        specs, covered = field_specs(m, self.enums, f"star tracker ICD: message {name}")
         attrs = {x.name for x in fields(cls)}
         if covered != attrs:
             raise ValueError(
                 f"star tracker ICD: message {name} maps fields to {sorted(covered)}, but {cls.__name__} has "
                 f"{sorted(attrs)}."
             )
-        fmt = "<" + "".join(_TYPES[s.type][0] for s in specs)
+        fmt = "<" + "".join(s.struct_code for s in specs)
         norms = []
         for un in ([m["unit_norm"]] if isinstance(m.get("unit_norm"), dict) else m.get("unit_norm", [])):
             tol = float(un["tolerance"])
@@ -382,8 +307,9 @@ class StarTrackerCodec:
                 raise ValueError(f"star tracker ICD: message {name} unit_norm {un} must name a tuple attribute and a "
                                  "tolerance in (0, 1).")
             norms.append((un["attr"], tol))
-        return MessageSpec(int(m["id"]), name, m["direction"], bool(m.get("telemetry", False)), m.get("doc", ""),
-                           tuple(specs), fmt, struct.calcsize(fmt), cls, tuple(norms))
+        return MessageSpec(int(m["id"]), name, m["direction"], m.get("doc", ""), tuple(specs), fmt,
+                           struct.calcsize(fmt), cls, overhead=4, telemetry=bool(m.get("telemetry", False)),
+                           norms=tuple(norms))
 
     # -- parameters ---------------------------------------------------------------------------
 
@@ -426,7 +352,7 @@ class StarTrackerCodec:
         values = []
         for f in spec.fields:
             try:
-                values.append(self._wire_value(spec, f, msg))
+                values.append(wire_value(f, msg, f"{spec.name}.{f.name}"))
             except EncodeError:
                 raise
             except Exception as exc:  # noqa: BLE001 - any odd object (an array as a flag, a huge int) names its field
@@ -438,53 +364,6 @@ class StarTrackerCodec:
                 raise EncodeError(f"{spec.name}.{attr} = {getattr(msg, attr)!r} has norm {norm!r}; it must be a unit "
                                   f"quaternion within {tol:g}.")
         return struct.pack(spec.fmt, *values)
-
-    def _wire_value(self, spec: MessageSpec, f: FieldSpec, msg: Message) -> int | float:
-        where = f"{spec.name}.{f.name}"
-        if f.bits is not None:
-            v = 0
-            for i, bit in enumerate(f.bits):
-                flag = getattr(msg, bit)
-                if not isinstance(flag, bool | int) and type(flag).__name__ != "bool_":
-                    raise EncodeError(f"{where}: {bit} = {flag!r} is not a flag; allowed: True or False.")
-                if flag:
-                    v |= 1 << i
-            return v
-        value = getattr(msg, f.attr)
-        if f.index is not None:
-            try:
-                value = value[f.index]
-            except (TypeError, IndexError):
-                raise EncodeError(
-                    f"{where}: {f.attr} must be a sequence with an element {f.index}; got {value!r}."
-                ) from None
-        if f.enum is not None:
-            if isinstance(value, str) and value.upper() in f.enum:
-                return f.enum.index(value.upper())
-            if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(f.enum):
-                return value
-            allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(f.enum))
-            raise EncodeError(f"{where} = {value!r} is not allowed; allowed: {allowed}.")
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            try:
-                value = float(value)
-            except (TypeError, ValueError):
-                raise EncodeError(f"{where} = {value!r} is not a number.") from None
-        wire = value / f.scale if f.scale != 1.0 else value
-        unit = f" ({f.attr} = {value!r} SI)" if f.scale != 1.0 else ""
-        if f.is_float:
-            if not isinstance(wire, float):
-                wire = float(wire)  # a huge int overflows here, and is reported as outside the field
-            if not math.isfinite(wire) or not (f.lo <= wire <= f.hi):
-                raise EncodeError(f"{where} = {wire!r}{unit} is outside the field: allowed a finite number from "
-                                  f"{f.lo:g} to {f.hi:g}.")
-            return float(wire)
-        if isinstance(wire, float) and not math.isfinite(wire):
-            raise EncodeError(f"{where} = {wire!r}{unit} is not finite; allowed: {f.lo} to {f.hi}.")
-        n = round(wire)
-        if not (f.lo <= n <= f.hi):
-            raise EncodeError(f"{where} = {wire!r}{unit} is outside the field: allowed {f.lo} to {f.hi} ({f.type}).")
-        return n
 
     def encode_body(self, msg: Message, address: int | None = None) -> bytes:
         """``address | id | payload | CRC``, unescaped."""
@@ -530,47 +409,5 @@ class StarTrackerCodec:
         return self.decode_payload(spec, payload, hx)
 
     def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Message:
-        raw = struct.unpack(spec.fmt, payload)
-        kw: dict[str, Any] = {}
-        tuples: dict[str, dict[int, float]] = {}
-        for f, v in zip(spec.fields, raw, strict=True):
-            if f.bits is not None:
-                if v >> len(f.bits):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
-                                        frame_hex=hx or payload.hex().upper(), expected=f"<= 0x{f.hi:X}",
-                                        computed=f"0x{v:X}")
-                for i, bit in enumerate(f.bits):
-                    kw[bit] = bool(v >> i & 1)
-                continue
-            if f.enum is not None:
-                if v >= len(f.enum):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is not in its table",
-                                        frame_hex=hx or payload.hex().upper(), expected=f"0..{len(f.enum) - 1}",
-                                        computed=v)
-                val: Any = f.enum[v]
-            elif f.is_float:
-                if not (math.isfinite(v) and f.lo <= v <= f.hi):
-                    raise FrameRejected("value", f"{spec.name}.{f.name} = {v!r} is outside its range",
-                                        frame_hex=hx or payload.hex().upper(),
-                                        expected=f"a finite number from {f.lo:g} to {f.hi:g}", computed=v)
-                val = v * f.scale if f.scale != 1.0 else v
-            elif f.scale != 1.0:
-                val = v * f.scale
-            else:
-                val = v
-            if not f.is_float and f.enum is None and not (f.lo <= v <= f.hi):
-                raise FrameRejected("value", f"{spec.name}.{f.name} = {v} is outside its range",
-                                    frame_hex=hx or payload.hex().upper(), expected=f"{f.lo}..{f.hi}", computed=v)
-            if f.index is not None:
-                tuples.setdefault(f.attr, {})[f.index] = val
-            else:
-                kw[f.attr] = val
-        for attr, items in tuples.items():
-            kw[attr] = tuple(items[i] for i in range(len(items)))
-        for attr, tol in spec.norms:
-            norm = math.sqrt(sum(x * x for x in kw[attr]))
-            if not abs(norm - 1.0) <= tol:
-                raise FrameRejected("value", f"{spec.name}.{attr} has norm {norm:.9g}, not a unit quaternion",
-                                    frame_hex=hx or payload.hex().upper(), expected=f"1 within {tol:g}",
-                                    computed=f"{norm:.9g}")
-        return spec.cls(**kw)
+        """The message of one frame's payload; FrameRejected for a value outside its table or range."""
+        return decode_fields(spec, struct.unpack(spec.fmt, payload), FrameRejected, hx or payload)

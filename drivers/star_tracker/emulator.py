@@ -53,7 +53,6 @@ another device are not bad), and ``last_rejected`` says why the latest one was d
 from __future__ import annotations
 
 import math
-import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -62,7 +61,8 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DriverError, EncodeError
-from drivers.serial_port import SerialEndpoint, open_port, port_name, write_available
+from drivers.framing import SlipDecoder
+from drivers.serial_port import SerialServer, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
     HOST_TO_DEVICE,
     Ack,
@@ -80,7 +80,6 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
-from drivers.star_tracker.slip import SlipDecoder
 
 __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
 
@@ -225,7 +224,7 @@ def _small_rotation(v: Sequence[float]) -> tuple[float, float, float, float]:
     return (math.cos(0.5 * angle), x * s, y * s, z * s)
 
 
-class StarTrackerEmulator(SerialEndpoint):
+class StarTrackerEmulator(SerialServer):
     """The star tracker, emulated on ``port`` (see the module docstring for the behaviour).
 
     Args:
@@ -546,59 +545,65 @@ class StarTrackerEmulator(SerialEndpoint):
         self._send(Nack(command_id, error))
 
     def _apply(self, msg: Message, t_s: float) -> Message | None:
-        ids = self.codec.messages
-        if isinstance(msg, RequestTelemetry):
-            if msg.telemetry_id == self.codec.status_id:
-                return self.status(t_s)
-            if msg.telemetry_id == self.codec.solution_id:
-                if self.latest_solution is None:
-                    return self._refuse(ids["REQUEST_TELEMETRY"].id, "NOT_READY")
-                return self.latest_solution
-            return self._refuse(ids["REQUEST_TELEMETRY"].id, "UNKNOWN_TELEMETRY")
-        if isinstance(msg, SetParam):
-            cid = ids["SET_PARAM"].id
-            ps = self.codec.params_by_id.get(msg.param_id)
-            if ps is None:
-                return self._refuse(cid, "UNKNOWN_PARAMETER")
-            if ps.check_wire(msg.value) is not None:
-                return self._refuse(cid, "VALUE_OUT_OF_RANGE")
-            if ps.attr == "output_interval_s" and self._t_ready is not None and self._k_exposure > 0:
-                # a new exposure grid, anchored at the last exposure
-                self._t_ready += (self._k_exposure - 1) * self.params["output_interval_s"]
-                self._k_exposure = 1
-            self.params[ps.attr] = msg.value * ps.scale
-            return Ack(cid)
-        if isinstance(msg, GetParam):
-            ps = self.codec.params_by_id.get(msg.param_id)
-            if ps is None:
-                return self._refuse(ids["GET_PARAM"].id, "UNKNOWN_PARAMETER")
-            return ParamValue(ps.id, self.params[ps.attr] / ps.scale)
-        if isinstance(msg, Action):
-            cid = ids["ACTION"].id
-            if msg.action == "BOOT":
-                self._start_boot(t_s)
-            elif msg.action == "SET_TIME":
-                self._clock_ref = (t_s, msg.argument * 1e-6)
-                self.time_synced = True
-            elif msg.action == "RESET_COUNTERS":
-                for k in self._dev:
-                    self._dev[k] = 0
-            else:
-                return self._refuse(cid, "UNKNOWN_ACTION")
-            return Ack(cid)
+        handler = _HANDLERS.get(type(msg))
+        if handler is None:  # pragma: no cover - decode_body only lets commands through
+            return None
+        return handler(self, msg, t_s)
+
+    def _on_request(self, msg: RequestTelemetry, t_s: float) -> Message | None:
+        cid = self.codec.messages["REQUEST_TELEMETRY"].id
+        if msg.telemetry_id == self.codec.status_id:
+            return self.status(t_s)
+        if msg.telemetry_id == self.codec.solution_id:
+            if self.latest_solution is None:
+                return self._refuse(cid, "NOT_READY")
+            return self.latest_solution
+        return self._refuse(cid, "UNKNOWN_TELEMETRY")
+
+    def _on_set_param(self, msg: SetParam, t_s: float) -> Message | None:
+        cid = self.codec.messages["SET_PARAM"].id
+        ps = self.codec.params_by_id.get(msg.param_id)
+        if ps is None:
+            return self._refuse(cid, "UNKNOWN_PARAMETER")
+        if ps.check_wire(msg.value) is not None:
+            return self._refuse(cid, "VALUE_OUT_OF_RANGE")
+        if ps.attr == "output_interval_s" and self._t_ready is not None and self._k_exposure > 0:
+            # a new exposure grid, anchored at the last exposure
+            self._t_ready += (self._k_exposure - 1) * self.params["output_interval_s"]
+            self._k_exposure = 1
+        self.params[ps.attr] = msg.value * ps.scale
+        return Ack(cid)
+
+    def _on_get_param(self, msg: GetParam, t_s: float) -> Message | None:
+        ps = self.codec.params_by_id.get(msg.param_id)
+        if ps is None:
+            return self._refuse(self.codec.messages["GET_PARAM"].id, "UNKNOWN_PARAMETER")
+        return ParamValue(ps.id, self.params[ps.attr] / ps.scale)
+
+    def _on_action(self, msg: Action, t_s: float) -> Message | None:
+        cid = self.codec.messages["ACTION"].id
+        if msg.action == "BOOT":
+            self._start_boot(t_s)
+        elif msg.action == "SET_TIME":
+            self._clock_ref = (t_s, msg.argument * 1e-6)
+            self.time_synced = True
+        elif msg.action == "RESET_COUNTERS":
+            for k in self._dev:
+                self._dev[k] = 0
+        else:
+            return self._refuse(cid, "UNKNOWN_ACTION")
+        return Ack(cid)
+
+    def _on_subscribe(self, msg: Subscribe | Unsubscribe, t_s: float) -> Message | None:
+        name = "SUBSCRIBE" if isinstance(msg, Subscribe) else "UNSUBSCRIBE"
+        cid = self.codec.messages[name].id
+        if msg.telemetry_id not in self.codec.telemetry_ids:
+            return self._refuse(cid, "UNKNOWN_TELEMETRY")
         if isinstance(msg, Subscribe):
-            cid = ids["SUBSCRIBE"].id
-            if msg.telemetry_id not in self.codec.telemetry_ids:
-                return self._refuse(cid, "UNKNOWN_TELEMETRY")
             self._subs[msg.telemetry_id] = [msg.period_s, t_s + msg.period_s]
-            return Ack(cid)
-        if isinstance(msg, Unsubscribe):
-            cid = ids["UNSUBSCRIBE"].id
-            if msg.telemetry_id not in self.codec.telemetry_ids:
-                return self._refuse(cid, "UNKNOWN_TELEMETRY")
+        else:
             self._subs.pop(msg.telemetry_id, None)
-            return Ack(cid)
-        return None  # pragma: no cover - decode_body only lets commands through
+        return Ack(cid)
 
     def _refuse(self, command_id: int, error: str) -> Nack:
         self.counters["commands_nacked"] += 1
@@ -681,43 +686,27 @@ class StarTrackerEmulator(SerialEndpoint):
             self.counters["sent"] += 1
             self._dev["frames_sent"] += 1
 
-    # -- stand-alone loop -----------------------------------------------------------------------
+    # -- stand-alone loop (SerialServer.run) -----------------------------------------------------
 
-    def run(
-        self,
-        duration_s: float | None = None,
-        *,
-        stop: Callable[[], bool] | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        max_wait_s: float = 0.02,
-    ) -> None:
-        """Serve in wall-clock time (sim time = seconds since the call) until ``duration_s`` has passed
-        or ``stop()`` returns true. Wakes on incoming bytes when the port has a file descriptor."""
-        import select
+    def next_due_s(self) -> float | None:
+        """Sim time of the next exposure or of the next solution waiting for its output delay, or None."""
+        due = None
+        if self._t_ready is not None:
+            due = self._t_ready + self._k_exposure * self.params["output_interval_s"]
+        if self._pending:
+            due = self._pending[0][0] if due is None else min(due, self._pending[0][0])
+        return due
 
-        fileno = getattr(self.port, "fileno", None)
-        try:
-            fd = fileno() if fileno is not None else None
-        except Exception:  # loop:// and socket:// objects without a usable descriptor
-            fd = None
-        t0 = clock()
-        while True:
-            t = clock() - t0
-            if duration_s is not None and t >= duration_s:
-                break
-            if stop is not None and stop():
-                break
-            self.service(t)
-            wait = max_wait_s
-            if self._t_ready is not None:
-                interval = self.params["output_interval_s"]
-                next_exp = self._t_ready + self._k_exposure * interval
-                wait = min(wait, max(next_exp - (clock() - t0), 0.0))
-            if self._pending:
-                wait = min(wait, max(self._pending[0][0] - (clock() - t0), 0.0))
-            if duration_s is not None:
-                wait = min(wait, max(duration_s - (clock() - t0), 0.0))
-            if fd is not None:
-                select.select([fd], [fd] if self._tx else [], [], wait)
-            elif wait > 0:
-                time.sleep(min(wait, 0.001))
+    def _wants_write(self) -> bool:
+        return bool(self._tx)
+
+
+#: Command dataclass -> the emulator's handler of it.
+_HANDLERS: dict[type, Callable[[StarTrackerEmulator, Any, float], Message | None]] = {
+    RequestTelemetry: StarTrackerEmulator._on_request,
+    SetParam: StarTrackerEmulator._on_set_param,
+    GetParam: StarTrackerEmulator._on_get_param,
+    Action: StarTrackerEmulator._on_action,
+    Subscribe: StarTrackerEmulator._on_subscribe,
+    Unsubscribe: StarTrackerEmulator._on_subscribe,
+}

@@ -36,8 +36,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from drivers.errors import ConnectError, DeviceTimeoutError, DriverError, EncodeError
-from drivers.serial_port import SerialEndpoint, open_port, port_name
+from drivers.errors import DeviceTimeoutError, EncodeError
+from drivers.framing import SlipDecoder
+from drivers.serial_port import SerialHost, is_port_error, open_port, port_name
 from drivers.star_tracker.codec import (
     DEVICE_TO_HOST,
     Ack,
@@ -55,22 +56,16 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
-from drivers.star_tracker.slip import SlipDecoder
 
 __all__ = ["StarTrackerHost"]
 
-_PORT_ERRORS = (OSError, ValueError)
 #: Why a received frame is dropped: the codec's FrameRejected kinds, then the SLIP decoder's.
 #: Bytes asked of the port per read.
 _READ_CHUNK = 4096
 REJECT_REASONS = ("crc", "address", "unknown_id", "length", "value", "short", "direction", "oversize", "bad_escape")
 
 
-def _is_port_error(exc: BaseException) -> bool:
-    return isinstance(exc, _PORT_ERRORS) or type(exc).__name__.endswith("SerialException")
-
-
-class StarTrackerHost(SerialEndpoint):
+class StarTrackerHost(SerialHost):
     """Host-side driver of one star tracker.
 
     Args:
@@ -158,32 +153,6 @@ class StarTrackerHost(SerialEndpoint):
 
     # -- port -----------------------------------------------------------------------------------
 
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DriverError(f"{self.name}: closed; create a new one.")
-        if self._broken:
-            self._reopen()
-
-    def _reopen(self) -> None:
-        if self._url is None or not self._owns_port:
-            raise DriverError(f"{self.name}: the port {port_name(self.port)} failed and was not opened by the "
-                              "driver, so it cannot be reopened; open it again and create a new driver.")
-        try:
-            self.port.close()
-        except Exception:  # noqa: BLE001 - the port is already broken
-            pass
-        self.port, _ = open_port(self._url, baudrate=self.baudrate, timeout=self.poll_s, name=self.name,
-                                 write_timeout=self.write_timeout_s)
-        self._broken = False
-        self._decoder.reset()
-        self.counters["reconnects"] += 1
-
-    def _port_failed(self, what: str, exc: BaseException) -> DriverError:
-        self._broken = True
-        self.online = False
-        return ConnectError(f"{self.name}: cannot {what} {port_name(self.port)}: {exc}; the port will be reopened on "
-                            "the next call.", where=port_name(self.port), reason=str(exc))
-
     def _write(self, msg: Message) -> None:
         frame = self.codec.encode(msg, self.address)
         try:
@@ -199,7 +168,7 @@ class StarTrackerHost(SerialEndpoint):
                     f"{self.write_timeout_s:g} s; the line is not being read (is the device stalled?).",
                     device=self.name, awaited="the port to take a command", timeout_s=self.write_timeout_s,
                 ) from None
-            if _is_port_error(exc):
+            if is_port_error(exc):
                 raise self._port_failed("write to", exc) from exc
             raise
         self.counters["sent"] += 1
@@ -207,24 +176,7 @@ class StarTrackerHost(SerialEndpoint):
     def _read(self, block: bool, limit: int = _READ_CHUNK) -> int:
         """Read what is there, at most ``limit`` bytes (``block``: wait up to one poll slice for the
         first byte); decode it. Returns the number of bytes read."""
-        port = self.port
-        chunk = max(1, min(limit, _READ_CHUNK))
-        try:
-            n = port.in_waiting
-            if n:
-                data = port.read(min(n, chunk))
-            elif block:
-                data = port.read(1)
-                if data:
-                    more = port.in_waiting
-                    if more:
-                        data += port.read(min(more, chunk))
-            else:
-                return 0
-        except Exception as exc:
-            if _is_port_error(exc):
-                raise self._port_failed("read from", exc) from exc
-            raise
+        data = self._read_port(block, max(1, min(limit, _READ_CHUNK)))
         if not data:
             return 0
         self.counters["bytes_received"] += len(data)
@@ -341,16 +293,9 @@ class StarTrackerHost(SerialEndpoint):
             self._read(block=True)
 
     def _timeout(self, awaited: str, timeout_s: float) -> DeviceTimeoutError:
-        self.counters["timeouts"] += 1
-        self.online = False
         self._decoder.reset()
-        last = ("nothing has been received yet" if self._last_rx is None
-                else f"the last good frame came {time.monotonic() - self._last_rx:.3g} s ago")
-        return DeviceTimeoutError(
-            f"{self.name}: no {awaited} from address 0x{self.address:02X} within {timeout_s:g} s on "
-            f"{port_name(self.port)}; {last}. Is the tracker powered, booted and on this port and address?",
-            device=self.name, awaited=awaited, timeout_s=timeout_s,
-        )
+        return self._timed_out(f"{awaited} from address 0x{self.address:02X}", timeout_s, "frame",
+                               "Is the tracker powered, booted and on this port and address?", awaited=awaited)
 
     def _command(self, cmd: Message, timeout_s: float | None) -> None:
         cid = self.codec.spec_of(cmd).id

@@ -8,6 +8,8 @@ document cannot drift from the definition the codec and the emulator are built o
 
 from __future__ import annotations
 
+from drivers.framing import crc16_doc
+from drivers.icd_codec import attr_text, enums_doc, md_head, message_heading, messages_doc, range_text
 from drivers.star_tracker.codec import StarTrackerCodec
 
 __all__ = ["render"]
@@ -40,53 +42,27 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         f"{_hex(fr['esc'])} {_hex(fr['esc_esc'])}.",
         "- Body (before escaping): `address u8 | message id u8 | payload | CRC u16`.",
         f"- Default address {_hex(p['default_address'])}; a device ignores frames for other addresses.",
-        f"- Checksum: {crc['name']} (poly {_hex(crc['poly'])}, init 0x{crc['init']:04X}, no reflection, "
-        f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.",
+        crc16_doc(crc),
         f"- At most {p['max_body_bytes']} body bytes; longer frames are dropped as oversize.",
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
         "- Every frame the device cannot accept (bad CRC, bad escape, oversize, short) is counted and dropped; "
         "a command with an unknown id, a wrong length or a value outside its table gets a NACK. The host "
         "drops a reply with a value outside its range (below) and counts it per reason.",
-        "",
-        "## Messages",
-        "",
-        "| id | message | direction | payload bytes | description |",
-        "|---|---|---|---|---|",
+        *messages_doc(c.messages.values(), "Messages", ("id", "message", "payload bytes"), lambda s: s.payload_len),
     ]
     for s in c.messages.values():
-        out.append(f"| {_hex(s.id)} | {s.name} | {s.direction} | {s.payload_len} | {s.doc} |")
-    for s in c.messages.values():
-        out += ["", f"### {s.name} ({_hex(s.id)}, {s.direction})", "",
-                "| offset | field | type | scale to SI | SI attribute | range / values | description |",
-                "|---|---|---|---|---|---|---|"]
+        out += [*message_heading(s),
+                *md_head("offset", "field", "type", "scale to SI", "SI attribute", "range / values", "description")]
         offset = 0
-        import struct
-
         for f in s.fields:
-            if f.enum is not None:
-                rng = ", ".join(f"{i} {n}" for i, n in enumerate(f.enum))
-            elif f.bits is not None:
-                rng = ", ".join(f"bit {i} {n}" for i, n in enumerate(f.bits))
-            elif f.is_float:
-                rng = "finite" if (f.lo, f.hi) == (-3.4028234663852886e38, 3.4028234663852886e38) else \
-                    f"finite, {f.lo:g}..{f.hi:g}"
-            else:
-                rng = f"{f.lo}..{f.hi}"
-            attr = f.attr if f.index is None else f"{f.attr}[{f.index}]"
-            if f.bits is not None:
-                attr = ", ".join(f.bits)
-            out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr} | {rng} | {f.doc} |")
-            offset += struct.calcsize("<" + {"u8": "B", "u16": "H", "u32": "I", "u64": "Q", "i16": "h",
-                                             "i32": "i", "f32": "f"}[f.type])
+            out.append(f"| {offset} | {f.name} | {f.type} | {f.scale:g} | {attr_text(f)} | {range_text(f)} | {f.doc} |")
+            offset += f.size
         for attr, tol in s.norms:
             out.append("")
             out.append(f"`{attr}` must have unit norm within {tol:g}; a frame outside it is rejected as a bad value.")
-    out += ["", "## Enumerations", "", "| enumeration | values |", "|---|---|"]
-    for name, values in c.enums.items():
-        out.append(f"| {name} | {', '.join(f'{i} {v}' for i, v in enumerate(values))} |")
+    out += enums_doc(c.enums)
     out += ["", "## Parameters (SET_PARAM / GET_PARAM, value as f32 in the wire unit)", "",
-            "| id | parameter | unit | scale to SI | min | max | default | description |",
-            "|---|---|---|---|---|---|---|---|"]
+            *md_head("id", "parameter", "unit", "scale to SI", "min", "max", "default", "description")]
     for ps in c.params.values():
         kind = " (whole number)" if ps.integer else ""
         out.append(f"| {ps.id} | {ps.name} | {ps.unit} | {ps.scale:g} | {ps.lo:g} | {ps.hi:g} | {ps.default:g} | "

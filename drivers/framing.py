@@ -1,0 +1,160 @@
+"""The framing layer shared by the serial devices: the CRC every serial ICD uses, and sans-I/O SLIP
+framing (RFC 1055, with an END byte before and after every frame).
+
+No port, no clock. A framer looks at a buffer and reports how many bytes it consumed (0 = need
+more) and what it found there, the way pymodbus's framers do: :func:`take_frame` for SLIP (the
+star tracker), :func:`drivers.datagram.take_datagram` for fixed-length datagrams (the gyro, the
+sun sensor). :class:`SlipDecoder` keeps the buffer between calls, counts what it drops and never
+raises on bad input::
+
+    dec = SlipDecoder(max_body=128)
+    for body in dec.feed(chunk):        # unescaped frame bodies, in order
+        ...
+    dec.counters                         # frames, oversize, bad_escape, bytes_dropped
+
+Bytes between two END bytes form one frame; back-to-back END bytes (idle fill) are ignored.
+Garbage before a frame's opening END therefore comes out as a frame of its own, which the codec
+rejects (bad CRC or too short): that is how a receiver resynchronises.
+"""
+
+
+from __future__ import annotations
+
+import binascii
+
+__all__ = ["END", "ESC", "ESC_END", "ESC_ESC", "SlipDecoder", "crc16", "escape", "take_frame", "unescape"]
+
+END = 0xC0
+ESC = 0xDB
+ESC_END = 0xDC
+ESC_ESC = 0xDD
+
+_END_B = bytes([END])
+_ESC_B = bytes([ESC])
+
+
+def crc16(data: bytes | bytearray | memoryview) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor)."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def escape(body: bytes) -> bytes:
+    """A full SLIP frame of ``body``: END, body with END/ESC escaped, END."""
+    return _END_B + body.replace(_ESC_B, bytes([ESC, ESC_ESC])).replace(_END_B, bytes([ESC, ESC_END])) + _END_B
+
+
+def unescape(chunk: bytes | bytearray) -> bytes | None:
+    """The body of an escaped chunk (no END bytes in it), or None for an invalid escape."""
+    if ESC not in chunk:
+        return bytes(chunk)
+    out = bytearray()
+    it = iter(chunk)
+    for b in it:
+        if b != ESC:
+            out.append(b)
+            continue
+        nxt = next(it, None)
+        if nxt == ESC_END:
+            out.append(END)
+        elif nxt == ESC_ESC:
+            out.append(ESC)
+        else:
+            return None
+    return bytes(out)
+
+
+def take_frame(buf: bytes | bytearray, max_body: int) -> tuple[int, bytes | None, str | None]:
+    """Look for one frame at the start of ``buf``.
+
+    Returns ``(consumed, body, error)``:
+
+    - ``(0, None, None)``: no END yet and not too long: feed more bytes;
+    - ``(n, body, None)``: a frame; ``n`` bytes (through its closing END) are consumed;
+    - ``(n, None, None)``: an empty chunk (idle END) was consumed;
+    - ``(n, None, "bad_escape")``: a chunk with an ESC not followed by ESC_END/ESC_ESC;
+    - ``(n, None, "oversize")``: a chunk whose body exceeds ``max_body`` bytes; when no END was
+      found at all, every byte is consumed and the caller must drop up to the next END.
+    """
+    i = buf.find(END)
+    if i < 0:
+        if len(buf) > 2 * max_body:  # even fully escaped, the body would be too long
+            return len(buf), None, "oversize"
+        return 0, None, None
+    if i == 0:
+        return 1, None, None
+    body = unescape(buf[:i])
+    if body is None:
+        return i + 1, None, "bad_escape"
+    if len(body) > max_body:
+        return i + 1, None, "oversize"
+    return i + 1, body, None
+
+
+class SlipDecoder:
+    """Streaming SLIP decoder: :meth:`feed` bytes, get frame bodies; bad input is counted, never raised.
+
+    ``counters``: ``frames`` (bodies returned), ``oversize``, ``bad_escape``, ``bytes_dropped``
+    (bytes of rejected chunks and of oversize runs).
+    """
+
+    def __init__(self, max_body: int = 128) -> None:
+        if not (isinstance(max_body, int) and max_body >= 1):
+            raise ValueError(f"SlipDecoder max_body must be an int >= 1; got {max_body!r}.")
+        self.max_body = max_body
+        self._buf = bytearray()
+        self._dropping = False  # inside an oversize run: drop everything up to the next END
+        self.counters = {"frames": 0, "oversize": 0, "bad_escape": 0, "bytes_dropped": 0}
+
+    def reset(self) -> None:
+        """Forget any partial frame (after a reconnect)."""
+        self.counters["bytes_dropped"] += len(self._buf)
+        self._buf.clear()
+        self._dropping = False
+
+    @property
+    def pending(self) -> int:
+        """Bytes held waiting for an END."""
+        return len(self._buf)
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[bytes]:
+        """Add ``data``; return the complete frame bodies found, oldest first."""
+        buf = self._buf
+        buf += data
+        frames: list[bytes] = []
+        counters = self.counters
+        while buf:
+            if self._dropping:
+                i = buf.find(END)
+                if i < 0:
+                    counters["bytes_dropped"] += len(buf)
+                    buf.clear()
+                    break
+                counters["bytes_dropped"] += i + 1
+                del buf[: i + 1]
+                self._dropping = False
+                continue
+            consumed, body, error = take_frame(buf, self.max_body)
+            if consumed == 0:
+                break
+            if error is not None:
+                counters[error] += 1
+                counters["bytes_dropped"] += consumed
+                if error == "oversize" and buf.find(END, 0, consumed) < 0:
+                    self._dropping = True
+            elif body is not None:
+                counters["frames"] += 1
+                frames.append(body)
+            del buf[:consumed]
+        return frames
+
+
+def check_crc16_spec(crc: dict, what: str) -> None:
+    """ValueError (naming ``what``) unless the ICD's ``crc`` table asks for :func:`crc16`."""
+    if crc16(b"123456789") != crc["check"] or (crc["poly"], crc["init"], crc["width"]) != (0x1021, 0xFFFF, 16):
+        raise ValueError(f"{what}: this codec implements CRC-16/CCITT-FALSE only; the ICD asks for {crc}.")
+
+
+def crc16_doc(crc: dict) -> str:
+    """The ICD document's checksum line."""
+    return (f"- Checksum: {crc['name']} (poly 0x{crc['poly']:04X}, init 0x{crc['init']:04X}, no reflection, "
+            f"xorout 0x{crc['xorout']:04X}, check 0x{crc['check']:04X}) over {crc['covers']}; {crc['placement']}.")
