@@ -259,6 +259,7 @@ class ServedBoard(_Board):
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
         from drivers.can_bus import ServedBus
+        from drivers.can_node import ServedNode
 
         super().__init__(spec)
         self.link = ServedBus(_open(spec), own_ids=_codec().board_tx_ids)
@@ -270,13 +271,9 @@ class ServedBoard(_Board):
             raise
         # Silence here means the flight computer stopped commanding.
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
-        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
-
-    def rejected_frames(self) -> int:
-        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
-
-    def _last_rejected(self):
-        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
+        self.served = ServedNode(self.emulator, self.link)
+        self.rejections = Rejections(spec.name, self.served.rejected_frames, self.served.last_rejected,
+                                     self.served.conflict)
 
     def start(self, events):
         self.rejections.start(events)
@@ -297,7 +294,8 @@ class ServedBoard(_Board):
         return self.emulator.counters["commands_accepted"]
 
     def summary(self):
-        return {"emulator": {**self.emulator.counters, **self.link.counters}, "rejected_frames": self.rejected_frames()}
+        return {"emulator": {**self.emulator.counters, **self.link.counters},
+                "rejected_frames": self.served.rejected_frames()}
 
 
 KIND = MagnetorquerKind()

@@ -243,6 +243,7 @@ class ServedWheel(_Wheel):
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
         from drivers.can_bus import ServedBus, open_device_bus
+        from drivers.can_node import ServedNode
         from drivers.reaction_wheel.codec import ReactionWheelCodec
 
         super().__init__(spec, ctx)
@@ -255,13 +256,9 @@ class ServedWheel(_Wheel):
         except BaseException:
             self.close()
             raise
-        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
-
-    def rejected_frames(self) -> int:
-        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
-
-    def _last_rejected(self):
-        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
+        self.served = ServedNode(self.emulator, self.link)
+        self.rejections = Rejections(spec.name, self.served.rejected_frames, self.served.last_rejected,
+                                     self.served.conflict)
 
     def start(self, events):
         self.rejections.start(events)
@@ -280,7 +277,7 @@ class ServedWheel(_Wheel):
     def summary(self):
         out = super().summary()
         out["emulator_counters"].update(self.link.counters)
-        out["rejected_frames"] = self.rejected_frames()
+        out["rejected_frames"] = self.served.rejected_frames()
         return out
 
 

@@ -1,0 +1,172 @@
+"""What every CAN node of the project shares, host driver or emulated device: the receive loop that sorts
+each frame, the counters, the rejection reasons and sending one encoded message.
+
+A node knows three sets of standard (11-bit) ids:
+
+- ``accept``: the ids it takes (with their lengths, from the ICD);
+- ``addressed``: the ids that are its to take (``accept`` plus any id of its range the ICD leaves
+  unassigned, e.g. the magnetorquer board's command block 0x090..0x09F);
+- ``own``: the ids it sends itself, which a bus that loops every frame back to its sender
+  (``udp_multicast``) returns to it.
+
+Each frame read is counted in ``received`` and then in exactly one of:
+
+- ``echoes``: one of the node's own frames coming back (only on a bus that loops back);
+- ``foreign``: a frame not addressed to this node (another node's traffic on a shared bus, a 29-bit
+  id): ignored, not an error, since several devices may share one bus;
+- ``rejected_unknown_id``, ``rejected_length``, ``rejected_other``: a frame addressed to the node
+  that it cannot accept (an id of its range the ICD does not assign, a wrong length, a value that
+  does not decode, a remote frame), or an error frame, which every node on the bus sees;
+- taken: handed to the node's :meth:`CanNode._take` (the device's own behaviour).
+
+:attr:`CanNode.rejected_frames` sums the three ``rejected_*`` counters and ``last_rejected`` says why
+the latest one was dropped, naming the frame in candump notation. An emulated device also counts
+each rejection in its on-board ``rejected_frames`` counter (``self._board``), which its ICD reports.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import can
+
+from drivers.can_bus import data_frame, loops_back
+from drivers.endpoint import BusEndpoint
+from drivers.errors import DriverError, ProtocolError, frame_hex
+
+__all__ = ["CanNode", "ServedNode"]
+
+#: How a node names each kind of frame it drops (``last_rejected``).
+_WHY = {"rejected_unknown_id": "a frame with an id of {name}'s range that it does not take",
+        "rejected_length": "a frame of the wrong length for its id",
+        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
+
+#: The counters every node keeps; a device adds its own after these.
+NODE_COUNTERS = ("sent", "received", "rejected_unknown_id", "rejected_length", "rejected_other", "foreign", "echoes")
+
+
+class CanNode(BusEndpoint):
+    """Base of a CAN host driver or emulated device; a subclass calls :meth:`_init_node` and fills :meth:`_take`.
+
+    Attributes:
+        counters: :data:`NODE_COUNTERS` then the device's own (see the module docstring).
+        last_rejected: why the latest frame was rejected, or None.
+    """
+
+    name: str
+    #: The sentence after the name when the node is used after close.
+    _closed_text = "closed; create a new one."
+    #: The on-board counters an emulated device reports (``rejected_frames`` among them), or None for a host.
+    _board: dict[str, int] | None = None
+
+    def _init_node(self, bus: can.BusABC, codec: Any, *, accept: frozenset[int], own: frozenset[int],
+                   addressed: frozenset[int] = frozenset(), extra_counters: tuple[str, ...] = (),
+                   owns_bus: bool = False) -> None:
+        self.bus = bus
+        self._owns_bus = owns_bus
+        self._closed = False
+        self._accept = frozenset(accept)
+        self._addressed = self._accept | frozenset(addressed)
+        # Only a bus that loops frames back returns our own; elsewhere such a frame is another node's.
+        self._echo_ids = frozenset(own) if loops_back(bus) else frozenset()
+        self._lengths = codec.lengths
+        self._decode = codec.decode
+        self._encode = codec.encode
+        self.last_rejected: str | None = None
+        self.counters: dict[str, int] = dict.fromkeys((*NODE_COUNTERS, *extra_counters), 0)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: {self._closed_text}")
+
+    # -- receiving --------------------------------------------------------------------------------
+
+    def _drain(self, t_s: float | None) -> int:
+        """Read every pending frame without blocking and sort each (module docstring); returns how many."""
+        recv = self.bus.recv
+        handle = self._handle
+        n = 0
+        try:
+            while (msg := recv(0.0)) is not None:
+                handle(msg, t_s)
+                n += 1
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        return n
+
+    def _handle(self, msg: can.Message, t_s: float | None) -> None:
+        counters = self.counters
+        counters["received"] += 1
+        frame_id = msg.arbitration_id
+        if msg.is_error_frame:
+            self._reject("rejected_other", msg)
+            return
+        if msg.is_extended_id or frame_id not in self._addressed:
+            counters["echoes" if not msg.is_extended_id and frame_id in self._echo_ids else "foreign"] += 1
+            return
+        if msg.is_remote_frame:
+            self._reject("rejected_other", msg)
+            return
+        if frame_id not in self._accept:
+            self._reject("rejected_unknown_id", msg)
+            return
+        data = msg.data
+        if len(data) != self._lengths[frame_id]:
+            self._reject("rejected_length", msg)
+            return
+        try:
+            decoded = self._decode(frame_id, data)
+        except ProtocolError:
+            self._reject("rejected_other", msg)
+            return
+        self._take(decoded, t_s)
+
+    def _take(self, decoded: Any, t_s: float | None) -> None:  # pragma: no cover - every node overrides it
+        raise NotImplementedError
+
+    @property
+    def rejected_frames(self) -> int:
+        """Frames addressed to this node that it dropped as unknown, of the wrong length or undecodable, plus error
+        frames, each counted once (not commands refused in the wrong mode, nor other nodes' traffic)."""
+        c = self.counters
+        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
+
+    def _reject(self, key: str, msg: can.Message | None = None) -> None:
+        self.counters[key] += 1
+        if msg is not None:
+            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
+            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
+            self.last_rejected = f"{_WHY[key].format(name=self.name)}: frame {frame}{kind}"
+        if self._board is not None:
+            self._board["rejected_frames"] += 1
+
+    # -- sending ----------------------------------------------------------------------------------
+
+    def _send(self, msg: Any) -> None:
+        """Encode ``msg`` and send it as one data frame (DriverError naming the bus if that fails)."""
+        frame_id, payload = self._encode(msg)
+        try:
+            self.bus.send(data_frame(frame_id, payload))
+        except can.CanError as exc:
+            raise DriverError(
+                f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
+            ) from exc
+        self.counters["sent"] += 1
+
+
+class ServedNode:
+    """An emulated node served on a link to a flight computer outside (:class:`drivers.can_bus.ServedBus`): what
+    the stand counts as rejected is what the node rejected plus what the link could not decode."""
+
+    def __init__(self, node: CanNode, link: Any) -> None:
+        self.node = node
+        self.link = link
+
+    def rejected_frames(self) -> int:
+        return self.node.rejected_frames + self.link.counters["rejected_undecodable"]
+
+    def last_rejected(self) -> str | None:
+        return self.link.last_rejected if self.link.last_rejected is not None else self.node.last_rejected
+
+    def conflict(self) -> Any:
+        return self.link.conflict
