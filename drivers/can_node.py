@@ -26,15 +26,17 @@ each rejection in its on-board ``rejected_frames`` counter (``self._board``), wh
 
 from __future__ import annotations
 
+import math
+import time
 from typing import Any
 
 import can
 
 from drivers.can_bus import data_frame, loops_back
 from drivers.endpoint import BusEndpoint
-from drivers.errors import DriverError, ProtocolError, frame_hex
+from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError, frame_hex
 
-__all__ = ["CanNode", "ServedNode"]
+__all__ = ["CanDevice", "CanHost", "CanNode", "ServedNode"]
 
 #: How a node names each kind of frame it drops (``last_rejected``).
 _WHY = {"rejected_unknown_id": "a frame with an id of {name}'s range that it does not take",
@@ -152,6 +154,102 @@ class CanNode(BusEndpoint):
                 f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
             ) from exc
         self.counters["sent"] += 1
+
+
+class CanHost(CanNode):
+    """A host driver: sends commands, drains what the device sends, hands out its newest periodic sample.
+
+    A subclass names the attribute holding that sample (``_sample_attr``), counts each one it takes in
+    ``counters["samples"]`` and sets ``self._returned_samples = 0`` in its constructor.
+    """
+
+    _sample_attr: str
+    _returned_samples: int
+
+    def send(self, msg: Any) -> None:
+        """Encode and send any command message."""
+        if self._closed:
+            self._check_open()
+        self._send(msg)
+
+    def poll(self) -> int:
+        """Drain every pending frame without blocking; returns how many frames were read. Bad frames are counted,
+        never raised."""
+        if self._closed:
+            self._check_open()
+        return self._drain(None)
+
+    def _newest_unseen(self) -> Any:
+        """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the
+        last call only the newest is returned: its ``seq`` tells how many were skipped)."""
+        self.poll()
+        n = self.counters["samples"]
+        if n == self._returned_samples:
+            return None
+        self._returned_samples = n
+        return getattr(self, self._sample_attr)
+
+    def _wait_newest(self, timeout_s: float, timeout_error: Any) -> Any:
+        """A sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic); raises
+        ``timeout_error()`` (a DeviceTimeoutError naming the device) when none came."""
+        deadline = time.monotonic() + timeout_s
+        self.poll()
+        counters = self.counters
+        try:
+            while counters["samples"] == self._returned_samples:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    error: DeviceTimeoutError = timeout_error()
+                    raise error
+                msg = self.bus.recv(remaining)
+                if msg is not None:
+                    self._handle(msg, None)
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        self._returned_samples = counters["samples"]
+        return getattr(self, self._sample_attr)
+
+
+class CanDevice(CanNode):
+    """An emulated device: its periodic publication schedule and its heartbeat.
+
+    Periodic messages are due at ``t0 + k * period`` (``t0`` = the first publication time); a subclass sets
+    ``self._t0 = None`` and ``self._heartbeat_counter = 0`` in its constructor, names its ICD's heartbeat
+    message (``_heartbeat_type``) and keeps ``counters["samples_skipped"]``.
+    """
+
+    _heartbeat_type: Any
+    _t0: float | None
+    _heartbeat_counter: int
+
+    def service(self, t_s: float) -> None:
+        """``receive(t_s)`` then ``publish(t_s)``."""
+        self.receive(t_s)
+        self.publish(t_s)
+
+    def receive(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def publish(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
+        """The next slot after ``since`` seconds (at least ``k + 1``); with ``count_skips`` the slots passed over by
+        a late call are counted in ``samples_skipped``."""
+        nxt = math.floor(since / period) + 1
+        if nxt <= k:  # rounding at a boundary
+            nxt = k + 1
+        if count_skips and nxt > k + 1:
+            self.counters["samples_skipped"] += nxt - k - 1
+        return nxt
+
+    def heartbeat(self, t_s: float) -> Any:
+        """The heartbeat the device sends at ``t_s``: whole seconds since the first publication, NOMINAL, and a
+        counter (advanced here)."""
+        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
+        counter = self._heartbeat_counter
+        self._heartbeat_counter = (counter + 1) & 0xFF
+        return self._heartbeat_type(uptime, "NOMINAL", counter)
 
 
 class ServedNode:

@@ -41,7 +41,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_node import CanNode
+from drivers.can_node import CanDevice
 from drivers.magnetorquer.codec import (
     MODES,
     Counters,
@@ -147,7 +147,7 @@ COMMAND_BLOCK = frozenset(range(0x090, 0x0A0))
 _EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
-class MagnetorquerEmulator(CanNode):
+class MagnetorquerEmulator(CanDevice):
     """The magnetorquer board, emulated on ``bus`` (see the module docstring for the behaviour).
 
     Args:
@@ -228,6 +228,8 @@ class MagnetorquerEmulator(CanNode):
         self._noise: list[list[float]] = []  # the current block of pre-drawn noise, T
         self._noise_i = 0
 
+    _heartbeat_type = Heartbeat
+
     # -- lifecycle ------------------------------------------------------------------------------
 
     def __repr__(self) -> str:
@@ -256,11 +258,6 @@ class MagnetorquerEmulator(CanNode):
         return self._driven and self._any_nonzero and t_s < self._on_until_s
 
     # -- service ----------------------------------------------------------------------------------
-
-    def service(self, t_s: float) -> None:
-        """``receive(t_s)`` then ``publish(t_s)``."""
-        self.receive(t_s)
-        self.publish(t_s)
 
     def _coils_off(self) -> None:
         self._driven = False
@@ -378,14 +375,6 @@ class MagnetorquerEmulator(CanNode):
             sent += 1
         return sent
 
-    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
-        nxt = math.floor(since / period) + 1
-        if nxt <= k:  # rounding at a boundary
-            nxt = k + 1
-        if count_skips and nxt > k + 1:
-            self.counters["samples_skipped"] += nxt - k - 1
-        return nxt
-
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
         truth = self.field_source(t_s)
@@ -443,11 +432,3 @@ class MagnetorquerEmulator(CanNode):
             b["commands_accepted"] & 0xFF,
             self._mode_seq_ack,
         )
-
-    def heartbeat(self, t_s: float) -> Heartbeat:
-        """The MTQ_HEARTBEAT the board sends at ``t_s`` (advances the heartbeat counter)."""
-        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
-        counter = self._heartbeat_counter
-        self._heartbeat_counter = (counter + 1) & 0xFF
-        return Heartbeat(uptime, "NOMINAL", counter)
-

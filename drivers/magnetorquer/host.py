@@ -20,13 +20,12 @@ length or with an undecodable value are counted in :attr:`MagnetorquerBoard.coun
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING, Any
 
 import can
 
-from drivers.can_node import CanNode
-from drivers.errors import DeviceTimeoutError, DriverError
+from drivers.can_node import CanHost
+from drivers.errors import DeviceTimeoutError
 from drivers.magnetorquer.codec import (
     Counters,
     DipoleCommand,
@@ -43,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["MagnetorquerBoard"]
 
 
-class MagnetorquerBoard(CanNode):
+class MagnetorquerBoard(CanHost):
     """Host-side driver of the magnetorquer board on an open python-can ``bus``.
 
     Args:
@@ -76,6 +75,7 @@ class MagnetorquerBoard(CanNode):
         self.latest_counters: Counters | None = None
         self.last_heartbeat: Heartbeat | None = None
         self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
+        self._sample_attr = "latest_sample"
         self._mode_seq = 0
         self._sample_id = codec.id_mag_sample
 
@@ -125,23 +125,7 @@ class MagnetorquerBoard(CanNode):
         self._mode_seq = seq
         return seq
 
-    def send(self, msg: DipoleCommand | ModeCommand) -> None:
-        """Encode and send any command message."""
-        if self._closed:
-            self._check_open()
-        self._send(msg)
-
     # -- receiving ------------------------------------------------------------------------------
-
-    def poll(self) -> int:
-        """Drain every pending frame without blocking; returns how many frames were read.
-
-        Updates ``latest_sample``, ``latest_status``, ``latest_counters``, ``last_heartbeat``.
-        Bad frames are counted, never raised.
-        """
-        if self._closed:
-            self._check_open()
-        return self._drain(None)
 
     def _take(self, decoded: object, t_s: None) -> None:
         kind = type(decoded)
@@ -163,33 +147,14 @@ class MagnetorquerBoard(CanNode):
         When several samples arrived since the last call only the newest is returned (its ``seq``
         tells how many were skipped).
         """
-        self.poll()
-        n = self.counters["samples"]
-        if n == self._returned_samples:
-            return None
-        self._returned_samples = n
-        return self.latest_sample
+        return self._newest_unseen()
 
     def read_sample(self, timeout_s: float) -> MagSample:
         """Return a sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic).
 
         Raises DeviceTimeoutError naming the device, what was awaited and the timeout.
         """
-        deadline = time.monotonic() + timeout_s
-        self.poll()
-        counters = self.counters
-        try:
-            while counters["samples"] == self._returned_samples:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    raise self._timeout("a new MAG_SAMPLE", timeout_s)
-                msg = self.bus.recv(remaining)
-                if msg is not None:
-                    self._handle(msg, None)
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        self._returned_samples = counters["samples"]
-        return self.latest_sample  # type: ignore[return-value]
+        return self._wait_newest(timeout_s, lambda: self._timeout("a new MAG_SAMPLE", timeout_s))
 
     def _timeout(self, awaited: str, timeout_s: float) -> DeviceTimeoutError:
         last = self.latest_sample

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import can
 
-from drivers.can_node import CanNode
+from drivers.can_node import CanDevice
 from drivers.reaction_wheel.codec import (
     MODES,
     Heartbeat,
@@ -99,7 +99,7 @@ class WheelEmulatorConfig:
                              f"got {self.initial_mode!r}.")
 
 
-class ReactionWheelEmulator(CanNode):
+class ReactionWheelEmulator(CanDevice):
     """Wheel ``wheel`` (0..15), emulated on ``bus`` (see the module docstring for the behaviour).
 
     Args:
@@ -152,6 +152,8 @@ class ReactionWheelEmulator(CanNode):
         self._tlm_speed_max = codec.tlm_speed_range_rad_s[1]
         self._tlm_torque_max = codec.tlm_torque_range_Nm[1]
 
+    _heartbeat_type = Heartbeat
+
     def __repr__(self) -> str:
         return f"ReactionWheelEmulator(wheel={self.codec.wheel}, mode={self.mode!r}, counters={self.counters})"
 
@@ -168,11 +170,6 @@ class ReactionWheelEmulator(CanNode):
         return self.command_at(t_s).torque_Nm
 
     # -- service ----------------------------------------------------------------------------------
-
-    def service(self, t_s: float) -> None:
-        """``receive(t_s)`` then ``publish(t_s)``."""
-        self.receive(t_s)
-        self.publish(t_s)
 
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
@@ -246,12 +243,6 @@ class ReactionWheelEmulator(CanNode):
             sent += 1
         return sent
 
-    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
-        nxt = max(math.floor(since / period) + 1, k + 1)
-        if count_skips and nxt > k + 1:
-            self.counters["samples_skipped"] += nxt - k - 1
-        return nxt
-
     # -- messages ---------------------------------------------------------------------------------
 
     def telemetry(self, t_s: float) -> WheelSpeed:
@@ -282,10 +273,3 @@ class ReactionWheelEmulator(CanNode):
         b = self._board
         return Status(self.mode, b["rejected_frames"] & 0xFFFF, b["commands_accepted"] & 0xFF, self._seq_ack,
                       b["watchdog_expiries"] & 0xFF, b["saturations"] & 0xFF, self._temperature)
-
-    def heartbeat(self, t_s: float) -> Heartbeat:
-        """The RW_HEARTBEAT at ``t_s`` (advances the heartbeat counter)."""
-        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
-        counter = self._heartbeat_counter
-        self._heartbeat_counter = (counter + 1) & 0xFF
-        return Heartbeat(uptime, "NOMINAL", counter)

@@ -17,13 +17,12 @@ with an undecodable value are counted and dropped.
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import can
 
-from drivers.can_node import CanNode
-from drivers.errors import DeviceTimeoutError, DriverError
+from drivers.can_node import CanHost
+from drivers.errors import DeviceTimeoutError
 from drivers.reaction_wheel.codec import (
     Heartbeat,
     ModeCommand,
@@ -37,7 +36,7 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelHost"]
 
 
-class ReactionWheelHost(CanNode):
+class ReactionWheelHost(CanHost):
     """Host-side driver of wheel ``wheel`` on an open python-can ``bus``.
 
     Args:
@@ -63,7 +62,8 @@ class ReactionWheelHost(CanNode):
         self.latest_speed: WheelSpeed | None = None
         self.latest_status: Status | None = None
         self.last_heartbeat: Heartbeat | None = None
-        self._returned = 0
+        self._returned_samples = 0
+        self._sample_attr = "latest_speed"
         self._seq = 0
         self._tlm_id = self.codec.ids["RW_SPEED_TLM"]
 
@@ -112,19 +112,7 @@ class ReactionWheelHost(CanNode):
         self._seq = seq
         return seq
 
-    def send(self, msg: TorqueCommand | SpeedCommand | ModeCommand) -> None:
-        """Encode and send any command message."""
-        if self._closed:
-            self._check_open()
-        self._send(msg)
-
     # -- receiving ------------------------------------------------------------------------------
-
-    def poll(self) -> int:
-        """Drain every pending frame without blocking; returns how many frames were read."""
-        if self._closed:
-            self._check_open()
-        return self._drain(None)
 
     def _take(self, decoded: object, t_s: None) -> None:
         kind = type(decoded)
@@ -139,35 +127,17 @@ class ReactionWheelHost(CanNode):
     def take_speed(self) -> WheelSpeed | None:
         """Poll, then the newest RW_SPEED_TLM not returned before (``.speed_rad_s``, ``.torque_Nm``,
         ``.valid``, ``.seq``), or None."""
-        self.poll()
-        n = self.counters["samples"]
-        if n == self._returned:
-            return None
-        self._returned = n
-        return self.latest_speed
+        return self._newest_unseen()
 
     def read_speed(self, timeout_s: float) -> WheelSpeed:
         """Wait up to ``timeout_s`` (monotonic) for a RW_SPEED_TLM newer than the last one returned.
 
         Raises DeviceTimeoutError naming the device, what was awaited and the timeout.
         """
-        deadline = time.monotonic() + timeout_s
-        self.poll()
-        c = self.counters
-        try:
-            while c["samples"] == self._returned:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    raise DeviceTimeoutError(
-                        f"{self.name}: no RW_SPEED_TLM (id 0x{self._tlm_id:03X}) within {timeout_s:g} s on "
-                        f"{self.bus.channel_info}; {c['samples']} received so far. Is wheel {self.codec.wheel} "
-                        f"(node 0x{self.codec.node:02X}) powered and on this bus?",
-                        device=self.name, awaited="RW_SPEED_TLM", timeout_s=timeout_s,
-                    )
-                msg = self.bus.recv(remaining)
-                if msg is not None:
-                    self._handle(msg, None)
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        self._returned = c["samples"]
-        return self.latest_speed  # type: ignore[return-value]
+        c = self.codec
+        return self._wait_newest(timeout_s, lambda: DeviceTimeoutError(
+            f"{self.name}: no RW_SPEED_TLM (id 0x{self._tlm_id:03X}) within {timeout_s:g} s on "
+            f"{self.bus.channel_info}; {self.counters['samples']} received so far. Is wheel {c.wheel} "
+            f"(node 0x{c.node:02X}) powered and on this bus?",
+            device=self.name, awaited="RW_SPEED_TLM", timeout_s=timeout_s,
+        ))
