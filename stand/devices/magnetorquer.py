@@ -20,7 +20,8 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, Rejections, can_endpoint
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices.served_can import ServedCan
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -253,13 +254,12 @@ class HardwareBoard(_Board):
         super().close()
 
 
-class ServedBoard(_Board):
+class ServedBoard(ServedCan, _Board):
     """The emulator on a real adapter for a flight computer outside; the stand holds no host driver. What the flight
     computer sends that the board cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
         from drivers.can_bus import ServedBus
-        from drivers.can_node import ServedNode
 
         super().__init__(spec)
         self.link = ServedBus(_open(spec), own_ids=_codec().board_tx_ids)
@@ -271,15 +271,7 @@ class ServedBoard(_Board):
             raise
         # Silence here means the flight computer stopped commanding.
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
-        self.served = ServedNode(self.emulator, self.link)
-        self.rejections = Rejections(spec.name, self.served.rejected_frames, self.served.last_rejected,
-                                     self.served.conflict)
-
-    def start(self, events):
-        self.rejections.start(events)
-
-    def publish(self, t_s):
-        self.emulator.publish(t_s)
+        self._watch_rejections(spec.name)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -289,9 +281,6 @@ class ServedBoard(_Board):
     def row(self):
         s = self.emulator.last_sample
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
-
-    def activity(self):
-        return self.emulator.counters["commands_accepted"]
 
     def summary(self):
         return {"emulator": {**self.emulator.counters, **self.link.counters},

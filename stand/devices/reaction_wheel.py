@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.rotations import dcm
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, Rejections, can_endpoint
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices.served_can import ServedCan
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -237,13 +238,12 @@ class EmulatedWheel(_Wheel):
         return self.host.counters["samples"]
 
 
-class ServedWheel(_Wheel):
+class ServedWheel(ServedCan, _Wheel):
     """The emulator on a real adapter for a flight computer outside. What the flight computer sends that the wheel
     cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
         from drivers.can_bus import ServedBus, open_device_bus
-        from drivers.can_node import ServedNode
         from drivers.reaction_wheel.codec import ReactionWheelCodec
 
         super().__init__(spec, ctx)
@@ -256,23 +256,12 @@ class ServedWheel(_Wheel):
         except BaseException:
             self.close()
             raise
-        self.served = ServedNode(self.emulator, self.link)
-        self.rejections = Rejections(spec.name, self.served.rejected_frames, self.served.last_rejected,
-                                     self.served.conflict)
-
-    def start(self, events):
-        self.rejections.start(events)
-
-    def publish(self, t_s):
-        self.emulator.publish(t_s)
+        self._watch_rejections(spec.name)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
         self._step_motor(self.emulator.command_at(t_s))
         self.rejections.check(t_s)
-
-    def activity(self):
-        return self.emulator.counters["commands_accepted"]
 
     def summary(self):
         out = super().summary()
