@@ -4,8 +4,9 @@ number, and the CANopen-like heartbeat (id 0x700 + node) that the magnetorquer b
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-__all__ = ["HEARTBEAT_STATES", "Heartbeat", "enum_name"]
+__all__ = ["HEARTBEAT_STATES", "Heartbeat", "ModeCommand", "enum_name"]
 
 #: Heartbeat states, in the order of the DBCs' VAL_ tables (each codec checks its DBC when it loads).
 HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
@@ -34,3 +35,18 @@ class Heartbeat:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "state", enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
+
+
+@dataclass(frozen=True, slots=True)
+class ModeCommand:
+    """Set the device's mode: a name from its ICD's ``MODES`` or its number (stored as the name); ``reset_counters``
+    zeroes the device's own counters; ``seq`` is echoed back once applied. Each codec subclasses it with its
+    ``MODES`` (``__slots__ = ()``)."""
+
+    mode: str | int
+    reset_counters: bool = False
+    seq: int = 0
+    MODES: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", enum_name(self.mode, self.MODES, "ModeCommand.mode"))

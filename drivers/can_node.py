@@ -159,12 +159,27 @@ class CanNode(BusEndpoint):
 class CanHost(CanNode):
     """A host driver: sends commands, drains what the device sends, hands out its newest periodic sample.
 
-    A subclass names the attribute holding that sample (``_sample_attr``), counts each one it takes in
-    ``counters["samples"]`` and sets ``self._returned_samples = 0`` in its constructor.
+    A subclass names the attribute holding that sample (``_sample_attr``) and its ICD's mode command
+    (``_mode_command``), counts each sample it takes in ``counters["samples"]`` and sets ``self._returned_samples = 0``
+    and ``self._seq = 0`` in its constructor.
     """
 
     _sample_attr: str
     _returned_samples: int
+    _mode_command: Any
+    _seq: int
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFF
+        return self._seq
+
+    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
+        """Send the ICD's mode command (a name from its ``MODES`` or the number); returns the sequence number used,
+        which the device echoes back once applied (the sequence advances only when the command went out)."""
+        seq = (self._seq + 1) & 0xFF
+        self.send(self._mode_command(mode, bool(reset_counters), seq))  # ValueError lists the modes
+        self._seq = seq
+        return seq
 
     def send(self, msg: Any) -> None:
         """Encode and send any command message."""
@@ -221,6 +236,9 @@ class CanDevice(CanNode):
     _heartbeat_type: Any
     _t0: float | None
     _heartbeat_counter: int
+    _k_status: int
+    _k_heartbeat: int
+    config: Any
 
     def service(self, t_s: float) -> None:
         """``receive(t_s)`` then ``publish(t_s)``."""
@@ -231,6 +249,26 @@ class CanDevice(CanNode):
         raise NotImplementedError
 
     def publish(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def _housekeeping(self, since: float, t_s: float) -> int:
+        """Send the status messages and the heartbeat when due (``since`` = seconds since ``t0``); returns frames
+        sent. A subclass keeps ``_k_status`` and ``_k_heartbeat`` and lists its status messages in
+        :meth:`_status_messages`; ``self.config`` has ``status_period_s`` and ``heartbeat_period_s``."""
+        cfg = self.config
+        sent = 0
+        if since >= self._k_status * cfg.status_period_s:
+            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
+            for msg in self._status_messages(t_s):
+                self._send(msg)
+                sent += 1
+        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
+            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
+            self._send(self.heartbeat(t_s))
+            sent += 1
+        return sent
+
+    def _status_messages(self, t_s: float) -> tuple:  # pragma: no cover - every device overrides it
         raise NotImplementedError
 
     def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:

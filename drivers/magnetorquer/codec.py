@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers import can_messages
 from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
@@ -58,16 +59,11 @@ class DipoleCommand:
     duration_s: float
 
 
-@dataclass(frozen=True, slots=True)
-class ModeCommand:
+class ModeCommand(can_messages.ModeCommand):
     """Set the board mode: a name from :data:`MODES` or its number (stored as the name)."""
 
-    mode: str | int
-    reset_counters: bool = False
-    seq: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "ModeCommand.mode"))
+    __slots__ = ()
+    MODES = MODES
 
 
 @dataclass(frozen=True, slots=True)

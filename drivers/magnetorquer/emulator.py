@@ -364,16 +364,10 @@ class MagnetorquerEmulator(CanDevice):
             self.last_sample = self.measure(t_s)  # what crossed the bus, for a stand that serves this board
             self._send(self.last_sample)
             sent += 1
-        if since >= self._k_status * cfg.status_period_s:
-            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
-            self._send(self.status(t_s))
-            self._send(self.board_counters())
-            sent += 2
-        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
-            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
-            self._send(self.heartbeat(t_s))
-            sent += 1
-        return sent
+        return sent + self._housekeeping(since, t_s)
+
+    def _status_messages(self, t_s: float) -> tuple[Status, Counters]:
+        return self.status(t_s), self.board_counters()
 
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""

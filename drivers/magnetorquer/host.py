@@ -76,7 +76,7 @@ class MagnetorquerBoard(CanHost):
         self.last_heartbeat: Heartbeat | None = None
         self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
         self._sample_attr = "latest_sample"
-        self._mode_seq = 0
+        self._seq = 0  # of the last MTQ_MODE_CMD (set_mode), echoed in latest_counters.mode_seq_ack once applied
         self._sample_id = codec.id_mag_sample
 
     @classmethod
@@ -100,6 +100,7 @@ class MagnetorquerBoard(CanHost):
     # -- lifecycle ------------------------------------------------------------------------------
 
     _closed_text = "the magnetorquer driver is closed; open a new one."
+    _mode_command = ModeCommand
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -116,14 +117,6 @@ class MagnetorquerBoard(CanHost):
         """
         mx, my, mz = dipole_A_m2
         self.send(DipoleCommand((float(mx), float(my), float(mz)), float(duration_s)))
-
-    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
-        """Send MTQ_MODE_CMD (``"OFF"``, ``"DIPOLE"``, ``"SELFTEST"`` or 0-2); returns the sequence
-        number used, which the board echoes in ``latest_counters.mode_seq_ack`` once applied."""
-        seq = (self._mode_seq + 1) & 0xFF
-        self.send(ModeCommand(mode, bool(reset_counters), seq))  # ValueError lists the modes
-        self._mode_seq = seq
-        return seq
 
     # -- receiving ------------------------------------------------------------------------------
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers import can_messages
 from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
@@ -83,16 +84,11 @@ class SpeedCommand:
     timeout_s: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class ModeCommand:
+class ModeCommand(can_messages.ModeCommand):
     """Set the mode: a name from :data:`MODES` or its number (stored as the name)."""
 
-    mode: str | int
-    reset_counters: bool = False
-    seq: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "ModeCommand.mode"))
+    __slots__ = ()
+    MODES = MODES
 
 
 class WheelSpeed(float):

@@ -233,15 +233,10 @@ class ReactionWheelEmulator(CanDevice):
             self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
             self._send(self.telemetry(t_s))
             sent += 1
-        if since >= self._k_status * cfg.status_period_s:
-            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
-            self._send(self.status())
-            sent += 1
-        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
-            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
-            self._send(self.heartbeat(t_s))
-            sent += 1
-        return sent
+        return sent + self._housekeeping(since, t_s)
+
+    def _status_messages(self, t_s: float) -> tuple[Status]:
+        return (self.status(),)
 
     # -- messages ---------------------------------------------------------------------------------
 

@@ -77,16 +77,13 @@ class ReactionWheelHost(CanHost):
         return cls(open_bus(interface, channel, **bus_kwargs), wheel, codec, name, owns_bus=True)
 
     _closed_text = "the reaction wheel driver is closed; open a new one."
+    _mode_command = ModeCommand
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"ReactionWheelHost(wheel={self.codec.wheel}, {state}, counters={self.counters})"
 
     # -- commands -------------------------------------------------------------------------------
-
-    def _next_seq(self) -> int:
-        self._seq = (self._seq + 1) & 0xFF
-        return self._seq
 
     def command_torque(self, torque_Nm: float, timeout_s: float = 0.0) -> int:
         """Send RW_TORQUE_CMD (mode TORQUE): motor torque on the rotor about the spin axis, N m.
@@ -103,13 +100,6 @@ class ReactionWheelHost(CanHost):
         """Send RW_SPEED_CMD (mode SPEED): wheel speed about the spin axis, rad/s; returns the seq."""
         seq = self._next_seq()
         self.send(SpeedCommand(float(speed_rad_s), seq, float(timeout_s)))
-        return seq
-
-    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
-        """Send RW_MODE_CMD (``"IDLE"``, ``"TORQUE"``, ``"SPEED"`` or 0-2, zero command); returns the seq."""
-        seq = (self._seq + 1) & 0xFF
-        self.send(ModeCommand(mode, bool(reset_counters), seq))  # ValueError lists the modes
-        self._seq = seq
         return seq
 
     # -- receiving ------------------------------------------------------------------------------
