@@ -159,11 +159,13 @@ class CanNode(BusEndpoint):
 class CanHost(CanNode):
     """A host driver: sends commands, drains what the device sends, hands out its newest periodic sample.
 
-    A subclass names the attribute holding that sample (``_sample_attr``) and its ICD's mode command
+    A subclass maps each message type its device sends to the attribute keeping the newest one (``_latest``), names
+    the attribute holding the periodic sample (``_sample_attr``) and its ICD's mode command
     (``_mode_command``), counts each sample it takes in ``counters["samples"]`` and sets ``self._returned_samples = 0``
     and ``self._seq = 0`` in its constructor.
     """
 
+    _latest: dict[type, str]
     _sample_attr: str
     _returned_samples: int
     _mode_command: Any
@@ -193,6 +195,15 @@ class CanHost(CanNode):
         if self._closed:
             self._check_open()
         return self._drain(None)
+
+    def _take(self, decoded: Any, t_s: float | None) -> None:
+        attr = self._latest.get(type(decoded))
+        if attr is None:  # pragma: no cover - accept only holds the device's messages
+            self._reject("rejected_other")
+            return
+        setattr(self, attr, decoded)
+        if attr == self._sample_attr:
+            self.counters["samples"] += 1
 
     def _newest_unseen(self) -> Any:
         """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the

@@ -75,7 +75,6 @@ class MagnetorquerBoard(CanHost):
         self.latest_counters: Counters | None = None
         self.last_heartbeat: Heartbeat | None = None
         self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
-        self._sample_attr = "latest_sample"
         self._seq = 0  # of the last MTQ_MODE_CMD (set_mode), echoed in latest_counters.mode_seq_ack once applied
         self._sample_id = codec.id_mag_sample
 
@@ -101,6 +100,9 @@ class MagnetorquerBoard(CanHost):
 
     _closed_text = "the magnetorquer driver is closed; open a new one."
     _mode_command = ModeCommand
+    _latest = {MagSample: "latest_sample", Status: "latest_status", Counters: "latest_counters",
+               Heartbeat: "last_heartbeat"}
+    _sample_attr = "latest_sample"
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -119,20 +121,6 @@ class MagnetorquerBoard(CanHost):
         self.send(DipoleCommand((float(mx), float(my), float(mz)), float(duration_s)))
 
     # -- receiving ------------------------------------------------------------------------------
-
-    def _take(self, decoded: object, t_s: None) -> None:
-        kind = type(decoded)
-        if kind is MagSample:
-            self.latest_sample = decoded
-            self.counters["samples"] += 1
-        elif kind is Status:
-            self.latest_status = decoded
-        elif kind is Counters:
-            self.latest_counters = decoded
-        elif kind is Heartbeat:
-            self.last_heartbeat = decoded
-        else:  # pragma: no cover - board_tx_ids only holds the four kinds above
-            self._reject("rejected_other")
 
     def take_sample(self) -> MagSample | None:
         """Poll, then return the newest MagSample if it has not been returned yet, else None.

@@ -63,7 +63,6 @@ class ReactionWheelHost(CanHost):
         self.latest_status: Status | None = None
         self.last_heartbeat: Heartbeat | None = None
         self._returned_samples = 0
-        self._sample_attr = "latest_speed"
         self._seq = 0
         self._tlm_id = self.codec.ids["RW_SPEED_TLM"]
 
@@ -78,6 +77,8 @@ class ReactionWheelHost(CanHost):
 
     _closed_text = "the reaction wheel driver is closed; open a new one."
     _mode_command = ModeCommand
+    _latest = {WheelSpeed: "latest_speed", Status: "latest_status", Heartbeat: "last_heartbeat"}
+    _sample_attr = "latest_speed"
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -103,16 +104,6 @@ class ReactionWheelHost(CanHost):
         return seq
 
     # -- receiving ------------------------------------------------------------------------------
-
-    def _take(self, decoded: object, t_s: None) -> None:
-        kind = type(decoded)
-        if kind is WheelSpeed:
-            self.latest_speed = decoded
-            self.counters["samples"] += 1
-        elif kind is Status:
-            self.latest_status = decoded
-        elif kind is Heartbeat:
-            self.last_heartbeat = decoded
 
     def take_speed(self) -> WheelSpeed | None:
         """Poll, then the newest RW_SPEED_TLM not returned before (``.speed_rad_s``, ``.torque_Nm``,
