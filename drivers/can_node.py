@@ -83,8 +83,10 @@ class CanNode(BusEndpoint):
 
     # -- receiving --------------------------------------------------------------------------------
 
-    def _drain(self, t_s: float | None) -> int:
+    def _drain(self, t_s: float | None = None) -> int:
         """Read every pending frame without blocking and sort each (module docstring); returns how many."""
+        if self._closed:
+            self._check_open()
         recv = self.bus.recv
         handle = self._handle
         n = 0
@@ -97,31 +99,31 @@ class CanNode(BusEndpoint):
         return n
 
     def _handle(self, msg: can.Message, t_s: float | None) -> None:
-        counters = self.counters
-        counters["received"] += 1
+        self.counters["received"] += 1
         frame_id = msg.arbitration_id
+        if frame_id in self._accept and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+            data = msg.data
+            if len(data) != self._lengths[frame_id]:
+                self._reject("rejected_length", msg)
+                return
+            try:
+                decoded = self._decode(frame_id, data)
+            except ProtocolError:
+                self._reject("rejected_other", msg)
+                return
+            self._take(decoded, t_s)
+        else:  # not a data frame the node takes: sort it (module docstring)
+            self._sort(msg, frame_id)
+
+    def _sort(self, msg: can.Message, frame_id: int) -> None:
         if msg.is_error_frame:
             self._reject("rejected_other", msg)
-            return
-        if msg.is_extended_id or frame_id not in self._addressed:
-            counters["echoes" if not msg.is_extended_id and frame_id in self._echo_ids else "foreign"] += 1
-            return
-        if msg.is_remote_frame:
+        elif msg.is_extended_id or frame_id not in self._addressed:
+            self.counters["echoes" if not msg.is_extended_id and frame_id in self._echo_ids else "foreign"] += 1
+        elif msg.is_remote_frame:
             self._reject("rejected_other", msg)
-            return
-        if frame_id not in self._accept:
+        else:
             self._reject("rejected_unknown_id", msg)
-            return
-        data = msg.data
-        if len(data) != self._lengths[frame_id]:
-            self._reject("rejected_length", msg)
-            return
-        try:
-            decoded = self._decode(frame_id, data)
-        except ProtocolError:
-            self._reject("rejected_other", msg)
-            return
-        self._take(decoded, t_s)
 
     def _take(self, decoded: Any, t_s: float | None) -> None:  # pragma: no cover - every node overrides it
         raise NotImplementedError
@@ -146,6 +148,8 @@ class CanNode(BusEndpoint):
 
     def _send(self, msg: Any) -> None:
         """Encode ``msg`` and send it as one data frame (DriverError naming the bus if that fails)."""
+        if self._closed:
+            self._check_open()
         frame_id, payload = self._encode(msg)
         try:
             self.bus.send(data_frame(frame_id, payload))
@@ -160,12 +164,13 @@ class CanHost(CanNode):
     """A host driver: sends commands, drains what the device sends, hands out its newest periodic sample.
 
     A subclass maps each message type its device sends to the attribute keeping the newest one (``_latest``), names
-    the attribute holding the periodic sample (``_sample_attr``) and its ICD's mode command
+    the periodic sample's type and attribute (``_sample_type``, ``_sample_attr``) and its ICD's mode command
     (``_mode_command``), counts each sample it takes in ``counters["samples"]`` and sets ``self._returned_samples = 0``
     and ``self._seq = 0`` in its constructor.
     """
 
     _latest: dict[type, str]
+    _sample_type: type
     _sample_attr: str
     _returned_samples: int
     _mode_command: Any
@@ -183,32 +188,28 @@ class CanHost(CanNode):
         self._seq = seq
         return seq
 
-    def send(self, msg: Any) -> None:
-        """Encode and send any command message."""
-        if self._closed:
-            self._check_open()
-        self._send(msg)
-
-    def poll(self) -> int:
-        """Drain every pending frame without blocking; returns how many frames were read. Bad frames are counted,
-        never raised."""
-        if self._closed:
-            self._check_open()
-        return self._drain(None)
+    #: Encode and send any command message (DriverError naming the bus if that fails).
+    send = CanNode._send
+    #: Drain every pending frame without blocking; returns how many frames were read. Bad frames are counted, never
+    #: raised.
+    poll = CanNode._drain
 
     def _take(self, decoded: Any, t_s: float | None) -> None:
-        attr = self._latest.get(type(decoded))
+        kind = type(decoded)
+        if kind is self._sample_type:  # the periodic sample: most of the traffic
+            setattr(self, self._sample_attr, decoded)
+            self.counters["samples"] += 1
+            return
+        attr = self._latest.get(kind)
         if attr is None:  # pragma: no cover - accept only holds the device's messages
             self._reject("rejected_other")
             return
         setattr(self, attr, decoded)
-        if attr == self._sample_attr:
-            self.counters["samples"] += 1
 
     def _newest_unseen(self) -> Any:
         """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the
         last call only the newest is returned: its ``seq`` tells how many were skipped)."""
-        self.poll()
+        self._drain()
         n = self.counters["samples"]
         if n == self._returned_samples:
             return None
@@ -250,6 +251,8 @@ class CanDevice(CanNode):
     _k_status: int
     _k_heartbeat: int
     config: Any
+    #: ``since`` from which :meth:`_housekeeping` has something to send (0 until it first ran).
+    _housekeeping_due = 0.0
 
     def service(self, t_s: float) -> None:
         """``receive(t_s)`` then ``publish(t_s)``."""
@@ -277,6 +280,8 @@ class CanDevice(CanNode):
             self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
             self._send(self.heartbeat(t_s))
             sent += 1
+        # The publish of every tick calls this only from here on (most ticks have nothing of it due).
+        self._housekeeping_due = min(self._k_status * cfg.status_period_s, self._k_heartbeat * cfg.heartbeat_period_s)
         return sent
 
     def _status_messages(self, t_s: float) -> tuple:  # pragma: no cover - every device overrides it

@@ -364,7 +364,9 @@ class MagnetorquerEmulator(CanDevice):
             self.last_sample = self.measure(t_s)  # what crossed the bus, for a stand that serves this board
             self._send(self.last_sample)
             sent += 1
-        return sent + self._housekeeping(since, t_s)
+        if since >= self._housekeeping_due:
+            sent += self._housekeeping(since, t_s)
+        return sent
 
     def _status_messages(self, t_s: float) -> tuple[Status, Counters]:
         return self.status(t_s), self.board_counters()

@@ -102,7 +102,7 @@ class MagnetorquerBoard(CanHost):
     _mode_command = ModeCommand
     _latest = {MagSample: "latest_sample", Status: "latest_status", Counters: "latest_counters",
                Heartbeat: "last_heartbeat"}
-    _sample_attr = "latest_sample"
+    _sample_type, _sample_attr = MagSample, "latest_sample"
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -122,13 +122,10 @@ class MagnetorquerBoard(CanHost):
 
     # -- receiving ------------------------------------------------------------------------------
 
-    def take_sample(self) -> MagSample | None:
-        """Poll, then return the newest MagSample if it has not been returned yet, else None.
-
-        When several samples arrived since the last call only the newest is returned (its ``seq``
-        tells how many were skipped).
-        """
-        return self._newest_unseen()
+    #: ``take_sample() -> MagSample | None``: poll, then the newest MagSample if it has not been returned yet, else
+    #: None. When several samples arrived since the last call only the newest is returned (its ``seq`` tells how
+    #: many were skipped).
+    take_sample = CanHost._newest_unseen
 
     def read_sample(self, timeout_s: float) -> MagSample:
         """Return a sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic).

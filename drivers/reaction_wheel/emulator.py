@@ -233,7 +233,9 @@ class ReactionWheelEmulator(CanDevice):
             self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
             self._send(self.telemetry(t_s))
             sent += 1
-        return sent + self._housekeeping(since, t_s)
+        if since >= self._housekeeping_due:
+            sent += self._housekeeping(since, t_s)
+        return sent
 
     def _status_messages(self, t_s: float) -> tuple[Status]:
         return (self.status(),)

@@ -78,7 +78,7 @@ class ReactionWheelHost(CanHost):
     _closed_text = "the reaction wheel driver is closed; open a new one."
     _mode_command = ModeCommand
     _latest = {WheelSpeed: "latest_speed", Status: "latest_status", Heartbeat: "last_heartbeat"}
-    _sample_attr = "latest_speed"
+    _sample_type, _sample_attr = WheelSpeed, "latest_speed"
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
@@ -105,10 +105,9 @@ class ReactionWheelHost(CanHost):
 
     # -- receiving ------------------------------------------------------------------------------
 
-    def take_speed(self) -> WheelSpeed | None:
-        """Poll, then the newest RW_SPEED_TLM not returned before (``.speed_rad_s``, ``.torque_Nm``,
-        ``.valid``, ``.seq``), or None."""
-        return self._newest_unseen()
+    #: ``take_speed() -> WheelSpeed | None``: poll, then the newest RW_SPEED_TLM not returned before
+    #: (``.speed_rad_s``, ``.torque_Nm``, ``.valid``, ``.seq``), or None.
+    take_speed = CanHost._newest_unseen
 
     def read_speed(self, timeout_s: float) -> WheelSpeed:
         """Wait up to ``timeout_s`` (monotonic) for a RW_SPEED_TLM newer than the last one returned.
