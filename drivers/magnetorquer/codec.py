@@ -24,6 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers import can_messages
+from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
 
@@ -43,25 +45,10 @@ __all__ = [
 
 #: Board modes, in the order of the DBC's VAL_ table (checked when the codec loads the DBC).
 MODES: tuple[str, ...] = ("OFF", "DIPOLE", "SELFTEST")
-#: Heartbeat states, in the order of the DBC's VAL_ table.
-HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
 
 _NT = 1e-9  # T per nT
 _MA = 1e-3  # A per mA
 _MS = 1e-3  # s per ms
-
-
-def _enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
-    if isinstance(value, str):
-        if value in names:
-            return value
-        upper = value.upper()
-        if upper in names:
-            return upper
-    elif isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(names):
-        return names[value]
-    allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
-    raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,16 +59,11 @@ class DipoleCommand:
     duration_s: float
 
 
-@dataclass(frozen=True, slots=True)
-class ModeCommand:
+class ModeCommand(can_messages.ModeCommand):
     """Set the board mode: a name from :data:`MODES` or its number (stored as the name)."""
 
-    mode: str | int
-    reset_counters: bool = False
-    seq: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "ModeCommand.mode"))
+    __slots__ = ()
+    MODES = MODES
 
 
 @dataclass(frozen=True, slots=True)
@@ -104,7 +86,7 @@ class Status:
     temperature_C: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "Status.mode"))
+        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
 
 
 @dataclass(frozen=True, slots=True)
@@ -116,18 +98,6 @@ class Counters:
     saturations: int = 0
     commands_accepted: int = 0
     mode_seq_ack: int = 0
-
-
-@dataclass(frozen=True, slots=True)
-class Heartbeat:
-    """Board heartbeat: whole seconds since boot, state (name from :data:`HEARTBEAT_STATES`), counter."""
-
-    uptime_s: int
-    state: str | int
-    counter: int
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "state", _enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
 
 
 Message = DipoleCommand | ModeCommand | MagSample | Status | Counters | Heartbeat

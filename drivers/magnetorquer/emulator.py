@@ -20,11 +20,13 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 - MTQ_STATUS and MTQ_COUNTERS every ``status_period_s``, MTQ_HEARTBEAT every ``heartbeat_period_s``.
   Periodic messages are due at ``t0 + k * period`` (``t0`` = the first time seen); when a call
   comes late, one message is sent and the missed slots are counted in ``samples_skipped``.
-- Frames with an unknown id, a wrong length or an undecodable value are counted, never raised.
+- Frames are sorted by :class:`drivers.can_node.CanNode`: the board's range is its command block
+  0x090..0x09F; frames of other nodes (a wheel on the same bus) are ignored, frames addressed to
+  the board with an unknown id, a wrong length or an undecodable value are counted, never raised.
 
-``counters`` (cumulative, for the stand's recorder): ``sent``, ``received``,
-``rejected_unknown_id``, ``rejected_length``, ``rejected_other``, ``rejected_mode``,
-``commands_accepted``, ``saturations``, ``watchdog_expiries``, ``mag_saturations``,
+``counters`` (cumulative, for the stand's recorder): the node's (``sent``, ``received``,
+``rejected_unknown_id``, ``rejected_length``, ``rejected_other``, ``foreign``, ``echoes``), then
+``rejected_mode``, ``commands_accepted``, ``saturations``, ``watchdog_expiries``, ``mag_saturations``,
 ``samples_skipped``. The board counters carried by MTQ_COUNTERS are separate (they reset on
 ``reset_counters`` and wrap at their DBC width).
 """
@@ -39,9 +41,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_bus import data_frame, loops_back
-from drivers.endpoint import BusEndpoint
-from drivers.errors import DriverError, ProtocolError, frame_hex
+from drivers.can_node import CanDevice
 from drivers.magnetorquer.codec import (
     MODES,
     Counters,
@@ -141,15 +141,13 @@ _ZERO3 = np.zeros(3)
 _ZERO3.flags.writeable = False
 _OFF = (0.0, 0.0, 0.0)
 
-#: How the emulator names each kind of frame it drops (``last_rejected``).
-_WHY = {"rejected_unknown_id": "a frame with an id the board does not take",
-        "rejected_length": "a frame of the wrong length for its id",
-        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
+#: The board's command block: its two commands and the ids the ICD leaves free in it are addressed to the board.
+COMMAND_BLOCK = frozenset(range(0x090, 0x0A0))
 
 _EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
-class MagnetorquerEmulator(BusEndpoint):
+class MagnetorquerEmulator(CanDevice):
     """The magnetorquer board, emulated on ``bus`` (see the module docstring for the behaviour).
 
     Args:
@@ -170,13 +168,11 @@ class MagnetorquerEmulator(BusEndpoint):
         *,
         owns_bus: bool = False,
     ) -> None:
-        self.bus = bus
+        self.name = "mtq emulator"
         self.field_source = field_source
         self.config = config = config if config is not None else EmulatorConfig()
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         self.codec = codec = codec if codec is not None else MagnetorquerCodec()
-        self._owns_bus = owns_bus
-        self._closed = False
 
         ratio = config.mag_lsb_T / codec.mag_lsb_T
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
@@ -204,28 +200,9 @@ class MagnetorquerEmulator(BusEndpoint):
         t_lo, t_hi = codec.dbc.signal_range("MTQ_STATUS", "temperature")
         self._temperature = min(max(config.temperature_C, t_lo), t_hi)
 
-        self._accept = codec.board_rx_ids
-        self._own_ids = codec.board_tx_ids if loops_back(bus) else frozenset()
-        self._lengths = codec.lengths
-        self._decode = codec.decode
-        self._encode = codec.encode
-
-        #: Why the latest frame was rejected (naming it in candump notation), or None.
-        self.last_rejected: str | None = None
-        self.counters: dict[str, int] = {
-            "sent": 0,
-            "received": 0,
-            "rejected_unknown_id": 0,
-            "rejected_length": 0,
-            "rejected_other": 0,
-            "rejected_mode": 0,
-            "commands_accepted": 0,
-            "saturations": 0,
-            "watchdog_expiries": 0,
-            "mag_saturations": 0,
-            "samples_skipped": 0,
-            "echoes": 0,
-        }
+        self._init_node(bus, codec, accept=codec.board_rx_ids, own=codec.board_tx_ids, addressed=COMMAND_BLOCK,
+                        extra_counters=("rejected_mode", "commands_accepted", "saturations", "watchdog_expiries",
+                                        "mag_saturations", "samples_skipped"), owns_bus=owns_bus)
         # On-board counters (MTQ_COUNTERS): zeroed by reset_counters.
         self._board = {"rejected_frames": 0, "watchdog_expiries": 0, "saturations": 0, "commands_accepted": 0}
         self._mode_seq_ack = 0
@@ -250,6 +227,8 @@ class MagnetorquerEmulator(BusEndpoint):
         self.last_sample: MagSample | None = None
         self._noise: list[list[float]] = []  # the current block of pre-drawn noise, T
         self._noise_i = 0
+
+    _heartbeat_type = Heartbeat
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -280,11 +259,6 @@ class MagnetorquerEmulator(BusEndpoint):
 
     # -- service ----------------------------------------------------------------------------------
 
-    def service(self, t_s: float) -> None:
-        """``receive(t_s)`` then ``publish(t_s)``."""
-        self.receive(t_s)
-        self.publish(t_s)
-
     def _coils_off(self) -> None:
         self._driven = False
         self._dipole_xyz = _OFF
@@ -314,61 +288,17 @@ class MagnetorquerEmulator(BusEndpoint):
 
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
-        if self._closed:
-            raise DriverError("mtq emulator: closed; create a new one.")
         if self._driven:
             self._watchdog(t_s)
-        recv = self.bus.recv
-        n = 0
-        while (msg := recv(0.0)) is not None:
-            self._handle(msg, t_s)
-            n += 1
-        return n
+        return self._drain(t_s)
 
-    @property
-    def rejected_frames(self) -> int:
-        """Frames from the bus dropped as unknown, of the wrong length or undecodable, each counted once (not
-        commands refused in the wrong mode, nor other devices' traffic)."""
-        c = self.counters
-        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
-
-    def _reject(self, key: str, msg: can.Message | None = None) -> None:
-        self.counters[key] += 1
-        if msg is not None:
-            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
-            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
-            self.last_rejected = f"{_WHY[key]}: frame {frame}{kind}"
-        self._board["rejected_frames"] += 1
-
-    def _handle(self, msg: can.Message, t_s: float) -> None:
-        self.counters["received"] += 1
-        frame_id = msg.arbitration_id
-        if msg.is_error_frame or msg.is_remote_frame:
-            self._reject("rejected_other", msg)
-            return
-        if msg.is_extended_id or frame_id not in self._accept:
-            if not msg.is_extended_id and frame_id in self._own_ids:
-                # A frame of our own coming back (udp_multicast loops every frame back to its sender): not traffic
-                # from another node, and not an error.
-                self.counters["echoes"] += 1
-                return
-            self._reject("rejected_unknown_id", msg)
-            return
-        data = msg.data
-        if len(data) != self._lengths[frame_id]:
-            self._reject("rejected_length", msg)
-            return
-        try:
-            cmd = self._decode(frame_id, data)
-        except ProtocolError:
-            self._reject("rejected_other", msg)
-            return
+    def _take(self, cmd: Any, t_s: float) -> None:
         if type(cmd) is DipoleCommand:
             self._apply_dipole(cmd, t_s)
         elif type(cmd) is ModeCommand:
             self._apply_mode(cmd)
         else:  # pragma: no cover - board_rx_ids only holds the two commands
-            self._reject("rejected_other", msg)
+            self._reject("rejected_other")
 
     def _accepted(self) -> None:
         self.counters["commands_accepted"] += 1
@@ -419,7 +349,7 @@ class MagnetorquerEmulator(BusEndpoint):
     def publish(self, t_s: float) -> int:
         """Send whatever is due at ``t_s`` (sample, status + counters, heartbeat); returns frames sent."""
         if self._closed:
-            raise DriverError("mtq emulator: closed; create a new one.")
+            self._check_open()
         if self._t0 is None:
             self._t0 = t_s
         if self._driven:
@@ -432,32 +362,12 @@ class MagnetorquerEmulator(BusEndpoint):
             self.last_sample = self.measure(t_s)  # what crossed the bus, for a stand that serves this board
             self._send(self.last_sample)
             sent += 1
-        if since >= self._k_status * cfg.status_period_s:
-            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
-            self._send(self.status(t_s))
-            self._send(self.board_counters())
-            sent += 2
-        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
-            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
-            self._send(self.heartbeat(t_s))
-            sent += 1
+        if since >= self._housekeeping_due:
+            sent += self._housekeeping(since, t_s)
         return sent
 
-    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
-        nxt = math.floor(since / period) + 1
-        if nxt <= k:  # rounding at a boundary
-            nxt = k + 1
-        if count_skips and nxt > k + 1:
-            self.counters["samples_skipped"] += nxt - k - 1
-        return nxt
-
-    def _send(self, msg: Any) -> None:
-        frame_id, payload = self._encode(msg)
-        try:
-            self.bus.send(data_frame(frame_id, payload))
-        except can.CanError as exc:
-            raise DriverError(f"mtq emulator: cannot send on {self.bus.channel_info}: {exc}") from exc
-        self.counters["sent"] += 1
+    def _status_messages(self, t_s: float) -> tuple[Status, Counters]:
+        return self.status(t_s), self.board_counters()
 
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
@@ -516,11 +426,3 @@ class MagnetorquerEmulator(BusEndpoint):
             b["commands_accepted"] & 0xFF,
             self._mode_seq_ack,
         )
-
-    def heartbeat(self, t_s: float) -> Heartbeat:
-        """The MTQ_HEARTBEAT the board sends at ``t_s`` (advances the heartbeat counter)."""
-        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
-        counter = self._heartbeat_counter
-        self._heartbeat_counter = (counter + 1) & 0xFF
-        return Heartbeat(uptime, "NOMINAL", counter)
-

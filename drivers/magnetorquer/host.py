@@ -12,21 +12,20 @@ Hot path, once per control tick::
 (``take_sample`` polls by itself; call :meth:`MagnetorquerBoard.poll` on ticks that take no sample
 to keep status, counters and heartbeat fresh.)
 
-Receiving never raises on bad traffic: frames with an id the board does not send (other nodes,
-commands from another host, 29-bit ids), a wrong length, or an undecodable value are counted in
-:attr:`MagnetorquerBoard.counters` and dropped.
+Receiving never raises on bad traffic (:class:`drivers.can_node.CanNode`): frames of other nodes
+(a wheel on the same bus, commands from another host, 29-bit ids) are counted in ``foreign`` and
+ignored, our own commands looped back by ``udp_multicast`` in ``echoes``; board frames of a wrong
+length or with an undecodable value are counted in :attr:`MagnetorquerBoard.counters` and dropped.
 """
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING, Any
 
 import can
 
-from drivers.can_bus import data_frame, loops_back
-from drivers.endpoint import BusEndpoint
-from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
+from drivers.can_node import CanHost
+from drivers.errors import DeviceTimeoutError
 from drivers.magnetorquer.codec import (
     Counters,
     DipoleCommand,
@@ -43,7 +42,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["MagnetorquerBoard"]
 
 
-class MagnetorquerBoard(BusEndpoint):
+class MagnetorquerBoard(CanHost):
     """Host-side driver of the magnetorquer board on an open python-can ``bus``.
 
     Args:
@@ -55,10 +54,8 @@ class MagnetorquerBoard(BusEndpoint):
     Attributes:
         latest_sample, latest_status, latest_counters, last_heartbeat: the newest decoded message
             of each kind, or None.
-        counters: ``sent``, ``received`` (every frame read from the bus, accepted or not),
-            ``rejected_unknown_id`` (includes frames of other nodes and 29-bit ids),
-            ``rejected_length``, ``rejected_other`` (remote/error frames, undecodable values),
-            ``samples`` (MAG_SAMPLE frames accepted).
+        counters: the node's (:data:`drivers.can_node.NODE_COUNTERS`), then ``samples`` (MAG_SAMPLE
+            frames accepted).
     """
 
     def __init__(
@@ -69,32 +66,17 @@ class MagnetorquerBoard(BusEndpoint):
         *,
         owns_bus: bool = False,
     ) -> None:
-        self.bus = bus
-        self.codec = codec if codec is not None else MagnetorquerCodec()
+        self.codec = codec = codec if codec is not None else MagnetorquerCodec()
         self.name = name
-        self._owns_bus = owns_bus
-        self._closed = False
-        self.counters: dict[str, int] = {
-            "sent": 0,
-            "received": 0,
-            "rejected_unknown_id": 0,
-            "rejected_length": 0,
-            "rejected_other": 0,
-            "samples": 0,
-            "echoes": 0,
-        }
+        self._init_node(bus, codec, accept=codec.board_tx_ids, own=codec.board_rx_ids, extra_counters=("samples",),
+                        owns_bus=owns_bus)
         self.latest_sample: MagSample | None = None
         self.latest_status: Status | None = None
         self.latest_counters: Counters | None = None
         self.last_heartbeat: Heartbeat | None = None
         self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
-        self._mode_seq = 0
-        self._accept = self.codec.board_tx_ids
-        self._echo_ids = self.codec.board_rx_ids if loops_back(bus) else frozenset()
-        self._lengths = self.codec.lengths
-        self._decode = self.codec.decode
-        self._encode = self.codec.encode
-        self._sample_id = self.codec.id_mag_sample
+        self._seq = 0  # of the last MTQ_MODE_CMD (set_mode), echoed in latest_counters.mode_seq_ack once applied
+        self._sample_id = codec.id_mag_sample
 
     @classmethod
     def open(
@@ -116,13 +98,15 @@ class MagnetorquerBoard(BusEndpoint):
 
     # -- lifecycle ------------------------------------------------------------------------------
 
+    _closed_text = "the magnetorquer driver is closed; open a new one."
+    _mode_command = ModeCommand
+    _latest = {MagSample: "latest_sample", Status: "latest_status", Counters: "latest_counters",
+               Heartbeat: "last_heartbeat"}
+    _sample_type, _sample_attr = MagSample, "latest_sample"
+
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"MagnetorquerBoard(name={self.name!r}, {state}, counters={self.counters})"
-
-    def _check_open(self) -> None:
-        if self._closed:
-            raise DriverError(f"{self.name}: the magnetorquer driver is closed; open a new one.")
 
     # -- commands -------------------------------------------------------------------------------
 
@@ -136,116 +120,19 @@ class MagnetorquerBoard(BusEndpoint):
         mx, my, mz = dipole_A_m2
         self.send(DipoleCommand((float(mx), float(my), float(mz)), float(duration_s)))
 
-    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
-        """Send MTQ_MODE_CMD (``"OFF"``, ``"DIPOLE"``, ``"SELFTEST"`` or 0-2); returns the sequence
-        number used, which the board echoes in ``latest_counters.mode_seq_ack`` once applied."""
-        seq = (self._mode_seq + 1) & 0xFF
-        self.send(ModeCommand(mode, bool(reset_counters), seq))  # ValueError lists the modes
-        self._mode_seq = seq
-        return seq
-
-    def send(self, msg: DipoleCommand | ModeCommand) -> None:
-        """Encode and send any command message."""
-        if self._closed:
-            self._check_open()
-        frame_id, payload = self._encode(msg)
-        try:
-            self.bus.send(data_frame(frame_id, payload))
-        except can.CanError as exc:
-            raise DriverError(
-                f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
-            ) from exc
-        self.counters["sent"] += 1
-
     # -- receiving ------------------------------------------------------------------------------
 
-    def poll(self) -> int:
-        """Drain every pending frame without blocking; returns how many frames were read.
-
-        Updates ``latest_sample``, ``latest_status``, ``latest_counters``, ``last_heartbeat``.
-        Bad frames are counted, never raised.
-        """
-        if self._closed:
-            self._check_open()
-        recv = self.bus.recv
-        handle = self._handle
-        n = 0
-        try:
-            while (msg := recv(0.0)) is not None:
-                handle(msg)
-                n += 1
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        return n
-
-    def _handle(self, msg: can.Message) -> None:
-        counters = self.counters
-        counters["received"] += 1
-        frame_id = msg.arbitration_id
-        if msg.is_error_frame or msg.is_remote_frame:
-            counters["rejected_other"] += 1
-            return
-        if msg.is_extended_id or frame_id not in self._accept:
-            if not msg.is_extended_id and frame_id in self._echo_ids:
-                counters["echoes"] += 1  # our own command looped back (udp_multicast), not another node's frame
-                return
-            counters["rejected_unknown_id"] += 1
-            return
-        data = msg.data
-        if len(data) != self._lengths[frame_id]:
-            counters["rejected_length"] += 1
-            return
-        try:
-            decoded = self._decode(frame_id, data)
-        except ProtocolError:
-            counters["rejected_other"] += 1
-            return
-        kind = type(decoded)
-        if kind is MagSample:
-            self.latest_sample = decoded
-            counters["samples"] += 1
-        elif kind is Status:
-            self.latest_status = decoded
-        elif kind is Counters:
-            self.latest_counters = decoded
-        elif kind is Heartbeat:
-            self.last_heartbeat = decoded
-        else:  # pragma: no cover - board_tx_ids only holds the four kinds above
-            counters["rejected_other"] += 1
-
-    def take_sample(self) -> MagSample | None:
-        """Poll, then return the newest MagSample if it has not been returned yet, else None.
-
-        When several samples arrived since the last call only the newest is returned (its ``seq``
-        tells how many were skipped).
-        """
-        self.poll()
-        n = self.counters["samples"]
-        if n == self._returned_samples:
-            return None
-        self._returned_samples = n
-        return self.latest_sample
+    #: ``take_sample() -> MagSample | None``: poll, then the newest MagSample if it has not been returned yet, else
+    #: None. When several samples arrived since the last call only the newest is returned (its ``seq`` tells how
+    #: many were skipped).
+    take_sample = CanHost._newest_unseen
 
     def read_sample(self, timeout_s: float) -> MagSample:
         """Return a sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic).
 
         Raises DeviceTimeoutError naming the device, what was awaited and the timeout.
         """
-        deadline = time.monotonic() + timeout_s
-        self.poll()
-        counters = self.counters
-        try:
-            while counters["samples"] == self._returned_samples:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    raise self._timeout("a new MAG_SAMPLE", timeout_s)
-                msg = self.bus.recv(remaining)
-                if msg is not None:
-                    self._handle(msg)
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        self._returned_samples = counters["samples"]
-        return self.latest_sample  # type: ignore[return-value]
+        return self._wait_newest(timeout_s, lambda: self._timeout("a new MAG_SAMPLE", timeout_s))
 
     def _timeout(self, awaited: str, timeout_s: float) -> DeviceTimeoutError:
         last = self.latest_sample

@@ -25,6 +25,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from drivers import can_messages
+from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
 
@@ -46,7 +48,6 @@ __all__ = [
 
 #: Wheel modes, in the order of the DBC's VAL_ table (checked when the codec loads the DBC).
 MODES: tuple[str, ...] = ("IDLE", "TORQUE", "SPEED")
-HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
 #: Node id of wheel 0; wheel n is node NODE_BASE + n.
 NODE_BASE = 0x20
 #: Wheels one DBC can number (the low four bits of every id).
@@ -63,15 +64,6 @@ _SIGNALS: dict[str, tuple[str, ...]] = {
                   "temperature"),
     "RW_HEARTBEAT": ("uptime_s", "state", "counter"),
 }
-
-
-def _enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
-    if isinstance(value, str) and value.upper() in names:
-        return value.upper()
-    if isinstance(value, int) and not isinstance(value, bool) and 0 <= value < len(names):
-        return names[value]
-    allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
-    raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,16 +84,11 @@ class SpeedCommand:
     timeout_s: float = 0.0
 
 
-@dataclass(frozen=True, slots=True)
-class ModeCommand:
+class ModeCommand(can_messages.ModeCommand):
     """Set the mode: a name from :data:`MODES` or its number (stored as the name)."""
 
-    mode: str | int
-    reset_counters: bool = False
-    seq: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "ModeCommand.mode"))
+    __slots__ = ()
+    MODES = MODES
 
 
 class WheelSpeed(float):
@@ -162,19 +149,7 @@ class Status:
     temperature_C: float = 20.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", _enum_name(self.mode, MODES, "Status.mode"))
-
-
-@dataclass(frozen=True, slots=True)
-class Heartbeat:
-    """Whole seconds since boot, state (name from :data:`HEARTBEAT_STATES`), counter."""
-
-    uptime_s: int
-    state: str | int
-    counter: int
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "state", _enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
+        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
 
 
 Message = TorqueCommand | SpeedCommand | ModeCommand | WheelSpeed | Status | Heartbeat

@@ -21,11 +21,12 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 - RW_STATUS every ``status_period_s``, RW_HEARTBEAT every ``heartbeat_period_s``, on the grid
   ``t0 + k * period`` (``t0`` = the first service time); a late call sends one message and counts the
   missed telemetry slots in ``samples_skipped``.
-- Frames of this wheel's siblings on a shared bus are counted in ``other_wheels`` and ignored;
-  unknown ids, wrong lengths and undecodable values are counted, never raised.
+- Frames are sorted by :class:`drivers.can_node.CanNode`: frames of other nodes on a shared bus
+  (the other wheels, a magnetorquer) are counted in ``foreign`` and ignored; this wheel's commands
+  of a wrong length or with an undecodable value are counted, never raised.
 
-``counters``: ``sent``, ``received``, ``rejected_unknown_id``, ``rejected_length``,
-``rejected_other``, ``other_wheels``, ``commands_accepted``, ``saturations``,
+``counters``: the node's (``sent``, ``received``, ``rejected_unknown_id``, ``rejected_length``,
+``rejected_other``, ``foreign``, ``echoes``), then ``commands_accepted``, ``saturations``,
 ``watchdog_expiries``, ``samples_skipped``.
 """
 
@@ -38,9 +39,7 @@ from typing import Any, NamedTuple
 
 import can
 
-from drivers.can_bus import data_frame
-from drivers.endpoint import BusEndpoint
-from drivers.errors import DriverError, ProtocolError, frame_hex
+from drivers.can_node import CanDevice
 from drivers.reaction_wheel.codec import (
     MODES,
     Heartbeat,
@@ -55,11 +54,6 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulatorConfig"]
 
 SpeedSource = Callable[[float], Any]
-
-#: How the emulator names each kind of frame it drops (``last_rejected``).
-_WHY = {"rejected_unknown_id": "a frame with an id the wheel does not take",
-        "rejected_length": "a frame of the wrong length for its id",
-        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
 
 _EPS_S = 1e-6
 
@@ -105,7 +99,7 @@ class WheelEmulatorConfig:
                              f"got {self.initial_mode!r}.")
 
 
-class ReactionWheelEmulator(BusEndpoint):
+class ReactionWheelEmulator(CanDevice):
     """Wheel ``wheel`` (0..15), emulated on ``bus`` (see the module docstring for the behaviour).
 
     Args:
@@ -137,18 +131,11 @@ class ReactionWheelEmulator(BusEndpoint):
                 f"{cfg.max_speed_rad_s!r} exceed what the commands carry ({codec.torque_range_Nm[1]!r} N m, "
                 f"{codec.speed_range_rad_s[1]!r} rad/s)."
             )
-        self.bus = bus
         self.source = speed_source
         self.name = name or f"rw{wheel} emulator"
-        self._owns_bus = owns_bus
-        self._closed = False
-        #: Why the latest frame was rejected (naming it in candump notation), or None.
-        self.last_rejected: str | None = None
-        self.counters: dict[str, int] = {
-            "sent": 0, "received": 0, "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0,
-            "other_wheels": 0, "commands_accepted": 0, "saturations": 0, "watchdog_expiries": 0,
-            "samples_skipped": 0,
-        }
+        self._init_node(bus, codec, accept=codec.wheel_rx_ids, own=codec.wheel_tx_ids,
+                        extra_counters=("commands_accepted", "saturations", "watchdog_expiries", "samples_skipped"),
+                        owns_bus=owns_bus)
         self._board = {"rejected_frames": 0, "commands_accepted": 0, "watchdog_expiries": 0, "saturations": 0}
         self.mode = cfg.initial_mode
         self._torque = 0.0
@@ -164,6 +151,8 @@ class ReactionWheelEmulator(BusEndpoint):
         self._temperature = min(max(cfg.temperature_C, t_lo), t_hi)
         self._tlm_speed_max = codec.tlm_speed_range_rad_s[1]
         self._tlm_torque_max = codec.tlm_torque_range_Nm[1]
+
+    _heartbeat_type = Heartbeat
 
     def __repr__(self) -> str:
         return f"ReactionWheelEmulator(wheel={self.codec.wheel}, mode={self.mode!r}, counters={self.counters})"
@@ -182,24 +171,10 @@ class ReactionWheelEmulator(BusEndpoint):
 
     # -- service ----------------------------------------------------------------------------------
 
-    def service(self, t_s: float) -> None:
-        """``receive(t_s)`` then ``publish(t_s)``."""
-        self.receive(t_s)
-        self.publish(t_s)
-
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
-        if self._closed:
-            raise DriverError(f"{self.name}: closed; create a new one.")
         self._watchdog(t_s)
-        n = 0
-        try:
-            while (msg := self.bus.recv(0.0)) is not None:
-                self._handle(msg, t_s)
-                n += 1
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        return n
+        return self._drain(t_s)
 
     def _watchdog(self, t_s: float) -> None:
         if t_s >= self._expires_s:
@@ -208,45 +183,7 @@ class ReactionWheelEmulator(BusEndpoint):
             self.counters["watchdog_expiries"] += 1
             self._board["watchdog_expiries"] += 1
 
-    @property
-    def rejected_frames(self) -> int:
-        """Frames from the bus dropped as unknown, of the wrong length or undecodable, each counted once (not
-        commands refused in the wrong mode, nor other devices' traffic)."""
-        c = self.counters
-        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
-
-    def _reject(self, key: str, msg: can.Message | None = None) -> None:
-        self.counters[key] += 1
-        if msg is not None:
-            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
-            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
-            self.last_rejected = f"{_WHY[key]}: frame {frame}{kind}"
-        self._board["rejected_frames"] += 1
-
-    def _handle(self, msg: can.Message, t_s: float) -> None:
-        c = self.counters
-        c["received"] += 1
-        fid = msg.arbitration_id
-        if msg.is_error_frame or msg.is_remote_frame:
-            self._reject("rejected_other", msg)
-            return
-        if msg.is_extended_id or fid not in self.codec.wheel_rx_ids:
-            if not msg.is_extended_id and fid in self.codec.all_wheel_ids:
-                c["other_wheels"] += 1  # a sibling's traffic on a shared bus: not an error
-            else:
-                self._reject("rejected_unknown_id", msg)
-            return
-        if len(msg.data) != self.codec.lengths[fid]:
-            self._reject("rejected_length", msg)
-            return
-        try:
-            cmd = self.codec.decode(fid, msg.data)
-        except ProtocolError:
-            self._reject("rejected_other", msg)
-            return
-        self._apply(cmd, t_s)
-
-    def _apply(self, cmd: Any, t_s: float) -> None:
+    def _take(self, cmd: Any, t_s: float) -> None:
         cfg = self.config
         if isinstance(cmd, TorqueCommand):
             u = cmd.torque_Nm
@@ -284,7 +221,7 @@ class ReactionWheelEmulator(BusEndpoint):
     def publish(self, t_s: float) -> int:
         """Send what is due at ``t_s``; returns the number of frames sent."""
         if self._closed:
-            raise DriverError(f"{self.name}: closed; create a new one.")
+            self._check_open()
         if self._t0 is None:
             self._t0 = t_s
         cfg = self.config
@@ -294,29 +231,12 @@ class ReactionWheelEmulator(BusEndpoint):
             self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
             self._send(self.telemetry(t_s))
             sent += 1
-        if since >= self._k_status * cfg.status_period_s:
-            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
-            self._send(self.status())
-            sent += 1
-        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
-            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
-            self._send(self.heartbeat(t_s))
-            sent += 1
+        if since >= self._housekeeping_due:
+            sent += self._housekeeping(since, t_s)
         return sent
 
-    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
-        nxt = max(math.floor(since / period) + 1, k + 1)
-        if count_skips and nxt > k + 1:
-            self.counters["samples_skipped"] += nxt - k - 1
-        return nxt
-
-    def _send(self, msg: Any) -> None:
-        frame_id, payload = self.codec.encode(msg)
-        try:
-            self.bus.send(data_frame(frame_id, payload))
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot send on {self.bus.channel_info}: {exc}") from exc
-        self.counters["sent"] += 1
+    def _status_messages(self, t_s: float) -> tuple[Status]:
+        return (self.status(),)
 
     # -- messages ---------------------------------------------------------------------------------
 
@@ -348,10 +268,3 @@ class ReactionWheelEmulator(BusEndpoint):
         b = self._board
         return Status(self.mode, b["rejected_frames"] & 0xFFFF, b["commands_accepted"] & 0xFF, self._seq_ack,
                       b["watchdog_expiries"] & 0xFF, b["saturations"] & 0xFF, self._temperature)
-
-    def heartbeat(self, t_s: float) -> Heartbeat:
-        """The RW_HEARTBEAT at ``t_s`` (advances the heartbeat counter)."""
-        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
-        counter = self._heartbeat_counter
-        self._heartbeat_counter = (counter + 1) & 0xFF
-        return Heartbeat(uptime, "NOMINAL", counter)

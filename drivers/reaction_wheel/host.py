@@ -9,21 +9,20 @@ one bus, each with its own number (node 0x20 + n)::
     tlm = wheel.take_speed()              # the newest unseen RW_SPEED_TLM, or None (never blocks)
     tlm.speed_rad_s, tlm.valid, tlm.seq
 
-Receiving never raises on bad traffic: frames with an id that is no wheel's, a wrong length or an
-undecodable value are counted and dropped; frames of the other wheels on the bus are counted in
-``other_wheels``.
+Receiving never raises on bad traffic (:class:`drivers.can_node.CanNode`): frames of other nodes
+(the other wheels, a magnetorquer, 29-bit ids) are counted in ``foreign`` and ignored, our own
+commands looped back by ``udp_multicast`` in ``echoes``; this wheel's frames of a wrong length or
+with an undecodable value are counted and dropped.
 """
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import can
 
-from drivers.can_bus import data_frame
-from drivers.endpoint import BusEndpoint
-from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError
+from drivers.can_node import CanHost
+from drivers.errors import DeviceTimeoutError
 from drivers.reaction_wheel.codec import (
     Heartbeat,
     ModeCommand,
@@ -37,7 +36,7 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelHost"]
 
 
-class ReactionWheelHost(BusEndpoint):
+class ReactionWheelHost(CanHost):
     """Host-side driver of wheel ``wheel`` on an open python-can ``bus``.
 
     Args:
@@ -48,9 +47,8 @@ class ReactionWheelHost(BusEndpoint):
 
     Attributes:
         latest_speed, latest_status, last_heartbeat: the newest decoded message of each kind, or None.
-        counters: ``sent``, ``received`` (every frame read), ``rejected_unknown_id``,
-            ``rejected_length``, ``rejected_other`` (remote/error frames, undecodable values),
-            ``other_wheels`` (frames of the other wheels), ``samples`` (RW_SPEED_TLM accepted).
+        counters: the node's (:data:`drivers.can_node.NODE_COUNTERS`), then ``samples`` (RW_SPEED_TLM
+            accepted).
     """
 
     def __init__(self, bus: can.BusABC, wheel: int = 0, codec: ReactionWheelCodec | None = None,
@@ -58,20 +56,14 @@ class ReactionWheelHost(BusEndpoint):
         self.codec = codec if codec is not None else ReactionWheelCodec(wheel)
         if self.codec.wheel != wheel:
             raise ValueError(f"reaction wheel host: wheel = {wheel} but the codec is for wheel {self.codec.wheel}.")
-        self.bus = bus
         self.name = name or f"rw{wheel}"
-        self._owns_bus = owns_bus
-        self._closed = False
-        self.counters: dict[str, int] = {
-            "sent": 0, "received": 0, "rejected_unknown_id": 0, "rejected_length": 0, "rejected_other": 0,
-            "other_wheels": 0, "samples": 0,
-        }
+        self._init_node(bus, self.codec, accept=self.codec.wheel_tx_ids, own=self.codec.wheel_rx_ids,
+                        extra_counters=("samples",), owns_bus=owns_bus)
         self.latest_speed: WheelSpeed | None = None
         self.latest_status: Status | None = None
         self.last_heartbeat: Heartbeat | None = None
-        self._returned = 0
+        self._returned_samples = 0
         self._seq = 0
-        self._accept = self.codec.wheel_tx_ids
         self._tlm_id = self.codec.ids["RW_SPEED_TLM"]
 
     @classmethod
@@ -83,15 +75,16 @@ class ReactionWheelHost(BusEndpoint):
 
         return cls(open_bus(interface, channel, **bus_kwargs), wheel, codec, name, owns_bus=True)
 
+    _closed_text = "the reaction wheel driver is closed; open a new one."
+    _mode_command = ModeCommand
+    _latest = {WheelSpeed: "latest_speed", Status: "latest_status", Heartbeat: "last_heartbeat"}
+    _sample_type, _sample_attr = WheelSpeed, "latest_speed"
+
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"
         return f"ReactionWheelHost(wheel={self.codec.wheel}, {state}, counters={self.counters})"
 
     # -- commands -------------------------------------------------------------------------------
-
-    def _next_seq(self) -> int:
-        self._seq = (self._seq + 1) & 0xFF
-        return self._seq
 
     def command_torque(self, torque_Nm: float, timeout_s: float = 0.0) -> int:
         """Send RW_TORQUE_CMD (mode TORQUE): motor torque on the rotor about the spin axis, N m.
@@ -110,102 +103,21 @@ class ReactionWheelHost(BusEndpoint):
         self.send(SpeedCommand(float(speed_rad_s), seq, float(timeout_s)))
         return seq
 
-    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
-        """Send RW_MODE_CMD (``"IDLE"``, ``"TORQUE"``, ``"SPEED"`` or 0-2, zero command); returns the seq."""
-        seq = (self._seq + 1) & 0xFF
-        self.send(ModeCommand(mode, bool(reset_counters), seq))  # ValueError lists the modes
-        self._seq = seq
-        return seq
-
-    def send(self, msg: TorqueCommand | SpeedCommand | ModeCommand) -> None:
-        """Encode and send any command message."""
-        if self._closed:
-            raise DriverError(f"{self.name}: the reaction wheel driver is closed; open a new one.")
-        frame_id, payload = self.codec.encode(msg)
-        try:
-            self.bus.send(data_frame(frame_id, payload))
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: "
-                              f"{exc}") from exc
-        self.counters["sent"] += 1
-
     # -- receiving ------------------------------------------------------------------------------
 
-    def poll(self) -> int:
-        """Drain every pending frame without blocking; returns how many frames were read."""
-        if self._closed:
-            raise DriverError(f"{self.name}: the reaction wheel driver is closed; open a new one.")
-        n = 0
-        try:
-            while (msg := self.bus.recv(0.0)) is not None:
-                self._handle(msg)
-                n += 1
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        return n
-
-    def _handle(self, msg: can.Message) -> None:
-        c = self.counters
-        c["received"] += 1
-        fid = msg.arbitration_id
-        if msg.is_error_frame or msg.is_remote_frame:
-            c["rejected_other"] += 1
-            return
-        if msg.is_extended_id or fid not in self._accept:
-            if not msg.is_extended_id and fid in self.codec.all_wheel_ids:
-                c["other_wheels"] += 1
-            else:
-                c["rejected_unknown_id"] += 1
-            return
-        if len(msg.data) != self.codec.lengths[fid]:
-            c["rejected_length"] += 1
-            return
-        try:
-            decoded = self.codec.decode(fid, msg.data)
-        except ProtocolError:
-            c["rejected_other"] += 1
-            return
-        kind = type(decoded)
-        if kind is WheelSpeed:
-            self.latest_speed = decoded
-            c["samples"] += 1
-        elif kind is Status:
-            self.latest_status = decoded
-        elif kind is Heartbeat:
-            self.last_heartbeat = decoded
-
-    def take_speed(self) -> WheelSpeed | None:
-        """Poll, then the newest RW_SPEED_TLM not returned before (``.speed_rad_s``, ``.torque_Nm``,
-        ``.valid``, ``.seq``), or None."""
-        self.poll()
-        n = self.counters["samples"]
-        if n == self._returned:
-            return None
-        self._returned = n
-        return self.latest_speed
+    #: ``take_speed() -> WheelSpeed | None``: poll, then the newest RW_SPEED_TLM not returned before
+    #: (``.speed_rad_s``, ``.torque_Nm``, ``.valid``, ``.seq``), or None.
+    take_speed = CanHost._newest_unseen
 
     def read_speed(self, timeout_s: float) -> WheelSpeed:
         """Wait up to ``timeout_s`` (monotonic) for a RW_SPEED_TLM newer than the last one returned.
 
         Raises DeviceTimeoutError naming the device, what was awaited and the timeout.
         """
-        deadline = time.monotonic() + timeout_s
-        self.poll()
-        c = self.counters
-        try:
-            while c["samples"] == self._returned:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    raise DeviceTimeoutError(
-                        f"{self.name}: no RW_SPEED_TLM (id 0x{self._tlm_id:03X}) within {timeout_s:g} s on "
-                        f"{self.bus.channel_info}; {c['samples']} received so far. Is wheel {self.codec.wheel} "
-                        f"(node 0x{self.codec.node:02X}) powered and on this bus?",
-                        device=self.name, awaited="RW_SPEED_TLM", timeout_s=timeout_s,
-                    )
-                msg = self.bus.recv(remaining)
-                if msg is not None:
-                    self._handle(msg)
-        except can.CanError as exc:
-            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
-        self._returned = c["samples"]
-        return self.latest_speed  # type: ignore[return-value]
+        c = self.codec
+        return self._wait_newest(timeout_s, lambda: DeviceTimeoutError(
+            f"{self.name}: no RW_SPEED_TLM (id 0x{self._tlm_id:03X}) within {timeout_s:g} s on "
+            f"{self.bus.channel_info}; {self.counters['samples']} received so far. Is wheel {c.wheel} "
+            f"(node 0x{c.node:02X}) powered and on this bus?",
+            device=self.name, awaited="RW_SPEED_TLM", timeout_s=timeout_s,
+        ))

@@ -20,7 +20,8 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, Rejections, can_endpoint
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices.served_can import ServedCan
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -253,7 +254,7 @@ class HardwareBoard(_Board):
         super().close()
 
 
-class ServedBoard(_Board):
+class ServedBoard(ServedCan, _Board):
     """The emulator on a real adapter for a flight computer outside; the stand holds no host driver. What the flight
     computer sends that the board cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
@@ -270,19 +271,7 @@ class ServedBoard(_Board):
             raise
         # Silence here means the flight computer stopped commanding.
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
-        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
-
-    def rejected_frames(self) -> int:
-        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
-
-    def _last_rejected(self):
-        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
-
-    def start(self, events):
-        self.rejections.start(events)
-
-    def publish(self, t_s):
-        self.emulator.publish(t_s)
+        self._watch_rejections(spec.name)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -293,11 +282,9 @@ class ServedBoard(_Board):
         s = self.emulator.last_sample
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
-    def activity(self):
-        return self.emulator.counters["commands_accepted"]
-
     def summary(self):
-        return {"emulator": {**self.emulator.counters, **self.link.counters}, "rejected_frames": self.rejected_frames()}
+        return {"emulator": {**self.emulator.counters, **self.link.counters},
+                "rejected_frames": self.served.rejected_frames()}
 
 
 KIND = MagnetorquerKind()

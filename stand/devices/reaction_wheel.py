@@ -26,7 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.rotations import dcm
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, Rejections, can_endpoint
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices.served_can import ServedCan
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -237,7 +238,7 @@ class EmulatedWheel(_Wheel):
         return self.host.counters["samples"]
 
 
-class ServedWheel(_Wheel):
+class ServedWheel(ServedCan, _Wheel):
     """The emulator on a real adapter for a flight computer outside. What the flight computer sends that the wheel
     cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
@@ -255,32 +256,17 @@ class ServedWheel(_Wheel):
         except BaseException:
             self.close()
             raise
-        self.rejections = Rejections(spec.name, self.rejected_frames, self._last_rejected, lambda: self.link.conflict)
-
-    def rejected_frames(self) -> int:
-        return self.emulator.rejected_frames + self.link.counters["rejected_undecodable"]
-
-    def _last_rejected(self):
-        return self.link.last_rejected if self.link.last_rejected is not None else self.emulator.last_rejected
-
-    def start(self, events):
-        self.rejections.start(events)
-
-    def publish(self, t_s):
-        self.emulator.publish(t_s)
+        self._watch_rejections(spec.name)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
         self._step_motor(self.emulator.command_at(t_s))
         self.rejections.check(t_s)
 
-    def activity(self):
-        return self.emulator.counters["commands_accepted"]
-
     def summary(self):
         out = super().summary()
         out["emulator_counters"].update(self.link.counters)
-        out["rejected_frames"] = self.rejected_frames()
+        out["rejected_frames"] = self.served.rejected_frames()
         return out
 
 

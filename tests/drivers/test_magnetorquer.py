@@ -34,7 +34,7 @@ from drivers.magnetorquer import (
     ModeCommand,
     Status,
 )
-from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
+from drivers.magnetorquer.emulator import COMMAND_BLOCK, EmulatorConfig, MagnetorquerEmulator
 from drivers.magnetorquer.host import MagnetorquerBoard
 
 REPO = Path(__file__).resolve().parents[2]
@@ -463,11 +463,14 @@ _frames = st.builds(
 )
 
 
-def _expected_class(frame: tuple[int, bool, bytes, bool], accept: frozenset[int]) -> str:
+def _expected_class(frame: tuple[int, bool, bytes, bool], accept: frozenset[int],
+                    addressed: frozenset[int] = frozenset()) -> str:
     ident, extended, data, remote = frame
+    if extended or ident not in accept | addressed:
+        return "foreign"  # another node's traffic: not this node's to reject
     if remote:
         return "rejected_other"
-    if extended or ident not in accept:
+    if ident not in accept:
         return "rejected_unknown_id"
     if len(data) != 8:
         return "rejected_length"
@@ -507,9 +510,10 @@ def test_garbage_frames_are_counted_and_the_next_good_frame_is_served(
         rig.host.poll()  # must not raise
         rig.emu.receive(t)  # must not raise
 
-        for who, accept in ((rig.host, CODEC.board_tx_ids), (rig.emu, CODEC.board_rx_ids)):
-            classes = [_expected_class(f, accept) for f in garbage]
-            for key in ("rejected_unknown_id", "rejected_length", "rejected_other"):
+        for who, accept, addressed in ((rig.host, CODEC.board_tx_ids, frozenset()),
+                                       (rig.emu, CODEC.board_rx_ids, COMMAND_BLOCK)):
+            classes = [_expected_class(f, accept, addressed) for f in garbage]
+            for key in ("rejected_unknown_id", "rejected_length", "rejected_other", "foreign"):
                 assert who.counters[key] == classes.count(key), (who, key)
         assert rig.host.counters["received"] == len(garbage) + rig.emu.counters["sent"]
         assert rig.emu.counters["received"] == len(garbage)
@@ -542,7 +546,7 @@ def test_frames_of_another_host_are_not_taken_for_the_board(rig: Rig) -> None:
     try:
         other_host.command_dipole((0.1, 0.0, 0.0), 1.0)  # reaches the emulator and our host
         rig.host.poll()
-        assert rig.host.counters["rejected_unknown_id"] == 1
+        assert rig.host.counters["foreign"] == 1 and rig.host.rejected_frames == 0
         assert rig.emu.receive(0.0) == 1 and rig.emu.coil_active(0.0)
     finally:
         other_host.close()

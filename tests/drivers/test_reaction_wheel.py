@@ -205,9 +205,9 @@ def test_four_wheels_share_one_bus_without_mixing_their_traffic(bus):
         assert emus[n].torque_command_Nm(0.0) == pytest.approx(1e-4 * (n + 1), abs=TQ_LSB)
         tlm = hosts[n].take_speed()
         assert tlm.speed_rad_s == pytest.approx(10.0 * (n + 1))
-        assert hosts[n].counters["other_wheels"] == 3 + 3 * 3  # the other hosts' commands and the siblings' frames
-        assert emus[n].counters["other_wheels"] == 3 + 3 * 3  # the other hosts' commands and the siblings' frames
-        assert hosts[n].counters["rejected_unknown_id"] == emus[n].counters["rejected_unknown_id"] == 0
+        assert hosts[n].counters["foreign"] == 3 + 3 * 3  # the other hosts' commands and the siblings' frames
+        assert emus[n].counters["foreign"] == 3 + 3 * 3  # the other hosts' commands and the siblings' frames
+        assert hosts[n].rejected_frames == emus[n].rejected_frames == 0
 
 
 def test_late_service_sends_one_sample_and_counts_the_skipped_ones(bus):
@@ -229,8 +229,9 @@ def test_bad_frames_are_counted_never_raised(bus):
     rogue.send(can.Message(arbitration_id=0x0B0, data=bytes(8), is_extended_id=True))
     emu.service(0.0)
     c = emu.counters
-    assert (c["rejected_length"], c["rejected_other"], c["rejected_unknown_id"]) == (1, 1, 2)
-    assert emu.status().rejected_frames == 4 and c["commands_accepted"] == 0
+    # 0x123 and the 29-bit id are no frame of this wheel's: another node's traffic, not rejected.
+    assert (c["rejected_length"], c["rejected_other"], c["rejected_unknown_id"], c["foreign"]) == (1, 1, 0, 2)
+    assert emu.status().rejected_frames == 2 and c["commands_accepted"] == 0
 
 
 def test_a_source_that_returns_nonsense_is_named(bus):

@@ -112,7 +112,8 @@ def test_served_magnetorquer_drops_malformed_can_frames_and_applies_the_commands
     dipoles = [0.05, 0.10, 0.15, 0.12, 0.08]
     good = [serial_can(*codec.encode(DipoleCommand((m, 0.0, 0.0), 1.0))) for m in dipoles]
     fid, payload = codec.encode(DipoleCommand((0.01, 0.0, 0.0), 1.0))
-    bad = [*UNDECODABLE, serial_can(0x123, bytes(8)), serial_can(fid, payload[:3])]  # + an unknown id, a short one
+    # + an id of the board's command block the ICD leaves free, a short one
+    bad = [*UNDECODABLE, serial_can(0x092, bytes(8)), serial_can(fid, payload[:3])]
     steps = [x for pair in zip(bad, good, strict=True) for x in pair]
     device = {"name": "mtq", "kind": "magnetorquer", "interface": "serial"}
     code, log, summary, events, out, _ = _run(tmp_path, pty_pair, device, steps)

@@ -1,0 +1,324 @@
+"""What every CAN node of the project shares, host driver or emulated device: the receive loop that sorts
+each frame, the counters, the rejection reasons and sending one encoded message.
+
+A node knows three sets of standard (11-bit) ids:
+
+- ``accept``: the ids it takes (with their lengths, from the ICD);
+- ``addressed``: the ids that are its to take (``accept`` plus any id of its range the ICD leaves
+  unassigned, e.g. the magnetorquer board's command block 0x090..0x09F);
+- ``own``: the ids it sends itself, which a bus that loops every frame back to its sender
+  (``udp_multicast``) returns to it.
+
+Each frame read is counted in ``received`` and then in exactly one of:
+
+- ``echoes``: one of the node's own frames coming back (only on a bus that loops back);
+- ``foreign``: a frame not addressed to this node (another node's traffic on a shared bus, a 29-bit
+  id): ignored, not an error, since several devices may share one bus;
+- ``rejected_unknown_id``, ``rejected_length``, ``rejected_other``: a frame addressed to the node
+  that it cannot accept (an id of its range the ICD does not assign, a wrong length, a value that
+  does not decode, a remote frame), or an error frame, which every node on the bus sees;
+- taken: handed to the node's :meth:`CanNode._take` (the device's own behaviour).
+
+:attr:`CanNode.rejected_frames` sums the three ``rejected_*`` counters and ``last_rejected`` says why
+the latest one was dropped, naming the frame in candump notation. An emulated device also counts
+each rejection in its on-board ``rejected_frames`` counter (``self._board``), which its ICD reports.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import can
+
+from drivers.can_bus import data_frame, loops_back
+from drivers.endpoint import BusEndpoint
+from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError, frame_hex
+
+__all__ = ["CanDevice", "CanHost", "CanNode", "ServedNode"]
+
+#: How a node names each kind of frame it drops (``last_rejected``).
+_WHY = {"rejected_unknown_id": "a frame with an id of {name}'s range that it does not take",
+        "rejected_length": "a frame of the wrong length for its id",
+        "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
+
+#: The counters every node keeps; a device adds its own after these.
+NODE_COUNTERS = ("sent", "received", "rejected_unknown_id", "rejected_length", "rejected_other", "foreign", "echoes")
+
+
+class CanNode(BusEndpoint):
+    """Base of a CAN host driver or emulated device; a subclass calls :meth:`_init_node` and fills :meth:`_take`.
+
+    Attributes:
+        counters: :data:`NODE_COUNTERS` then the device's own (see the module docstring).
+        last_rejected: why the latest frame was rejected, or None.
+    """
+
+    name: str
+    #: The sentence after the name when the node is used after close.
+    _closed_text = "closed; create a new one."
+    #: The on-board counters an emulated device reports (``rejected_frames`` among them), or None for a host.
+    _board: dict[str, int] | None = None
+
+    def _init_node(self, bus: can.BusABC, codec: Any, *, accept: frozenset[int], own: frozenset[int],
+                   addressed: frozenset[int] = frozenset(), extra_counters: tuple[str, ...] = (),
+                   owns_bus: bool = False) -> None:
+        self.bus = bus
+        self._owns_bus = owns_bus
+        self._closed = False
+        self._accept = frozenset(accept)
+        self._addressed = self._accept | frozenset(addressed)
+        # Only a bus that loops frames back returns our own; elsewhere such a frame is another node's.
+        self._echo_ids = frozenset(own) if loops_back(bus) else frozenset()
+        self._lengths = codec.lengths
+        self._decode = codec.decode
+        self._encode = codec.encode
+        self.last_rejected: str | None = None
+        self.counters: dict[str, int] = dict.fromkeys((*NODE_COUNTERS, *extra_counters), 0)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise DriverError(f"{self.name}: {self._closed_text}")
+
+    # -- receiving --------------------------------------------------------------------------------
+
+    def _drain(self, t_s: float | None = None) -> int:
+        """Read every pending frame without blocking and sort each (module docstring); returns how many."""
+        if self._closed:
+            self._check_open()
+        recv = self.bus.recv
+        handle = self._handle
+        n = 0
+        try:
+            while (msg := recv(0.0)) is not None:
+                handle(msg, t_s)
+                n += 1
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        return n
+
+    def _handle(self, msg: can.Message, t_s: float | None) -> None:
+        self.counters["received"] += 1
+        frame_id = msg.arbitration_id
+        if frame_id in self._accept and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+            data = msg.data
+            if len(data) != self._lengths[frame_id]:
+                self._reject("rejected_length", msg)
+                return
+            try:
+                decoded = self._decode(frame_id, data)
+            except ProtocolError:
+                self._reject("rejected_other", msg)
+                return
+            self._take(decoded, t_s)
+        else:  # not a data frame the node takes: sort it (module docstring)
+            self._sort(msg, frame_id)
+
+    def _sort(self, msg: can.Message, frame_id: int) -> None:
+        if msg.is_error_frame:
+            self._reject("rejected_other", msg)
+        elif msg.is_extended_id or frame_id not in self._addressed:
+            self.counters["echoes" if not msg.is_extended_id and frame_id in self._echo_ids else "foreign"] += 1
+        elif msg.is_remote_frame:
+            self._reject("rejected_other", msg)
+        else:
+            self._reject("rejected_unknown_id", msg)
+
+    def _take(self, decoded: Any, t_s: float | None) -> None:  # pragma: no cover - every node overrides it
+        raise NotImplementedError
+
+    @property
+    def rejected_frames(self) -> int:
+        """Frames addressed to this node that it dropped as unknown, of the wrong length or undecodable, plus error
+        frames, each counted once (not commands refused in the wrong mode, nor other nodes' traffic)."""
+        c = self.counters
+        return c["rejected_unknown_id"] + c["rejected_length"] + c["rejected_other"]
+
+    def _reject(self, key: str, msg: can.Message | None = None) -> None:
+        self.counters[key] += 1
+        if msg is not None:
+            frame = frame_hex(msg.arbitration_id, msg.data, extended=msg.is_extended_id)
+            kind = " (an error or remote frame)" if msg.is_error_frame or msg.is_remote_frame else ""
+            self.last_rejected = f"{_WHY[key].format(name=self.name)}: frame {frame}{kind}"
+        if self._board is not None:
+            self._board["rejected_frames"] += 1
+
+    # -- sending ----------------------------------------------------------------------------------
+
+    def _send(self, msg: Any) -> None:
+        """Encode ``msg`` and send it as one data frame (DriverError naming the bus if that fails)."""
+        if self._closed:
+            self._check_open()
+        frame_id, payload = self._encode(msg)
+        try:
+            self.bus.send(data_frame(frame_id, payload))
+        except can.CanError as exc:
+            raise DriverError(
+                f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
+            ) from exc
+        self.counters["sent"] += 1
+
+
+class CanHost(CanNode):
+    """A host driver: sends commands, drains what the device sends, hands out its newest periodic sample.
+
+    A subclass maps each message type its device sends to the attribute keeping the newest one (``_latest``), names
+    the periodic sample's type and attribute (``_sample_type``, ``_sample_attr``) and its ICD's mode command
+    (``_mode_command``), counts each sample it takes in ``counters["samples"]`` and sets ``self._returned_samples = 0``
+    and ``self._seq = 0`` in its constructor.
+    """
+
+    _latest: dict[type, str]
+    _sample_type: type
+    _sample_attr: str
+    _returned_samples: int
+    _mode_command: Any
+    _seq: int
+
+    def _next_seq(self) -> int:
+        self._seq = (self._seq + 1) & 0xFF
+        return self._seq
+
+    def set_mode(self, mode: str | int, reset_counters: bool = False) -> int:
+        """Send the ICD's mode command (a name from its ``MODES`` or the number); returns the sequence number used,
+        which the device echoes back once applied (the sequence advances only when the command went out)."""
+        seq = (self._seq + 1) & 0xFF
+        self.send(self._mode_command(mode, bool(reset_counters), seq))  # ValueError lists the modes
+        self._seq = seq
+        return seq
+
+    #: Encode and send any command message (DriverError naming the bus if that fails).
+    send = CanNode._send
+    #: Drain every pending frame without blocking; returns how many frames were read. Bad frames are counted, never
+    #: raised.
+    poll = CanNode._drain
+
+    def _take(self, decoded: Any, t_s: float | None) -> None:
+        kind = type(decoded)
+        if kind is self._sample_type:  # the periodic sample: most of the traffic
+            setattr(self, self._sample_attr, decoded)
+            self.counters["samples"] += 1
+            return
+        attr = self._latest.get(kind)
+        if attr is None:  # pragma: no cover - accept only holds the device's messages
+            self._reject("rejected_other")
+            return
+        setattr(self, attr, decoded)
+
+    def _newest_unseen(self) -> Any:
+        """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the
+        last call only the newest is returned: its ``seq`` tells how many were skipped)."""
+        self._drain()
+        n = self.counters["samples"]
+        if n == self._returned_samples:
+            return None
+        self._returned_samples = n
+        return getattr(self, self._sample_attr)
+
+    def _wait_newest(self, timeout_s: float, timeout_error: Any) -> Any:
+        """A sample newer than the last one returned, waiting up to ``timeout_s`` (monotonic); raises
+        ``timeout_error()`` (a DeviceTimeoutError naming the device) when none came."""
+        deadline = time.monotonic() + timeout_s
+        self.poll()
+        counters = self.counters
+        try:
+            while counters["samples"] == self._returned_samples:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0.0:
+                    error: DeviceTimeoutError = timeout_error()
+                    raise error
+                msg = self.bus.recv(remaining)
+                if msg is not None:
+                    self._handle(msg, None)
+        except can.CanError as exc:
+            raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
+        self._returned_samples = counters["samples"]
+        return getattr(self, self._sample_attr)
+
+
+class CanDevice(CanNode):
+    """An emulated device: its periodic publication schedule and its heartbeat.
+
+    Periodic messages are due at ``t0 + k * period`` (``t0`` = the first publication time); a subclass sets
+    ``self._t0 = None`` and ``self._heartbeat_counter = 0`` in its constructor, names its ICD's heartbeat
+    message (``_heartbeat_type``) and keeps ``counters["samples_skipped"]``.
+    """
+
+    _heartbeat_type: Any
+    _t0: float | None
+    _heartbeat_counter: int
+    _k_status: int
+    _k_heartbeat: int
+    config: Any
+    #: ``since`` from which :meth:`_housekeeping` has something to send (0 until it first ran).
+    _housekeeping_due = 0.0
+
+    def service(self, t_s: float) -> None:
+        """``receive(t_s)`` then ``publish(t_s)``."""
+        self.receive(t_s)
+        self.publish(t_s)
+
+    def receive(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def publish(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def _housekeeping(self, since: float, t_s: float) -> int:
+        """Send the status messages and the heartbeat when due (``since`` = seconds since ``t0``); returns frames
+        sent. A subclass keeps ``_k_status`` and ``_k_heartbeat`` and lists its status messages in
+        :meth:`_status_messages`; ``self.config`` has ``status_period_s`` and ``heartbeat_period_s``."""
+        cfg = self.config
+        sent = 0
+        if since >= self._k_status * cfg.status_period_s:
+            self._k_status = self._next_slot(since, cfg.status_period_s, self._k_status)
+            for msg in self._status_messages(t_s):
+                self._send(msg)
+                sent += 1
+        if since >= self._k_heartbeat * cfg.heartbeat_period_s:
+            self._k_heartbeat = self._next_slot(since, cfg.heartbeat_period_s, self._k_heartbeat)
+            self._send(self.heartbeat(t_s))
+            sent += 1
+        # The publish of every tick calls this only from here on (most ticks have nothing of it due).
+        self._housekeeping_due = min(self._k_status * cfg.status_period_s, self._k_heartbeat * cfg.heartbeat_period_s)
+        return sent
+
+    def _status_messages(self, t_s: float) -> tuple:  # pragma: no cover - every device overrides it
+        raise NotImplementedError
+
+    def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
+        """The next slot after ``since`` seconds (at least ``k + 1``); with ``count_skips`` the slots passed over by
+        a late call are counted in ``samples_skipped``."""
+        nxt = math.floor(since / period) + 1
+        if nxt <= k:  # rounding at a boundary
+            nxt = k + 1
+        if count_skips and nxt > k + 1:
+            self.counters["samples_skipped"] += nxt - k - 1
+        return nxt
+
+    def heartbeat(self, t_s: float) -> Any:
+        """The heartbeat the device sends at ``t_s``: whole seconds since the first publication, NOMINAL, and a
+        counter (advanced here)."""
+        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
+        counter = self._heartbeat_counter
+        self._heartbeat_counter = (counter + 1) & 0xFF
+        return self._heartbeat_type(uptime, "NOMINAL", counter)
+
+
+class ServedNode:
+    """An emulated node served on a link to a flight computer outside (:class:`drivers.can_bus.ServedBus`): what
+    the stand counts as rejected is what the node rejected plus what the link could not decode."""
+
+    def __init__(self, node: CanNode, link: Any) -> None:
+        self.node = node
+        self.link = link
+
+    def rejected_frames(self) -> int:
+        return self.node.rejected_frames + self.link.counters["rejected_undecodable"]
+
+    def last_rejected(self) -> str | None:
+        return self.link.last_rejected if self.link.last_rejected is not None else self.node.last_rejected
+
+    def conflict(self) -> Any:
+        return self.link.conflict
