@@ -69,17 +69,8 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
     """
     ig.check_method(method)
     body = RigidBody(inertia)
-    q = tuple(float(x) for x in check_unit(q_BN, "q_BN"))
-    w = tuple(float(x) for x in np.asarray(omega_BN_B, dtype=float).ravel())
-    if len(w) != 3 or not all(math.isfinite(x) for x in w):
-        raise ValueError(f"omega_BN_B = {omega_BN_B!r} must be 3 finite rates in rad/s.")
-    if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s >= 0):
-        raise ValueError(f"duration_s = {duration_s!r}; it must be a finite number of seconds >= 0.")
-    check_step_value(step_s)
-    n_full = int(math.floor(duration_s / step_s + 1e-9))
-    times = [k * step_s for k in range(n_full + 1)]
-    if duration_s - times[-1] > 1e-9 * step_s:
-        times.append(float(duration_s))
+    q, w = _initial_state(q_BN, omega_BN_B)
+    times = _output_times(duration_s, step_s)
     if method == "dop853":
         qa, wa, nfev = ig.dop853(body, q, w, np.array(times), torque, rtol, atol)
         if report is not None:
@@ -96,16 +87,7 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
             _refuse_step(body.inertia, w, step_s, limit, angle, method)
     h_int = step_s / n_sub
     if method == "trapezoid":
-        ig.warn_unstable(step_s)
-        lam = nutation_rate(body.inertia, w)
-        err = ig.heun_error(lam, h_int, (len(times) - 1) * n_sub)
-        if err > ig.HEUN_MAX_ERROR and max_angle_rad is None:
-            raise ValueError(
-                f"method 'trapezoid' at {h_int:g} s would put a nutation error of {err:.3g} rad on this "
-                f"body (lambda = {lam:.6g} rad/s) over the run (limit {ig.HEUN_MAX_ERROR:g} rad): the "
-                "explicit trapezoid rule is unstable for undamped oscillations and only second order. "
-                "Use 'rk4' or a much smaller step."
-            )
+        _check_trapezoid(body.inertia, w, step_s, h_int, (len(times) - 1) * n_sub, max_angle_rad)
     step = ig.stepper(body, method)
     qs = [q]
     ws = [w]
@@ -133,6 +115,42 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
     qa[qa[:, 0] < 0] *= -1.0
     return np.array(times), qa, np.array(ws)
 
+
+
+def _initial_state(q_BN, omega_BN_B) -> tuple[tuple, tuple]:
+    """The state as tuples of floats, refused unless the quaternion is unit and the rates finite."""
+    q = tuple(float(x) for x in check_unit(q_BN, "q_BN"))
+    w = tuple(float(x) for x in np.asarray(omega_BN_B, dtype=float).ravel())
+    if len(w) != 3 or not all(math.isfinite(x) for x in w):
+        raise ValueError(f"omega_BN_B = {omega_BN_B!r} must be 3 finite rates in rad/s.")
+    return q, w
+
+
+def _output_times(duration_s, step_s) -> list[float]:
+    """``0, step, 2 step, ...`` up to ``duration_s``, with a shorter last step landing exactly on it."""
+    if not (isinstance(duration_s, int | float) and math.isfinite(duration_s) and duration_s >= 0):
+        raise ValueError(f"duration_s = {duration_s!r}; it must be a finite number of seconds >= 0.")
+    check_step_value(step_s)
+    n_full = int(math.floor(duration_s / step_s + 1e-9))
+    times = [k * step_s for k in range(n_full + 1)]
+    if duration_s - times[-1] > 1e-9 * step_s:
+        times.append(float(duration_s))
+    return times
+
+
+def _check_trapezoid(inertia, w, step_s, h_int, n_steps, max_angle_rad) -> None:
+    """Warn that the trapezoid rule is unstable, and refuse a run whose nutation error it would put above
+    ``HEUN_MAX_ERROR`` (unless ``max_angle_rad`` accepts the error explicitly)."""
+    ig.warn_unstable(step_s)
+    lam = nutation_rate(inertia, w)
+    err = ig.heun_error(lam, h_int, n_steps)
+    if err > ig.HEUN_MAX_ERROR and max_angle_rad is None:
+        raise ValueError(
+            f"method 'trapezoid' at {h_int:g} s would put a nutation error of {err:.3g} rad on this "
+            f"body (lambda = {lam:.6g} rad/s) over the run (limit {ig.HEUN_MAX_ERROR:g} rad): the "
+            "explicit trapezoid rule is unstable for undamped oscillations and only second order. "
+            "Use 'rk4' or a much smaller step."
+        )
 
 def _refuse_step(inertia, w, step_s, limit, angle, method, at_s=None):
     wn = float(math.sqrt(sum(x * x for x in w)))

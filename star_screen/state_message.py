@@ -213,6 +213,26 @@ def decode(data: bytes, key: bytes | None = None) -> DisplayState:
     With ``key`` the message must carry a valid HMAC-SHA256 trailer; without one, a trailer is
     length-checked but not verified (there is nothing to verify it with)."""
     data = bytes(data)
+    flags, end = _check_frame(data)
+    if key is not None:
+        _check_hmac(data, flags, end, key)
+    f = _HEAD.unpack_from(data)
+    stream_id, sequence, t_ns, tai1, tai2, off_ns, dut1 = f[3:10]
+    q, v = f[10:14], f[14:17]
+    for name, vals in (("epoch", (tai1, tai2, dut1)), ("q_SN", q), ("v_sc_gcrs_m_s", v)):
+        if not all(math.isfinite(x) for x in vals):
+            raise StateMessageError(name, f"{name} = {vals}; every number must be finite.")
+    norm = math.sqrt(sum(x * x for x in q))
+    if abs(norm - 1.0) > Q_NORM_TOL:
+        raise StateMessageError("q_SN", f"q_SN = {q} has norm {norm!r}; it must be a unit quaternion "
+                                f"(within {Q_NORM_TOL}).")
+    opt = _optional_vectors(data, flags)
+    _physical((tai1, tai2, off_ns, dut1), q, v, opt)
+    return DisplayState(sequence, t_ns, Epoch(tai1, tai2, off_ns, dut1), q, v, stream_id=stream_id, **opt)
+
+
+def _check_frame(data: bytes) -> tuple[int, int]:
+    """Length, magic, version, flags and CRC of a message; returns its flags and where its HMAC trailer starts."""
     if len(data) < _HEAD.size + _CRC.size:
         raise StateMessageError("length", f"message length = {len(data)} bytes; a version-{VERSION} state "
                                 f"message has at least {_HEAD.size + _CRC.size}.")
@@ -234,24 +254,21 @@ def decode(data: bytes, key: bytes | None = None) -> DisplayState:
     if crc != computed:
         raise StateMessageError("crc32", f"crc32 = {crc:#010x} but the bytes give {computed:#010x}; "
                                 "the datagram is corrupt.")
-    if key is not None:
-        key = _check_key(key)
-        if not flags & FLAG_HMAC:
-            raise StateMessageError("hmac", "the message carries no HMAC (flag bit 3 clear); this node has a "
-                                    "shared key and accepts authenticated messages only.")
-        if not hmac.compare_digest(hmac.digest(key, data[:end], "sha256"), data[end:]):
-            raise StateMessageError("hmac", "the message's HMAC does not match this node's key; it was "
-                                    "forged, corrupted, or sent with another key.")
-    f = _HEAD.unpack_from(data)
-    stream_id, sequence, t_ns, tai1, tai2, off_ns, dut1 = f[3:10]
-    q, v = f[10:14], f[14:17]
-    for name, vals in (("epoch", (tai1, tai2, dut1)), ("q_SN", q), ("v_sc_gcrs_m_s", v)):
-        if not all(math.isfinite(x) for x in vals):
-            raise StateMessageError(name, f"{name} = {vals}; every number must be finite.")
-    norm = math.sqrt(sum(x * x for x in q))
-    if abs(norm - 1.0) > Q_NORM_TOL:
-        raise StateMessageError("q_SN", f"q_SN = {q} has norm {norm!r}; it must be a unit quaternion "
-                                f"(within {Q_NORM_TOL}).")
+    return flags, end
+
+
+def _check_hmac(data: bytes, flags: int, end: int, key: bytes) -> None:
+    key = _check_key(key)
+    if not flags & FLAG_HMAC:
+        raise StateMessageError("hmac", "the message carries no HMAC (flag bit 3 clear); this node has a "
+                                "shared key and accepts authenticated messages only.")
+    if not hmac.compare_digest(hmac.digest(key, data[:end], "sha256"), data[end:]):
+        raise StateMessageError("hmac", "the message's HMAC does not match this node's key; it was "
+                                "forged, corrupted, or sent with another key.")
+
+
+def _optional_vectors(data: bytes, flags: int) -> dict:
+    """The optional 3-vectors the flags announce, in their order after the head, each checked."""
     opt = {}
     pos = _HEAD.size
     for bit, name in enumerate(_OPTIONAL):
@@ -263,5 +280,4 @@ def decode(data: bytes, key: bytes | None = None) -> DisplayState:
             if name != "omega_SN_S" and abs(math.sqrt(sum(x * x for x in vec)) - 1.0) > U_NORM_TOL:
                 raise StateMessageError(name, f"{name} = {vec} is not a unit vector (within {U_NORM_TOL}).")
             opt[name] = vec
-    _physical((tai1, tai2, off_ns, dut1), q, v, opt)
-    return DisplayState(sequence, t_ns, Epoch(tai1, tai2, off_ns, dut1), q, v, stream_id=stream_id, **opt)
+    return opt

@@ -106,6 +106,28 @@ def _speed_of(sample):
     return float(sample.speed_rad_s)
 
 
+
+def _inertia_option(options: dict) -> np.ndarray:
+    """``options.inertia_kg_m2`` as a 3 x 3 matrix (3 principal moments or the matrix itself)."""
+    if "inertia_kg_m2" not in options:
+        raise ValueError("options.inertia_kg_m2 is required (3 principal moments or a 3 x 3 matrix, kg m^2).")
+    I = np.asarray(options["inertia_kg_m2"], dtype=float)
+    inertia = np.diag(I) if I.shape == (3,) else I
+    if inertia.shape != (3, 3) or not np.all(np.isfinite(inertia)):
+        raise ValueError(f"options.inertia_kg_m2 = {options['inertia_kg_m2']!r}; 3 moments or a 3 x 3 matrix.")
+    return inertia
+
+
+def _wheels_option(options: dict, devices: dict) -> list:
+    """The host drivers of the wheels ``options.wheels`` names (at least three), in that order."""
+    names = options.get("wheels")
+    if not isinstance(names, list | tuple) or len(names) < 3:
+        raise ValueError(f"options.wheels = {names!r}; name at least three reaction wheels.")
+    for name in names:
+        if name not in devices:
+            raise ValueError(f"options.wheels names {name!r}, which is not a device; devices: {sorted(devices)}.")
+    return [devices[name] for name in names]
+
 class PointingController:
     """Detumble, sun acquisition and fine pointing over a star tracker, a gyro and reaction wheels."""
 
@@ -117,12 +139,7 @@ class PointingController:
         if not (isinstance(period_s, int | float) and math.isfinite(period_s) and period_s > 0):
             raise ValueError(f"period_s = {period_s!r}; the control period must be a positive number of seconds.")
         self.period_s = float(period_s)
-        if "inertia_kg_m2" not in options:
-            raise ValueError("options.inertia_kg_m2 is required (3 principal moments or a 3 x 3 matrix, kg m^2).")
-        I = np.asarray(options["inertia_kg_m2"], dtype=float)
-        self.inertia = np.diag(I) if I.shape == (3,) else I
-        if self.inertia.shape != (3, 3) or not np.all(np.isfinite(self.inertia)):
-            raise ValueError(f"options.inertia_kg_m2 = {options['inertia_kg_m2']!r}; 3 moments or a 3 x 3 matrix.")
+        self.inertia = _inertia_option(options)
 
         def device(key, required=False):
             name = options.get(key)
@@ -139,14 +156,7 @@ class PointingController:
         self.gyro = device("gyro", required=True)
         self.mtq = device("magnetorquer")
         self.sun_sensor = device("sun_sensor")
-        names = options.get("wheels")
-        if not isinstance(names, list | tuple) or len(names) < 3:
-            raise ValueError(f"options.wheels = {names!r}; name at least three reaction wheels.")
-        self.wheels = []
-        for name in names:
-            if name not in devices:
-                raise ValueError(f"options.wheels names {name!r}, which is not a device; devices: {sorted(devices)}.")
-            self.wheels.append(devices[name])
+        self.wheels = _wheels_option(options, devices)
         n = len(self.wheels)
         axes = options.get("wheel_axes_B")
         A = default_wheel_axes_B(n) if axes is None else np.asarray(axes, dtype=float).T

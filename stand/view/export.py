@@ -141,6 +141,22 @@ def _earth_lines(ax, samples, i, M, r, kind, W, H) -> None:
         ax.plot(b[:, 0], b[:, 1], color=colour, lw=0.7, zorder=3)
 
 
+
+def _draw_graticule(ax, kind: str, W: int, H: int) -> None:
+    """Lines of the panorama's own latitude every 30 deg (to +-60) and longitude every 30 deg."""
+    for lat in range(-60, 61, 30):
+        lon = np.radians(np.arange(-180, 181, 3))
+        la = math.radians(lat)
+        _polyline(ax, state.project(np.column_stack((np.cos(la) * np.cos(lon), np.cos(la) * np.sin(lon),
+                                                     np.full_like(lon, math.sin(la)))), kind, W, H), W,
+                  color=(0.47, 0.55, 0.67, 0.25), lw=0.6)
+    for lon_d in range(-150, 181, 30):
+        lat = np.radians(np.arange(-90, 91, 3))
+        lo = math.radians(lon_d)
+        _polyline(ax, state.project(np.column_stack((np.cos(lat) * math.cos(lo), np.cos(lat) * math.sin(lo),
+                                                     np.sin(lat))), kind, W, H), W,
+                  color=(0.47, 0.55, 0.67, 0.25), lw=0.6)
+
 def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", kind: str = "equirectangular",
                   width: int = 1200, height: int = 600, mag_limit: float = 6.0, stars=None) -> dict:
     """Draw the panorama of sample ``i`` on a matplotlib axes in pixel coordinates; returns what was drawn
@@ -161,18 +177,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
 
     r = np.asarray(samples["r_BN_N"][i], dtype=float)
     rn = float(np.linalg.norm(r))
-    for lat in range(-60, 61, 30):
-        lon = np.radians(np.arange(-180, 181, 3))
-        la = math.radians(lat)
-        _polyline(ax, state.project(np.column_stack((np.cos(la) * np.cos(lon), np.cos(la) * np.sin(lon),
-                                                     np.full_like(lon, math.sin(la)))), kind, W, H), W,
-                  color=(0.47, 0.55, 0.67, 0.25), lw=0.6)
-    for lon_d in range(-150, 181, 30):
-        lat = np.radians(np.arange(-90, 91, 3))
-        lo = math.radians(lon_d)
-        _polyline(ax, state.project(np.column_stack((np.cos(lat) * math.cos(lo), np.cos(lat) * math.sin(lo),
-                                                     np.sin(lat))), kind, W, H), W,
-                  color=(0.47, 0.55, 0.67, 0.25), lw=0.6)
+    _draw_graticule(ax, kind, W, H)
     if stars is not None:
         u_N, mag = stars
         sel = mag <= mag_limit
