@@ -283,14 +283,10 @@ def test_bad_frame_bytes_never_hide_the_valid_frames_after_them_on_a_serial_can_
     assert bus.counters["rejected_undecodable"] == (2 if fill == b"\xaa" else 0)
 
 
-def test_served_gyro_whose_flight_computer_stops_reading_drops_datagrams_and_the_run_goes_on(pty_pair, tmp_path):
-    """Nobody reads the other end of the line: a real gyro streams on into the void. The line fills (about 36 kB
-    through socat) and from then on the emulator drops each datagram it has no room for, counted, and never waits
-    (before, its write blocked 2 s and the run aborted)."""
-    stand_end, _ = pty_pair
-    gyro = {"name": "imu", "kind": "gyro", "link": "served", "port": stand_end, "output_rate_hz": 100.0,
-            "ideal": True}
-    data = small_scenario([gyro], 30.0)
+def _run_unread(device: dict, tmp_path) -> dict:
+    """30 s of a served device at 100 Hz, paced at 8x, whose flight computer never reads: the run must complete
+    and pass; its summary."""
+    data = small_scenario([device], 30.0)
     data["dynamics"]["step_s"] = 0.01  # a sample every tick at 100 Hz
     path = tmp_path / "served.toml"
     path.write_text(to_toml(data))
@@ -300,6 +296,17 @@ def test_served_gyro_whose_flight_computer_stops_reading_drops_datagrams_and_the
     assert code == 0, log
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed", log
+    return summary
+
+
+def test_served_gyro_whose_flight_computer_stops_reading_drops_datagrams_and_the_run_goes_on(pty_pair, tmp_path):
+    """Nobody reads the other end of the line: a real gyro streams on into the void. The line fills (about 36 kB
+    through socat) and from then on the emulator drops each datagram it has no room for, counted, and never waits
+    (before, its write blocked 2 s and the run aborted)."""
+    stand_end, _ = pty_pair
+    gyro = {"name": "imu", "kind": "gyro", "link": "served", "port": stand_end, "output_rate_hz": 100.0,
+            "ideal": True}
+    summary = _run_unread(gyro, tmp_path)
     emu = summary["device_counters"]["imu"]["emulator_counters"]
     # 30 s at 100 Hz is 72 kB of RATE datagrams, twice what the line holds.
     assert emu["tx_dropped"] > 0 and emu["sent"] + emu["tx_dropped"] == emu["samples"] >= 2900
@@ -311,16 +318,7 @@ def test_served_magnetorquer_whose_flight_computer_stops_reading_drops_frames_an
     stand_end, _ = pty_pair
     mtq = {"name": "mtq", "kind": "magnetorquer", "link": "served", "interface": "serial", "channel": stand_end,
            "sample_rate_hz": 100.0}
-    data = small_scenario([mtq], 30.0)
-    data["dynamics"]["step_s"] = 0.01
-    path = tmp_path / "served.toml"
-    path.write_text(to_toml(data))
-    out = tmp_path / "out"
-    code, log = run_stand_polling(["run", str(path), "--speed", "8", "--out", str(out), "--no-progress"], tmp_path,
-                                  lambda: None, timeout_s=120)
-    assert code == 0, log
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["status"] == "completed", log
+    summary = _run_unread(mtq, tmp_path)
     # 30 s of 100 Hz samples (plus status and heartbeat) is about 55 kB on the line, more than it holds.
     emu = summary["device_counters"]["mtq"]["emulator"]
     assert 0 < emu["tx_dropped"] < emu["sent"] and emu["sent"] >= 3000
