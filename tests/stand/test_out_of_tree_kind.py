@@ -33,6 +33,7 @@ from stand import telemetry
 from tests.stand.processes import REPO, stand_env
 
 PACKAGE = REPO / "tests" / "data" / "oot_gnss"
+GUIDE = REPO / "docs" / "adding_a_device_kind.md"
 SCENARIO = PACKAGE / "scenarios" / "gnss_orbit.toml"
 GROUP = "adcs_stand.devices"
 R_EARTH_M = 6378137.0  # WGS-84 equatorial radius, which the stand's altitude_km is measured from
@@ -230,3 +231,12 @@ def test_a_bad_option_of_the_installed_kind_is_one_sentence_and_exit_2(gnss_pyth
                   cwd=tmp_path, timeout_s=60)
     assert done.returncode == 2, done.stdout + done.stderr
     assert "--position-m '1,2' is not allowed; give 3 numbers" in done.stderr and "Traceback" not in done.stderr
+
+
+def test_the_guides_loopback_test_runs_where_the_package_is_installed(gnss_python, tmp_path):
+    """The loopback block of docs/adding_a_device_kind.md (its section "Testing"), as a reader would copy it."""
+    text = GUIDE.read_text(encoding="utf-8")
+    blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
+    (loopback,) = [b for b in blocks if "pipe_pair" in b]
+    done = in_env(gnss_python, "-c", loopback + "print('loopback ok')\n", cwd=tmp_path, timeout_s=60)
+    assert done.returncode == 0 and done.stdout.strip() == "loopback ok", done.stdout + done.stderr
