@@ -8,8 +8,8 @@ how wrong it was.
 
 Two sources feed the emulator. ``truth``: the true attitude, to which the emulator adds its configured noise.
 ``image``: the star screen renders the tracker's detector image at the true attitude, camera noise is added and
-``star_screen.tracking`` solves it (``ImageSolver``, in ``star_tracker_source``); the emulator is handed the solved attitude and the stars
-matched, with its own noise at 0.
+``star_screen.tracking`` solves it (``ImageSolver``, in ``star_tracker_source``); the emulator is handed the
+solved attitude and the stars matched, with its own noise at 0.
 
 Links: ``emulated`` (emulator and host on an in-process serial line, ``port = "pipe"`` (default) or a kernel pty
 pair with ``port = "pty"``, every exchange settled within the tick, so a
