@@ -11,6 +11,12 @@ import threading
 import time
 from pathlib import Path
 
+from .. import devices
+from ..compose import build
+from ..loop import run
+from ..report import write_summary
+from ..scenario import parse
+
 #: Exit code of a Dask worker process ended by the per-case limit.
 EXIT_OVERRUN = 70
 
@@ -60,11 +66,6 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     process): Ctrl-C stops the campaign instead of being recorded.
     """
     t_start = time.time()
-    from ..compose import build
-    from ..loop import run
-    from ..report import write_summary
-    from ..scenario import parse
-
     rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
            "host": os.uname().nodename, "pid": os.getpid()}
     files: dict[str, bytes] = {}
@@ -128,7 +129,5 @@ def _watchdog(task: dict) -> threading.Timer | None:
 # ------------------------------------------------------------------------------------------------ executors
 def warm() -> None:
     """Import what a run needs once per worker process, so the first case's timings are its own."""
-    from .. import compose, devices, loop, report  # noqa: F401
-
     for name in devices.kind_names():
         devices.get(name)

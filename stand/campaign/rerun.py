@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..errors import MISSING, ScenarioError
+from ..scenario import parse
 from .case import digest
 from .errors import CampaignError
 from .spec import MAX_RUNS, Spec
@@ -15,8 +16,6 @@ from .store import _is_digest, case_dir
 # ------------------------------------------------------------------------------------------ re-run a case
 def load_case(campaign_dir: str | Path, index: int):
     """``(Scenario, base folder, recorded case or None)`` of one case of a campaign on disk."""
-    from ..scenario import parse
-
     d = Path(campaign_dir)
     try:
         meta = json.loads((d / "campaign.json").read_text())

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..report import write_json_atomic
 from .store import finished
 
 #: Worst cases listed per criterion.
@@ -68,8 +69,6 @@ def metric_table(records: list[dict]) -> dict[str, list]:
 
 def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict:
     """campaign.json from the cases on disk: pass rates with intervals, metric distributions, worst cases."""
-    from ..report import write_json_atomic
-
     out = Path(out)
     meta = json.loads((out / "campaign.json").read_text())
     cases = finished(out)

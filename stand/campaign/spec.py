@@ -8,6 +8,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import scenario as scenario_mod
 from ..errors import ScenarioError, shown
 from .dispersions import Dispersions, apply, case_values, parse_dispersions
 from .errors import CampaignError
@@ -34,8 +35,6 @@ class Spec:
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def scenario_dict(self) -> dict:
-        from .. import scenario as scenario_mod
-
         data = scenario_mod.loads(self.scenario_text, self.scenario_name)
         for item in self.overrides:
             scenario_mod.set_value(data, item)
@@ -66,8 +65,6 @@ class Spec:
 
 def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = None,
               overrides: list[str] | None = None, duration_s: float | None = None) -> Spec:
-    from .. import scenario as scenario_mod
-
     path = scenario_mod.find(scenario)
     text = path.read_text(encoding="utf-8")
     dpath = Path(dispersions_path)
@@ -99,14 +96,12 @@ def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = No
 def validate(spec: Spec, runs: int) -> list[dict]:
     """Every case's task, each scenario parsed before the first run; CampaignError names the dispersion and
     the case whose value the scenario refuses."""
-    from ..scenario import parse
-
     disp = spec.dispersions()
     tasks = []
     for k in range(runs):
         task = spec.case(k, disp)
         try:
-            parse(json.loads(json.dumps(task["data"])), task["source"])
+            scenario_mod.parse(json.loads(json.dumps(task["data"])), task["source"])
         except ScenarioError as exc:
             raise CampaignError(f"case {k}: {_culprit(spec, disp, task, exc)}") from None
         tasks.append(task)
@@ -115,13 +110,11 @@ def validate(spec: Spec, runs: int) -> list[dict]:
 
 def _culprit(spec: Spec, disp: Dispersions, task: dict, exc: ScenarioError) -> str:
     """Which dispersion (alone) makes the scenario refuse a case's values, with the scenario's sentence."""
-    from ..scenario import parse
-
     base = spec.scenario_dict()
     for k, d in enumerate(disp.items):
         data = apply(base, {d.field: task["values"][d.field]}, task["seed"], spec.duration_s)
         try:
-            parse(data, task["source"])
+            scenario_mod.parse(data, task["source"])
         except ScenarioError as alone:
             return (f"dispersions[{k}] ({d.field}, {d.distribution}, in {disp.source}) drew "
                     f"{shown(task['values'][d.field])}, which the scenario refuses (a value it does not allow, or a "

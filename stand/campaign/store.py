@@ -8,6 +8,7 @@ import shutil
 import time
 from pathlib import Path
 
+from ..report import write_json_atomic
 from .errors import CampaignError
 from .spec import Spec
 
@@ -73,8 +74,6 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
 
 
 def _prepare(out: Path, spec: Spec) -> None:
-    from ..report import write_json_atomic
-
     meta = out / "campaign.json"
     if meta.exists():
         try:
