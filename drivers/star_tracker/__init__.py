@@ -4,6 +4,8 @@
 - :mod:`.codec`: pure codec built from the TOML, messages as frozen dataclasses in SI units;
 - :mod:`.host`: :class:`StarTrackerHost`, the stand talking to a tracker;
 - :mod:`.emulator`: :class:`StarTrackerEmulator`, the stand being the tracker (truth plus noise);
+- :mod:`.measurement`: what the emulator is given (:class:`TrackerTruth`), its settings (:class:`EmulatorConfig`)
+  and its measurement model (attitude noise, bright bodies in the field);
 - :mod:`.icd`: renders the ICD document from the TOML.
 
 The host and emulator modules import pyserial lazily (only to open a URL).
@@ -32,8 +34,9 @@ from drivers.star_tracker.codec import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator, TrackerTruth
+    from drivers.star_tracker.emulator import StarTrackerEmulator
     from drivers.star_tracker.host import StarTrackerHost
+    from drivers.star_tracker.measurement import EmulatorConfig, TrackerTruth
 
 __all__ = [
     "Ack",
@@ -60,8 +63,8 @@ __all__ = [
 _LAZY = {
     "StarTrackerHost": "drivers.star_tracker.host",
     "StarTrackerEmulator": "drivers.star_tracker.emulator",
-    "EmulatorConfig": "drivers.star_tracker.emulator",
-    "TrackerTruth": "drivers.star_tracker.emulator",
+    "EmulatorConfig": "drivers.star_tracker.measurement",
+    "TrackerTruth": "drivers.star_tracker.measurement",
 }
 
 

@@ -54,15 +54,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from drivers.errors import DriverError, EncodeError
 from drivers.framing import SlipDecoder
-from drivers.serial_port import SerialServer, open_port, port_name, write_available
+from drivers.serial_port import SerialServer, is_port_error, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
     HOST_TO_DEVICE,
     Ack,
@@ -80,148 +79,20 @@ from drivers.star_tracker.codec import (
     Subscribe,
     Unsubscribe,
 )
+from drivers.star_tracker.measurement import (
+    ARCSEC,
+    PARAM_FROM_CONFIG,
+    EmulatorConfig,
+    MeasurementSource,
+    TrackerTruth,
+    hamilton,
+    in_field,
+    small_rotation,
+)
 
 __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
 
-ARCSEC = math.pi / 180.0 / 3600.0
-DEG = math.pi / 180.0
 _EPS_S = 1e-9
-
-
-@dataclass(frozen=True)
-class TrackerTruth:
-    """What the stand knows at one instant, in tracker axes (T: +z boresight).
-
-    Attributes:
-        q_TN: true attitude of T relative to GCRS, scalar first (normalised here).
-        omega_TN_T: angular rate of T relative to GCRS, in T, rad/s.
-        sun_T, moon_T, earth_T: direction to the body's centre in T (any length), or None when the
-            stand left the body out (it then never counts as in the field).
-        sun_radius_rad, moon_radius_rad, earth_radius_rad: angular radius of each disk (the Earth's
-            with its atmosphere), rad.
-        stars_in_field: stars bright enough to be centroided, if the stand knows it (else drawn).
-        stars_matched, sigma_cross_rad, sigma_roll_rad: set by a source that measured the attitude
-            itself (the stand's image-based solver): then the emulator reports these instead of
-            drawing matches and quoting its configured noise.
-    """
-
-    q_TN: Sequence[float]
-    omega_TN_T: Sequence[float] = (0.0, 0.0, 0.0)
-    sun_T: Sequence[float] | None = None
-    moon_T: Sequence[float] | None = None
-    earth_T: Sequence[float] | None = None
-    sun_radius_rad: float = 4.65e-3
-    moon_radius_rad: float = 4.5e-3
-    earth_radius_rad: float = 1.15
-    stars_in_field: int | None = None
-    stars_matched: int | None = None
-    sigma_cross_rad: float | None = None
-    sigma_roll_rad: float | None = None
-
-
-MeasurementSource = Callable[[float], TrackerTruth]
-
-#: ICD parameter attr -> (EmulatorConfig attribute, factor from the config unit to SI).
-_PARAM_FROM_CONFIG = {
-    "output_interval_s": ("output_interval_s", 1.0),
-    "min_stars_matched": ("min_stars_matched", 1.0),
-    "stable_count": ("stable_count", 1.0),
-    "rate_limit_rad_s": ("rate_limit_deg_s", DEG),
-    "sun_exclusion_rad": ("sun_exclusion_deg", DEG),
-    "moon_exclusion_rad": ("moon_exclusion_deg", DEG),
-    "earth_exclusion_rad": ("earth_exclusion_deg", DEG),
-    "track_loss_count": ("track_loss_count", 1.0),
-}
-
-
-@dataclass(frozen=True)
-class EmulatorConfig:
-    """Realism knobs; defaults are the S2E HILS settings of an Arcsec Sagitta (notes 1.1).
-
-    Attributes:
-        noise_cross_arcsec, noise_roll_arcsec: 1-sigma attitude noise across and about the
-            boresight (2 and 10 arcsec).
-        bias_arcsec: constant misalignment as a rotation vector in tracker axes, arcsec.
-        output_delay_s: from mid-exposure to the solution being available (0.1 s).
-        output_interval_s: time between exposures (0.2 s = 5 Hz); ICD parameter output_interval.
-        clock_offset_s, clock_drift_ppm: the device clock before SET_TIME is
-            ``clock_offset_s + t * (1 + drift)``; the drift also applies after SET_TIME.
-        sun_exclusion_deg, moon_exclusion_deg, earth_exclusion_deg: exclusion half-angles (40, 40, 30).
-        rate_limit_deg_s: above it the solution is invalid (1 deg/s).
-        boot_time_s: from BOOT to LOST_IN_SPACE (1 s); auto_boot: boot at power-up.
-        min_stars_matched, stable_count, track_loss_count: see the module docstring (6, 5, 3).
-        mean_stars: mean stars in the field when the truth does not say (12); match_probability (0.95).
-        temperature_C: reported detector temperature.
-        address: device address (the ICD's default, 0x21, when None).
-        reported_sigma: report the configured sigmas as the solution's sigmas (else 0).
-    """
-
-    noise_cross_arcsec: float = 2.0
-    noise_roll_arcsec: float = 10.0
-    bias_arcsec: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    output_delay_s: float = 0.1
-    output_interval_s: float = 0.2
-    clock_offset_s: float = 0.0
-    clock_drift_ppm: float = 0.0
-    sun_exclusion_deg: float = 40.0
-    moon_exclusion_deg: float = 40.0
-    earth_exclusion_deg: float = 30.0
-    rate_limit_deg_s: float = 1.0
-    boot_time_s: float = 1.0
-    auto_boot: bool = True
-    min_stars_matched: int = 6
-    stable_count: int = 5
-    track_loss_count: int = 3
-    mean_stars: float = 12.0
-    match_probability: float = 0.95
-    temperature_C: float = 20.0
-    address: int | None = None
-    reported_sigma: bool = True
-
-    def __post_init__(self) -> None:
-        nonneg = ("noise_cross_arcsec", "noise_roll_arcsec", "output_delay_s", "boot_time_s", "mean_stars",
-                  "sun_exclusion_deg", "moon_exclusion_deg", "earth_exclusion_deg")
-        for name in nonneg:
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"EmulatorConfig.{name} must be a finite number >= 0; got {v!r}.")
-        for name in ("output_interval_s", "rate_limit_deg_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"EmulatorConfig.{name} must be a finite number > 0; got {v!r}.")
-        for name in ("clock_offset_s", "clock_drift_ppm", "temperature_C"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v)):
-                raise ValueError(f"EmulatorConfig.{name} must be a finite number; got {v!r}.")
-        if not abs(self.clock_drift_ppm) < 1e5:
-            raise ValueError(f"EmulatorConfig.clock_drift_ppm must be within +-1e5 ppm; got {self.clock_drift_ppm!r}.")
-        if not (0.0 <= self.match_probability <= 1.0):
-            raise ValueError(f"EmulatorConfig.match_probability must be in [0, 1]; got {self.match_probability!r}.")
-        b = np.asarray(self.bias_arcsec, dtype=float)
-        if b.shape != (3,) or not np.all(np.isfinite(b)):
-            raise ValueError(f"EmulatorConfig.bias_arcsec must be 3 finite numbers; got {self.bias_arcsec!r}.")
-        if self.address is not None and not (isinstance(self.address, int) and 0 <= self.address <= 255):
-            raise ValueError(f"EmulatorConfig.address must be an int from 0 to 255; got {self.address!r}.")
-
-
-def _hamilton(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
-
-
-def _small_rotation(v: Sequence[float]) -> tuple[float, float, float, float]:
-    x, y, z = v
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-300:
-        return (1.0, 0.0, 0.0, 0.0)
-    s = math.sin(0.5 * angle) / angle
-    return (math.cos(0.5 * angle), x * s, y * s, z * s)
 
 
 class StarTrackerEmulator(SerialServer):
@@ -271,9 +142,9 @@ class StarTrackerEmulator(SerialServer):
         #: Current parameter values, SI, keyed by the ICD's parameter attr.
         self.params: dict[str, float] = {}
         for ps in codec.params.values():
-            if ps.attr not in _PARAM_FROM_CONFIG:
+            if ps.attr not in PARAM_FROM_CONFIG:
                 raise ValueError(f"star tracker ICD parameter {ps.name} ({ps.attr}) has no emulator setting.")
-            cname, factor = _PARAM_FROM_CONFIG[ps.attr]
+            cname, factor = PARAM_FROM_CONFIG[ps.attr]
             value_si = float(getattr(cfg, cname)) * factor
             allowed = ps.check_wire(value_si / ps.scale if not ps.integer else round(value_si / ps.scale, 9))
             if allowed is not None:
@@ -404,9 +275,9 @@ class StarTrackerEmulator(SerialServer):
                 f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers), "
                 f"a finite omega_TN_T (3 numbers, rad/s) and sigmas from 0 to pi rad (or None); got {truth!r}."
             ) from None
-        sun = self._in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
-        moon = self._in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
-        earth = self._in_field(truth.earth_T, truth.earth_radius_rad, p["earth_exclusion_rad"])
+        sun = in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
+        moon = in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
+        earth = in_field(truth.earth_T, truth.earth_radius_rad, p["earth_exclusion_rad"])
         rate_high = rate > p["rate_limit_rad_s"]
         rng = self.rng
         n_stars = truth.stars_in_field if truth.stars_in_field is not None else int(rng.poisson(cfg.mean_stars))
@@ -433,8 +304,8 @@ class StarTrackerEmulator(SerialServer):
         sr = cfg.noise_roll_arcsec * ARCSEC
         n1, n2, n3 = rng.standard_normal(3)
         b = self._bias
-        dq = _small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
-        qm = _hamilton(q, dq)
+        dq = small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
+        qm = hamilton(q, dq)
         if qm[0] < 0:
             qm = (-qm[0], -qm[1], -qm[2], -qm[3])
         self.counters["solutions"] += 1
@@ -462,17 +333,6 @@ class StarTrackerEmulator(SerialServer):
             seq=seq,
         )
 
-    @staticmethod
-    def _in_field(direction: Sequence[float] | None, radius: float, exclusion: float) -> bool:
-        if direction is None:
-            return False
-        x, y, z = (float(v) for v in direction)
-        norm = math.sqrt(x * x + y * y + z * z)
-        if not norm > 0:
-            return False
-        angle = math.acos(max(-1.0, min(1.0, z / norm)))
-        return angle - radius < exclusion
-
     # -- receive --------------------------------------------------------------------------------
 
     def _read_available(self) -> bytes:
@@ -480,10 +340,8 @@ class StarTrackerEmulator(SerialServer):
         try:
             n = port.in_waiting
             return port.read(min(n, self.max_read_bytes)) if n else b""
-        except (OSError, ValueError) as exc:
-            raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
-        except Exception as exc:  # serial.SerialException (kept lazy)
-            if type(exc).__name__.endswith("SerialException"):
+        except Exception as exc:
+            if is_port_error(exc):  # an OS error, a closed port, pyserial's SerialException
                 raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
             raise
 

@@ -177,7 +177,7 @@ def display_node_rows(n_frames: int) -> list[dict]:
 
     Sender and node run in one thread (send, then ``serve(max_frames=1)``), so the time is the
     node's own work: UDP send and receive, decode, render at 1920 x 1080, push to the output."""
-    from stand.commands.display import DisplayNode, StateSender
+    from stand.display import DisplayNode, StateSender
     from star_screen.outputs import FrameQueue
 
     epoch = Epoch.from_iso(EPOCH)

@@ -37,9 +37,9 @@ def _row(name, value, unit, **kw) -> dict:
 
 def bench_screen_loop(quick: bool = False) -> list[dict]:
     from sim.time import Epoch
-    from stand.commands.display import StateSender
     from stand.commands.screen_tracker import ScreenCamera, benches
     from stand.devices.star_screen_link import extrapolate
+    from stand.display import StateSender
     from star_screen.attitude import q_SN_from_radec_roll
 
     n = 30 if quick else 300

@@ -3,7 +3,7 @@
 The process is the display node and the tracker in front of it, as on a bench with a screen PC and
 a real tracker behind a collimator:
 
-* **screen**: a :class:`~stand.commands.display.DisplayNode` bound to ``--screen-bind`` receives the
+* **screen**: a :class:`~stand.display.DisplayNode` bound to ``--screen-bind`` receives the
   stand's time-tagged state every tick and renders the screen (1920 x 1080, 8-bit drive codes) for
   the bench geometry it believes in: the nominal one (``--pre-distortion off``) or the one fitted by
   the ChArUco calibration (``star_screen.calibration``) of this bench's collimator
@@ -42,7 +42,7 @@ from collections import deque
 
 import numpy as np
 
-from stand.commands.display import DisplayNode
+from stand.display import DisplayNode
 
 #: Frames kept on the panel model: an exposure looks back at most a few frames.
 _FRAMES_KEPT = 16
@@ -247,7 +247,7 @@ def run_screen(args, fail) -> int:
     """The ``--source screen`` tracker of ``stand emulate star-tracker`` (see the module docstring)."""
     from drivers.errors import DriverError
     from drivers.star_tracker.emulator import EmulatorConfig, StarTrackerEmulator
-    from stand.commands.display import parse_hostport
+    from stand.display import parse_hostport
 
     try:
         bind = parse_hostport(args.screen_bind, "--screen-bind")

@@ -11,6 +11,13 @@ in one) the time-tagged state of the frame it must show (``star_screen.state_mes
     screen = "state"
     screen_port = "udp://127.0.0.1:5600"   # the display node's --bind / --screen-bind
     screen_latency_s = 0.02                # from sending a state to its frame being lit (wall time)
+    screen_key_file = "/etc/stand/display.key"  # optional: sign with this shared key (a private file)
+
+The states are signed (HMAC-SHA256, ``stand.display``'s one sender) when a shared key is configured, as a
+display node started with ``--key-file`` or ``STAND_DISPLAY_KEY`` requires: ``screen_key_file`` (an absolute
+path to a file only its owner can read), else the environment variable ``STAND_DISPLAY_KEY`` the node reads
+too. A key file that cannot be read, that other users can read, or a key under 16 bytes is refused by the
+scenario check, naming the key.
 
 Latency is compensated by extrapolation: a state sent at wall time ``w`` is for the frame that will be
 lit at ``w + screen_latency_s``, in sim time ``t_lit = speed * (w + latency - start)``, and stays lit
@@ -40,7 +47,7 @@ from __future__ import annotations
 import bisect
 import ipaddress
 import math
-import socket
+import os
 import time
 from collections import deque
 
@@ -50,11 +57,13 @@ from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
 from stand.devices import LOCAL_HOSTS
 from stand.devices.star_tracker import HardwareTracker
+from stand.display import StateSender, load_key
 
 SCREEN_MODES = ("state", "window")
 WINDOW_KEYS = ("screen_display", "screen_size_px", "screen_fullscreen", "screen_collimator_focal_m",
                "screen_collimator_distortion", "screen_axis_px")
-SCREEN_KEYS = ("screen", "screen_port", "screen_latency_s", *WINDOW_KEYS)
+STATE_KEYS = ("screen_port", "screen_key_file")
+SCREEN_KEYS = ("screen", *STATE_KEYS, "screen_latency_s", *WINDOW_KEYS)
 #: Frames kept for the frame-to-solution latency (a solution is never older than a few seconds).
 _FRAMES_KEPT = 512
 
@@ -74,12 +83,15 @@ def parse_screen(t, link: str) -> dict | None:
         raise t.error("screen", mode, f"a screen only for link = 'hardware' (a real or emulated tracker outside looks "
                       f"at it); this tracker has link = {link!r}")
     out = {"mode": mode, "latency_s": float(t.number("screen_latency_s", 0.02, lo=0.0, hi=1.0))}
-    other = WINDOW_KEYS if mode == "state" else ("screen_port",)
+    other = WINDOW_KEYS if mode == "state" else STATE_KEYS
     for key in other:
         if t.has(key):
             raise t.error(key, t.raw(key), f"not a setting of screen = {mode!r}")
     if mode == "state":
         out["host"], out["port"] = _udp_url(t, t.text("screen_port"))
+        key_file = _key_file(t)
+        if key_file is not None:
+            out["key_file"] = key_file
         return out
     from stand.scenario import pair
 
@@ -121,6 +133,8 @@ def describe_screen(scr: dict) -> str:
     """One phrase for ``stand check``: where the screen is and how far ahead its frames are drawn."""
     if scr["mode"] == "state":
         where = f"state every tick to the display node at udp://{scr['host']}:{scr['port']}"
+        if scr.get("key_file"):
+            where += f", signed with the key in {scr['key_file']}"
     else:
         w, h = scr["size_px"]
         where = (f"rendered by the stand every tick in a {'fullscreen ' if scr['fullscreen'] else ''}window on display "
@@ -151,6 +165,33 @@ def _udp_url(t, url: str) -> tuple[str, int]:
     return str(ip), port
 
 
+def _key_file(t) -> str | None:
+    """``screen_key_file`` as an absolute path, its key checked now (so ``stand check`` names a bad one); without
+    it, the environment's key (``STAND_DISPLAY_KEY``) is checked the same way."""
+    if not t.has("screen_key_file"):
+        try:
+            load_key(None)
+        except ValueError as exc:
+            raise t.error("screen", "state", f"a state screen signed with a usable shared key ({exc})") from None
+        return None
+    raw = t.text("screen_key_file")
+    path = os.path.expanduser(raw)
+    allowed = "an absolute path to a file only its owner can read, holding a shared key of at least 16 bytes"
+    if not os.path.isabs(path):
+        raise t.error("screen_key_file", raw, allowed)
+    try:
+        load_key(path, option="screen_key_file")
+    except ValueError as exc:
+        raise t.error("screen_key_file", raw, f"{allowed} ({exc})") from None
+    return path
+
+
+def screen_key(scr: dict) -> bytes | None:
+    """The shared key a ``state`` screen signs with: ``screen_key_file``'s, else ``STAND_DISPLAY_KEY``'s, else
+    None (unsigned). ValueError in one sentence for a key that cannot be used."""
+    return load_key(scr.get("key_file"), option="screen_key_file")
+
+
 def extrapolate(q_TN, omega_TN_T, dt_s: float) -> tuple:
     """``q_TN (x) exp(omega_TN_T dt / 2)``: the attitude ``dt_s`` later with the rate held (float tuples)."""
     wx, wy, wz = omega_TN_T
@@ -164,43 +205,38 @@ def extrapolate(q_TN, omega_TN_T, dt_s: float) -> tuple:
 
 
 class _StateStream:
-    """UDP datagrams of time-tagged state to one display node (one stream id per run)."""
+    """The screen as a display node: stand.display's one state sender, one stream id per run, signed when a shared
+    key is configured. ``send`` says whether the datagram left (a refused state or a socket error is counted)."""
 
-    def __init__(self, host: str, port: int, epoch):
-        import secrets
-
-        self.address = (host, port)
+    def __init__(self, host: str, port: int, epoch, key: bytes | None):
+        self.sender = StateSender(host, port, scenario_epoch=epoch, key=key)
         self.where = f"udp://{host}:{port}"
-        self.epoch = epoch
-        self.stream_id = secrets.randbits(32)
-        self.sequence = self.sent = self.refused = self.send_errors = 0
-        self.last_error = ""
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.connect(self.address)
+        self.signed = key is not None
 
     def send(self, q_SN, sim_time_ns: int, v_N, omega_SN_S) -> bool:
-        from star_screen.state_message import DisplayState, StateMessageError, encode
+        s = self.sender
+        sent = s.sent
+        s.send(q_SN, sim_time_ns, v_sc_gcrs_m_s=v_N, omega_SN_S=omega_SN_S)
+        return s.sent > sent
 
-        state = DisplayState(self.sequence, sim_time_ns, self.epoch.add_ns(sim_time_ns), tuple(q_SN), tuple(v_N),
-                             tuple(omega_SN_S), None, None, stream_id=self.stream_id)
-        try:
-            data = encode(state)
-        except StateMessageError as exc:
-            self.refused += 1
-            self.last_error = str(exc)
-            return False
-        try:
-            self._sock.send(data)
-        except OSError as exc:  # the node is down (ECONNREFUSED from an earlier datagram): never stops the run
-            self.send_errors += 1
-            self.last_error = f"sending to {self.address[0]}:{self.address[1]} failed: {exc}"
-            return False
-        self.sequence += 1
-        self.sent += 1
-        return True
+    @property
+    def sent(self) -> int:
+        return self.sender.sent
+
+    @property
+    def refused(self) -> int:
+        return self.sender.refused
+
+    @property
+    def send_errors(self) -> int:
+        return self.sender.send_errors
+
+    @property
+    def last_error(self) -> str:
+        return self.sender.last_error
 
     def close(self) -> None:
-        self._sock.close()
+        self.sender.close()
 
 
 class _LocalWindow:
@@ -268,7 +304,7 @@ class ScreenTracker(HardwareTracker):
         self.t_lit = self.lead = math.nan
         try:
             if scr["mode"] == "state":
-                self.stream = _StateStream(scr["host"], scr["port"], ctx.epoch)
+                self.stream = _StateStream(scr["host"], scr["port"], ctx.epoch, screen_key(scr))
             else:
                 self.stream = _LocalWindow(scr, ctx.epoch)
         except (OSError, ValueError, RuntimeError) as exc:
@@ -350,6 +386,8 @@ class ScreenTracker(HardwareTracker):
                   "frames_late": self.frames_late, "send_lateness_ms": _percentiles(self._lateness, 1e3, 3),
                   "exposure_to_solution_s": _percentiles(self.exposure_to_solution),
                   "frame_to_solution_s": _percentiles(self.frame_to_solution)}
+        if hasattr(s, "signed"):
+            screen["signed"] = s.signed
         if getattr(s, "show_ms", None):
             screen["render_to_display_ms"] = _percentiles(s.show_ms, 1.0, 3)
         if s.last_error:

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sim.time import Epoch
-from stand.commands.display import DisplayNode, StateSender
+from stand.display import DisplayNode, StateSender
 from star_screen.catalog import Catalog
 from star_screen.geometry import default_bench
 from star_screen.outputs import FrameQueue

@@ -109,7 +109,7 @@ def test_campaign_json_is_not_left_running_when_a_campaign_is_stopped(scenario_d
             raise KeyboardInterrupt
         return real(task, **kw)
 
-    monkeypatch.setattr(cm, "run_case", stop_at_the_second)
+    monkeypatch.setattr(cm.pool, "run_case", stop_at_the_second)  # where the inline executor looks it up
     with pytest.raises(KeyboardInterrupt):
         cm.run_campaign(spec, tmp_path / "camp", 3, workers=0, plots=False)
     data = json.loads((tmp_path / "camp" / "campaign.json").read_text())

@@ -5,7 +5,7 @@ import pytest
 
 from sim.time import Epoch
 from stand.cli import main
-from stand.commands.display import DisplayNode, StateSender
+from stand.display import DisplayNode, StateSender
 from star_screen.attitude import q_SN_from_radec_roll
 from star_screen.catalog import Catalog
 from star_screen.geometry import default_bench
@@ -229,7 +229,7 @@ def test_any_render_failure_is_counted_not_raised(catalog):
 
 
 def test_cli_reads_the_key_from_a_private_file_or_the_environment(tmp_path, monkeypatch, capsys):
-    from stand.commands.display import KEY_ENV, load_key
+    from stand.display import KEY_ENV, load_key
 
     f = tmp_path / "key"
     f.write_bytes(b"  a shared key of 26 bytes\n")

@@ -303,7 +303,7 @@ def test_a_display_node_draws_for_the_calibration_its_command_line_gives(tmp_pat
     import socket
     import threading
 
-    from stand.commands.display import StateSender
+    from stand.display import StateSender
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))

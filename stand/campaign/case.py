@@ -1,0 +1,133 @@
+"""One case: run in a temporary folder (in a worker or this process), its record, files and digest."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from .. import devices
+from ..compose import build
+from ..loop import run
+from ..report import write_summary
+from ..scenario import parse
+
+#: Exit code of a Dask worker process ended by the per-case limit.
+EXIT_OVERRUN = 70
+
+#: Files of a run that travel back from the worker (plots are drawn for the campaign, not per run).
+RUN_FILES = ("summary.json", "events.jsonl", "telemetry/schema.json", "telemetry/rows.f64")
+#: Summary keys that depend on the wall clock, left out when two runs of a case are compared.
+WALL_CLOCK_KEYS = ("wall_time_s", "realtime_factor", "source")
+
+# One run at a time per process: emulated buses (python-can ``virtual``) are process-wide names, and a Dask
+# worker may run several tasks on threads.
+_RUN_LOCK = threading.Lock()
+
+
+# ------------------------------------------------------------------------------------------------- one run
+def comparable(summary: dict) -> dict:
+    """A summary without what depends on the wall clock: equal for every run of the same case."""
+    return {k: v for k, v in summary.items() if k not in WALL_CLOCK_KEYS}
+
+
+def digest(summary: dict, rows: bytes) -> str:
+    """SHA-256 over the comparable summary and the telemetry bytes: a case's fingerprint."""
+    h = hashlib.sha256(json.dumps(comparable(summary), sort_keys=True, default=float).encode())
+    h.update(rows)
+    return h.hexdigest()
+
+
+def _error_record(task: dict, reason: str, t_start: float | None = None) -> dict:
+    """The record of a case that gave no summary: an error, counted as failed, with the reason in one line."""
+    now = time.time()
+    return {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
+            "host": os.uname().nodename, "pid": os.getpid(), "status": "error", "passed": False, "error": reason,
+            "criteria": [], "timing": {"worker_start": now if t_start is None else t_start, "worker_end": now}}
+
+
+def _raised(exc: BaseException) -> str:
+    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code)."""
+    if isinstance(exc, SystemExit):
+        return f"SystemExit: the run's code called sys.exit({exc.code!r})"
+    return f"{type(exc).__name__}: {exc}"
+
+
+def run_case(task: dict, *, interruptible: bool = False) -> dict:
+    """Run one case in a temporary folder and return its record and files (what a worker sends back).
+
+    Anything the run raises, SystemExit and other BaseExceptions included, is recorded as an error case: a
+    plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
+    process): Ctrl-C stops the campaign instead of being recorded.
+    """
+    t_start = time.time()
+    rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
+           "host": os.uname().nodename, "pid": os.getpid()}
+    files: dict[str, bytes] = {}
+    with _RUN_LOCK, tempfile.TemporaryDirectory(prefix="stand-case-") as tmp:
+        watchdog = _watchdog(task)
+        t_lock = time.time()
+        out = Path(tmp) / "run"
+        try:
+            sc = parse(task["data"], task["source"])
+            with build(sc, None, Path(task["base"])) as scene:
+                t_built = time.time()
+                out.mkdir()
+                result = run(scene, out, progress=False)
+                t_ran = time.time()
+            if interruptible and result.status == "stopped":
+                raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
+            summary = write_summary(scene, result, out, plots=False)
+            for name in RUN_FILES:
+                p = out / name
+                if p.exists():
+                    files[name] = p.read_bytes()
+        except BaseException as exc:  # one failing run is recorded; the campaign goes on
+            if interruptible and isinstance(exc, KeyboardInterrupt):
+                raise
+            return {"record": _error_record(task, _raised(exc), t_start), "files": {}}
+        finally:
+            if watchdog is not None:
+                watchdog.cancel()
+    t_end = time.time()
+    rec.update(status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
+               criteria=[{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
+                         for c in summary["criteria"]],
+               rate_deg_s_at=summary.get("rate_deg_s_at", {}),
+               digest=digest(summary, files.get("telemetry/rows.f64", b"")),
+               timing={"worker_start": t_start, "wait_s": t_lock - t_start, "build_s": t_built - t_lock,
+                       "run_s": result.wall_time_s, "loop_s": t_ran - t_built, "summary_s": t_end - t_ran,
+                       "worker_end": t_end})
+    return {"record": rec, "files": files}
+
+
+def _watchdog(task: dict) -> threading.Timer | None:
+    """On a Dask worker, the per-case limit: a case still running after ``exit_after_s`` ends its worker process
+    (a thread cannot be stopped); the nanny starts a new one and the scheduler's retries end in KilledWorker,
+    which the client records as an error. The local pool enforces the limit from the client instead."""
+    limit = task.get("exit_after_s")
+    if not limit or task.get("client_pid") == os.getpid():  # never end the operator's own process
+        return None
+    warm()  # a worker the nanny restarted has imported nothing yet: that is not the case's time
+
+    def overrun():
+        print(f"stand: campaign case {task['index']} still running after the per-case limit of {limit:g} s; "
+              "ending this worker process", file=sys.stderr, flush=True)
+        os._exit(EXIT_OVERRUN)
+
+    timer = threading.Timer(limit, overrun)
+    timer.daemon = True
+    timer.start()
+    return timer
+
+
+# ------------------------------------------------------------------------------------------------ executors
+def warm() -> None:
+    """Import what a run needs once per worker process, so the first case's timings are its own."""
+    for name in devices.kind_names():
+        devices.get(name)

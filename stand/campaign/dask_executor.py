@@ -1,0 +1,68 @@
+"""Cases on a Dask distributed scheduler."""
+
+from __future__ import annotations
+
+import os
+
+from .case import _raised, run_case, warm
+from .errors import CampaignError
+
+#: The HTTP address of the scheduler of a Dask LocalCluster the stand starts (bench, tests): loopback, any free port.
+#: ``dashboard_address=None`` is not "none": the scheduler still serves HTTP on 8787 and warns when it is taken.
+DASK_HTTP_ADDRESS = "127.0.0.1:0"
+
+class _Dask:
+    """Tasks on a Dask distributed scheduler (``--scheduler ADDRESS``) or a cluster object handed in."""
+
+    name = "dask"
+
+    def __init__(self, scheduler, key: str, case_timeout_s: float = 0.0):
+        try:
+            from distributed import Client
+        except ImportError:
+            raise CampaignError("--scheduler needs Dask distributed: pip install 'adcs-stand[campaign]'.") from None
+        try:
+            self.client = Client(scheduler, timeout=30, set_as_default=False)
+        except (OSError, TimeoutError) as exc:
+            raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
+                                f"30 s ({exc}).") from None
+        self.key, self.case_timeout_s = key, case_timeout_s
+        self.client.run(warm)
+        self.workers = max(1, sum(w.get("nthreads", 1) for w in
+                                  self.client.scheduler_info().get("workers", {}).values()))
+        self.address = self.client.scheduler.address
+
+    def results(self, tasks: list[dict]):
+        from distributed import as_completed
+
+        limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
+        futures = {self.client.submit(run_case, {**t, **limit}, pure=False,
+                                      key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
+        for f in as_completed(list(futures), loop=self.client.loop):
+            index = futures.pop(f)
+            yield (index, *self._outcome(f))
+
+    def _outcome(self, f) -> tuple:
+        import asyncio
+
+        from distributed.scheduler import KilledWorker
+
+        try:
+            return f.result(), None
+        except KilledWorker as exc:  # the scheduler gave up after the case ended its workers again and again
+            limit = f", or over the per-case limit of {self.case_timeout_s:g} s" if self.case_timeout_s else ""
+            return None, (f"its Dask worker died each time it ran it (killed, crashed{limit}); not run again: "
+                          f"{_raised(exc)}")
+        except KeyboardInterrupt:
+            raise
+        except (Exception, asyncio.CancelledError) as exc:  # the scheduler or the link failed, not the case: not
+            return None, _Lost(_raised(exc))  # recorded, the next invocation runs it
+        except BaseException as exc:  # a SystemExit that escaped a worker: the case's doing, recorded
+            return None, _raised(exc)
+
+    def close(self, cancel: bool = False):
+        self.client.close(timeout=30)
+
+
+class _Lost(str):
+    """A reason that is not the case's: the case stays unrecorded and the next invocation runs it."""

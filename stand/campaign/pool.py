@@ -1,0 +1,183 @@
+"""The local process pool: spawned workers watched by the client (worker deaths, per-case limit), and the
+inline executor (every case in this process)."""
+
+from __future__ import annotations
+
+import time
+
+from .case import _error_record, _raised, run_case, warm
+from .errors import CampaignError
+
+#: Times a case may end its worker process (os._exit, a signal, a crash) before it is recorded as an error.
+WORKER_DEATHS = 2
+
+def _worker_main(conn) -> None:
+    """A local pool worker: cases from ``conn`` one at a time, each answered with its record and files."""
+    import signal
+
+    # Ctrl-C goes to the whole process group; the client stops the campaign and ends its workers. A worker that
+    # acted on it would record a half-run case as "stopped".
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warm()
+    conn.send(("ready", None))  # a case's wall-clock limit starts when it is handed over, not before the imports
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):  # the client is gone
+            return
+        if task is None:
+            return
+        result = run_case(task)
+        try:
+            conn.send(("result", result))
+        except Exception as exc:  # noqa: BLE001 - e.g. a value that does not pickle: the case is still recorded
+            conn.send(("result", {"record": _error_record(task, f"its result could not be sent back: "
+                                                                 f"{_raised(exc)}"), "files": {}}))
+
+
+def _exit_text(code: int | None) -> str:
+    import signal
+
+    if code is not None and code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+class _Slot:
+    """One worker process of the local pool and the case it runs."""
+
+    def __init__(self, ctx):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child,), name="stand-campaign-worker")
+        self.proc.start()
+        child.close()
+        self.task: dict | None = None
+        self.since = 0.0
+        self.ready = False
+
+    def idle(self) -> bool:
+        return self.ready and self.task is None
+
+    def give(self, task: dict) -> None:
+        self.task, self.since = task, time.monotonic()
+        try:
+            self.conn.send(task)
+        except OSError:  # the worker died since it said ready: the pool sees its end and gives the case again
+            pass
+
+    def end(self, kill: bool = False) -> None:
+        if not kill and self.proc.is_alive():
+            try:
+                self.conn.send(None)
+            except OSError:
+                kill = True
+            self.proc.join(5.0)
+        if self.proc.is_alive():
+            self.proc.kill()
+        self.proc.join()
+        self.conn.close()
+
+
+class _LocalPool:
+    """Worker processes on this machine (spawned: nothing of the parent's threads or buses is inherited), each
+    watched by the client: a worker that dies is replaced and its case given again, up to ``deaths`` times, then
+    recorded as an error; a case over ``case_timeout_s`` of wall time is recorded as an error and its worker
+    replaced. The other cases never notice (a shared pool would lose every pending case with one worker)."""
+
+    name = "local"
+
+    def __init__(self, workers: int, case_timeout_s: float = 0.0, deaths: int = 2):
+        import multiprocessing
+
+        self.workers, self.case_timeout_s, self.deaths = workers, case_timeout_s, deaths
+        self.ctx = multiprocessing.get_context("spawn")
+        self.slots: list[_Slot] = []
+
+    def results(self, tasks: list[dict]):
+        """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
+        from collections import deque
+
+        pending = deque(tasks)
+        died: dict[int, list[str]] = {}
+        self.slots = [_Slot(self.ctx) for _ in range(min(self.workers, len(pending)))]
+        while pending or any(s.task is not None for s in self.slots):
+            for s in self.slots:
+                if s.idle() and pending:
+                    s.give(pending.popleft())
+            watched = [s for s in self.slots if s.task is not None or not s.ready]
+            self._wait(watched)
+            for s in watched:
+                outcome = self._check(s, died, pending)
+                if outcome is not None:
+                    yield outcome
+
+    def _wait(self, watched: list[_Slot]) -> None:
+        from multiprocessing.connection import wait
+
+        timeout = None
+        busy = [s for s in watched if s.task is not None]
+        if self.case_timeout_s and busy:
+            now = time.monotonic()
+            timeout = max(0.0, min(s.since + self.case_timeout_s - now for s in busy))
+        wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout)
+
+    def _check(self, s: _Slot, died: dict, pending) -> tuple | None:
+        if s.conn.poll():  # an answer waits (even if the process ended right after sending it)
+            try:
+                kind, result = s.conn.recv()
+            except (EOFError, OSError):
+                kind, result = None, None
+            if kind == "ready":
+                s.ready = True
+                return None
+            if kind == "result" and s.task is not None:
+                index, s.task = s.task["index"], None
+                return index, result, None
+        if not s.proc.is_alive():
+            s.proc.join()
+            if s.task is None:  # it died importing the stand: no case is to blame and none can run
+                raise CampaignError(f"--workers {self.workers}: a local worker process could not start "
+                                    f"({_exit_text(s.proc.exitcode)}); try --workers 0 to see why.")
+            task = s.task
+            died.setdefault(task["index"], []).append(_exit_text(s.proc.exitcode))
+            self._replace(s)
+            if len(died[task["index"]]) < self.deaths:
+                pending.appendleft(task)  # maybe a passing crash (out of memory): once more, first
+                return None
+            return task["index"], None, (f"its worker process died {len(died[task['index']])} times while running "
+                                         f"it ({', '.join(died[task['index']])}); not run again")
+        if s.task is not None and self.case_timeout_s and time.monotonic() - s.since >= self.case_timeout_s:
+            index = s.task["index"]
+            self._replace(s, kill=True)
+            return index, None, (f"still running after the per-case limit of {self.case_timeout_s:g} s of wall time "
+                                 "(--case-timeout); its worker process was ended")
+        return None
+
+    def _replace(self, s: _Slot, kill: bool = False) -> None:
+        """A new worker process in this slot, the old one ended (killed if it still runs)."""
+        s.end(kill=kill)
+        fresh = _Slot(self.ctx)
+        s.conn, s.proc, s.task, s.since, s.ready = fresh.conn, fresh.proc, None, 0.0, False
+
+    def close(self, cancel: bool = False) -> None:
+        for s in self.slots:
+            s.end(kill=cancel)
+        self.slots = []
+
+
+class _Inline:
+    """Every case in this process, one after another (``workers = 0``: debugging and tests). A case that ends
+    the process (``os._exit``, a crash) ends the campaign too: use a pool for untrusted code."""
+
+    name = "inline"
+    workers = 1
+
+    def results(self, tasks: list[dict]):
+        for task in tasks:
+            yield task["index"], run_case(task, interruptible=True), None
+
+    def close(self, cancel: bool = False):
+        pass

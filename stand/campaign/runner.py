@@ -1,0 +1,125 @@
+"""Run (or resume) a campaign: validate, pick an executor, write each case as it arrives, aggregate."""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+from ..errors import ScenarioError
+from .case import _error_record
+from .dask_executor import _Dask, _Lost
+from .errors import CampaignError
+from .pool import WORKER_DEATHS, _Inline, _LocalPool
+from .results import aggregate
+from .spec import MAX_RUNS, Spec, validate
+from .store import _prepare, _write_case, finished
+from .summary_report import write_report
+
+#: Default wall-clock limit of one case (``--case-timeout``): the backstop for a case that hangs. A full-orbit
+#: detumble takes 5 to 20 s on a loaded 2-core machine; an hour leaves room for long scenarios on slow workers.
+CASE_TIMEOUT_S = 3600.0
+MAX_CASE_TIMEOUT_S = 30 * 86400.0
+
+
+# ------------------------------------------------------------------------------------------------ progress
+class CampaignProgress:
+    """One line on stderr: runs done, passed, failed (errors among them), rate and time left."""
+
+    def __init__(self, total: int, enabled: bool, stream=sys.stderr):
+        self.total, self.enabled, self.stream = total, enabled, stream
+        self.done = self.passed = self.failed = self.errors = 0
+        self.start = time.monotonic()
+        self.new = 0
+
+    def add(self, rec: dict, resumed: bool = False) -> None:
+        self.done += 1
+        self.new += 0 if resumed else 1
+        self.passed += bool(rec.get("passed"))
+        self.failed += not rec.get("passed")
+        self.errors += rec.get("status") == "error"
+
+    def show(self, final: bool = False) -> None:
+        if not self.enabled:
+            return
+        frac = self.done / self.total if self.total else 1.0
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        elapsed = time.monotonic() - self.start
+        rate = self.new / elapsed * 60 if elapsed > 0 else 0.0
+        left = (self.total - self.done) / rate if rate > 0 else math.nan
+        eta = f"  {left:5.1f} min left" if math.isfinite(left) and not final else ""
+        self.stream.write(f"\r[{bar}] {self.done}/{self.total} runs  passed {self.passed}  failed {self.failed}"
+                          f"{f' ({self.errors} errors)' if self.errors else ''}  {rate:6.1f} runs/min{eta}   ")
+        if final:
+            self.stream.write("\n")
+        self.stream.flush()
+
+def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, scheduler=None,
+                 progress: bool = False, plots: bool = True, case_timeout_s: float = CASE_TIMEOUT_S,
+                 worker_deaths: int = WORKER_DEATHS) -> dict:
+    """Run (or resume) a campaign into ``out`` and return its ``campaign.json`` content.
+
+    ``workers``: processes of the local pool (0 runs every case in this process); ``scheduler``: a Dask
+    scheduler address, or a ``distributed`` cluster object, instead of the local pool. ``case_timeout_s``: wall
+    time after which a case is recorded as an error and its worker ended (0: no limit); ``worker_deaths``: how
+    many times a case may end its worker process before it is recorded as an error. Ctrl-C cancels what is not
+    finished (resume later with the same command) and re-raises; campaign.json is written in every case.
+    """
+    if not 1 <= runs <= MAX_RUNS:
+        raise CampaignError(str(ScenarioError("--runs", runs, f"a whole number from 1 to {MAX_RUNS}")))
+    if not (isinstance(case_timeout_s, int | float) and 0 <= case_timeout_s <= MAX_CASE_TIMEOUT_S):
+        raise CampaignError(str(ScenarioError("--case-timeout", case_timeout_s, "seconds of wall time per case, "
+                                              f"from 0 (no limit) to {MAX_CASE_TIMEOUT_S:g}")))
+    out = Path(out)
+    t0 = time.time()
+    tasks = validate(spec, runs)
+    _prepare(out, spec)
+    t_ready = time.time()
+    done = {k: r for k, r in finished(out).items() if k < runs}
+    resumed = len(done)
+    bar = CampaignProgress(runs, progress)
+    for rec in done.values():
+        bar.add(rec, resumed=True)
+    todo = [t for t in tasks if t["index"] not in done]
+    del tasks
+    if scheduler is not None:
+        executor = _Dask(scheduler, spec.key, case_timeout_s)
+    elif workers == 0:
+        executor = _Inline()
+    else:
+        executor = _LocalPool(workers, case_timeout_s, worker_deaths)
+    execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
+                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "lost": [],
+                 **({"scheduler": executor.address} if scheduler is not None else {})}
+    stopped = True
+    bar.show()
+    try:
+        _collect(executor, todo, out, done, bar, execution["lost"])
+        stopped = False
+    finally:
+        executor.close(cancel=stopped)
+        bar.show(final=True)
+        execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3))
+        if stopped:  # campaign.json must not keep saying "running": what is recorded, counted as incomplete
+            execution["stopped"] = True
+            aggregate(out, runs, execution)
+    result = aggregate(out, runs, execution)
+    if plots:
+        write_report(out, result)
+    return result
+
+
+def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignProgress, lost: list[str]) -> None:
+    """Write every case the executor answers: its files, or an error record with the reason."""
+    meta = {t["index"]: {k: t[k] for k in ("index", "seed", "values", "scalars")} for t in todo}
+    for index, result, reason in executor.results(todo):
+        if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
+            lost.append(f"case {index}: {reason}")
+            continue
+        if result is None:
+            result = {"record": _error_record(meta[index], reason), "files": {}}
+        rec = _write_case(out, result, time.time())
+        done[index] = rec
+        bar.add(rec)
+        bar.show()

@@ -1,0 +1,123 @@
+"""The spec: what fixes every case of a campaign, and the validation of all cases before the first run."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import scenario as scenario_mod
+from ..errors import ScenarioError, shown
+from .dispersions import Dispersions, apply, case_values, parse_dispersions
+from .errors import CampaignError
+
+MAX_RUNS = 100_000
+
+@dataclass(frozen=True)
+class Spec:
+    """What fixes every case of a campaign (kept in campaign.json; a resumed campaign must match it)."""
+
+    scenario_text: str
+    scenario_name: str
+    scenario_base: str  # the folder plug-in paths are relative to
+    dispersions_text: str
+    dispersions_source: str
+    seed: int
+    overrides: tuple[str, ...] = ()
+    duration_s: float | None = None
+
+    @property
+    def key(self) -> str:
+        blob = json.dumps([self.scenario_text, self.dispersions_text, self.seed, list(self.overrides),
+                           self.duration_s])
+        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+    def scenario_dict(self) -> dict:
+        data = scenario_mod.loads(self.scenario_text, self.scenario_name)
+        for item in self.overrides:
+            scenario_mod.set_value(data, item)
+        return data
+
+    def dispersions(self) -> Dispersions:
+        return parse_dispersions(self.dispersions_text, self.scenario_dict(), self.dispersions_source)
+
+    def case(self, index: int, dispersions: Dispersions | None = None) -> dict:
+        """The task of case ``index``: its scenario dict (dispersed, seeded), values and seed."""
+        disp = dispersions or self.dispersions()
+        run_seed, values = case_values(disp, self.seed, index)
+        data = apply(self.scenario_dict(), values, run_seed, self.duration_s)
+        scalars: dict[str, float] = {}
+        for d in disp.items:
+            scalars.update(d.scalars(values[d.field]))
+        return {"index": index, "seed": run_seed, "values": values, "scalars": scalars, "data": data,
+                "source": f"{self.scenario_name}#case{index}", "base": self.scenario_base}
+
+    def to_json(self) -> dict:
+        return {**dataclasses.asdict(self), "overrides": list(self.overrides), "key": self.key}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Spec:
+        fields = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: (tuple(v) if k == "overrides" else v) for k, v in d.items() if k in fields})
+
+
+def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = None,
+              overrides: list[str] | None = None, duration_s: float | None = None) -> Spec:
+    path = scenario_mod.find(scenario)
+    text = path.read_text(encoding="utf-8")
+    dpath = Path(dispersions_path)
+    try:
+        dtext = dpath.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CampaignError(f"--dispersions {dpath} is not allowed: a readable UTF-8 TOML file is required "
+                            f"({getattr(exc, 'strerror', None) or exc}).") from None
+    data = scenario_mod.loads(text, str(path))
+    for item in overrides or []:
+        scenario_mod.set_value(data, item)
+    nominal = scenario_mod.parse(json.loads(json.dumps(data)), path.name)
+    if nominal.wall_time_links:
+        raise CampaignError(f"SCENARIO {path.name} is not allowed in a campaign: its devices "
+                            f"{', '.join(nominal.wall_time_links)} are on hardware or served links, which run in wall "
+                            "time on one bench; a campaign runs emulated devices (--set devices.NAME.link=emulated).")
+    disp = parse_dispersions(dtext, data, dpath.name)
+    if duration_s is not None and not (nominal.step_s <= duration_s <= 30 * 86400):
+        raise CampaignError(str(ScenarioError("--duration", duration_s, f"seconds from the step "
+                                              f"({nominal.step_s:g} s) to 30 days")))
+    if seed is None:
+        seed = disp.seed if disp.seed is not None else nominal.seed
+    if not 0 <= seed < 2**63:
+        raise CampaignError(str(ScenarioError("--seed", seed, "a whole number from 0 to 2**63 - 1")))
+    return Spec(text, path.name, str(path.parent.resolve()), dtext, dpath.name, int(seed), tuple(overrides or ()),
+                duration_s)
+
+
+def validate(spec: Spec, runs: int) -> list[dict]:
+    """Every case's task, each scenario parsed before the first run; CampaignError names the dispersion and
+    the case whose value the scenario refuses."""
+    disp = spec.dispersions()
+    tasks = []
+    for k in range(runs):
+        task = spec.case(k, disp)
+        try:
+            scenario_mod.parse(json.loads(json.dumps(task["data"])), task["source"])
+        except ScenarioError as exc:
+            raise CampaignError(f"case {k}: {_culprit(spec, disp, task, exc)}") from None
+        tasks.append(task)
+    return tasks
+
+
+def _culprit(spec: Spec, disp: Dispersions, task: dict, exc: ScenarioError) -> str:
+    """Which dispersion (alone) makes the scenario refuse a case's values, with the scenario's sentence."""
+    base = spec.scenario_dict()
+    for k, d in enumerate(disp.items):
+        data = apply(base, {d.field: task["values"][d.field]}, task["seed"], spec.duration_s)
+        try:
+            scenario_mod.parse(data, task["source"])
+        except ScenarioError as alone:
+            return (f"dispersions[{k}] ({d.field}, {d.distribution}, in {disp.source}) drew "
+                    f"{shown(task['values'][d.field])}, which the scenario refuses (a value it does not allow, or a "
+                    f"key its other settings leave unused, which would not be applied): {alone}")
+    return (f"the values of dispersions {', '.join(d.field for d in disp.items)} (in {disp.source}) are refused "
+            f"together by the scenario: {exc}")

@@ -1,0 +1,95 @@
+"""The campaign folder: one folder per case, written whole or not at all, and read back."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from pathlib import Path
+
+from ..report import write_json_atomic
+from .errors import CampaignError
+from .spec import Spec
+
+CASE_DIGITS = 5
+
+
+# ----------------------------------------------------------------------------------------------- campaign
+def case_dir(out: Path, index: int) -> Path:
+    return Path(out) / "cases" / f"{index:0{CASE_DIGITS}d}"
+
+
+def finished(out: Path) -> dict[int, dict]:
+    """Records of the cases already written (a ``case.json`` is written last, so its presence means whole)."""
+    found = {}
+    for p in sorted((Path(out) / "cases").glob("*/case.json")):
+        try:
+            rec = json.loads(p.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+            continue
+        # A record that is not whole or not its folder's (damaged, edited) is not a finished case: a resume runs
+        # it again rather than aggregate what it cannot vouch for.
+        if _whole(rec, p.parent.name):
+            found[rec["index"]] = rec
+    return found
+
+
+CRITERION_KEYS = frozenset(("name", "metric", "value", "limit", "pass"))
+
+
+def _is_digest(value) -> bool:
+    return value is None or (isinstance(value, str) and len(value) == 64
+                             and all(c in "0123456789abcdef" for c in value))
+
+
+def _whole(rec, folder: str) -> bool:
+    """Has a case record what aggregation reads, of the right types, in its own folder?"""
+    if not isinstance(rec, dict):
+        return False
+    index, crit = rec.get("index"), rec.get("criteria")
+    return (isinstance(index, int) and not isinstance(index, bool) and folder == f"{index:0{CASE_DIGITS}d}"
+            and isinstance(rec.get("seed"), int) and isinstance(rec.get("status"), str)
+            and isinstance(crit, list) and all(isinstance(c, dict) and CRITERION_KEYS <= set(c) for c in crit)
+            and _is_digest(rec.get("digest")))
+
+
+def _write_case(out: Path, result: dict, received: float) -> dict:
+    rec = result["record"]
+    t0 = time.time()
+    final = case_dir(out, rec["index"])
+    part = final.with_name(final.name + ".part")
+    shutil.rmtree(part, ignore_errors=True)
+    part.mkdir(parents=True)
+    for name, data in result["files"].items():
+        (part / name).parent.mkdir(parents=True, exist_ok=True)
+        (part / name).write_bytes(data)
+    timing = rec.setdefault("timing", {})
+    timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
+    timing["write_s"] = time.time() - t0
+    (part / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
+    shutil.rmtree(final, ignore_errors=True)
+    os.replace(part, final)
+    return rec
+
+
+def _prepare(out: Path, spec: Spec) -> None:
+    meta = out / "campaign.json"
+    if meta.exists():
+        try:
+            old = json.loads(meta.read_text()).get("spec", {})
+        except (OSError, json.JSONDecodeError):
+            old = {}
+        if old.get("key") != spec.key:
+            raise CampaignError(f"--out {out} is not allowed: it holds another campaign (scenario, dispersions, "
+                                "seed, --set or --duration differ); use a new folder, or the same inputs to resume.")
+    elif out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise CampaignError(f"--out {out} is not allowed: an empty or new folder, or one of the same campaign "
+                            "to resume.")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.toml").write_text(spec.scenario_text)
+    (out / "dispersions.toml").write_text(spec.dispersions_text)
+    if not meta.exists():
+        write_json_atomic(meta, {"spec": spec.to_json(), "status": "running"})
+    for stale in (out / "cases").glob("*.part"):
+        shutil.rmtree(stale, ignore_errors=True)
