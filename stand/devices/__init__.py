@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
-    from stand.scenario import Table
+    from stand.checks import Table
 
 LINKS = ("emulated", "hardware", "served")
 #: Links whose other end lives in wall time: the run must be paced.
