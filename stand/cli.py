@@ -304,8 +304,9 @@ def _campaign_case(args):
 
 
 def cmd_check(args) -> int:
-    from .adcs import PluginError, check_controller
+    from .adcs import PluginError
     from .compose import plan
+    from .controllers import check_controller
 
     try:
         sc = _load_scenario(args.scenario, overrides=args.set)

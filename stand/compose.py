@@ -20,16 +20,18 @@ from sim.environment import magnetic_field_itrs
 from sim.ephemeris import EphemerisTrack
 from sim.forces import OrbitForces
 from sim.frames import EarthRotation
-from sim.orbit import elements_to_state
-from sim.time import NS_PER_S, seconds_to_ns
+from sim.time import seconds_to_ns
 from sim.truth import CHUNK_S, TruthModel, chunk_points
 from sim.wheels import WheelCluster
 
-from . import devices
-from .adcs import build_controller
+from . import controllers, devices, scenario
+from .checks import ticks_per
 from .devices import BuildContext
 from .errors import ScenarioError
 from .scenario import Scenario, earth_models
+
+__all__ = ["Budget", "Choice", "Scene", "budget", "build", "check_budget", "device_needs", "initial_state", "plan",
+           "ticks_per", "wheel_cluster"]
 
 
 @dataclass(frozen=True)
@@ -98,16 +100,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     ]
     for d in sc.devices:
         choices.append(Choice(f"device.{d.name}", True, devices.get(d.kind).describe(d)))
-    if sc.rendezvous is not None:
-        from .rendezvous import describe
-
-        choices.append(Choice("rendezvous.shadow", True, describe(sc.rendezvous)))
-    ctl = sc.controller
-    ctl_why = {"none": "no controller in the scenario: open loop",
-               "external": "a flight computer outside closes the loop through the served devices ("
-                           + ", ".join(d.name for d in sc.devices if d.link == "served") + "); the run is paced"}
-    choices.append(Choice(f"controller.{ctl.kind}", ctl.kind not in ("none", "external"),
-                          ctl_why.get(ctl.kind, f"at {ctl.rate_hz:g} Hz through the host drivers")))
+    for key, spec in sc.sections.items():
+        section = scenario.section(key)
+        choices.append(Choice(section.model, True, section.describe(spec)))
+    ctl = controllers.get(sc.controller.kind)
+    choices.append(Choice(f"controller.{sc.controller.kind}", ctl.in_stand, ctl.describe(sc)))
     choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
     return choices
 
@@ -214,9 +211,8 @@ def budget(sc: Scenario, duration_s: float | None = None) -> Budget:
     costs = [devices.get(d.kind).cost(d) for d in sc.devices]
     field_on = "magnetic" in sc.torques or any(devices.get(d.kind).needs(d).get("magnetic_field")
                                                for d in sc.devices)
-    # B-dot records its commanded dipole; a plug-in's own columns are not known before it is built.
-    row_floats = 14 + 3 * field_on + sum(c.row_floats for c in costs) + {"bdot": 3, "plugin": 16, "pointing": 24}.get(
-        sc.controller.kind, 0)
+    # What the controller records (ControllerKind.row_floats: B-dot its commanded dipole...).
+    row_floats = 14 + 3 * field_on + sum(c.row_floats for c in costs) + controllers.get(sc.controller.kind).row_floats
     telemetry = rows * row_floats * 8
     o = sc.orbit
     points = chunk_points(sc.step_s / 2)
@@ -237,7 +233,7 @@ def budget(sc: Scenario, duration_s: float | None = None) -> Budget:
     for c in costs:
         publishes = ticks if c.rate_hz is None else duration * c.rate_hz
         compute += publishes * (PUBLISH_S + c.publish_s)
-    if sc.controller.kind not in ("none", "external"):
+    if controllers.get(sc.controller.kind).in_stand:
         compute += duration * sc.controller.rate_hz * CONTROL_S
     return Budget(duration, int(ticks), int(rows), int(row_floats), int(telemetry), int(sum(parts.values())),
                   compute, parts)
@@ -338,10 +334,8 @@ class Scene:
 
 
 def initial_state(sc: Scenario):
-    o = sc.orbit
-    r, v = elements_to_state(e=o.e, i=o.i_rad, raan=o.raan_rad, argp=o.argp_rad, a=o.a_m, p=o.p_m,
-                             nu=o.nu_rad, M=o.mean_anomaly_rad)
-    return np.asarray(r, dtype=float), np.asarray(v, dtype=float)
+    """The spacecraft's position and velocity at the epoch, GCRS (m, m/s)."""
+    return sc.orbit.initial_state()
 
 
 def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
@@ -397,7 +391,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
             scene.devices[d.name] = built = devices.get(d.kind).build(d, ctx)
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
-        scene.controller = build_controller(sc, scene.devices, base)
+        scene.controller = controllers.build_controller(sc, scene.devices, base)
     except BaseException:
         scene.close()
         raise
@@ -419,7 +413,3 @@ def wheel_cluster(sc: Scenario):
         return None
     return WheelCluster(np.column_stack(axes), inertias), speeds, index
 
-
-def ticks_per(rate_hz: float, step_s: float) -> int:
-    """Dynamics steps per period of a rate (validated to be whole by the scenario loader)."""
-    return max(1, round(NS_PER_S / rate_hz) // seconds_to_ns(step_s))

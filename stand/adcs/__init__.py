@@ -17,6 +17,10 @@ time, ends the run "aborted" (exit 3) with the traceback in ``events.jsonl`` and
 B-dot below is written against the same API (``BDot.from_devices``), and so is the reference pointing ADCS,
 :class:`stand.adcs.pointing.PointingController` (gyro ``take_rate``, reaction wheels
 ``take_speed``/``command_torque``; docs/adcs.md).
+
+This package is flight code: it depends on the host drivers' API and on ``sim`` (rotations, frames), never on
+the scenario loader or composition. What builds it from a scenario is the controller registry
+(:mod:`stand.controllers`: one kind each for B-dot, pointing and plug-ins).
 """
 
 from __future__ import annotations
@@ -176,110 +180,3 @@ def _import_from(folder: Path, module_name: str, spec: str):
     finally:
         if sys.path and sys.path[0] == str(folder):
             sys.path.pop(0)
-
-
-def pointing_options(sc) -> dict:
-    """The options of ``controller.kind = "pointing"`` with what the scenario already says filled in (an option
-    the scenario gives wins): the spacecraft inertia, each device's mount, the wheels' axes, inertias and torque
-    limit, the coarse sun heads' normals, and for nadir, target and sun guidance the orbit at t = 0 and the
-    epoch. The filter's noise comes from the datasheets the scenario declares (stand.scenario), never from the
-    simulated devices' own noise settings."""
-    opts = dict(sc.controller.params["options"])
-    specs = {d.name: d for d in sc.devices}
-    opts.setdefault("inertia_kg_m2", np.asarray(sc.spacecraft.inertia_kg_m2, dtype=float).tolist())
-    wheels = [specs[n] for n in opts["wheels"]]
-    opts.setdefault("wheel_axes_B", [list(w.spin_axis_B) for w in wheels])
-    opts.setdefault("wheel_inertia_kg_m2", [w.inertia_kg_m2 for w in wheels])
-    opts.setdefault("max_wheel_torque_Nm", min(w.max_torque_Nm for w in wheels))
-    if "star_tracker" in opts:
-        st = specs[opts["star_tracker"]]
-        opts.setdefault("star_tracker_q_TB", st.q_SB.tolist())
-    opts.setdefault("gyro_q_SB", specs[opts["gyro"]].q_SB.tolist())
-    for key in ("magnetorquer", "sun_sensor"):
-        if key in opts:
-            opts.setdefault(f"{key}_q_SB", specs[opts[key]].q_SB.tolist())
-    if "sun_sensor" in opts and specs[opts["sun_sensor"]].type == "coarse":
-        from stand.devices.sun_sensor import FACE_NORMALS
-
-        # The controller solves for the Sun in the heads' own axes and then turns it through the mount.
-        opts.setdefault("sun_sensor_normals_B", FACE_NORMALS.tolist())
-    guidance = opts.get("guidance", "inertial")
-    if guidance in ("nadir", "target"):
-        from stand.compose import initial_state
-
-        r, v = initial_state(sc)
-        opts.setdefault("orbit_r_N_m", r.tolist())
-        opts.setdefault("orbit_v_N_m_s", v.tolist())
-    if guidance in ("sun", "target"):
-        opts.setdefault("epoch", sc.epoch.iso)
-    return opts
-
-
-def build_controller(sc, devices: dict, base: Path | None = None):
-    """The scenario's controller over the scene's devices (name -> Device), or None. Plug-in failures at
-    construction are PluginError (a scenario error)."""
-    ctl = sc.controller
-    period = 1.0 / ctl.rate_hz
-    p = ctl.params
-    if ctl.kind == "bdot":
-        spec = next(d for d in sc.devices if d.name == p["device"])
-        return BDot(devices[spec.name].host, period, p["gain_A_m2_s_per_T"], p["max_dipole_A_m2"], q_SB=spec.q_SB,
-                    skip_coil_active=p["skip_coil_active"], duty_cycle=p.get("duty_cycle", 1.0))
-    if ctl.kind == "pointing":
-        from .pointing import PointingController
-
-        hosts = {name: d.host for name, d in devices.items()}
-        try:
-            return PointingController(hosts, period, **pointing_options(sc))
-        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
-            raise PluginError(f"controller.kind = 'pointing': {exc}") from None
-    if ctl.kind != "plugin":
-        return None
-    cls = load_plugin(p["module"], p.get("path"), base)
-    hosts = {name: d.host for name, d in devices.items()}
-    try:
-        return cls(hosts, period, **p["options"])
-    except KeyboardInterrupt:
-        raise
-    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
-        raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, {period:g}, "
-                          f"**options) failed: {type(exc).__name__}: {exc}.") from None
-
-
-class _NotOpened:
-    """What ``stand check`` hands a plug-in for each device: nothing is opened, so any use says so."""
-
-    def __init__(self, name: str):
-        self._name = name
-
-    def __getattr__(self, attr):
-        raise RuntimeError(f"device {self._name!r} is not opened by `stand check` (the plug-in used .{attr} in its "
-                           "constructor; devices are only for update())")
-
-
-def check_controller(sc, base: Path | None = None) -> None:
-    """What ``stand check`` does for the controller: import the plug-in and construct it over unopened devices,
-    so a missing module, a wrong path or bad options fail here in one sentence, not at t = 0."""
-    ctl = sc.controller
-    if ctl.kind == "pointing":
-        from .pointing import PointingController
-
-        try:
-            PointingController({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz,
-                               **pointing_options(sc))
-        except Exception as exc:  # options of any type reach the constructor: every refusal is one sentence
-            raise PluginError(f"controller.kind = 'pointing': {exc}") from None
-        return
-    if ctl.kind != "plugin":
-        return
-    p = ctl.params
-    cls = load_plugin(p["module"], p.get("path"), base)
-    try:
-        obj = cls({d.name: _NotOpened(d.name) for d in sc.devices}, 1.0 / ctl.rate_hz, **p["options"])
-    except KeyboardInterrupt:
-        raise
-    except BaseException as exc:  # sys.exit() and the like too: one sentence, not a silent exit
-        raise PluginError(f"controller.module = {p['module']!r}: constructing {cls.__name__}(devices, "
-                          f"{1.0 / ctl.rate_hz:g}, **options) failed: {type(exc).__name__}: {exc}.") from None
-    if not callable(getattr(obj, "update", None)):
-        raise PluginError(f"controller.module = {p['module']!r}: {cls.__name__} has no update(t_s) method.")

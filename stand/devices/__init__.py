@@ -28,12 +28,12 @@ import importlib
 import math
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    from stand.scenario import Table
+from stand.checks import Table
+from stand.errors import ScenarioError
 
 LINKS = ("emulated", "hardware", "served")
 #: Links whose other end lives in wall time: the run must be paced.
@@ -286,8 +286,6 @@ def check_network(specs, allow_remote=()) -> None:
     link-/host-local multicast group, or one the operator allowed on the command line (``--allow-remote``).
 
     Raises ScenarioError naming the device's field, the value and the flag."""
-    from stand.errors import ScenarioError
-
     allowed = {h.strip().strip("[]").lower() for h in allow_remote}
     for i, spec in enumerate(specs):
         for key, address in get(spec.kind).network_peers(spec):

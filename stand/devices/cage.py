@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from stand.checks import rate, ticks_per
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, check_serial_url
 from stand.devices.serving import ServeOption, Serving, banner, report, serve_until_stopped, stop_on_sigterm
 
@@ -58,8 +59,6 @@ class CageKind(DeviceKind):
     }
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> CageSpec:
-        from stand.scenario import rate
-
         url = ""
         calibration = None
         if base.link == "hardware":
@@ -124,8 +123,6 @@ class Cage(Device):
     def __init__(self, spec: CageSpec, ctx: BuildContext):
         from drivers.cage.calibration import CageCalibration
         from drivers.cage.host import CageHost
-        from stand.compose import ticks_per
-
         self.name, self.spec = spec.name, spec
         self.truth = ctx.truth
         self.command_every = ticks_per(spec.rate_hz, ctx.step_s)

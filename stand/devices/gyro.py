@@ -23,6 +23,7 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
+from stand.checks import rate
 from stand.devices import (
     SERIAL_LINES,
     BuildContext,
@@ -78,8 +79,6 @@ class GyroKind(DeviceKind):
     name = "gyro"
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> GyroSpec:
-        from stand.scenario import rate
-
         ideal = t.flag("ideal", False)
         if ideal:
             for key in NOISE_KEYS:

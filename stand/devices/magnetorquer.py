@@ -20,6 +20,7 @@ import numpy as np
 
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
+from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
 
@@ -64,8 +65,6 @@ class MagnetorquerKind(DeviceKind):
     name = "magnetorquer"
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetorquerSpec:
-        from stand.scenario import rate
-
         codec = _codec()
         dipole_max = codec.dipole_range_A_m2[1]  # what MTQ_DIPOLE_CMD can carry
         interface, channel = can_endpoint(t, base)

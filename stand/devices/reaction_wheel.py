@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.rotations import dcm
+from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
 
@@ -58,8 +59,6 @@ class ReactionWheelKind(DeviceKind):
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> ReactionWheelSpec:
         from drivers.reaction_wheel.codec import ReactionWheelCodec
-        from stand.scenario import rate
-
         codec = ReactionWheelCodec(0)
         interface, channel = can_endpoint(t, base)
         if t.has("spin_axis_B") and t.has("q_SB"):

@@ -55,6 +55,7 @@ import numpy as np
 
 from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
+from stand.checks import pair
 from stand.devices import LOCAL_HOSTS
 from stand.devices.star_tracker import HardwareTracker
 from stand.display import StateSender, load_key
@@ -93,8 +94,6 @@ def parse_screen(t, link: str) -> dict | None:
         if key_file is not None:
             out["key_file"] = key_file
         return out
-    from stand.scenario import pair
-
     out["display"] = int(t.number("screen_display", 0, lo=0, hi=15, integer=True))
     out["size_px"] = tuple(int(v) for v in pair(t, "screen_size_px", (1920, 1080), 64, 7680, True))
     out["fullscreen"] = t.flag("screen_fullscreen", True)

@@ -32,6 +32,7 @@ from drivers.errors import DeviceTimeoutError
 from drivers.serial_port import wait_readable
 from sim.rotations import hamilton_floats
 from sim.truth import compose_floats
+from stand.checks import pair
 from stand.devices import (
     SERIAL_LINES,
     SETTLE_TIMEOUT_S,
@@ -277,7 +278,6 @@ def _whole_steps(t, key: str, value: float, step_s: float) -> None:
 
 def _tracker_image(t, name: str) -> tuple[Any, dict]:
     """Optics (a star_screen TrackerOptics) and camera noise of an image-source tracker."""
-    from stand.scenario import pair
     from star_screen.geometry import TrackerOptics
 
     pairs = {key: pair(t, key, *spec) for key, spec in TRACKER_IMAGE_PAIRS.items()}

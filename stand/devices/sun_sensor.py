@@ -36,6 +36,7 @@ from sim.environment import shadow_fraction
 from sim.rotations import dcm
 from sim.sensors import CoarseSunSensors, FineSunSensor
 from sim.truth import rotate_to_body
+from stand.checks import rate, ticks_per
 from stand.devices import (
     LINKS,
     SERIAL_LINES,
@@ -103,8 +104,6 @@ class SunSensorKind(DeviceKind):
     default_link = "emulated"
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> SunSensorSpec:
-        from stand.scenario import rate
-
         kind = t.choice("type", ("coarse", "fine"))
         if kind == "coarse":
             noise = t.number("noise_mA", 0.0, lo=0.0, hi=10.0) * 1e-3
@@ -245,7 +244,6 @@ class EmulatedSunSensor(_SunSensorDevice):
     def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
         from drivers.sun_sensor.emulator import SunSensorEmulator
         from drivers.sun_sensor.host import SunSensorHost
-        from stand.compose import ticks_per
 
         super().__init__(spec, ctx)
         # Serviced only on its sample ticks: the emulator's output grid falls on them, and nothing else talks
@@ -304,8 +302,6 @@ class ModelSunSensor(_SunSensorDevice):
     """No protocol: the model's reading goes to the flight code through a :class:`SunSensorReader`."""
 
     def __init__(self, spec: SunSensorSpec, ctx: BuildContext):
-        from stand.compose import ticks_per
-
         super().__init__(spec, ctx)
         self.silent_after_s = None  # a model cannot fall silent
         self.every_ticks = ticks_per(spec.rate_hz, ctx.step_s)

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from stand import scenario
-from stand.adcs import pointing_options
 from stand.adcs.pointing import PointingController
+from stand.controllers.pointing import pointing_options
 from stand.errors import ScenarioError
 
 SHIPPED = ("pointing_star_tracker", "pointing_star_tracker_image", "acquisition")

@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 
 from stand import scenario
-from stand.adcs import PluginError, check_controller, load_plugin
+from stand.adcs import PluginError, load_plugin
 from stand.compose import build
+from stand.controllers import check_controller
 from stand.errors import ScenarioError
 from stand.loop import run
 from stand.pacing import parse_speed
