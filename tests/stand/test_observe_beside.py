@@ -197,3 +197,36 @@ def test_an_observer_sees_every_good_frame_and_leaves_the_driver_as_it_was():
         host.close()
         a.close()
     assert counters[0] == counters[1]
+
+
+def test_a_served_emulators_observer_sees_what_went_on_the_line_and_what_came_back():
+    """The tap on a served datagram emulator: what it sent, decoded as a receiver decodes it (nothing while it is
+    silent), and the commands it received."""
+    from drivers.framing import FrameObserver
+    from drivers.gyro.codec import GyroRate, SetOutputPeriod
+    from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
+    from drivers.gyro.host import GyroHost
+    from drivers.serial_port import pipe_pair
+
+    a, b = pipe_pair("served")
+    emu = GyroEmulator(a, lambda _t: (0.01, -0.02, 0.03), GyroEmulatorConfig(output_period_s=0.1), name="emu")
+    host = GyroHost(b, name="fc")
+    seen = FrameObserver()
+    emu.add_observer(seen)
+    try:
+        for k in range(5):
+            emu.service(k * 0.1)
+        host.poll()
+        assert seen.count(GyroRate) == emu.counters["sent"] == host.counters["samples"] == 5
+        assert seen.latest(GyroRate) == host.latest_rate
+        emu.silent = True
+        emu.service(0.5)
+        assert seen.count(GyroRate) == 5  # a silent device sent nothing, so nothing was observed
+        host.set_output_period(0.2)
+        emu.service(0.6)
+        assert seen.latest(SetOutputPeriod).period_s == emu.period_s == pytest.approx(0.2) and seen.frames == 6
+    finally:
+        host.close()
+        emu.close()
+        a.close()
+        b.close()
