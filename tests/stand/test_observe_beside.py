@@ -230,3 +230,20 @@ def test_a_served_emulators_observer_sees_what_went_on_the_line_and_what_came_ba
         emu.close()
         a.close()
         b.close()
+
+
+def test_frame_observer_keeps_the_newest_of_several_types_and_counts_each():
+    from drivers.framing import FrameObserver
+
+    class A(float):
+        pass
+
+    class B(float):
+        pass
+
+    seen = FrameObserver()
+    assert seen.latest(A, B) is None and seen.count(A) == 0
+    for msg in (A(1.0), B(2.0), A(3.0)):
+        seen(msg)
+    assert seen.latest(A, B) == 3.0 and seen.latest(B) == 2.0 and seen.latest(B, A) == 3.0
+    assert (seen.count(A), seen.count(B), seen.count(A, B), seen.frames) == (2, 1, 3, 3)
