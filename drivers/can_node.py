@@ -128,6 +128,22 @@ class CanNode(BusEndpoint):
     def _take(self, decoded: Any, t_s: float | None) -> None:  # pragma: no cover - every node overrides it
         raise NotImplementedError
 
+    def add_observer(self, observer: Any) -> None:
+        """The listener hook (:meth:`drivers.endpoint.Endpoint.add_observer`): every frame the node takes, decoded
+        once by its codec, goes to ``observer`` after :meth:`_take`. The hook wraps ``_take`` on this instance only
+        when the first observer comes, so the receive loop of a node nobody observes is the same as before."""
+        super().add_observer(observer)
+        if "_take" in self.__dict__:
+            return
+        take = self._take
+
+        def take_observed(decoded: Any, t_s: float | None) -> None:
+            take(decoded, t_s)
+            for each in self._observers:
+                each(decoded)
+
+        self._take = take_observed  # type: ignore[method-assign]
+
     @property
     def rejected_frames(self) -> int:
         """Frames addressed to this node that it dropped as unknown, of the wrong length or undecodable, plus error

@@ -364,6 +364,7 @@ class DatagramHost(SerialHost):
         c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
         c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
         c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
+        observers = self._observers
         for msg in messages:
             c["frames_received"] += 1
             self._last_rx = time.monotonic()
@@ -371,6 +372,8 @@ class DatagramHost(SerialHost):
                 self.online = True
                 c["recoveries"] += 1
             self._accept_message(msg)
+            for observer in observers:  # the stand's tap beside the driver (drivers.endpoint)
+                observer(msg)
         return len(data)
 
     def _accept_message(self, msg: Any) -> None:  # pragma: no cover - every device overrides it
@@ -487,9 +490,12 @@ class DatagramEmulator(SerialServer):
         c["rejected_undecodable"] += dec.counters["undecodable"] - before["undecodable"]
         c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
         c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
+        observers = self._observers
         for msg in messages:
             c["frames_received"] += 1
             self._apply(msg, t_s)
+            for observer in observers:  # what the device received, for the stand beside it (drivers.endpoint)
+                observer(msg)
         return len(messages)
 
     @property
@@ -519,6 +525,10 @@ class DatagramEmulator(SerialServer):
         except Exception as exc:
             raise DriverError(f"{self.name}: cannot write to {port_name(self.port)}: {exc}") from exc
         self.counters["sent"] += 1
+        if self._observers:  # what went on the line, decoded as a receiver decodes it (drivers.endpoint)
+            sent = self.codec.decode(frame)
+            for observer in self._observers:
+                observer(sent)
 
     def _send_available(self, frame: bytes) -> bool:
         """Write ``frame`` as far as the line takes it now, after what is left of the previous one; False (and

@@ -21,8 +21,10 @@ rejects (bad CRC or too short): that is how a receiver resynchronises.
 from __future__ import annotations
 
 import binascii
+from typing import Any
 
-__all__ = ["END", "ESC", "ESC_END", "ESC_ESC", "SlipDecoder", "crc16", "escape", "take_frame", "unescape"]
+__all__ = ["END", "ESC", "ESC_END", "ESC_ESC", "FrameObserver", "SlipDecoder", "crc16", "escape", "take_frame",
+           "unescape"]
 
 END = 0xC0
 ESC = 0xDB
@@ -146,6 +148,45 @@ class SlipDecoder:
                 frames.append(body)
             del buf[:consumed]
         return frames
+
+
+class FrameObserver:
+    """What the stand keeps of a link it watches beside the flight code (``endpoint.add_observer(observer)``, see
+    :mod:`drivers.endpoint`): the newest message of each type and how many of each came, in arrival order.
+
+    It never touches the endpoint: the messages come from the endpoint's framing layer, decoded once by its codec.
+    """
+
+    __slots__ = ("_latest", "_counts", "_order", "frames")
+
+    def __init__(self) -> None:
+        self._latest: dict[type, Any] = {}
+        self._counts: dict[type, int] = {}
+        self._order: dict[type, int] = {}
+        #: Every message observed, of any type.
+        self.frames = 0
+
+    def __call__(self, msg: Any) -> None:
+        kind = type(msg)
+        self.frames += 1
+        self._latest[kind] = msg
+        self._counts[kind] = self._counts.get(kind, 0) + 1
+        self._order[kind] = self.frames
+
+    def latest(self, *types: type) -> Any:
+        """The newest message of any of ``types``, or None."""
+        if len(types) == 1:  # the usual case, read every recorded row
+            return self._latest.get(types[0])
+        best, newest = None, 0
+        for kind in types:
+            n = self._order.get(kind, 0)
+            if n > newest:
+                best, newest = self._latest[kind], n
+        return best
+
+    def count(self, *types: type) -> int:
+        """How many messages of ``types`` were observed."""
+        return sum(self._counts.get(kind, 0) for kind in types)
 
 
 def check_crc16_spec(crc: dict, what: str) -> None:

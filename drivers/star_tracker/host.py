@@ -201,6 +201,8 @@ class StarTrackerHost(SerialHost):
                 continue
             n += 1
             self._accept(msg)
+            for observer in self._observers:  # the stand's tap beside the driver (drivers.endpoint)
+                observer(msg)
         return n
 
     def _accept(self, msg: Message) -> None:

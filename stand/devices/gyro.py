@@ -11,7 +11,9 @@ pair with ``port = "pty"``, every exchange settled within the tick, so a
 run is bit-for-bit repeatable), ``hardware`` (the host on a real port), ``served`` (the emulator on a real
 port, fed by the truth, for a flight computer outside).
 
-Telemetry: ``NAME.omega_S`` (the newest sample the host decoded, rad/s, sensor axes) and ``NAME.valid``.
+Telemetry: ``NAME.omega_S`` (the newest sample on the link, rad/s, sensor axes) and ``NAME.valid``, observed beside
+the flight code (:class:`drivers.framing.FrameObserver` on the host's framing layer, or on the served emulator's:
+what it sent), never read from the flight code's driver.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.framing import FrameObserver
+from drivers.gyro.codec import GyroRate
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
 from stand.checks import rate
@@ -175,22 +179,29 @@ class _GyroDevice(SerialDevice):
         self.silent_after_s = SILENT_SAMPLES / spec.output_rate_hz
         self.emulator = None
         self.host = None
+        #: The link as the stand sees it beside the flight code (``_watch``); telemetry reads only this.
+        self.observer = FrameObserver()
+
+    def _watch(self, endpoint) -> None:
+        """Observe the link at ``endpoint``'s framing layer: the host's received datagrams (emulated, hardware) or
+        what the emulator sent and received (served). The flight code's driver is never read for telemetry."""
+        endpoint.add_observer(self.observer)
 
     def columns(self):
         return [(f"{self.name}.omega_S", 3, "rad/s"), (f"{self.name}.valid", 1, "1")]
 
     def _latest(self):
-        return self.host.latest_rate
+        return self.observer.latest(GyroRate)
 
     def row(self):
         s = self._latest()
         return (*s.omega_rad_s, float(s.valid)) if s is not None else NAN4
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self.observer.count(GyroRate)
 
     def summary(self):
-        return self.driver_counters()
+        return {"observed_samples": self.observer.count(GyroRate), **self.driver_counters()}
 
 
 class EmulatedGyro(_GyroDevice):
@@ -205,6 +216,7 @@ class EmulatedGyro(_GyroDevice):
         self.open_emulated(spec.port,
                            lambda end: GyroEmulator(end, source, _config(spec), name=f"{spec.name} emulator"),
                            lambda end: GyroHost(end, name=spec.name))
+        self._watch(self.host)
 
     def publish(self, t_s: float) -> None:
         if self._push is not None:
@@ -222,6 +234,7 @@ class HardwareGyro(_GyroDevice):
 
         super().__init__(spec, ctx)
         self.host = GyroHost(spec.port, baudrate=spec.baudrate, name=spec.name)
+        self._watch(self.host)
 
     def publish(self, t_s: float) -> None:
         self.host.poll()
@@ -236,18 +249,13 @@ class ServedGyro(_GyroDevice):
         super().__init__(spec, ctx)
         self._push, source = rate_source(spec, ctx)
         self.serve(GyroEmulator(spec.port, source, _config(spec), baudrate=spec.baudrate, name=f"{spec.name} emulator"))
+        self._watch(self.emulator)
 
     def publish(self, t_s: float) -> None:
         if self._push is not None:
             self._push(t_s)
         self.emulator.service(t_s)
         self.rejections.check(t_s)
-
-    def _latest(self):
-        return self.emulator.latest_rate
-
-    def activity(self):
-        return self.emulator.counters["samples"]
 
 
 KIND = GyroKind()

@@ -16,6 +16,10 @@ Links:
 * ``hardware``: the host on a real adapter; the truth gets the motor torque the wheel reports in RW_SPEED_TLM
   (the real rotor's speed is the wheel's, the truth's only mirrors it);
 * ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+
+What the wheel sends is observed beside the flight code (:class:`drivers.framing.FrameObserver` on the host's CAN
+node, through its listener hook): activity and the hardware link's torque and mode read the observer, never the
+flight code's driver.
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.framing import FrameObserver
+from drivers.reaction_wheel.codec import Status as WheelStatus
+from drivers.reaction_wheel.codec import WheelSpeed
 from sim.rotations import dcm
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
@@ -146,6 +153,9 @@ class _Wheel(Device):
         self._cmd = 0.0
         self._mode = MODE_CODES["TORQUE"]
         self.energy_friction_J = 0.0
+        #: The link as the stand sees it beside the flight code (the host's CAN node, through its listener hook);
+        #: telemetry reads only this.
+        self.observer = FrameObserver()
 
     def speed_rad_s(self) -> float:
         return self.truth.wheel_speeds_rad_s[self.wheel_index]
@@ -187,6 +197,7 @@ class _Wheel(Device):
         out = {"speed_end_rpm": round(self.speed_rad_s() / RPM, 3),
                "friction_energy_J": round(self.energy_friction_J, 9)}
         if self.host is not None:
+            out["observed_samples"] = self.observer.count(WheelSpeed)
             out["host_counters"] = dict(self.host.counters)
         if self.emulator is not None:
             out["emulator_counters"] = dict(self.emulator.counters)
@@ -221,20 +232,23 @@ class EmulatedWheel(_Wheel):
             self._buses.append(open_bus(spec.interface, spec.channel))
             self.emulator = _emulator(spec, self._buses[0], self._source)
             self.host = ReactionWheelHost(self._buses[1], spec.wheel, name=spec.name)
+            self.host.add_observer(self.observer)
         except BaseException:
             self.close()
             raise
 
     def publish(self, t_s):
         self.emulator.publish(t_s)
-        self.host.poll()  # count what reached the stand, read by the flight code or not (take_speed stays theirs)
+        # Move what reached the stand through the host's CAN node, read by the flight code or not (take_speed stays
+        # theirs); the observer beside it sees every frame.
+        self.host.poll()
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
         self._step_motor(self.emulator.command_at(t_s))
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self.observer.count(WheelSpeed)
 
 
 class ServedWheel(ServedCan, _Wheel):
@@ -279,21 +293,22 @@ class HardwareWheel(_Wheel):
         super().__init__(spec, ctx)
         self._buses.append(open_device_bus(spec.interface, spec.channel))
         self.host = ReactionWheelHost(self._buses[0], spec.wheel, name=spec.name)
+        self.host.add_observer(self.observer)
 
     def publish(self, t_s):
         self.host.poll()
 
     def receive(self, t_s):
         self.host.poll()
-        s = self.host.latest_speed
+        s = self.observer.latest(WheelSpeed)
         if s is not None:
             self._motor_tau = self._tau = s.torque_Nm
-        st = self.host.latest_status
+        st = self.observer.latest(WheelStatus)
         if st is not None:
             self._mode = MODE_CODES.get(st.mode, -1.0)
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self.observer.count(WheelSpeed)
 
 
 KIND = ReactionWheelKind()

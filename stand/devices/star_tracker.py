@@ -29,7 +29,9 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DeviceTimeoutError
+from drivers.framing import FrameObserver
 from drivers.serial_port import wait_readable
+from drivers.star_tracker.codec import Solution
 from sim.rotations import hamilton_floats
 from sim.truth import compose_floats
 from stand.checks import pair
@@ -311,16 +313,34 @@ class TrackerDevice(SerialDevice):
         self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
         self.emulator = None
         self._seen = 0
+        #: The link as the stand sees it beside the flight code (attached when the host is set); scoring and
+        #: telemetry read only this.
+        self.observer = FrameObserver()
+        self._host = None
 
     def _new_solution(self):
-        """The newest solution the host decoded since the last call, without taking it from the flight code
-        (``take_solution`` stays theirs)."""
+        """The newest solution on the link since the last call, as the stand observes it beside the flight code
+        (:class:`drivers.framing.FrameObserver` on the host's framing layer); ``take_solution`` stays theirs. The
+        poll only moves what arrived on the line through the host's framing layer, as the flight code's next call
+        would; nothing is read from the host."""
         self.host.poll()
-        n = self.host.counters["solutions"]
+        n = self.observer.count(Solution)
         if n == self._seen:
             return None
         self._seen = n
-        return self.host.latest_solution
+        return self.observer.latest(Solution)
+
+    @property
+    def host(self):
+        """The flight code's host driver (emulated and hardware links), or None."""
+        return self._host
+
+    @host.setter
+    def host(self, endpoint) -> None:
+        # The observer is attached where every link sets its host, so it sees the line from the first frame on.
+        self._host = endpoint
+        if endpoint is not None:
+            endpoint.add_observer(self.observer)
 
     def _score(self, sol, t_exp: float) -> None:
         self.last_solution = sol

@@ -21,7 +21,9 @@ On every link the flight code's ``take_sun()`` returns the codec's shape: a
 ``.time_us`` (device clock; sim time on the emulated and model links) and ``.seq``.
 
 Telemetry: ``NAME.currents`` (A, coarse) or ``NAME.angles`` (rad, fine) and ``NAME.valid``: the newest sample
-the host decoded (the emulator sent, on a served link; the model gave, on the model link); ``NAME.sun_fraction``:
+on the link, observed beside the flight code (:class:`drivers.framing.FrameObserver` on the host's framing layer;
+on a served link, what the emulator sent; on the model link, what the model gave), never read from the flight
+code's driver; ``NAME.sun_fraction``:
 the visible fraction of the Sun at that sample (NaN on a hardware link, where nothing is simulated).
 """
 
@@ -32,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.framing import FrameObserver
+from drivers.sun_sensor.codec import CoarseSunSample, FineSunSample
 from sim.environment import shadow_fraction
 from sim.rotations import dcm
 from sim.sensors import CoarseSunSensors, FineSunSensor
@@ -206,6 +210,13 @@ class _SunSensorDevice(SerialDevice):
         self.emulator = None
         self.host = None
         self.sun: SunTruth | None = None
+        #: The link as the stand sees it beside the flight code (``_watch``); telemetry reads only this.
+        self.observer = FrameObserver()
+
+    def _watch(self, endpoint) -> None:
+        """Observe the link at ``endpoint``'s framing layer: the host's received datagrams (emulated, hardware) or
+        what the emulator sent and received (served). The flight code's driver is never read for telemetry."""
+        endpoint.add_observer(self.observer)
 
     def columns(self) -> list[tuple[str, int, str]]:
         reading = (f"{self.name}.currents", self.spec.width, "A") if self.spec.type == "coarse" else \
@@ -213,7 +224,7 @@ class _SunSensorDevice(SerialDevice):
         return [reading, (f"{self.name}.valid", 1, "1"), (f"{self.name}.sun_fraction", 1, "1")]
 
     def _latest(self):
-        return self.host.latest_sample
+        return self.observer.latest(FineSunSample, CoarseSunSample)
 
     def row(self) -> tuple:
         s = self._latest()
@@ -229,10 +240,11 @@ class _SunSensorDevice(SerialDevice):
         return self.sun.measure
 
     def activity(self) -> int:
-        return self.host.counters["samples"]
+        return self.observer.count(FineSunSample, CoarseSunSample)
 
     def summary(self) -> dict:
         out = self.sun.counts() if self.sun is not None else {}
+        out["observed_samples"] = self.observer.count(FineSunSample, CoarseSunSample)
         out.update(self.driver_counters())
         return out
 
@@ -253,6 +265,7 @@ class EmulatedSunSensor(_SunSensorDevice):
         self.open_emulated(spec.port,
                            lambda end: SunSensorEmulator(end, source, _config(spec), name=f"{spec.name} emulator"),
                            lambda end: SunSensorHost(end, name=spec.name))
+        self._watch(self.host)
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
@@ -267,6 +280,7 @@ class HardwareSunSensor(_SunSensorDevice):
 
         super().__init__(spec, ctx)
         self.host = SunSensorHost(spec.port, baudrate=spec.baudrate, name=spec.name)
+        self._watch(self.host)
 
     def start(self, events) -> None:
         # The sensor streams at its own period; the scenario's rate is what the silence watch expects.
@@ -286,16 +300,11 @@ class ServedSunSensor(_SunSensorDevice):
         # Serviced every tick so that a REQUEST_SAMPLE from outside is answered within one step.
         self.serve(SunSensorEmulator(spec.port, self._source(ctx), _config(spec), baudrate=spec.baudrate,
                                      name=f"{spec.name} emulator"))
+        self._watch(self.emulator)
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
         self.rejections.check(t_s)
-
-    def _latest(self):
-        return self.emulator.latest_sample
-
-    def activity(self) -> int:
-        return self.emulator.counters["samples"]
 
 
 class ModelSunSensor(_SunSensorDevice):
@@ -310,15 +319,15 @@ class ModelSunSensor(_SunSensorDevice):
         self._seq = 0
 
     def publish(self, t_s: float) -> None:
-        from drivers.sun_sensor.codec import CoarseSunSample, FineSunSample
-
         values, valid, nu = self._measure(t_s)
         time_us, seq = round(t_s * 1e6), self._seq
         self._seq = (seq + 1) & 0xFFFF
         if self.spec.type == "coarse":
-            self.host._put(CoarseSunSample(time_us, values, valid, False, False, seq))
+            sample = CoarseSunSample(time_us, values, valid, False, False, seq)
         else:
-            self.host._put(FineSunSample(time_us, values, nu, valid, False, seq))
+            sample = FineSunSample(time_us, values, nu, valid, False, seq)
+        self.host._put(sample)
+        self.observer(sample)  # no link to tap: the stand sees the model's reading as it hands it over
 
     def summary(self) -> dict:
         return {"samples": self.sun.samples, **self.sun.counts()}
