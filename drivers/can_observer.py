@@ -15,7 +15,11 @@ import can
 
 from drivers.can_node import CanNode
 
-__all__ = ["CanObserver", "open_observer"]
+__all__ = ["SHARED_INTERFACES", "CanObserver", "open_observer"]
+
+#: python-can interfaces on which every handle of a channel sees every frame on the bus (a serial-line adapter is
+#: one byte stream that one reader holds: a second handle there would take frames away from the first).
+SHARED_INTERFACES = ("socketcan", "udp_multicast", "virtual", "stand_loopback")
 
 
 class CanObserver(CanNode):

@@ -131,7 +131,10 @@ class _Unit(Device):
         return _row(obs.latest.get(self._sample_type))
 
     def activity(self):
-        return self.observer.seen.get(self._sample_type, 0) if self.observer is not None else 0
+        if self.observer is None:
+            return 0
+        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
+        return self.observer.seen.get(self._sample_type, 0)
 
     def close(self) -> None:
         for part in (self.host, getattr(self, "emulator", None), self.observer):
@@ -201,7 +204,9 @@ class HardwareMagnetometer(_Unit):
         super().__init__(spec)
         self._buses.append(open_device_bus(spec.interface, spec.channel))
         self.host = MagnetometerHost(self._buses[0], codec=_codec(), name=spec.name)
-        if spec.interface in SHARED_HANDLES:
+        from drivers.can_observer import SHARED_INTERFACES
+
+        if spec.interface in SHARED_INTERFACES:
             try:
                 self._observe()
             except BaseException:
@@ -222,10 +227,6 @@ class HardwareMagnetometer(_Unit):
 
     def summary(self):
         return dict(self.host.counters)
-
-
-#: Adapters on which every handle of a channel sees every frame on the bus.
-SHARED_HANDLES = ("socketcan", "udp_multicast", "virtual", "stand_loopback")
 
 
 class ServedMagnetometer(ServedCan, _Unit):

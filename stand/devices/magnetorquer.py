@@ -114,6 +114,7 @@ class MagnetorquerKind(DeviceKind):
 
 class _Board(Device):
     gives_dipole = True
+    observer = None  # the stand's listen-only node on the board's bus, for telemetry
 
     def __init__(self, spec: MagnetorquerSpec):
         self.name, self.spec = spec.name, spec
@@ -128,7 +129,30 @@ class _Board(Device):
     def dipole_B(self):
         return self._m
 
+    def _observe(self) -> None:
+        """Telemetry records what the board sent as a listen-only node of the stand sees it on the bus, beside the
+        flight code and never through its driver (opened before anything is sent)."""
+        from drivers.can_observer import open_observer
+        from drivers.magnetorquer.codec import MagSample
+
+        codec = _codec()
+        self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_mag_sample}),
+                                      f"{self.name} observer")
+        self._sample_type = MagSample
+
+    def _observed_row(self):
+        obs = self.observer
+        obs.poll()
+        s = obs.latest.get(self._sample_type)
+        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+
+    def _observed_samples(self) -> int:
+        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
+        return self.observer.seen.get(self._sample_type, 0)
+
     def close(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
         for b in self._buses:
             b.shutdown()
         self._buses = []
@@ -169,6 +193,7 @@ class EmulatedBoard(_Board):
 
         super().__init__(spec)
         try:
+            self._observe()
             self._buses.append(open_bus(spec.interface, spec.channel))
             self._buses.append(open_bus(spec.interface, spec.channel))
             self.emulator = _emulator(spec, ctx, self._buses[0])
@@ -187,12 +212,10 @@ class EmulatedBoard(_Board):
         self._m = self._held(t_s)
 
     def row(self):
-        self.host.poll()  # log every sample that crossed the bus, not only those the ADCS took
-        s = self.host.latest_sample
-        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+        return self._observed_row()  # every sample that crossed the bus, whether or not the flight code took it
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self._observed_samples()
 
     def summary(self):
         return {**self.host.counters, "emulator": dict(self.emulator.counters)}
@@ -209,11 +232,19 @@ class HardwareBoard(_Board):
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
         from drivers.magnetorquer.host import MagnetorquerBoard
 
+        from drivers.can_observer import SHARED_INTERFACES
+
         super().__init__(spec)
         self._buses.append(_open(spec))
         self.host = MagnetorquerBoard(self._buses[0], name=spec.name)
         self._na = tuple(float(x) for x in spec.coil_area_turns_m2)
         self._status_seen = 0
+        if spec.interface in SHARED_INTERFACES:  # a serial-line adapter is one stream the host driver holds alone
+            try:
+                self._observe()
+            except BaseException:
+                self.close()
+                raise
 
     def start(self, events):
         # The board's DBC has no time message: its clock cannot be set. Its heartbeat uptime is logged against
@@ -240,11 +271,13 @@ class HardwareBoard(_Board):
             self._m = (ix * nx, iy * ny, iz * nz)
 
     def row(self):
+        if self.observer is not None:
+            return self._observed_row()
         s = self.host.latest_sample
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self._observed_samples() if self.observer is not None else self.host.counters["samples"]
 
     def summary(self):
         return dict(self.host.counters)
