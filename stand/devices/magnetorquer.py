@@ -230,9 +230,8 @@ class HardwareBoard(_Board):
     """The host driver on a real board; the truth gets the dipole the board reports (coil currents x N A)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.magnetorquer.host import MagnetorquerBoard
-
         from drivers.can_observer import SHARED_INTERFACES
+        from drivers.magnetorquer.host import MagnetorquerBoard
 
         super().__init__(spec)
         self._buses.append(_open(spec))

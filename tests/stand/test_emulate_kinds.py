@@ -1,8 +1,7 @@
-"""``stand emulate gyro|sun-sensor|reaction-wheel|magnetometer``: each kind served in its own OS process for a flight program
-(the kind's host driver) in this one, over a socat pty pair (the wheel and the magnetometer over serial-line CAN on
-it); SIGTERM stops
-it with exit 0 and its counters; a port it holds is refused to a second emulator (exit 2). A kind of an installed
-package is served the same way, through its own declaration."""
+"""``stand emulate gyro|sun-sensor|reaction-wheel|magnetometer``: each kind served in its own OS process for a
+flight program (the kind's host driver) in this one, over a socat pty pair (the wheel and the magnetometer over
+serial-line CAN on it); SIGTERM stops it with exit 0 and its counters; a port it holds is refused to a second
+emulator (exit 2). A kind of an installed package is served the same way, through its own declaration."""
 
 from __future__ import annotations
 
