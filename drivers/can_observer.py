@@ -42,9 +42,15 @@ class CanObserver(CanNode):
 
 
 def open_observer(interface: str, channel: str, codec: Any, ids: frozenset[int], name: str) -> CanObserver:
-    """A :class:`CanObserver` on a handle of its own on ``interface``/``channel`` that lets only ``ids`` through
-    (ConnectError naming the interface and channel when it cannot be opened)."""
-    from drivers.can_bus import open_bus
+    """A :class:`CanObserver` on a handle of its own on ``interface``/``channel`` (ConnectError naming the interface
+    and channel when it cannot be opened).
 
-    filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in sorted(ids)]
-    return CanObserver(open_bus(interface, channel, can_filters=filters), codec, ids, name)
+    On the stand's in-process bus the handle lets only ``ids`` through (its filters act when a frame is delivered,
+    so other frames cost no copy); elsewhere the observer sorts every frame itself, as python-can's generic filtering
+    in ``recv(0)`` gives up at the first frame that does not pass and would leave the newer ones queued."""
+    from drivers.can_bus import OWN_INTERFACES, open_bus
+
+    if interface in OWN_INTERFACES:
+        filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in sorted(ids)]
+        return CanObserver(open_bus(interface, channel, can_filters=filters), codec, ids, name)
+    return CanObserver(open_bus(interface, channel), codec, ids, name)
