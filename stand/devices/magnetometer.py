@@ -118,23 +118,22 @@ class _Unit(Device):
     def _observe(self) -> None:
         """The stand's listen-only node on the unit's bus, for telemetry (opened before anything is sent)."""
         from drivers.can_observer import open_observer
-        from drivers.magnetometer.codec import MagSample
 
         codec = _codec()
         self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_sample}),
                                       f"{self.name} observer")
-        self._sample_type = MagSample
+        self._sample_id = codec.id_sample
 
     def row(self):
         obs = self.observer
         obs.poll()
-        return _row(obs.latest.get(self._sample_type))
+        return _row(obs.newest(self._sample_id))
 
     def activity(self):
         if self.observer is None:
             return 0
         self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
-        return self.observer.seen.get(self._sample_type, 0)
+        return self.observer.seen[self._sample_id]
 
     def close(self) -> None:
         for part in (self.host, getattr(self, "emulator", None), self.observer):

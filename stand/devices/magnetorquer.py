@@ -133,22 +133,21 @@ class _Board(Device):
         """Telemetry records what the board sent as a listen-only node of the stand sees it on the bus, beside the
         flight code and never through its driver (opened before anything is sent)."""
         from drivers.can_observer import open_observer
-        from drivers.magnetorquer.codec import MagSample
 
         codec = _codec()
         self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_mag_sample}),
                                       f"{self.name} observer")
-        self._sample_type = MagSample
+        self._sample_id = codec.id_mag_sample
 
     def _observed_row(self):
         obs = self.observer
         obs.poll()
-        s = obs.latest.get(self._sample_type)
+        s = obs.newest(self._sample_id)
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
     def _observed_samples(self) -> int:
         self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
-        return self.observer.seen.get(self._sample_type, 0)
+        return self.observer.seen[self._sample_id]
 
     def close(self) -> None:
         if self.observer is not None:
