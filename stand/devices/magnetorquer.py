@@ -7,6 +7,11 @@ The coils act in body axes; the magnetometer reads in its sensor frame ``q_SB``.
 * ``hardware``: the host driver on a real adapter. The dipole applied to the truth is the one the board
   reports it produced: its coil currents (``MTQ_STATUS``) times ``coil_area_turns_m2``.
 * ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+
+The magnetometer measures through the one sensor model of the stand (:mod:`drivers.magnetometer.sensor`; a
+standalone unit is the ``magnetometer`` kind). Telemetry records the samples the board sent as a listen-only node of
+the stand sees them on the bus (:class:`drivers.can_observer.CanObserver`), never through the flight code's driver;
+on a hardware serial-line adapter, which the host driver holds alone, from the stand's host driver.
 """
 
 from __future__ import annotations
