@@ -35,7 +35,6 @@ class CanObserver(BusEndpoint):
         self._closed = False
         self._ids = frozenset(ids)
         self._decode = codec.decode
-        self._lengths = codec.lengths
         self._raw: dict[int, can.Message] = {}
         self._decoded: dict[int, tuple[can.Message, Any]] = {}
         self.seen: dict[int, int] = dict.fromkeys(self._ids, 0)
@@ -66,9 +65,7 @@ class CanObserver(BusEndpoint):
         if done is not None and done[0] is msg:
             return done[1]
         try:
-            if len(msg.data) != self._lengths[frame_id]:
-                raise ProtocolError("wrong length")
-            value = self._decode(frame_id, msg.data)
+            value = self._decode(frame_id, msg.data)  # ProtocolError for a wrong length too
         except ProtocolError:
             self.rejected += 1
             self._raw[frame_id] = done[0] if done is not None else None  # keep the newest good one

@@ -106,3 +106,25 @@ def test_the_magnetorquer_board_measures_through_the_same_model_with_the_same_ra
     assert type(board.magnetometer) is type(unit.sensor) is MagnetometerModel
     for k in range(40):  # across two noise blocks
         assert board.measure(0.1 * k).b_T == unit.measure(0.1 * k).b_T
+
+
+def test_the_observer_sees_every_frame_beside_the_host_and_keeps_the_newest_good_sample():
+    from drivers.can_observer import open_observer
+
+    codec = MagnetometerCodec()
+    emu_bus, host_bus = open_bus("stand_loopback", "mag-observer"), open_bus("stand_loopback", "mag-observer")
+    observer = open_observer("stand_loopback", "mag-observer", codec, frozenset({codec.id_sample}), "observer")
+    try:
+        emu = MagnetometerEmulator(emu_bus, lambda _t: FIELD_T, MagnetometerConfig(noise_T=0.0))
+        host = MagnetometerHost(host_bus)
+        for k in range(3):
+            emu.service(0.1 * k)
+        observer.poll()
+        assert observer.newest(codec.id_sample).seq == 2 and observer.seen[codec.id_sample] == 3
+        assert host.counters["received"] == 0  # the host driver was never read
+        host_bus.send(data_frame(codec.id_sample, bytes(3)))  # a cut frame on the sample's id
+        observer.poll()
+        assert observer.newest(codec.id_sample).seq == 2 and observer.rejected == 1
+    finally:
+        for end in (observer, emu_bus, host_bus):
+            end.close() if end is observer else end.shutdown()
