@@ -126,5 +126,6 @@ def test_the_observer_sees_every_frame_beside_the_host_and_keeps_the_newest_good
         observer.poll()
         assert observer.newest(codec.id_sample).seq == 2 and observer.rejected == 1
     finally:
-        for end in (observer, emu_bus, host_bus):
-            end.close() if end is observer else end.shutdown()
+        observer.close()
+        emu_bus.shutdown()
+        host_bus.shutdown()
