@@ -28,6 +28,7 @@ from drivers import can_messages
 from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
 from drivers.dbc import DbcCodec
 from drivers.errors import EncodeError, ProtocolError, frame_hex
+from drivers.magnetometer.codec import MagSample  # the one sample type of every magnetometer
 
 __all__ = [
     "HEARTBEAT_STATES",
@@ -64,16 +65,6 @@ class ModeCommand(can_messages.ModeCommand):
 
     __slots__ = ()
     MODES = MODES
-
-
-@dataclass(frozen=True, slots=True)
-class MagSample:
-    """One magnetometer sample: flux density in sensor axes (T), flags and an 8-bit counter."""
-
-    b_T: tuple[float, float, float]
-    coil_active: bool
-    valid: bool
-    seq: int
 
 
 @dataclass(frozen=True, slots=True)

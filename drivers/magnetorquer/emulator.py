@@ -14,7 +14,8 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
   (one ``saturations`` count per clipped command), quantised to ``dipole_lsb_A_m2`` (the PWM
   step), driven from ``t`` until ``t + duration``; then the watchdog switches the coils off and
   counts a ``watchdog_expiries``. A new command replaces the previous one; duration 0 = off now.
-- MAG_SAMPLE every ``sample_period_s``: ``truth + bias + noise`` (+ ``coupling @ dipole`` and the
+- MAG_SAMPLE every ``sample_period_s``, measured by :class:`drivers.magnetometer.sensor.MagnetometerModel`
+  (the one magnetometer model of the stand): ``truth + bias + noise`` (+ ``coupling @ dipole`` and the
   ``coil_active`` flag while the coils are driven), quantised to ``mag_lsb_T``, saturated at the
   DBC's range (then ``valid`` = 0). Noise is drawn from the emulator's own Generator in blocks.
 - MTQ_STATUS and MTQ_COUNTERS every ``status_period_s``, MTQ_HEARTBEAT every ``heartbeat_period_s``.
@@ -34,7 +35,6 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +42,7 @@ import can
 import numpy as np
 
 from drivers.can_node import CanDevice
+from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 from drivers.magnetorquer.codec import (
     MODES,
     Counters,
@@ -54,9 +55,6 @@ from drivers.magnetorquer.codec import (
 )
 
 __all__ = ["EmulatorConfig", "MagnetorquerEmulator"]
-
-FieldSource = Callable[[float], Sequence[float]]
-
 
 @dataclass(frozen=True)
 class EmulatorConfig:
@@ -169,31 +167,23 @@ class MagnetorquerEmulator(CanDevice):
         owns_bus: bool = False,
     ) -> None:
         self.name = "mtq emulator"
-        self.field_source = field_source
         self.config = config = config if config is not None else EmulatorConfig()
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         self.codec = codec = codec if codec is not None else MagnetorquerCodec()
 
-        ratio = config.mag_lsb_T / codec.mag_lsb_T
-        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
-            raise ValueError(
-                f"EmulatorConfig.mag_lsb_T = {config.mag_lsb_T!r} T must be a whole multiple of the DBC's "
-                f"MAG_SAMPLE LSB {codec.mag_lsb_T!r} T."
-            )
         if config.max_dipole_A_m2 > codec.dipole_range_A_m2[1]:
             raise ValueError(
                 f"EmulatorConfig.max_dipole_A_m2 = {config.max_dipole_A_m2!r} exceeds what MTQ_DIPOLE_CMD "
                 f"can carry ({codec.dipole_range_A_m2[1]!r} A m^2)."
             )
 
-        self._bias_xyz = tuple(float(x) for x in config.mag_bias_T)
+        # The board's magnetometer: the one sensor model every magnetometer of the stand measures through.
+        self.magnetometer = MagnetometerModel(
+            field_source, noise_T=config.mag_noise_T, bias_T=config.mag_bias_T, lsb_T=config.mag_lsb_T,
+            wire_lsb_T=codec.mag_lsb_T, range_T=codec.mag_range_T, rng=self.rng, noise_block=config.noise_block,
+            what="EmulatorConfig.mag_lsb_T")
         self._coupling = np.asarray(config.coil_coupling_T_per_A_m2, dtype=float)
         self._na_xyz = tuple(float(x) for x in config.coil_area_turns_m2)
-        self._mag_lsb = config.mag_lsb_T
-        # Sensor range in LSB counts (the DBC range, on the emulator's quantisation grid).
-        lo, hi = codec.mag_range_T
-        self._n_lo = math.ceil(lo / self._mag_lsb - 1e-9)
-        self._n_hi = math.floor(hi / self._mag_lsb + 1e-9)
         self._dipole_levels = math.floor(config.max_dipole_A_m2 / config.dipole_lsb_A_m2 + 1e-9)
         i_lo, i_hi = codec.dbc.signal_range("MTQ_STATUS", "current_x")
         self._i_max = min(-i_lo, i_hi) * 1e-3
@@ -225,8 +215,6 @@ class MagnetorquerEmulator(CanDevice):
         self._heartbeat_counter = 0
 
         self.last_sample: MagSample | None = None
-        self._noise: list[list[float]] = []  # the current block of pre-drawn noise, T
-        self._noise_i = 0
 
     _heartbeat_type = Heartbeat
 
@@ -234,6 +222,15 @@ class MagnetorquerEmulator(CanDevice):
 
     def __repr__(self) -> str:
         return f"MagnetorquerEmulator(mode={self.mode!r}, counters={self.counters})"
+
+    @property
+    def field_source(self) -> FieldSource:
+        """The true field at the magnetometer (sensor axes, T) as a function of time; settable."""
+        return self.magnetometer.field_source
+
+    @field_source.setter
+    def field_source(self, source: FieldSource) -> None:
+        self.magnetometer.field_source = source
 
     # -- actuator state (pure queries) ------------------------------------------------------------
 
@@ -371,37 +368,13 @@ class MagnetorquerEmulator(CanDevice):
 
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
-        truth = self.field_source(t_s)
-        i = self._noise_i
-        if i >= len(self._noise):  # draw the next block: one Generator call per noise_block samples
-            block = self.rng.standard_normal((self.config.noise_block, 3)) * self.config.mag_noise_T
-            self._noise = block.tolist()
-            i = 0
-        self._noise_i = i + 1
-        nx, ny, nz = self._noise[i]
-        bias_x, bias_y, bias_z = self._bias_xyz
         active = self.coil_active(t_s)
-        lsb = self._mag_lsb
-        n_lo, n_hi = self._n_lo, self._n_hi
-        try:
-            tx, ty, tz = truth
-            bx, by, bz = float(tx) + bias_x + nx, float(ty) + bias_y + ny, float(tz) + bias_z + nz
-            if active:
-                cx, cy, cz = self._coil_field_now()
-                bx, by, bz = bx + cx, by + cy, bz + cz
-            # Counts of the quantiser, written out per axis (this runs once per sample).
-            kx, ky, kz = round(bx / lsb), round(by / lsb), round(bz / lsb)
-        except (ValueError, TypeError, OverflowError):  # wrong length, not numbers, NaN, infinity
-            raise ValueError(
-                f"field_source({t_s!r}) must return 3 finite floats (T, sensor axes); got {truth!r}."
-            ) from None
-        valid = n_lo <= kx <= n_hi and n_lo <= ky <= n_hi and n_lo <= kz <= n_hi
-        if not valid:  # the sensor saturates at the DBC's range
-            kx, ky, kz = (min(max(k, n_lo), n_hi) for k in (kx, ky, kz))
+        b_T, valid = self.magnetometer.measure(t_s, self._coil_field_now() if active else None)
+        if not valid:
             self.counters["mag_saturations"] += 1
         seq = self._sample_seq
         self._sample_seq = (seq + 1) & 0xFF
-        return MagSample((kx * lsb, ky * lsb, kz * lsb), active, valid, seq)
+        return MagSample(b_T, active, valid, seq)
 
     def status(self, t_s: float) -> Status:
         """The MTQ_STATUS the board reports at ``t_s``."""

@@ -48,6 +48,7 @@ KINDS = {
     "cage": "stand.devices.cage:KIND",
     "gyro": "stand.devices.gyro:KIND",
     "reaction_wheel": "stand.devices.reaction_wheel:KIND",
+    "magnetometer": "stand.devices.magnetometer:KIND",
 }
 
 #: Truth models a device may need, in the order ``stand check`` lists them.

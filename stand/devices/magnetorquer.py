@@ -7,6 +7,11 @@ The coils act in body axes; the magnetometer reads in its sensor frame ``q_SB``.
 * ``hardware``: the host driver on a real adapter. The dipole applied to the truth is the one the board
   reports it produced: its coil currents (``MTQ_STATUS``) times ``coil_area_turns_m2``.
 * ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+
+The magnetometer measures through the one sensor model of the stand (:mod:`drivers.magnetometer.sensor`; a
+standalone unit is the ``magnetometer`` kind). Telemetry records the samples the board sent as a listen-only node of
+the stand sees them on the bus (:class:`drivers.can_observer.CanObserver`), never through the flight code's driver;
+on a hardware serial-line adapter, which the host driver holds alone, from the stand's host driver.
 """
 
 from __future__ import annotations
@@ -113,6 +118,7 @@ class MagnetorquerKind(DeviceKind):
 
 class _Board(Device):
     gives_dipole = True
+    observer = None  # the stand's listen-only node on the board's bus, for telemetry
 
     def __init__(self, spec: MagnetorquerSpec):
         self.name, self.spec = spec.name, spec
@@ -127,7 +133,29 @@ class _Board(Device):
     def dipole_B(self):
         return self._m
 
+    def _observe(self) -> None:
+        """Telemetry records what the board sent as a listen-only node of the stand sees it on the bus, beside the
+        flight code and never through its driver (opened before anything is sent)."""
+        from drivers.can_observer import open_observer
+
+        codec = _codec()
+        self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_mag_sample}),
+                                      f"{self.name} observer")
+        self._sample_id = codec.id_mag_sample
+
+    def _observed_row(self):
+        obs = self.observer
+        obs.poll()
+        s = obs.newest(self._sample_id)
+        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+
+    def _observed_samples(self) -> int:
+        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
+        return self.observer.seen[self._sample_id]
+
     def close(self) -> None:
+        if self.observer is not None:
+            self.observer.close()
         for b in self._buses:
             b.shutdown()
         self._buses = []
@@ -168,6 +196,7 @@ class EmulatedBoard(_Board):
 
         super().__init__(spec)
         try:
+            self._observe()
             self._buses.append(open_bus(spec.interface, spec.channel))
             self._buses.append(open_bus(spec.interface, spec.channel))
             self.emulator = _emulator(spec, ctx, self._buses[0])
@@ -186,12 +215,10 @@ class EmulatedBoard(_Board):
         self._m = self._held(t_s)
 
     def row(self):
-        self.host.poll()  # log every sample that crossed the bus, not only those the ADCS took
-        s = self.host.latest_sample
-        return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
+        return self._observed_row()  # every sample that crossed the bus, whether or not the flight code took it
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self._observed_samples()
 
     def summary(self):
         return {**self.host.counters, "emulator": dict(self.emulator.counters)}
@@ -206,6 +233,7 @@ class HardwareBoard(_Board):
     """The host driver on a real board; the truth gets the dipole the board reports (coil currents x N A)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
+        from drivers.can_observer import SHARED_INTERFACES
         from drivers.magnetorquer.host import MagnetorquerBoard
 
         super().__init__(spec)
@@ -213,6 +241,12 @@ class HardwareBoard(_Board):
         self.host = MagnetorquerBoard(self._buses[0], name=spec.name)
         self._na = tuple(float(x) for x in spec.coil_area_turns_m2)
         self._status_seen = 0
+        if spec.interface in SHARED_INTERFACES:  # a serial-line adapter is one stream the host driver holds alone
+            try:
+                self._observe()
+            except BaseException:
+                self.close()
+                raise
 
     def start(self, events):
         # The board's DBC has no time message: its clock cannot be set. Its heartbeat uptime is logged against
@@ -239,11 +273,13 @@ class HardwareBoard(_Board):
             self._m = (ix * nx, iy * ny, iz * nz)
 
     def row(self):
+        if self.observer is not None:
+            return self._observed_row()
         s = self.host.latest_sample
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
     def activity(self):
-        return self.host.counters["samples"]
+        return self._observed_samples() if self.observer is not None else self.host.counters["samples"]
 
     def summary(self):
         return dict(self.host.counters)

@@ -1,7 +1,7 @@
-"""``stand emulate gyro|sun-sensor|reaction-wheel``: each kind served in its own OS process for a flight program
-(the kind's host driver) in this one, over a socat pty pair (the wheel over serial-line CAN on it); SIGTERM stops
-it with exit 0 and its counters; a port it holds is refused to a second emulator (exit 2). A kind of an installed
-package is served the same way, through its own declaration."""
+"""``stand emulate gyro|sun-sensor|reaction-wheel|magnetometer``: each kind served in its own OS process for a
+flight program (the kind's host driver) in this one, over a socat pty pair (the wheel and the magnetometer over
+serial-line CAN on it); SIGTERM stops it with exit 0 and its counters; a port it holds is refused to a second
+emulator (exit 2). A kind of an installed package is served the same way, through its own declaration."""
 
 from __future__ import annotations
 
@@ -128,6 +128,38 @@ def test_reaction_wheel_serves_a_flight_program_over_serial_line_can_in_another_
     assert report["rejected_frames"] == 0
 
 
+def test_magnetometer_serves_a_flight_program_over_serial_line_can_in_another_process(pty_pair):
+    from drivers.magnetometer.host import MagnetometerHost
+
+    stand_end, fc_end = pty_pair
+    proc, banner = _emulate("magnetometer", "--port", f"serial:{stand_end}", "--field-nT", "21000,-3500,-41250",
+                            "--duration", "30")
+    try:
+        assert banner.startswith(f"stand emulate: magnetometer on CAN serial:{stand_end} for 30 s"), banner
+        host = MagnetometerHost.open("serial", fc_end, name="fc mag")
+        try:
+            sample = host.read_sample(timeout_s=5.0)
+            # noise-free by default; the field to half its 1 nT step
+            assert sample.b_T == pytest.approx((21000e-9, -3500e-9, -41250e-9), abs=0.5e-9)
+            assert sample.valid and not sample.coil_active
+            seq = host.set_mode("OFF")
+
+            def applied():
+                host.poll()
+                st = host.latest_status
+                return st is not None and st.mode_seq_ack == seq and st.mode == "OFF"
+
+            _until(applied, "status acknowledging the mode command")
+        finally:
+            host.close()
+        _refused_while_held("magnetometer", f"serial:{stand_end}")
+    finally:
+        code, report, err = _terminate(proc)
+    assert code == 0, err
+    assert report["device"] == "magnetometer" and report["counters"]["commands_accepted"] == 1
+    assert report["rejected_frames"] == 0 and report["counters"]["sent"] >= 1
+
+
 @pytest.mark.parametrize("argv, message", [
     (["gyro", "--port", "loop://", "--rate-deg-s", "1,2"], "--rate-deg-s '1,2' is not allowed"),
     (["sun-sensor", "--port", "loop://", "--type", "coarse", "--currents-mA", "1"], "--currents-mA '1' is not allowed"),
@@ -135,7 +167,10 @@ def test_reaction_wheel_serves_a_flight_program_over_serial_line_can_in_another_
     (["reaction-wheel", "--port", "can0"], "--port 'can0' is not allowed for the reaction wheel"),
     (["gyro", "--port", "/nonexistent/tty"], "cannot open serial port '/nonexistent/tty'"),
     (["gyro", "--port", "loop://", "--field-nT", "1,2,3"], "--field-nT is not an option of the gyro; it is for the "
-                                                         "magnetorquer only"),
+                                                         "magnetorquer and the magnetometer only"),
+    (["magnetometer", "--port", "virtual:x", "--field-nT", "1,2"], "--field-nT '1,2' is not allowed"),
+    (["magnetometer", "--port", "virtual:x", "--noise-nT", "-3"], "--noise-nT -3 is not allowed"),
+    (["magnetometer", "--port", "can0"], "--port 'can0' is not allowed for the magnetometer"),
 ])
 def test_usage_errors_of_the_new_kinds_are_one_sentence_and_exit_2(argv, message, capsys):
     assert main(["emulate", *argv]) == 2

@@ -199,7 +199,7 @@ def _fail_start(scene, monkeypatch):
 def _fail_row(scene, monkeypatch):
     def poll():
         raise KeyError("latest")
-    scene.devices["mtq"].host.poll = poll
+    scene.devices["mtq"].observer.poll = poll  # the row reads the bus through the stand's own observer
 
 
 def _fail_truth(scene, monkeypatch):

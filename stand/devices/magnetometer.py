@@ -1,0 +1,297 @@
+"""A standalone magnetometer on CAN (``drivers.magnetometer``, the DBC ``fixtures/devices/magnetometer.dbc``).
+
+A unit of its own (a fluxgate or AMR magnetometer on a boom or its own board, node 0x18), away from the
+magnetorquer's coils; the board's own magnetometer is part of the magnetorquer kind and measures through the same
+sensor model (:class:`drivers.magnetometer.sensor.MagnetometerModel`). CAN, because it shares the bus the
+magnetorquer board and the wheels already use: one harness, one adapter on the flight computer. It reads in its
+sensor frame ``q_SB``. Links:
+
+* ``emulated``: the emulator and the host driver on an in-process python-can bus, fed by the truth;
+* ``hardware``: the host driver on a real adapter;
+* ``served``: the emulator on a real adapter, fed by the truth, for a flight computer outside.
+
+Telemetry (``NAME.mag_S``, ``NAME.mag_valid``) records what the unit sent, seen by a listen-only node of the stand
+on the same bus (:class:`drivers.can_observer.CanObserver`), never through the flight code's driver.
+
+Table keys: ``interface``, ``channel``, ``sample_rate_hz`` (10), ``status_rate_hz`` (1), ``noise_nT`` (1-sigma per
+axis, 0), ``bias_nT`` (3, sensor axes, [0, 0, 0]), ``lsb_nT`` (quantisation, a whole multiple of the ICD's 1 nT, 1),
+``field_source`` ("truth", or the name of a device that makes the field, a Helmholtz cage).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+from sim.truth import rotate_to_body
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices.served_can import ServedCan
+
+NAN3 = (math.nan, math.nan, math.nan)
+#: A unit that has sent nothing for this many sample periods is reported silent.
+SILENT_PERIODS = 5
+
+
+@functools.cache
+def _codec():
+    """The unit's codec, for the limits its DBC sets (built once)."""
+    from drivers.magnetometer.codec import MagnetometerCodec
+
+    return MagnetometerCodec()
+
+
+@dataclass(frozen=True)
+class MagnetometerSpec(DeviceSpec):
+    interface: str = "stand_loopback"
+    channel: str = ""
+    sample_rate_hz: float = 10.0
+    status_rate_hz: float = 1.0
+    noise_T: float = 0.0
+    bias_T: tuple = (0.0, 0.0, 0.0)
+    lsb_T: float = 1e-9
+    field_source: str = "truth"
+
+
+class MagnetometerKind(DeviceKind):
+    name = "magnetometer"
+
+    def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetometerSpec:
+        from stand.scenario import rate
+
+        codec = _codec()
+        wire_nT = codec.mag_lsb_T * 1e9
+        interface, channel = can_endpoint(t, base)
+        lsb_nT = t.number("lsb_nT", wire_nT, lo=wire_nT, hi=1e4)
+        if abs(lsb_nT / wire_nT - round(lsb_nT / wire_nT)) > 1e-6:
+            raise t.error("lsb_nT", lsb_nT, f"a whole multiple of the ICD's MAG_FIELD step ({wire_nT:g} nT)")
+        spec = MagnetometerSpec(
+            **base.__dict__, interface=interface, channel=channel,
+            sample_rate_hz=rate(t, "sample_rate_hz", step_s, 10.0),
+            status_rate_hz=rate(t, "status_rate_hz", step_s, 1.0),
+            noise_T=t.number("noise_nT", 0.0, lo=0.0, hi=1e5) * 1e-9,
+            bias_T=tuple(t.vector("bias_nT", 3, [0.0, 0.0, 0.0], lo=-1e5, hi=1e5) * 1e-9),
+            lsb_T=lsb_nT * 1e-9,
+            field_source=t.text("field_source", "truth"),
+        )
+        t.check_unknown()
+        return spec
+
+    def refs(self, spec) -> dict[str, tuple[str, str]]:
+        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
+
+    def needs(self, spec) -> dict[str, str]:
+        if spec.link == "hardware" or spec.field_source != "truth":
+            return {}  # a real unit, or one in a cage, reads the field where it is
+        return {"magnetic_field": f"magnetometer {spec.name}"}
+
+    def describe(self, spec) -> str:
+        where = f"CAN {spec.interface}:{spec.channel}"
+        return {"emulated": f"magnetometer emulated on {where} at {spec.sample_rate_hz:g} Hz",
+                "hardware": f"magnetometer on {where}",
+                "served": f"magnetometer served on {where} for a flight computer outside, at "
+                          f"{spec.sample_rate_hz:g} Hz"}[spec.link]
+
+    def cost(self, spec: MagnetometerSpec) -> DeviceCost:
+        return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=4)
+
+    def build(self, spec: MagnetometerSpec, ctx: BuildContext) -> Device:
+        return {"emulated": EmulatedMagnetometer, "hardware": HardwareMagnetometer,
+                "served": ServedMagnetometer}[spec.link](spec, ctx)
+
+
+def _row(sample) -> tuple:
+    return (*sample.b_T, float(sample.valid)) if sample is not None else (*NAN3, math.nan)
+
+
+class _Unit(Device):
+    observer = None
+
+    def __init__(self, spec: MagnetometerSpec):
+        self.name, self.spec = spec.name, spec
+        self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
+        self._buses: list = []
+
+    def columns(self):
+        return [(f"{self.name}.mag_S", 3, "T"), (f"{self.name}.mag_valid", 1, "1")]
+
+    def _observe(self) -> None:
+        """The stand's listen-only node on the unit's bus, for telemetry (opened before anything is sent)."""
+        from drivers.can_observer import open_observer
+
+        codec = _codec()
+        self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_sample}),
+                                      f"{self.name} observer")
+        self._sample_id = codec.id_sample
+
+    def row(self):
+        obs = self.observer
+        obs.poll()
+        return _row(obs.newest(self._sample_id))
+
+    def activity(self):
+        if self.observer is None:
+            return 0
+        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
+        return self.observer.seen[self._sample_id]
+
+    def close(self) -> None:
+        for part in (self.host, getattr(self, "emulator", None), self.observer):
+            if part is not None:
+                part.close()
+        for b in self._buses:
+            b.shutdown()
+        self._buses = []
+
+
+def _emulator(spec: MagnetometerSpec, ctx: BuildContext, bus):
+    from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
+
+    truth = ctx.truth
+    q_SB = tuple(float(x) for x in spec.q_SB)
+    if spec.field_source != "truth":
+        stimulus = ctx.stimuli[spec.field_source].stimulus_field_B
+
+        def field_S(_t_s):
+            return rotate_to_body(q_SB, stimulus())  # the unit sits in the cage, reading it through its mount
+    elif q_SB == (1.0, 0.0, 0.0, 0.0):
+        field_S = truth.b_B
+    else:
+        def field_S(_t_s):
+            return rotate_to_body(q_SB, truth.b_B())
+
+    config = MagnetometerConfig(noise_T=spec.noise_T, bias_T=tuple(spec.bias_T), lsb_T=spec.lsb_T,
+                                sample_period_s=1.0 / spec.sample_rate_hz, status_period_s=1.0 / spec.status_rate_hz)
+    return MagnetometerEmulator(bus, field_S, config, ctx.rng, codec=_codec())
+
+
+class EmulatedMagnetometer(_Unit):
+    def __init__(self, spec: MagnetometerSpec, ctx: BuildContext):
+        from drivers.can_bus import open_bus
+        from drivers.magnetometer.host import MagnetometerHost
+
+        super().__init__(spec)
+        try:
+            self._observe()
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self._buses.append(open_bus(spec.interface, spec.channel))
+            self.emulator = _emulator(spec, ctx, self._buses[0])
+            self.host = MagnetometerHost(self._buses[1], codec=_codec(), name=spec.name)
+        except BaseException:
+            self.close()
+            raise
+
+    def publish(self, t_s):
+        self.emulator.publish(t_s)
+
+    def receive(self, t_s):
+        self.emulator.receive(t_s)
+
+    def summary(self):
+        return {**self.host.counters, "emulator": dict(self.emulator.counters)}
+
+
+class HardwareMagnetometer(_Unit):
+    """The host driver on a real unit. On an adapter every handle of which sees the whole bus (socketcan,
+    udp_multicast) telemetry comes from a listen-only handle of its own; on a serial-line adapter, which one process
+    holds alone, it comes from the stand's host driver (the flight code on a hardware link is the stand's)."""
+
+    def __init__(self, spec: MagnetometerSpec, ctx: BuildContext):
+        from drivers.can_bus import open_device_bus
+        from drivers.magnetometer.host import MagnetometerHost
+
+        super().__init__(spec)
+        self._buses.append(open_device_bus(spec.interface, spec.channel))
+        self.host = MagnetometerHost(self._buses[0], codec=_codec(), name=spec.name)
+        from drivers.can_observer import SHARED_INTERFACES
+
+        if spec.interface in SHARED_INTERFACES:
+            try:
+                self._observe()
+            except BaseException:
+                self.close()
+                raise
+
+    def publish(self, t_s):
+        self.host.poll()
+
+    def row(self):
+        if self.observer is not None:
+            return super().row()
+        self.host.poll()
+        return _row(self.host.latest_sample)
+
+    def activity(self):
+        return super().activity() if self.observer is not None else self.host.counters["samples"]
+
+    def summary(self):
+        return dict(self.host.counters)
+
+
+class ServedMagnetometer(ServedCan, _Unit):
+    """The emulator on a real adapter for a flight computer outside; telemetry is what the emulator sent."""
+
+    def __init__(self, spec: MagnetometerSpec, ctx: BuildContext):
+        from drivers.can_bus import ServedBus, open_device_bus
+
+        super().__init__(spec)
+        self.link = ServedBus(open_device_bus(spec.interface, spec.channel), own_ids=_codec().unit_tx_ids)
+        self._buses.append(self.link)
+        try:
+            self.emulator = _emulator(spec, ctx, self.link)
+        except BaseException:
+            self.close()
+            raise
+        self._watch_rejections(spec.name)
+
+    def receive(self, t_s):
+        self.emulator.receive(t_s)
+        self.rejections.check(t_s)
+
+    def row(self):
+        return _row(self.emulator.last_sample)
+
+    def activity(self):
+        return self.emulator.counters["sent"]
+
+    def summary(self):
+        return {"emulator": {**self.emulator.counters, **self.link.counters},
+                "rejected_frames": self.served.rejected_frames()}
+
+
+KIND = MagnetometerKind()
+
+
+# -- how `stand emulate magnetometer` serves it ---------------------------------------------------------------------
+
+def _serve(args, fail) -> int:
+    """The standalone magnetometer on a python-can bus in wall time, seeing a fixed field."""
+    from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
+    from stand.devices.serving import numbers, serve_can
+
+    try:
+        field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
+    except ValueError as exc:
+        return fail(str(exc))
+    if not (math.isfinite(args.noise_nT) and args.noise_nT >= 0):
+        return fail(f"--noise-nT {args.noise_nT:g} is not allowed; give a noise of 0 nT or more.")
+    config = MagnetometerConfig(noise_T=args.noise_nT * 1e-9)
+    return serve_can(args, fail, "magnetometer", _codec().unit_tx_ids,
+                     lambda bus: MagnetometerEmulator(bus, lambda _t: field_T, config, rng=args.seed, owns_bus=True))
+
+
+def _serving():
+    from stand.devices.serving import ServeOption, Serving, can_port_fields
+
+    return Serving(
+        summary="A standalone 3-axis magnetometer on a CAN bus.",
+        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
+        serve=_serve,
+        port_fields=can_port_fields("magnetometer"),
+        options=(ServeOption("--field-nT", "open loop: the field it sees, sensor axes, nT, as X,Y,Z", "20000,0,-40000"),
+                 ServeOption("--noise-nT", "1-sigma noise per axis, nT (default 0)", 0.0, float),
+                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
+    )
+
+
+KIND.serving = _serving()
