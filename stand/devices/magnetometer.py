@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 
 from sim.truth import rotate_to_body
+from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
 
@@ -57,8 +58,6 @@ class MagnetometerKind(DeviceKind):
     name = "magnetometer"
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetometerSpec:
-        from stand.scenario import rate
-
         codec = _codec()
         wire_nT = codec.mag_lsb_T * 1e9
         interface, channel = can_endpoint(t, base)
