@@ -57,7 +57,7 @@ from sim.rotations import hamilton_floats
 from sim.truth import compose_floats, rotate_to_body
 from stand.checks import pair
 from stand.devices import LOCAL_HOSTS
-from stand.devices.star_tracker import HardwareTracker
+from stand.devices.star_tracker_devices import HardwareTracker
 from stand.display import StateSender, load_key
 
 SCREEN_MODES = ("state", "window")

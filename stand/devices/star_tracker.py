@@ -22,39 +22,30 @@ from __future__ import annotations
 
 import functools
 import math
-import time
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from drivers.errors import DeviceTimeoutError
-from drivers.framing import FrameObserver
-from drivers.serial_port import wait_readable
-from drivers.star_tracker.codec import Solution
-from sim.rotations import hamilton_floats
-from sim.truth import compose_floats
 from stand.checks import pair
 from stand.devices import (
     SERIAL_LINES,
-    SETTLE_TIMEOUT_S,
     BuildContext,
     Device,
     DeviceCost,
     DeviceKind,
     DeviceSpec,
-    SerialDevice,
     check_serial_url,
-    frames_in,
 )
-from stand.devices.star_tracker_source import ARCSEC, measure_source
-
-FLAG_BITS = {"sun_in_field": 1, "moon_in_field": 2, "earth_in_field": 4, "rate_too_high": 8}
-MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
-#: The telemetry fragment before the first solution arrives (widths of the columns).
-NO_SOLUTION = (math.nan,) * 10
-#: Solutions in a row a tracker may miss before it is reported silent.
-SILENT_SOLUTIONS = 5
+from stand.devices.star_screen_link import ScreenTracker, describe_screen, parse_screen
+from stand.devices.star_tracker_devices import (
+    FLAG_BITS,
+    MODES,
+    EmulatedTracker,
+    HardwareTracker,
+    ServedTracker,
+    StarTrackerSpec,
+)
+from stand.devices.star_tracker_serving import serving
 
 #: Emulator settings a scenario may give that the ICD does not carry as a parameter: key -> (default, lo, hi).
 TRACKER_SETTINGS = {
@@ -104,31 +95,6 @@ def _icd_settings() -> dict[str, tuple[float, float, float, bool]]:
     return out
 
 
-def attitude_error_arcsec(q_true, q_meas) -> tuple[float, float]:
-    """(cross-boresight, roll) error of a measured tracker attitude, arcsec (boresight +z).
-
-    The rotation from true to measured tracker axes, E = dcm(q_meas) dcm(q_true)^T, has the antisymmetric part
-    vee(E - E^T) / 2 = sin(angle) axis = 2 w v for its quaternion (w, v) = q_true^-1 then q_meas: on floats."""
-    tw, tx, ty, tz = q_true
-    w, x, y, z = hamilton_floats((tw, -tx, -ty, -tz), tuple(q_meas))
-    return math.hypot(2.0 * w * x, 2.0 * w * y) / ARCSEC, abs(2.0 * w * z) / ARCSEC
-
-
-@dataclass(frozen=True)
-class StarTrackerSpec(DeviceSpec):
-    """A star tracker on a serial line, fed by truth plus noise (``source = "truth"``) or by image-based
-    solutions (``source = "image"``)."""
-
-    port: str = "pipe"  # emulated: "pipe" (in-process line) or "pty"; hardware/served: a pyserial URL or device path
-    baudrate: int = 115200
-    address: int | None = None
-    source: str = "truth"
-    emulator: dict = field(default_factory=dict)  # keyword arguments of the emulator's EmulatorConfig
-    optics: Any = None  # star_screen.geometry.TrackerOptics for source = "image", else None
-    camera: dict | None = None  # camera_noise keywords (read_noise_e, background_e) for source = "image"
-    screen: dict | None = None  # a hardware tracker looking at the stand's star screen (star_screen_link)
-
-
 class StarTrackerKind(DeviceKind):
     name = "star_tracker"
     metrics = {
@@ -174,8 +140,6 @@ class StarTrackerKind(DeviceKind):
         else:
             port = check_serial_url(t, "port", t.text("port"))
         baud = int(t.number("baudrate", 115200, lo=1200, hi=4_000_000, integer=True))
-        from stand.devices.star_screen_link import parse_screen
-
         spec = StarTrackerSpec(**base.__dict__, port=port, baudrate=baud, address=address, source=source,
                                emulator=settings, optics=optics, camera=camera, screen=parse_screen(t, base.link))
         t.check_unknown()
@@ -185,8 +149,6 @@ class StarTrackerKind(DeviceKind):
         if spec.link == "hardware":
             if spec.screen is None:
                 return {}
-            from stand.devices.star_screen_link import describe_screen
-
             return {"star_screen": f"the screen {spec.name} looks at: {describe_screen(spec.screen)}"}
         why = f"exclusion of {spec.name}"
         out = {"sun": why, "moon": why}
@@ -204,8 +166,6 @@ class StarTrackerKind(DeviceKind):
         what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
         every = f"a solution every {spec.emulator['output_interval_s']:g} s"
         if spec.screen is not None:
-            from stand.devices.star_screen_link import describe_screen
-
             return (f"star tracker on serial {spec.port} at {spec.baudrate} Bd looking at the stand's star screen "
                     f"({describe_screen(spec.screen)}; the stand reads its solutions and sets its clock)")
         return {"emulated": f"star tracker emulated on an in-process serial {spec.port}, {what}, {every}",
@@ -228,8 +188,6 @@ class StarTrackerKind(DeviceKind):
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
         if spec.screen is not None:
-            from stand.devices.star_screen_link import ScreenTracker
-
             return ScreenTracker(spec, ctx)
         return {"emulated": EmulatedTracker, "hardware": HardwareTracker, "served": ServedTracker}[spec.link](spec, ctx)
 
@@ -296,237 +254,10 @@ def _tracker_image(t, name: str) -> tuple[Any, dict]:
     return optics, {"read_noise_e": float(values["read_noise_e"]), "background_e": float(values["background_e"])}
 
 
-class TrackerDevice(SerialDevice):
-    """What every link shares: scoring solutions against the truth, the telemetry columns and the summary."""
-
-    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
-        self.name, self.spec = spec.name, spec
-        self.q_SB = tuple(float(x) for x in spec.q_SB)
-        self.truth_at: dict[int, tuple] = {}  # exposure time (us of sim time) -> q_TN
-        self.solutions = self.valid = 0
-        self.flags = dict.fromkeys(FLAG_BITS, 0)
-        self.errors: list[tuple] = []  # (t_s, cross, roll) of valid solutions
-        self.last = NO_SOLUTION  # the newest solution as a telemetry row fragment (see columns())
-        self.last_solution = None  # the newest decoded SOLUTION message, as the host got it
-        self.image = None  # the ImageSolver of an image-source tracker
-        cfg = spec.emulator
-        self.silent_after_s = cfg["boot_time_s"] + cfg["output_delay_s"] + SILENT_SOLUTIONS * cfg["output_interval_s"]
-        self.emulator = None
-        self._seen = 0
-        #: The link as the stand sees it beside the flight code (attached when the host is set); scoring and
-        #: telemetry read only this.
-        self.observer = FrameObserver()
-        self._host = None
-
-    def _new_solution(self):
-        """The newest solution on the link since the last call, as the stand observes it beside the flight code
-        (:class:`drivers.framing.FrameObserver` on the host's framing layer); ``take_solution`` stays theirs. The
-        poll only moves what arrived on the line through the host's framing layer, as the flight code's next call
-        would; nothing is read from the host."""
-        self.host.poll()
-        n = self.observer.count(Solution)
-        if n == self._seen:
-            return None
-        self._seen = n
-        return self.observer.latest(Solution)
-
-    @property
-    def host(self):
-        """The flight code's host driver (emulated and hardware links), or None."""
-        return self._host
-
-    @host.setter
-    def host(self, endpoint) -> None:
-        # The observer is attached where every link sets its host, so it sees the line from the first frame on.
-        self._host = endpoint
-        if endpoint is not None:
-            endpoint.add_observer(self.observer)
-
-    def _score(self, sol, t_exp: float) -> None:
-        self.last_solution = sol
-        self.solutions += 1
-        for flag in FLAG_BITS:
-            self.flags[flag] += bool(getattr(sol, flag))
-        q_true = self.truth_at.pop(round(t_exp * 1e6), None)
-        cross = roll = math.nan
-        if q_true is not None:
-            cross, roll = attitude_error_arcsec(q_true, sol.q_TN)
-        if sol.valid:
-            self.valid += 1
-            self.errors.append((t_exp, cross, roll))
-        bits = sum(b for f, b in FLAG_BITS.items() if getattr(sol, f))
-        self.last = (t_exp, *sol.q_TN, float(sol.valid), float(MODES.get(sol.mode, -1)), float(bits), cross, roll)
-        # Keep the truth log short: exposures older than a few seconds will never be reported.
-        if len(self.truth_at) > 256:
-            for k in sorted(self.truth_at)[:-64]:
-                del self.truth_at[k]
-
-    def columns(self) -> list[tuple[str, int, str]]:
-        """Telemetry of the newest solution the host received (repeated until the next): exposure time in sim
-        time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon, 4 Earth,
-        8 rate), and its error against the truth at that exposure."""
-        n = self.name
-        return [(f"{n}.t_exposure_s", 1, "s"), (f"{n}.q_TN", 4, "1"), (f"{n}.valid", 1, "1"),
-                (f"{n}.mode", 1, "1"), (f"{n}.flags", 1, "1"), (f"{n}.err_cross", 1, "arcsec"),
-                (f"{n}.err_roll", 1, "arcsec")]
-
-    def row(self) -> tuple:
-        return self.last
-
-    def activity(self) -> int:
-        return self.solutions
-
-    def summary(self) -> dict:
-        err = np.array([e[1:] for e in self.errors if math.isfinite(e[1])]).reshape(-1, 2)
-        out = {"solutions": self.solutions, "valid": self.valid,
-               "availability": round(self.valid / self.solutions, 4) if self.solutions else 0.0,
-               "flags_fired": dict(self.flags)}
-        out.update(self.driver_counters())
-        if self.image is not None:
-            out["image"] = self.image.summary()
-        if len(err):
-            for i, axis in enumerate(("cross", "roll")):
-                out[f"error_{axis}_arcsec"] = {p: round(float(np.percentile(err[:, i], q)), 3)
-                                               for p, q in (("median", 50), ("p95", 95), ("max", 100))}
-        return out
-
-
-def _config(spec: StarTrackerSpec):
-    from drivers.star_tracker.emulator import EmulatorConfig
-
-    return EmulatorConfig(address=spec.address, **spec.emulator)
-
-
-class EmulatedTracker(TrackerDevice):
-    """Emulator and host on an in-process serial line (a pipe, or a pty pair: the kernel tty path a bench would
-    use) without a second process; every exchange completes within the tick, so runs are repeatable."""
-
-    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
-        from drivers.star_tracker.codec import Subscribe
-        from drivers.star_tracker.emulator import StarTrackerEmulator
-        from drivers.star_tracker.host import StarTrackerHost
-
-        super().__init__(spec, ctx)
-        measure = measure_source(spec, ctx, self)
-        self.open_emulated(spec.port,
-                           lambda end: StarTrackerEmulator(end, measure, _config(spec), ctx.rng,
-                                                           name=f"{spec.name} emulator"),
-                           lambda end: StarTrackerHost(end, spec.address, name=spec.name))
-        try:
-            # Not the blocking subscribe(): nothing services the emulator while the host would wait.
-            self.host.send_command(Subscribe(self.host.codec.solution_id, 0.0))
-        except BaseException:
-            self.close()
-            raise
-
-    def sim_time_of(self, time_us: int) -> float:
-        """Invert the emulator's clock (offset and drift; no SET_TIME in an emulated run)."""
-        cfg = self.emulator.config
-        return (time_us * 1e-6 - cfg.clock_offset_s) / (1.0 + cfg.clock_drift_ppm * 1e-6)
-
-    def _settle(self, done, port) -> None:
-        """Wait (wall clock, bounded) until the other end has the frames written to it.
-
-        A pty hands bytes over asynchronously: an as-fast-as-possible loop would otherwise see a frame one or
-        many ticks late, a different number each run. Waiting for the exchange to complete makes every run take
-        the same tick for every frame, as a paced bench would.
-        """
-        deadline = time.monotonic() + SETTLE_TIMEOUT_S
-        while not done():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                raise DeviceTimeoutError(
-                    f"{self.name}: a frame written to the serial line did not arrive within {SETTLE_TIMEOUT_S:g} s.",
-                    device=self.name, awaited="frames written to the serial line", timeout_s=SETTLE_TIMEOUT_S)
-            wait_readable(port, min(left, 0.01))
-            if port is self.host.port:
-                self.host.poll()
-            else:
-                return  # the emulator reads in service(); it only had to be readable
-
-    def publish(self, t_s: float) -> None:
-        emu, host = self.emulator, self.host
-        if host.counters["sent"] > frames_in(emu.counters):
-            self._settle(lambda: emu.port.in_waiting > 0, emu.port)
-        emu.service(t_s)
-        if emu.counters["sent"] > frames_in(host.counters):
-            self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
-        sol = self._new_solution()
-        if sol is not None:
-            self._score(sol, self.sim_time_of(sol.time_us))
-
-
-class HardwareTracker(TrackerDevice):
-    """The host driver on a real port. At start the device clock is set to sim time 0 (SET_TIME) and the
-    offset the device then reports is logged; solutions are scored against the truth at their time stamps."""
-
-    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
-        from drivers.star_tracker.host import StarTrackerHost
-
-        super().__init__(spec, ctx)
-        self._truth = ctx.truth
-        self._step_us = round(ctx.step_s * 1e6)
-        self._speed = ctx.speed or 1.0
-        self.host = StarTrackerHost(spec.port, spec.address, name=spec.name, baudrate=spec.baudrate)
-        self.clock_offset_s = math.nan
-
-    def start(self, events) -> None:
-        host = self.host
-        t_set = time.monotonic()
-        host.set_time(0)
-        status = host.request_status()
-        # Device time runs in wall time; sim time runs `speed` times faster from the start of the run.
-        self.clock_offset_s = status.time_us * 1e-6 - (time.monotonic() - t_set)
-        host.subscribe("SOLUTION", 0.0)
-        events.log("device_clock", f"{self.name}: device clock set to 0 at start; it then read "
-                   f"{self.clock_offset_s * 1e3:+.3f} ms against the stand's clock", device=self.name,
-                   offset_s=self.clock_offset_s)
-
-    def publish(self, t_s: float) -> None:
-        # The truth of every tick, to score solutions whose exposures fall on (or near) it.
-        self.truth_at[round(t_s * 1e6)] = compose_floats(self.q_SB, self._truth.q)
-        sol = self._new_solution()
-        if sol is not None:
-            t_exp = sol.time_us * 1e-6 * self._speed
-            t_tick = round(t_exp * 1e6 / self._step_us) * self._step_us * 1e-6
-            self._score(sol, t_tick)
-
-    def columns(self):
-        return [*super().columns(), (f"{self.name}.clock_offset_s", 1, "s")]
-
-    def row(self):
-        return (*self.last, self.clock_offset_s)
-
-    def summary(self):
-        return {**super().summary(), "clock_offset_s": self.clock_offset_s}
-
-
-class ServedTracker(TrackerDevice):
-    """The emulator on a real port, fed by the truth, for a flight computer outside (no host in the stand)."""
-
-    def __init__(self, spec: StarTrackerSpec, ctx: BuildContext):
-        from drivers.star_tracker.emulator import StarTrackerEmulator
-
-        super().__init__(spec, ctx)
-        self.serve(StarTrackerEmulator(spec.port, measure_source(spec, ctx, self), _config(spec), ctx.rng,
-                                       name=f"{spec.name} emulator", baudrate=spec.baudrate))
-
-    def publish(self, t_s: float) -> None:
-        self.emulator.service(t_s)
-        self.rejections.check(t_s)
-
-    def activity(self) -> int:
-        # Silence here means the flight computer stopped talking to the tracker.
-        return self.emulator.counters["frames_received"]
-
-    def row(self) -> tuple:
-        return self.last
 
 
 KIND = StarTrackerKind()
 
 
 # How `stand emulate star-tracker` serves it (its options are many: they live beside this module).
-from stand.devices.star_tracker_serving import serving  # noqa: E402
-
 KIND.serving = serving()

@@ -11,7 +11,7 @@ import pytest
 
 from stand import scenario, telemetry
 from stand.compose import build, plan
-from stand.devices.star_tracker import ARCSEC as ARCSEC_RAD
+from stand.devices.star_tracker_source import ARCSEC as ARCSEC_RAD
 from stand.errors import ScenarioError
 from stand.loop import run
 from stand.report import write_summary
