@@ -60,9 +60,10 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import DriverError, EncodeError
-from drivers.framing import SlipDecoder
+from drivers.framing import SlipDecoder, escape
 from drivers.serial_port import SerialServer, is_port_error, open_port, port_name, write_available
 from drivers.star_tracker.codec import (
+    DEVICE_TO_HOST,
     HOST_TO_DEVICE,
     Ack,
     Action,
@@ -201,6 +202,14 @@ class StarTrackerEmulator(SerialServer):
             return self.config.clock_offset_s + t_s * rate
         t_set, dev_set = self._clock_ref
         return dev_set + (t_s - t_set) * rate
+
+    def sim_time_s(self, time_us: int) -> float:
+        """The sim time at which the device clock read ``time_us`` (the inverse of :meth:`device_time_s`)."""
+        rate = 1.0 + self.config.clock_drift_ppm * 1e-6
+        if self._clock_ref is None:
+            return (time_us * 1e-6 - self.config.clock_offset_s) / rate
+        t_set, dev_set = self._clock_ref
+        return t_set + (time_us * 1e-6 - dev_set) / rate
 
     def device_time_us(self, t_s: float) -> int:
         us = round(self.device_time_s(t_s) * 1e6)
@@ -513,7 +522,8 @@ class StarTrackerEmulator(SerialServer):
     def _send(self, msg: Message) -> None:
         if self.silent:
             return
-        frame = self.codec.encode(msg, self.address)
+        body = self.codec.encode_body(msg, self.address)
+        frame = escape(body)
         if self._tx_bytes + len(frame) > self.max_tx_bytes:
             self._flush()
             if self._tx_bytes + len(frame) > self.max_tx_bytes:
@@ -522,6 +532,10 @@ class StarTrackerEmulator(SerialServer):
         self._tx.append(frame)
         self._tx_bytes += len(frame)
         self._flush()
+        if self._observers:  # what went on the line, decoded as a receiver decodes it (drivers.endpoint)
+            sent = self.codec.decode_body(body, self.address, DEVICE_TO_HOST)
+            for observer in self._observers:
+                observer(sent)
 
     @property
     def tx_pending(self) -> int:

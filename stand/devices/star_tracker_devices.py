@@ -90,8 +90,9 @@ class TrackerDevice(SerialDevice):
         """The newest solution on the link since the last call, as the stand observes it beside the flight code
         (:class:`drivers.framing.FrameObserver` on the host's framing layer); ``take_solution`` stays theirs. The
         poll only moves what arrived on the line through the host's framing layer, as the flight code's next call
-        would; nothing is read from the host."""
-        self.host.poll()
+        would; nothing is read from the host. A served tracker has no host: its observer is on the emulator."""
+        if self._host is not None:
+            self._host.poll()
         n = self.observer.count(Solution)
         if n == self._seen:
             return None
@@ -187,11 +188,6 @@ class EmulatedTracker(TrackerDevice):
             self.close()
             raise
 
-    def sim_time_of(self, time_us: int) -> float:
-        """Invert the emulator's clock (offset and drift; no SET_TIME in an emulated run)."""
-        cfg = self.emulator.config
-        return (time_us * 1e-6 - cfg.clock_offset_s) / (1.0 + cfg.clock_drift_ppm * 1e-6)
-
     def _settle(self, done, port) -> None:
         """Wait (wall clock, bounded) until the other end has the frames written to it.
 
@@ -221,7 +217,7 @@ class EmulatedTracker(TrackerDevice):
             self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
         sol = self._new_solution()
         if sol is not None:
-            self._score(sol, self.sim_time_of(sol.time_us))
+            self._score(sol, self.emulator.sim_time_s(sol.time_us))
 
 
 class HardwareTracker(TrackerDevice):
@@ -278,10 +274,15 @@ class ServedTracker(TrackerDevice):
         super().__init__(spec, ctx)
         self.serve(StarTrackerEmulator(spec.port, measure_source(spec, ctx, self), _config(spec), ctx.rng,
                                        name=f"{spec.name} emulator", baudrate=spec.baudrate))
+        # What the flight computer outside was sent, as its decoder reads it, is what the stand scores.
+        self.emulator.add_observer(self.observer)
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
         self.rejections.check(t_s)
+        sol = self._new_solution()
+        if sol is not None:  # the flight computer may have set the clock: the emulator inverts what it keeps
+            self._score(sol, self.emulator.sim_time_s(sol.time_us))
 
     def activity(self) -> int:
         # Silence here means the flight computer stopped talking to the tracker.
