@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.effects import Effect
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
@@ -62,6 +63,19 @@ def _codec():
 
 class MagnetorquerKind(DeviceKind):
     name = "magnetorquer"
+    senses = ("magnetic_field",)
+    actuates = ("dipole",)
+    column_meanings = {"mag_S": "the newest magnetometer sample the host decoded, sensor axes",
+                       "mag_coil_active": "1 when that sample was taken with the coils driven",
+                       "dipole_B": "the dipole the board produced, held over the step, body axes"}
+    plot_files = {"dipole.png": "the dipole commanded by the controller and produced by each board, per body axis"}
+
+    def kind_plots(self, tel, names, out_dir) -> list[str]:
+        from stand.devices.magnetorquer_plots import plot_dipole
+
+        produced = {n: f"{n}.dipole_B" for n in names if f"{n}.dipole_B" in tel}
+        commanded = "dipole_cmd_B" if "dipole_cmd_B" in tel else None
+        return [plot_dipole(tel, out_dir, produced, commanded)] if produced or commanded else []
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetorquerSpec:
         from stand.scenario import rate
@@ -113,7 +127,6 @@ class MagnetorquerKind(DeviceKind):
 
 
 class _Board(Device):
-    gives_dipole = True
 
     def __init__(self, spec: MagnetorquerSpec):
         self.name, self.spec = spec.name, spec
@@ -127,6 +140,9 @@ class _Board(Device):
 
     def dipole_B(self):
         return self._m
+
+    def effects(self):
+        return (Effect("dipole", self.dipole_B),)
 
     def close(self) -> None:
         for b in self._buses:

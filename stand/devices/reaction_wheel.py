@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.effects import Effect
 from sim.rotations import dcm
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
@@ -55,6 +56,14 @@ class ReactionWheelSpec(DeviceSpec):
 
 class ReactionWheelKind(DeviceKind):
     name = "reaction_wheel"
+    senses = ("wheel_momentum",)
+    actuates = ("wheel_torque",)
+    column_meanings = {"speed_rad_s": "the rotor's speed relative to the body",
+                       "mode": "the wheel's mode (0 idle, 1 torque, 2 speed)",
+                       "torque_cmd_Nm": "the torque (or, in speed mode, the speed) command held",
+                       "motor_torque_Nm": "the motor's torque after its lag",
+                       "net_torque_Nm": "the net torque on the rotor: motor minus friction"}
+    plot_files = {"wheel_{name}.png": "speed, and the torques on the rotor"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> ReactionWheelSpec:
         from drivers.reaction_wheel.codec import ReactionWheelCodec
@@ -118,7 +127,7 @@ class ReactionWheelKind(DeviceKind):
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
-        from stand.plots import plot_wheel
+        from stand.devices.reaction_wheel_plots import plot_wheel
 
         return [plot_wheel(tel, out_dir, name)]
 
@@ -131,7 +140,6 @@ def motor_of(spec: ReactionWheelSpec):
 
 
 class _Wheel(Device):
-    gives_wheel_torque = True
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
         self.name, self.spec = spec.name, spec
@@ -161,6 +169,9 @@ class _Wheel(Device):
 
     def wheel_torque_Nm(self) -> float:
         return self._tau
+
+    def effects(self):
+        return (Effect("momentum_exchange", self.wheel_torque_Nm, self.wheel_index),)
 
     def _source(self, _t_s):
         return self.speed_rad_s(), self._motor_tau
