@@ -219,6 +219,12 @@ class DeviceKind:
     plot_files: dict[str, str] = {}
     #: What the operator view draws for it besides its fields of view (:meth:`view_layers`): layer -> meaning.
     view_layer_meanings: dict[str, str] = {}
+    #: How the operator view colours its fields of view and validity strip, from its ``NAME.valid`` (and
+    #: ``NAME.flags``) columns: ``{"missing": text without a value, "flags": whether NAME.flags says why it is
+    #: invalid (bits 1 Sun, 2 Moon, 4 Earth, 8 rate), "invalid": [colour key, text] otherwise}``; None: not drawn.
+    view_state: dict | None = None
+    #: Its error columns (after ``NAME.``) the view plots on the pointing and knowledge error plot (arcsec).
+    view_error_columns: tuple[str, ...] = ()
     #: How ``stand emulate`` serves this kind (:class:`stand.devices.serving.Serving`); None: it cannot be served.
     serving = None
 
@@ -271,9 +277,10 @@ class DeviceKind:
     def view_layers(self, spec: DeviceSpec) -> dict:
         """What the operator view draws for a device of this spec, into its entry in ``view.json``: ``fovs``
         (fields of view: ``{"shape": "rect", "axis_S", "fov_deg", "label"}`` or ``{"shape": "cone", "axis_S",
-        "half_deg", "label"}``), and any of ``exclusion_deg`` (body -> cone half-angle), ``rate_limit_deg_s``,
-        ``invalid`` (``[colour key, text]`` for an invalid sample with no flag set), ``sensed`` (true: its
-        validity is plotted). The default draws a spec's ``fov_deg`` (rectangle) or ``fov_half_deg`` (cone)."""
+        "half_deg", "label"}``, ``"head": true`` for a head lit by its ``NAME.currents``), and any of
+        ``exclusion_deg`` (body -> cone half-angle) and ``rate_limit_deg_s``. (``view_state`` and
+        ``view_error_columns`` join them.) The default draws a spec's ``fov_deg`` (rectangle) or ``fov_half_deg``
+        (cone)."""
         fov, half = getattr(spec, "fov_deg", None), getattr(spec, "fov_half_deg", None)
         if fov is not None:
             return {"fovs": [{"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(x) for x in fov],

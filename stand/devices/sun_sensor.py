@@ -105,7 +105,16 @@ class SunSensorKind(DeviceKind):
                        "valid": "1 when that sample is valid",
                        "sun_fraction": "the visible fraction of the Sun's disc (Earth shadow) at that sample"}
     plot_files = {"sun_{name}.png": "head currents or angles with the Earth shadow, the Sun fraction and validity"}
-    view_layer_meanings = {"fovs": "the field of view, one cone per head of a coarse sensor"}
+    view_layer_meanings = {"fovs": "the field of view, one cone per head of a coarse sensor, lit by its current"}
+    view_state = {"missing": "no sample", "flags": False, "invalid": ["sun_flag", "invalid"]}
+
+    def view_layers(self, spec) -> dict:
+        half = float(getattr(spec, "fov_half_deg", 90.0))
+        if getattr(spec, "type", "fine") != "coarse":
+            return {"fovs": [{"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": half, "label": spec.name}]}
+        return {"fovs": [{"shape": "cone", "axis_S": [float(x) for x in n], "half_deg": half,
+                          "label": f"{spec.name} {label}", "head": True}
+                         for n, label in zip(FACE_NORMALS, HEAD_LABELS, strict=True)]}
     links = (*LINKS, "model")
     default_link = "emulated"
 

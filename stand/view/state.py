@@ -33,11 +33,11 @@ from sim.ephemeris import EphemerisTrack
 from sim.frames import EarthRotation
 from sim.rotations import quat_from_dcm
 from sim.time import Epoch
+from stand.devices import DeviceKind
+from stand.devices import get as get_kind
 
 VIEW_FILE = "view.json"
 R_MOON = 1.7374e6
-#: A tracker whose scenario gives no field (truth-source trackers) is drawn with the stand's default optics.
-DEFAULT_TRACKER_FOV_DEG = (20.0, 15.0)
 #: Most samples a replay sends the page for the whole run (the slider's resolution is duration / this).
 MAX_SAMPLES = 6000
 PROJECTIONS = ("equirectangular", "hammer")
@@ -78,36 +78,27 @@ def dumps(obj) -> str:
 
 # --------------------------------------------------------------------------------------------------- metadata
 
-def _device_view(d) -> dict:
-    """Kind, mount and fields of view of one scenario device (anything with a field is drawn)."""
-    out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB], "fovs": []}
-    if d.kind == "star_tracker":
-        optics = getattr(d, "optics", None)
-        fx, fy = optics.fov_deg if optics is not None else DEFAULT_TRACKER_FOV_DEG
-        em = getattr(d, "emulator", {}) or {}
-        out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(fx), float(fy)],
-                            "label": d.name})
-        out["exclusion_deg"] = {b: float(em[f"{b}_exclusion_deg"]) for b in ("sun", "moon", "earth")
-                                if f"{b}_exclusion_deg" in em}
-        out["rate_limit_deg_s"] = float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None
-    elif d.kind == "sun_sensor":
-        half = float(getattr(d, "fov_half_deg", 90.0))
-        if getattr(d, "type", "fine") == "coarse":
-            from stand.devices.sun_sensor import FACE_NORMALS, HEAD_LABELS
+def _kind(name: str):
+    """The device kind called ``name``, or the bare contract for a kind not installed here (a replay elsewhere)."""
+    try:
+        return get_kind(name)
+    except KeyError:
+        return DeviceKind()
 
-            for n, label in zip(FACE_NORMALS, HEAD_LABELS, strict=True):
-                out["fovs"].append({"shape": "cone", "axis_S": [float(x) for x in n], "half_deg": half,
-                                    "label": f"{d.name} {label}", "head": True})
-        else:
-            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": half, "label": d.name})
-    else:
-        fov = getattr(d, "fov_deg", None)
-        half = getattr(d, "fov_half_deg", None)
-        if fov is not None:
-            out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(x) for x in fov],
-                                "label": d.name})
-        elif half is not None:
-            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": float(half), "label": d.name})
+
+def _declared(kind) -> dict:
+    """What a kind declares for the page whatever the device's spec: its validity colouring and error columns."""
+    out = {"state": kind.view_state} if kind.view_state is not None else {}
+    if kind.view_error_columns:
+        out["error_columns"] = list(kind.view_error_columns)
+    return out
+
+
+def _device_view(d) -> dict:
+    """Kind, mount and the layers the kind declares (``DeviceKind.view_layers``: fields of view and the like)."""
+    kind = _kind(d.kind)
+    out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB]}
+    out.update({"fovs": [], **kind.view_layers(d), **_declared(kind)})
     return out
 
 
@@ -199,6 +190,9 @@ def load_meta(run_dir) -> dict:
         why = _meta_problem(meta)
         if why is not None:
             raise RunFileError(f"{path} is not a view description the page can use: {why}.")
+        for dev in meta["devices"]:  # a view.json written before kinds declared these: the kind's declaration
+            if "state" not in dev:
+                dev.update(_declared(_kind(dev["kind"])))
         return meta
     summary = run_dir / "summary.json"
     if not summary.is_file():

@@ -23,7 +23,8 @@ from .test_gyro_wheel_links import small_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 #: The core: it iterates over what kinds declare and names none of them.
-CORE = ["stand/loop.py", "sim/truth.py", "stand/report.py", "stand/plots.py", "stand/telemetry.py"]
+CORE = ["stand/loop.py", "sim/truth.py", "stand/report.py", "stand/plots.py", "stand/telemetry.py",
+        *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "stand" / "view").glob("*.py"))]
 INERTIA = (0.02, 0.03, 0.01)  # kg m^2, principal axes = body axes
 
 
@@ -125,6 +126,13 @@ def test_the_core_names_no_shipped_kind(path):
     kinds = re.compile("|".join(devices.KINDS))
     named = [(line, text) for line, text in _names_in(ROOT / path) if kinds.search(text)]
     assert named == [], f"{path} names a kind: {named}"
+
+
+def test_the_operator_page_names_no_shipped_kind():
+    text = (ROOT / "stand" / "view" / "assets" / "view.js").read_text()
+    named = [(i + 1, line.strip()) for i, line in enumerate(text.splitlines())
+             if re.search("|".join(devices.KINDS), line)]
+    assert named == [], f"view.js names a kind: {named}"
 
 
 def test_every_shipped_kind_declares_from_the_one_vocabulary():
