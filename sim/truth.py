@@ -361,8 +361,10 @@ class TruthModel:
             self._fused = False  # the fused step knows only the environment's torques
             self._stage_torque = self._torque_and_body
 
+            model = self  # not ``self`` inside: a failing read is blamed on its device, not on the truth
+
             def step_with_body_torque():
-                self.torque_B = body()
+                model.torque_B = body()
                 truth_step(dipole(), None if rotors is None else rotors())
 
             return step_with_body_torque

@@ -98,6 +98,34 @@ def test_a_kind_not_shipped_turns_the_body_through_the_effector_interface_as_the
     assert meanings["rig_a.torque_B"] == "the torque the rig applies to the body, body axes"
 
 
+class _BrokenRig(_Rig):
+    """An effect read through a plain function (not a method of the device) that fails at t >= 0.3 s."""
+
+    def effects(self):
+        truth_t = []
+
+        def read():
+            truth_t.append(None)
+            if len(truth_t) > 3:
+                raise ZeroDivisionError("the rig's torque sensor divided by zero")
+            return self.torque
+
+        return (Effect("torque", read),)
+
+
+def test_an_effect_that_fails_is_blamed_on_its_device(torque_rig, tmp_path, monkeypatch):
+    monkeypatch.setattr(_TorqueRig, "build", lambda self, spec, ctx: _BrokenRig(spec))
+    data = small_scenario([{"name": "rig", "kind": "torque_rig", "torque_B_Nm": [0.0, 1e-5, 0.0]}], 2.0)
+    scene = build(parse(data, "<test>"))
+    try:
+        result = run(scene, tmp_path)
+    finally:
+        scene.close()
+    assert result.status == "aborted"
+    assert result.error == ("at t = 0.300 s device rig (effect) raised ZeroDivisionError: the rig's torque sensor "
+                            "divided by zero")
+
+
 def test_the_truth_refuses_an_effect_it_does_not_know_or_a_rotor_it_does_not_have():
     from sim.truth import TruthModel
 
