@@ -29,6 +29,7 @@ did not list. Time is integer nanoseconds; a run is bit-for-bit repeatable.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Callable
@@ -371,6 +372,8 @@ class TruthModel:
         if rotors is not None:
             dipole = _summed3(dipoles)
             return lambda: truth_step(dipole(), rotors())
+        if not dipoles:  # no actuator: the step itself, with no field to turn a dipole into torque
+            return functools.partial(truth_step, (0.0, 0.0, 0.0))
         if len(dipoles) == 1:  # the usual magnetic spacecraft: one call less per step
             read = dipoles[0]
 
