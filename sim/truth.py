@@ -372,7 +372,7 @@ class TruthModel:
         if rotors is not None:
             dipole = _summed3(dipoles)
             return lambda: truth_step(dipole(), rotors())
-        if not dipoles:  # no actuator: the step itself, with no field to turn a dipole into torque
+        if not dipoles:  # no actuator: the truth's own step with a zero dipole, through one C-level call
             return functools.partial(truth_step, (0.0, 0.0, 0.0))
         if len(dipoles) == 1:  # the usual magnetic spacecraft: one call less per step
             read = dipoles[0]
@@ -389,8 +389,11 @@ class TruthModel:
         """None without momentum exchange, else a reader of the rotor torques in column order."""
         if not effects:
             return None
-        n = 0 if self.wheels is None else self.wheels.n
         columns = [e.target for e in effects]
+        if self.wheels is None:
+            raise ValueError(f"momentum_exchange targets {columns}, but the truth has no wheel cluster (no device's "
+                             "kind declared a momentum wheel: DeviceKind.momentum_wheel).")
+        n = self.wheels.n
         if len(set(columns)) != len(columns) or not all(isinstance(c, int) and 0 <= c < n for c in columns):
             raise ValueError(f"momentum_exchange targets {columns}: each must name a different rotor column of the "
                              f"truth's wheel cluster (0 to {n - 1}; it has {n} wheels).")

@@ -133,9 +133,29 @@ def test_the_truth_refuses_an_effect_it_does_not_know_or_a_rotor_it_does_not_hav
                        r_N=(7e6, 0.0, 0.0), v_N=(0.0, 7.5e3, 0.0), step_ns=100_000_000, torques=())
     with pytest.raises(ValueError, match="effect type 'thrust' is not one of dipole, torque, momentum_exchange"):
         truth.effector([Effect("thrust", lambda: (0.0, 0.0, 0.0))])
-    with pytest.raises(ValueError, match=r"momentum_exchange targets \[0\].*it has 0 wheels"):
+    with pytest.raises(ValueError, match=r"momentum_exchange targets \[0\], but the truth has no wheel cluster"):
         truth.effector([Effect("momentum_exchange", lambda: 0.0, 0)])
     assert EFFECT_TYPES == ("dipole", "torque", "momentum_exchange")
+
+
+def test_a_momentum_exchange_reaches_its_rotor_and_the_body_takes_the_reaction():
+    from sim.truth import TruthModel
+    from sim.wheels import WheelCluster
+
+    J, tau = 1e-3, 1e-4  # rotor spin inertia (kg m^2), net torque on rotor 1 (N m)
+    cluster = WheelCluster(np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T, [J, J])
+    truth = TruthModel(inertia=np.diag(INERTIA), q_BN=(1.0, 0.0, 0.0, 0.0), omega_BN_B=(0.0, 0.0, 0.0),
+                       r_N=(7e6, 0.0, 0.0), v_N=(0.0, 7.5e3, 0.0), step_ns=100_000_000, torques=(), wheels=cluster)
+    step = truth.effector([Effect("momentum_exchange", lambda: tau, 1)])
+    for _ in range(10):  # 1 s
+        step()
+    # Rotor 1 (spin axis z) gains tau t; rotor 0, which no effect targets, keeps none; the body turns the other way
+    # about z with the inertia left beside the rotor (I_zz - J), and the total stays zero.
+    assert truth.h_wheels == pytest.approx((0.0, tau * 1.0), abs=1e-18)
+    np.testing.assert_allclose(truth.w, (0.0, 0.0, -tau * 1.0 / (INERTIA[2] - J)), rtol=1e-12, atol=1e-18)
+    assert np.max(np.abs(truth.angular_momentum_B())) < 1e-18
+    with pytest.raises(ValueError, match=r"targets \[0, 0\]: each must name a different rotor column"):
+        truth.effector([Effect("momentum_exchange", lambda: tau, 0), Effect("momentum_exchange", lambda: tau, 0)])
 
 
 def _names_in(path: Path) -> list[tuple[int, str]]:
