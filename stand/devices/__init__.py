@@ -225,6 +225,9 @@ class DeviceKind:
     view_state: dict | None = None
     #: Its error columns (after ``NAME.``) the view plots on the pointing and knowledge error plot (arcsec).
     view_error_columns: tuple[str, ...] = ()
+    #: The view's live plots of its 3-vector columns, one panel per title for all its devices: ``{"title", "unit",
+    #: "column" (after ``NAME.``), "fallback" (a run column drawn when no device records one, or absent)}``.
+    view_plots: tuple[dict, ...] = ()
     #: How ``stand emulate`` serves this kind (:class:`stand.devices.serving.Serving`); None: it cannot be served.
     serving = None
 

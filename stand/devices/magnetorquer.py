@@ -69,6 +69,7 @@ class MagnetorquerKind(DeviceKind):
                        "mag_coil_active": "1 when that sample was taken with the coils driven",
                        "dipole_B": "the dipole the board produced, held over the step, body axes"}
     plot_files = {"dipole.png": "the dipole commanded by the controller and produced by each board, per body axis"}
+    view_plots = ({"title": "dipole", "unit": "A m²", "column": "dipole_B", "fallback": "dipole_cmd_B"},)
 
     def kind_plots(self, tel, names, out_dir) -> list[str]:
         from stand.devices.magnetorquer_plots import plot_dipole

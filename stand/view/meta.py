@@ -55,6 +55,8 @@ def _declared(kind) -> dict:
     out = {"state": kind.view_state} if kind.view_state is not None else {}
     if kind.view_error_columns:
         out["error_columns"] = list(kind.view_error_columns)
+    if kind.view_plots:
+        out["plots"] = [dict(p) for p in kind.view_plots]
     return out
 
 
@@ -155,8 +157,8 @@ def load_meta(run_dir) -> dict:
         if why is not None:
             raise RunFileError(f"{path} is not a view description the page can use: {why}.")
         for dev in meta["devices"]:  # a view.json written before kinds declared these: the kind's declaration
-            if "state" not in dev:
-                dev.update(_declared(_kind(dev["kind"])))
+            for key, value in _declared(_kind(dev["kind"])).items():
+                dev.setdefault(key, value)
         return meta
     summary = run_dir / "summary.json"
     if not summary.is_file():

@@ -753,9 +753,20 @@
     const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c));
     for (const c of pointing) knowledge.push({ col: c, label: c, color: "#63e6be" });
     plots.push(new Plot("pointing and knowledge error (arcsec)", knowledge, { log: true }));
-    // What the coils produced (the commanded dipole when no device reports one).
-    const produced = cols.filter((c) => c.endsWith(".dipole_B")), dip = produced.length ? produced : cols.filter((c) => c === "dipole_cmd_B");
-    plots.push(new Plot(`dipole ${dip.join(", ")} (A m²)`, dip.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
+    // The vector plots the kinds declare (view.json: plots), one panel per title for all their devices; a panel
+    // draws its fallback column (what the controller commanded) when no device records one.
+    const panels = new Map();
+    for (const d of devs) {
+      for (const p of d.plots || []) {
+        const panel = panels.get(p.title) || { unit: p.unit, fallback: p.fallback, cols: [] };
+        if (cols.includes(d.name + "." + p.column)) panel.cols.push(d.name + "." + p.column);
+        panels.set(p.title, panel);
+      }
+    }
+    for (const [title, panel] of panels) {
+      const shown = panel.cols.length ? panel.cols : cols.filter((c) => c === panel.fallback);
+      plots.push(new Plot(`${title} ${shown.join(", ")} (${panel.unit})`, shown.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
+    }
     const wheels = cols.filter((c) => /(wheel|rw).*(speed|omega)|\.speed/.test(c));
     plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
