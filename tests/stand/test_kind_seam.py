@@ -190,6 +190,39 @@ def test_every_shipped_kind_declares_from_the_one_vocabulary():
         assert declared, f"{name} declares nothing it senses, actuates or stimulates"
         assert set(declared) <= set(devices.QUANTITIES), f"{name}: {declared}"
         assert kind.column_meanings and all(kind.column_meanings.values()), name
-    # A kind of a package that declares nothing still works: the defaults are empty.
     bare = devices.DeviceKind()
     assert (bare.senses, bare.actuates, bare.provides, bare.column_meanings) == ((), (), (), {})
+
+
+@pytest.mark.parametrize("name", ["detumble_cage", "detumble_igrf", "acquisition"])
+def test_every_column_a_shipped_device_records_has_a_meaning(name):
+    # Between them these scenarios hold every shipped kind: magnetorquer, cage, both sun sensors, tracker, gyro
+    # and wheels.
+    from stand.loop import column_meanings, columns
+    from stand.scenario import find, load
+
+    scene = build(load(find(name)))
+    try:
+        meanings = column_meanings(scene)
+        missing = [c[0] for c in columns(scene) if c[0].partition(".")[0] in scene.devices and c[0] not in meanings]
+    finally:
+        scene.close()
+    assert missing == []
+
+
+def test_a_kind_that_declares_nothing_still_runs(torque_rig, tmp_path, monkeypatch):
+    for attr, empty in (("actuates", ()), ("column_meanings", {})):
+        monkeypatch.setattr(_TorqueRig, attr, empty)
+    data = small_scenario([{"name": "rig", "kind": "torque_rig", "torque_B_Nm": [0.0, 3e-5, 0.0]}], 1.0)
+    data["spacecraft"].update(inertia_kg_m2=list(INERTIA), omega_BN_B_deg_s=[0.0, 0.0, 0.0])
+    scene = build(parse(data, "<test>"))
+    try:
+        result = run(scene, tmp_path)
+    finally:
+        scene.close()
+    assert result.status == "completed", result.error
+    schema = json.loads((tmp_path / "telemetry" / telemetry.SCHEMA).read_text())
+    assert [c for c in schema["columns"] if c["name"] == "rig.torque_B"] == [
+        {"name": "rig.torque_B", "width": 3, "unit": "N m"}]  # no meaning declared, none written
+    # Its effect acts all the same: d omega = I^-1 tau t about the intermediate axis.
+    assert telemetry.load(tmp_path)["omega_BN_B"][-1, 1] == pytest.approx(3e-5 / INERTIA[1] * 1.0, rel=1e-9)
