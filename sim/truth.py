@@ -18,6 +18,10 @@ What it computes and where:
   their momentum into the rigid-body equations (:class:`sim.wheels.WheeledBody`); their speeds join
   the state and the net torque on each rotor is an input held over the step, as the dipole is.
   Without wheels the step is the same code as before, bit for bit.
+* Actuators reach the dynamics through one effector interface (:class:`Effect`, :meth:`TruthModel.effector`):
+  a magnetic dipole, a torque on the body, or a momentum exchange with one rotor of the wheel cluster, each
+  read once per step and held over it. Whoever runs the truth (the stand's loop) builds the step once from the
+  effects its actuators declare and never names one.
 
 Only what the scene needs exists: no field track without a field model, no torque the scenario
 did not list. Time is integer nanoseconds; a run is bit-for-bit repeatable.
@@ -25,6 +29,7 @@ did not list. Time is integer nanoseconds; a run is bit-for-bit repeatable.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Callable
@@ -33,6 +38,7 @@ import numpy as np
 
 from . import orbit as orbit_mod
 from .constants import J2_EARTH, MU_EARTH, R_EARTH
+from .effects import EFFECT_TYPES, Effect  # noqa: F401 - Effect: the interface effector() takes
 from .frames import EarthRotation
 from .integrators import max_angle_rad, stepper
 from .rigid_body import RigidBody, check_step, non_finite_state
@@ -46,6 +52,30 @@ CHUNK_S = 200.0
 #: Most half-step grid points in one chunk (positions, velocities and field: about 1 KB a point with the
 #: vectorised field model's temporaries). The shipped scenarios' chunks (4001 points at 0.1 s) are under it.
 CHUNK_POINTS = 8192
+
+
+def _summed3(readers) -> Callable[[], tuple]:
+    """One reader of the sum of 3-vectors from ``readers`` (each added to 0.0, the order they came in)."""
+    if not readers:
+        zero = (0.0, 0.0, 0.0)
+        return lambda: zero
+    if len(readers) == 1:
+        read = readers[0]
+
+        def one():
+            m = read()
+            return (0.0 + m[0], 0.0 + m[1], 0.0 + m[2])
+
+        return one
+
+    def many():
+        x = y = z = 0.0
+        for read in readers:
+            m = read()
+            x, y, z = x + m[0], y + m[1], z + m[2]
+        return (x, y, z)
+
+    return many
 
 
 def chunk_points(half_step_s: float) -> int:
@@ -231,6 +261,9 @@ class TruthModel:
         self._b_B = (-1, None)  # (k, b_B): the magnetometer and the recorder both ask each step
         # RK4 with both torques written out in one function (rk4_magnetic_gg): the default scenario's step.
         self._fused = integrator == "rk4" and self.magnetic and self.gravity_gradient
+        #: The body torque of the "torque" effects (N m, body axes), held over the step (:meth:`effector`).
+        self.torque_B = (0.0, 0.0, 0.0)
+        self._stage_torque = self._torque if (self.magnetic or self.gravity_gradient) else None
 
     # --- truth at the current time ------------------------------------------------------------
     @property
@@ -303,6 +336,72 @@ class TruthModel:
             tz += c * (rx * iy - ry * ix)
         return tx, ty, tz
 
+    def _torque_and_body(self, t, q, w):
+        """The environment's torque at a stage plus the held body torque of the "torque" effects."""
+        bx, by, bz = self.torque_B
+        if not (self.magnetic or self.gravity_gradient):
+            return bx, by, bz
+        tx, ty, tz = self._torque(t, q, w)
+        return tx + bx, ty + by, tz + bz
+
+    def effector(self, effects) -> Callable[[], None]:
+        """The dynamics step under ``effects`` (:class:`Effect`): a function of no argument that reads every effect
+        once, then advances one step holding what they gave (dipoles summed in the order given, body torques summed,
+        each rotor's torque to its column). Built once before t = 0, so a step pays only for the reads. A rotor
+        column no effect targets keeps a zero torque. Raises ValueError for an unknown type or a bad target."""
+        by_type: dict[str, list] = {t: [] for t in EFFECT_TYPES}
+        for e in effects:
+            if e.type not in by_type:
+                raise ValueError(f"effect type {e.type!r} is not one of {', '.join(EFFECT_TYPES)}.")
+            by_type[e.type].append(e)
+        truth_step, dipoles = self.step, [e.read for e in by_type["dipole"]]
+        rotors = self._rotor_reader(by_type["momentum_exchange"])
+        if by_type["torque"]:
+            body = _summed3([e.read for e in by_type["torque"]])
+            dipole = _summed3(dipoles)
+            self._fused = False  # the fused step knows only the environment's torques
+            self._stage_torque = self._torque_and_body
+
+            model = self  # not ``self`` inside: a failing read is blamed on its device, not on the truth
+
+            def step_with_body_torque():
+                model.torque_B = body()
+                truth_step(dipole(), None if rotors is None else rotors())
+
+            return step_with_body_torque
+        if rotors is not None:
+            dipole = _summed3(dipoles)
+            return lambda: truth_step(dipole(), rotors())
+        if not dipoles:  # no actuator: the truth's own step with a zero dipole, through one C-level call
+            return functools.partial(truth_step, (0.0, 0.0, 0.0))
+        if len(dipoles) == 1:  # the usual magnetic spacecraft: one call less per step
+            read = dipoles[0]
+
+            def step_one_dipole():
+                m = read()
+                truth_step((0.0 + m[0], 0.0 + m[1], 0.0 + m[2]))
+
+            return step_one_dipole
+        dipole = _summed3(dipoles)
+        return lambda: truth_step(dipole())
+
+    def _rotor_reader(self, effects):
+        """None without momentum exchange, else a reader of the rotor torques in column order."""
+        if not effects:
+            return None
+        columns = [e.target for e in effects]
+        if self.wheels is None:
+            raise ValueError(f"momentum_exchange targets {columns}, but the truth has no wheel cluster (no device's "
+                             "kind declared a momentum wheel: DeviceKind.momentum_wheel).")
+        n = self.wheels.n
+        if len(set(columns)) != len(columns) or not all(isinstance(c, int) and 0 <= c < n for c in columns):
+            raise ValueError(f"momentum_exchange targets {columns}: each must name a different rotor column of the "
+                             f"truth's wheel cluster (0 to {n - 1}; it has {n} wheels).")
+        readers = [float] * n  # float() is 0.0: a column no effect targets
+        for e in effects:
+            readers[e.target] = e.read
+        return lambda: tuple([read() for read in readers])
+
     def step(self, dipole_B=(0.0, 0.0, 0.0), wheel_torque_Nm=None) -> None:
         """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant, and with wheels
         the net torque on each rotor (N m about its spin axis: motor minus friction; None keeps the last)."""
@@ -323,7 +422,7 @@ class TruthModel:
         mag, gg = self.magnetic, self.gravity_gradient
         self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
                                    for i in (base, base + 1, base + 2))
-        torque = self._torque if (self.magnetic or self.gravity_gradient) else None
+        torque = self._stage_torque
         # Stage times are passed relative to the step start so the stage lookup is exact.
         q, w = self._step(self.q, self.w, self.h, torque, 0.0)
         if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
@@ -367,7 +466,7 @@ class TruthModel:
         mag, gg = self.magnetic, self.gravity_gradient
         self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
                                    for i in (base, base + 1, base + 2))
-        torque = self._torque if (mag or gg) else None
+        torque = self._stage_torque
         body = self._wheeled
         q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)
         if body.fastest_rate(w, hw) * self.h > self._max_angle:

@@ -6,10 +6,11 @@ Order inside a tick at sim time t (docs/architecture.md, "One tick"):
 2. each device publishes what is due at t (``Device.publish``): an emulator samples the truth and sends
    through the real codec; a hardware link's host reads what the real device sent;
 3. the controller, when due, reads its host drivers and sends commands back through the codec;
-4. each device takes in what arrived (``Device.receive``); actuators' outputs (the dipole) are held
-   (zero-order hold) over the step;
+4. each device takes in what arrived (``Device.receive``);
 5. a telemetry row is recorded when due; the device watch looks for silent devices once a second;
-6. the truth model advances one step, torques re-evaluated inside every integrator stage.
+6. the truth model advances one step under what the actuators' effects (``Device.effects``: a dipole, a torque, a
+   momentum exchange) read now, held (zero-order hold) over the step, torques re-evaluated inside every integrator
+   stage.
 
 A failure mid-run (a device fault, a plug-in exception or exit, flight code over its time budget, a full disk,
 the operator) ends the run cleanly: the event is logged under the name of what failed (``device_exception`` with
@@ -32,6 +33,7 @@ from dataclasses import dataclass, field
 
 from sim.time import seconds_to_ns
 
+from . import devices
 from .compose import Scene, ticks_per
 from .pacing import Pacer
 from .scenario import DEFAULT_BUDGET_S
@@ -87,6 +89,26 @@ class DeviceWatch:
             self.silences += 1
             self.events.log("device_silent", f"{self.name}: nothing received since t = {self.last_change_s:.3f} s "
                             f"(silent after {self.limit_s:g} s)", t_s=t_s, device=self.name)
+
+
+#: One-line meanings of the columns every run records (a kind's are in ``DeviceKind.column_meanings``).
+MEANINGS = {"t_s": "simulation time since the scenario's epoch",
+            "q_BN": "true attitude, body relative to inertial (GCRS), scalar first",
+            "omega_BN_B": "true body rate relative to inertial, body axes", "r_BN_N": "true position, inertial",
+            "v_BN_N": "true velocity, inertial", "b_true_B": "true magnetic field at the spacecraft, body axes"}
+
+
+def column_meanings(scene: Scene) -> dict[str, str]:
+    """Column name -> one-line meaning, for the telemetry's schema: the stand's own and what each device's kind
+    declares (a kind not found, or declaring nothing, leaves its columns without one)."""
+    out = dict(MEANINGS)
+    for spec in scene.scenario.devices:
+        try:
+            declared = devices.get(spec.kind).column_meanings
+        except KeyError:
+            continue
+        out.update({f"{spec.name}.{col}": text for col, text in declared.items()})
+    return out
 
 
 def columns(scene: Scene) -> list[tuple[str, int, str]]:
@@ -292,9 +314,8 @@ class _Watchdog:
 
 
 # What the loop was doing when something raised (``_Flight.stage``), and the word the error uses for it.
-PUBLISH, CONTROL, RECEIVE, DIPOLE, ROW, WRITER, OBSERVER, TRUTH, CHORES, START = range(10)
-STAGE_WORDS = ("publish", "update", "receive", "dipole", "telemetry row", "record", "feed", "wheel torque",
-               "activity", "start")
+PUBLISH, CONTROL, RECEIVE, ROW, WRITER, OBSERVER, TRUTH, CHORES, START = range(9)
+STAGE_WORDS = ("publish", "update", "receive", "telemetry row", "record", "feed", "effect", "activity", "start")
 
 
 class _Flight:
@@ -307,7 +328,7 @@ class _Flight:
         self.duration_s = sc.duration_s if duration_s is None else duration_s
         self.n_steps = seconds_to_ns(self.duration_s) // self.truth.step_ns
         self.events = EventLog(out_dir)
-        self.recorder = Recorder(out_dir, columns(scene))
+        self.recorder = Recorder(out_dir, columns(scene), column_meanings(scene))
         self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
         self.bar = Progress(self.n_steps * sc.step_s, progress)
         self.devs = list(scene.devices.values())
@@ -339,13 +360,14 @@ class _Flight:
     def plan(self):
         """What the tick calls, bound to locals once (the tick runs tens of thousands of times per orbit)."""
         sc, pacer, truth, own = self.sc, self.pacer, self.truth, self._own
-        publishers, receivers, givers, parts = [], [], [], ([own(truth.b_B, truth)] if truth.has_field else [])
+        publishers, receivers, effects, parts = [], [], [], ([own(truth.b_B, truth)] if truth.has_field else [])
         for d in self.devs:
             publishers.append((own(d.publish, d), d.every_ticks))
             receivers.append(own(d.receive, d))
             parts.append(own(d.row, d))
-            if d.gives_dipole:
-                givers.append(own(d.dipole_B, d))
+            for effect in d.effects():  # what an actuator does to the truth, read by the truth's step
+                own(effect.read, d)
+                effects.append(effect)
         if pacer.factor is not None:
             publishers.insert(0, (pacer.wait, 1))  # first: the tick's wall-clock deadline
         if pacer.factor is not None and sc.wall_time_links:
@@ -355,12 +377,8 @@ class _Flight:
             # controller does. Holding is the first "receiver", so an afap tick pays nothing for it.
             hold, frame_end_s = pacer.hold, FRAME_END * sc.step_s
             receivers.insert(0, own(lambda t: hold(t + frame_end_s), pacer))
-        wheelers = [own(d.wheel_torque_Nm, d) for d in sorted((d for d in self.devs if d.gives_wheel_torque),
-                                                               key=lambda d: d.wheel_index)]
-        step = truth.step
-        if wheelers:
-            def step(dipole, truth_step=step):
-                truth_step(dipole, tuple([torque() for torque in wheelers]))
+        # The truth reads every effect once per step, after the receivers (sim.truth.TruthModel.effector).
+        step = truth.effector(effects)
         ctl_update = ctl_row = None
         if self.controller is not None:
             ctl_update = own(self.controller.update, self.controller)
@@ -371,7 +389,7 @@ class _Flight:
             [self.bar.row] if self.bar.enabled else [])
         ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if ctl_update is not None else 0
         busy = self.watchdog.busy if self.watchdog is not None else [None]
-        return (publishers, receivers, givers, step, parts, sinks, ctl_update, ctl_every, busy,
+        return (publishers, receivers, step, parts, sinks, ctl_update, ctl_every, busy,
                 ticks_per(sc.record_rate_hz, sc.step_s))
 
 
@@ -386,10 +404,10 @@ def _start(f: _Flight) -> None:
 def _fly(f: _Flight) -> None:
     """The ticks, from ``f.k`` to the end (docs/architecture.md, "One tick"). Nothing here calls more per tick
     than the tick needs: ``stage`` (a local) and the loop variables say where an exception came from."""
-    publishers, receivers, givers, step, parts, sinks, ctl_update, ctl_every, busy, rec_every = f.plan()
+    publishers, receivers, step, parts, sinks, ctl_update, ctl_every, busy, rec_every = f.plan()
     truth, record, n_steps = f.truth, f.recorder.record, f.n_steps
     k, next_chore, stage = f.k, 0, START
-    publish = receive = dipole = part = sink = None
+    publish = receive = part = sink = None
     try:
         while True:
             t = truth.t_ns / 1e9
@@ -405,11 +423,6 @@ def _fly(f: _Flight) -> None:
             stage = RECEIVE
             for receive in receivers:
                 receive(t)
-            stage = DIPOLE
-            dx = dy = dz = 0.0
-            for dipole in givers:
-                m = dipole()
-                dx, dy, dz = dx + m[0], dy + m[1], dz + m[2]
             if k % rec_every == 0 or k == n_steps:
                 stage = TRUTH
                 row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
@@ -429,12 +442,12 @@ def _fly(f: _Flight) -> None:
                 if k >= n_steps:
                     break
             stage = TRUTH
-            step((dx, dy, dz))
+            step()
             k += 1
     except BaseException:
         busy[0] = None
         f.k, f.stage = k, stage
-        f.fn = (publish, ctl_update, receive, dipole, part, record, sink)[stage] if stage <= OBSERVER else None
+        f.fn = (publish, ctl_update, receive, part, record, sink)[stage] if stage <= OBSERVER else None
         raise
     f.k = k
 
@@ -466,6 +479,10 @@ def _culprit(f: _Flight, exc: BaseException) -> tuple[str, str, dict]:
     tb = exc.__traceback__
     while hit is None and tb is not None:
         hit = f.known.get(id(tb.tb_frame.f_locals.get("self")))
+        if hit is None and tb.tb_next is not None:  # an effect's reader (a plain function) the truth's step called
+            read = tb.tb_frame.f_locals.get("read")
+            if getattr(getattr(read, "__func__", read), "__code__", None) is tb.tb_next.tb_frame.f_code:
+                hit = f.known.get(id(read))
         tb = tb.tb_next
     if hit is None:
         default = {CONTROL: f.controller, TRUTH: f.truth, WRITER: f.recorder, OBSERVER: f.observer}.get(f.stage)

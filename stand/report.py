@@ -242,8 +242,13 @@ def _draw_plots(scene: Scene, tel, out_dir: Path, criteria: list[dict]) -> tuple
     from .view.export import report_panorama
 
     made, notes = [], []
-    makers = [("rate, attitude, dipole and pointing plots", lambda: write_plots(tel, out_dir,
-                                                                                rate_limits=rate_limits(sc.criteria)))]
+    makers = [("rate, attitude and pointing plots", lambda: write_plots(tel, out_dir,
+                                                                        rate_limits=rate_limits(sc.criteria)))]
+    kinds: dict[str, list[str]] = {}  # kind -> its devices, in the scenario's order
+    for d in sc.devices:
+        kinds.setdefault(d.kind, []).append(d.name)
+    makers += [(f"plots of the {kind} devices", lambda kind=kind, names=names: devices.get(kind).kind_plots(
+        tel, names, out_dir)) for kind, names in kinds.items()]
     makers += [(f"plots of {d.name}", lambda d=d: devices.get(d.kind).plots(tel, d.name, out_dir, criteria))
                for d in sc.devices]
     makers.append(("panorama.png", lambda: [p for p in [report_panorama(out_dir, sc)] if p]))
@@ -352,16 +357,13 @@ def rate_limits(criteria) -> list[tuple[str, float, float | None]]:
 
 
 def write_plots(tel, out_dir: Path, *, rate_limits: list | None = None) -> list[str]:
-    """rate.png, attitude.png and, when the run commanded or produced a dipole, dipole.png."""
+    """rate.png, attitude.png and, with the reference ADCS's columns, pointing.png: the plots of every run (each
+    kind draws its own: ``DeviceKind.kind_plots`` and ``plots``)."""
     from . import plots
 
     if len(tel["t_s"]) < 2:
         return []
     made = [plots.plot_rate(tel, out_dir, rate_limits or ()), plots.plot_attitude(tel, out_dir)]
-    produced = {k[: -len(".dipole_B")]: k for k in tel if k.endswith(".dipole_B")}
-    commanded = "dipole_cmd_B" if "dipole_cmd_B" in tel else None
-    if produced or commanded:
-        made.append(plots.plot_dipole(tel, out_dir, produced, commanded))
     if all(c in tel for c in ("adcs_q_BN_est", "adcs_sigma3_B", "adcs_q_RN", "adcs_mode")):
         made.append(plots.plot_pointing(tel, out_dir))
     return made

@@ -2,7 +2,8 @@
 
 Layout of ``RUN_DIR/telemetry/``:
 
-* ``schema.json``: written once before the first row: column names, their widths and units.
+* ``schema.json``: written once before the first row: column names, their widths, units and, where the kind or
+  the stand declares one, a one-line meaning.
 * ``rows.f64``: little-endian float64 rows appended by a writer thread. A row is never split
   across a write that is not flushed as a whole, and ``load`` ignores a trailing partial row, so
   a log cut by SIGKILL reads back up to the last flush (at most ``FLUSH_S`` old).
@@ -37,15 +38,18 @@ class TelemetryError(OSError):
 class Recorder:
     """Append rows of floats to the log from the loop; a thread writes them."""
 
-    def __init__(self, run_dir: str | Path, columns: list[tuple[str, int, str]], clock=time.monotonic):
+    def __init__(self, run_dir: str | Path, columns: list[tuple[str, int, str]], meanings: dict | None = None,
+                 clock=time.monotonic):
         self.dir = Path(run_dir) / "telemetry"
         self.dir.mkdir(parents=True, exist_ok=True)
         self.columns = columns
         self.width = sum(w for _, w, _ in columns)
+        meanings = meanings or {}
         schema = {
             "format": "rows of little-endian float64, one row per record",
             "row_floats": self.width,
-            "columns": [{"name": n, "width": w, "unit": u} for n, w, u in columns],
+            "columns": [{"name": n, "width": w, "unit": u, **({"meaning": meanings[n]} if n in meanings else {})}
+                        for n, w, u in columns],
         }
         try:
             (self.dir / SCHEMA).write_text(json.dumps(schema, indent=1))

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from sim.effects import EFFECT_TYPES, Effect  # noqa: F401 - the effector interface, re-exported for kinds
 from stand.checks import Table
 from stand.errors import ScenarioError
 
@@ -53,6 +54,26 @@ KINDS = {
 
 #: Truth models a device may need, in the order ``stand check`` lists them.
 TRUTH_MODELS = ("magnetic_field", "sun", "moon", "eclipse", "star_screen")
+
+#: The one vocabulary of what a kind senses (``DeviceKind.senses``), actuates (``actuates``) or stimulates for the
+#: other devices (``provides``): quantity -> what it is. A kind declares names from here (``stand check`` lists
+#: them); an out-of-tree kind that declares nothing still works. The truth is reached only through effects
+#: (``Device.effects``, ``sim.effects.EFFECT_TYPES``): a kind that actuates ``dipole`` gives a "dipole" effect,
+#: ``torque`` a "torque" effect, ``wheel_torque`` a "momentum_exchange" effect.
+QUANTITIES = {
+    "magnetic_field": "the magnetic field vector (T)",
+    "attitude": "the orientation of the body or of a sensor frame (quaternion)",
+    "rate": "the angular rate of the body (rad/s)",
+    "sun": "the Sun: its direction, or the light it puts on sensing cells",
+    "star_sky": "the stars in a field of view: a catalogue, rendered stars or an image",
+    "position": "the spacecraft's position (m)",
+    "velocity": "the spacecraft's velocity (m/s)",
+    "time": "a time stamp or clock (s)",
+    "dipole": "a magnetic dipole on the body (A m^2); the torque is m x B",
+    "torque": "a torque on the body (N m)",
+    "wheel_torque": "the torque on a momentum wheel's rotor, taken from the body (N m)",
+    "wheel_momentum": "a momentum wheel's speed and stored angular momentum (rad/s, N m s)",
+}
 
 _loaded: dict[str, DeviceKind] = {}
 
@@ -130,10 +151,12 @@ class Device:
     1. ``publish(t_s)`` on the ticks in ``every_ticks``: sensors sample the truth and send (emulated and served
        links), or the host reads what a real device sent (hardware);
     2. the controller runs;
-    3. ``receive(t_s)``: actuators take in commands; ``dipole_B`` (when ``gives_dipole``) is the output held
-       over the next step, as is ``wheel_torque_Nm`` (when ``gives_wheel_torque``: the net torque on the rotor
-       of column ``wheel_index`` of the truth's wheel cluster);
-    4. ``row()`` when a telemetry row is due, matching ``columns()``.
+    3. ``receive(t_s)``: actuators take in commands;
+    4. ``row()`` when a telemetry row is due, matching ``columns()`` (``(name, width, unit)``: the name is the
+       device's name, a dot and the kind's column; its one-line meaning is in ``DeviceKind.columns``);
+    5. the truth steps, reading once each :class:`Effect` of ``effects()`` (asked once before t = 0): what an
+       actuator does to the truth, held over the step (a dipole, a torque on the body, a momentum exchange with a
+       rotor of the truth's wheel cluster: ``sim.truth.EFFECT_TYPES``).
 
     ``activity()`` counts measurements that reached the stand; the loop's watch reports a device whose count
     stops moving for ``silent_after_s`` of sim time (None: not watched). ``host`` is the host driver the flight
@@ -143,9 +166,6 @@ class Device:
     name: str
     host: Any = None
     every_ticks: int = 1
-    gives_dipole: bool = False
-    gives_wheel_torque: bool = False
-    wheel_index: int = -1
     silent_after_s: float | None = None
 
     def columns(self) -> list[tuple[str, int, str]]:
@@ -157,11 +177,9 @@ class Device:
     def receive(self, t_s: float) -> None:
         """Take in what arrived by ``t_s``."""
 
-    def dipole_B(self) -> tuple[float, float, float]:
-        return (0.0, 0.0, 0.0)
-
-    def wheel_torque_Nm(self) -> float:
-        return 0.0
+    def effects(self) -> tuple[Effect, ...]:
+        """What this device does to the truth (none: a sensor); asked once before t = 0, each read every step."""
+        return ()
 
     def row(self) -> tuple:
         return ()
@@ -189,9 +207,27 @@ class DeviceKind:
     metrics: dict[str, str] = {}
     #: Metrics that need ``at_s``.
     metrics_at: tuple[str, ...] = ()
-    #: What a device of this kind stimulates for the others (a Helmholtz cage: "magnetic_field"); stimulators are
-    #: built, and step, before the devices that read them.
+    #: What a device of this kind senses, actuates, and stimulates for the others (a Helmholtz cage:
+    #: "magnetic_field"; stimulators are built, and step, before the devices that read them): names of QUANTITIES.
+    senses: tuple[str, ...] = ()
+    actuates: tuple[str, ...] = ()
     provides: tuple[str, ...] = ()
+    #: Its telemetry columns (the part after ``NAME.``; widths and units are in ``Device.columns()``) -> a one-line
+    #: meaning, written into the telemetry's schema.json and listed by ``stand check``.
+    column_meanings: dict[str, str] = {}
+    #: The plot files it draws (``{name}``: the device's name) -> what each shows (:meth:`plots`, :meth:`kind_plots`).
+    plot_files: dict[str, str] = {}
+    #: What the operator view draws for it besides its fields of view (:meth:`view_layers`): layer -> meaning.
+    view_layer_meanings: dict[str, str] = {}
+    #: How the operator view colours its fields of view and validity strip, from its ``NAME.valid`` (and
+    #: ``NAME.flags``) columns: ``{"missing": text without a value, "flags": whether NAME.flags says why it is
+    #: invalid (bits 1 Sun, 2 Moon, 4 Earth, 8 rate), "invalid": [colour key, text] otherwise}``; None: not drawn.
+    view_state: dict | None = None
+    #: Its error columns (after ``NAME.``) the view plots on the pointing and knowledge error plot (arcsec).
+    view_error_columns: tuple[str, ...] = ()
+    #: The view's live plots of its 3-vector columns, one panel per title for all its devices: ``{"title", "unit",
+    #: "column" (after ``NAME.``), "fallback" (a run column drawn when no device records one, or absent)}``.
+    view_plots: tuple[dict, ...] = ()
     #: How ``stand emulate`` serves this kind (:class:`stand.devices.serving.Serving`); None: it cannot be served.
     serving = None
 
@@ -234,7 +270,28 @@ class DeviceKind:
         return math.nan
 
     def plots(self, tel: dict, name: str, out_dir, limits: list) -> list[str]:
+        """The plots of device ``name`` (files written in ``out_dir``, relative names)."""
         return []
+
+    def kind_plots(self, tel: dict, names: list[str], out_dir) -> list[str]:
+        """Plots drawn once for all the devices ``names`` of this kind in a run (one figure comparing them)."""
+        return []
+
+    def view_layers(self, spec: DeviceSpec) -> dict:
+        """What the operator view draws for a device of this spec, into its entry in ``view.json``: ``fovs``
+        (fields of view: ``{"shape": "rect", "axis_S", "fov_deg", "label"}`` or ``{"shape": "cone", "axis_S",
+        "half_deg", "label"}``, ``"head": true`` for a head lit by its ``NAME.currents``), and any of
+        ``exclusion_deg`` (body -> cone half-angle) and ``rate_limit_deg_s``. (``view_state`` and
+        ``view_error_columns`` join them.) The default draws a spec's ``fov_deg`` (rectangle) or ``fov_half_deg``
+        (cone)."""
+        fov, half = getattr(spec, "fov_deg", None), getattr(spec, "fov_half_deg", None)
+        if fov is not None:
+            return {"fovs": [{"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(x) for x in fov],
+                              "label": spec.name}]}
+        if half is not None:
+            return {"fovs": [{"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": float(half),
+                              "label": spec.name}]}
+        return {"fovs": []}
 
 
 #: CAN interfaces a link may use. Emulated devices stay in the process; a hardware or served link names a

@@ -51,6 +51,12 @@ class CageSpec(DeviceSpec):
 
 class CageKind(DeviceKind):
     name = "cage"
+    senses = ("magnetic_field",)
+    column_meanings = {"b_cmd_B": "the field commanded to the cage, body axes",
+                       "b_cage_B": "the field the cage produced, read back, body axes",
+                       "currents": "the three axes' coil currents read back",
+                       "interlocks": "the number of interlocks engaged"}
+    plot_files = {"cage_{name}.png": "the cage's field against the simulated field, currents and interlocks"}
     links = ("emulated", "hardware")
     provides = ("magnetic_field",)
     metrics = {

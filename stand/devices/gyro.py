@@ -81,6 +81,10 @@ def misalignment_matrix(off: tuple) -> np.ndarray:
 
 class GyroKind(DeviceKind):
     name = "gyro"
+    senses = ("rate",)
+    column_meanings = {"omega_S": "the newest rate sample the host decoded, sensor axes",
+                       "valid": "1 when that sample is valid"}
+    plot_files = {"gyro_{name}.png": "the rates in sensor axes, valid samples only"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> GyroSpec:
         ideal = t.flag("ideal", False)
@@ -129,7 +133,7 @@ class GyroKind(DeviceKind):
         return {"emulated": EmulatedGyro, "hardware": HardwareGyro, "served": ServedGyro}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
-        from stand.plots import plot_gyro
+        from stand.devices.gyro_plots import plot_gyro
 
         return [plot_gyro(tel, out_dir, name)]
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim.effects import Effect
 from sim.rotations import dcm
 from sim.truth import rotate_to_body
 from stand.checks import rate
@@ -68,6 +69,20 @@ def _codec():
 
 class MagnetorquerKind(DeviceKind):
     name = "magnetorquer"
+    senses = ("magnetic_field",)
+    actuates = ("dipole",)
+    column_meanings = {"mag_S": "the newest magnetometer sample the host decoded, sensor axes",
+                       "mag_coil_active": "1 when that sample was taken with the coils driven",
+                       "dipole_B": "the dipole the board produced, held over the step, body axes"}
+    plot_files = {"dipole.png": "the dipole commanded by the controller and produced by each board, per body axis"}
+    view_plots = ({"title": "dipole", "unit": "A m²", "column": "dipole_B", "fallback": "dipole_cmd_B"},)
+
+    def kind_plots(self, tel, names, out_dir) -> list[str]:
+        from stand.devices.magnetorquer_plots import plot_dipole
+
+        produced = {n: f"{n}.dipole_B" for n in names if f"{n}.dipole_B" in tel}
+        commanded = "dipole_cmd_B" if "dipole_cmd_B" in tel else None
+        return [plot_dipole(tel, out_dir, produced, commanded)] if produced or commanded else []
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetorquerSpec:
         codec = _codec()
@@ -117,7 +132,6 @@ class MagnetorquerKind(DeviceKind):
 
 
 class _Board(Device):
-    gives_dipole = True
     observer = None  # the stand's listen-only node on the board's bus, for telemetry
 
     def __init__(self, spec: MagnetorquerSpec):
@@ -152,6 +166,9 @@ class _Board(Device):
     def _observed_samples(self) -> int:
         self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
         return self.observer.seen[self._sample_id]
+
+    def effects(self):
+        return (Effect("dipole", self.dipole_B),)
 
     def close(self) -> None:
         if self.observer is not None:

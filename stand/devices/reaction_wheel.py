@@ -32,6 +32,7 @@ import numpy as np
 from drivers.framing import FrameObserver
 from drivers.reaction_wheel.codec import Status as WheelStatus
 from drivers.reaction_wheel.codec import WheelSpeed
+from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
@@ -63,6 +64,14 @@ class ReactionWheelSpec(DeviceSpec):
 
 class ReactionWheelKind(DeviceKind):
     name = "reaction_wheel"
+    senses = ("wheel_momentum",)
+    actuates = ("wheel_torque",)
+    column_meanings = {"speed_rad_s": "the rotor's speed relative to the body",
+                       "mode": "the wheel's mode (0 idle, 1 torque, 2 speed)",
+                       "torque_cmd_Nm": "the torque (or, in speed mode, the speed) command held",
+                       "motor_torque_Nm": "the motor's torque after its lag",
+                       "net_torque_Nm": "the net torque on the rotor: motor minus friction"}
+    plot_files = {"wheel_{name}.png": "speed, and the torques on the rotor"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> ReactionWheelSpec:
         from drivers.reaction_wheel.codec import ReactionWheelCodec
@@ -124,7 +133,7 @@ class ReactionWheelKind(DeviceKind):
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
-        from stand.plots import plot_wheel
+        from stand.devices.reaction_wheel_plots import plot_wheel
 
         return [plot_wheel(tel, out_dir, name)]
 
@@ -137,7 +146,6 @@ def motor_of(spec: ReactionWheelSpec):
 
 
 class _Wheel(Device):
-    gives_wheel_torque = True
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
         self.name, self.spec = spec.name, spec
@@ -170,6 +178,9 @@ class _Wheel(Device):
 
     def wheel_torque_Nm(self) -> float:
         return self._tau
+
+    def effects(self):
+        return (Effect("momentum_exchange", self.wheel_torque_Nm, self.wheel_index),)
 
     def _source(self, _t_s):
         return self.speed_rad_s(), self._motor_tau

@@ -97,6 +97,32 @@ def _icd_settings() -> dict[str, tuple[float, float, float, bool]]:
 
 class StarTrackerKind(DeviceKind):
     name = "star_tracker"
+    senses = ("attitude", "star_sky", "time")
+    column_meanings = {"t_exposure_s": "exposure time of the newest solution the host decoded, stand time",
+                       "q_TN": "that solution: tracker frame relative to inertial, scalar first",
+                       "valid": "1 when that solution is valid",
+                       "mode": "the tracker's mode (0 boot, 1 lost in space, 2 tracking)",
+                       "flags": "why it is not valid: bits 1 Sun, 2 Moon, 4 Earth in the field, 8 rate too high",
+                       "err_cross": "that solution's error across the boresight against the truth",
+                       "err_roll": "that solution's error about the boresight against the truth",
+                       "clock_offset_s": "tracker clock minus stand clock, measured at start (hardware link)"}
+    plot_files = {"tracker_{name}.png": "solution errors with their limits, validity, mode and flags"}
+    view_layer_meanings = {"fovs": "the field of view", "exclusion_deg": "the Sun, Moon and Earth exclusion cones",
+                           "rate_limit_deg_s": "the body rate above which it cannot solve"}
+    view_state = {"missing": "no solution", "flags": True, "invalid": ["acquiring", "invalid: acquiring"]}
+    view_error_columns = ("err_cross", "err_roll")
+    #: Drawn with the stand's default optics when a tracker's scenario gives none (truth-source trackers).
+    DEFAULT_FOV_DEG = (20.0, 15.0)
+
+    def view_layers(self, spec) -> dict:
+        optics = getattr(spec, "optics", None)
+        fx, fy = optics.fov_deg if optics is not None else self.DEFAULT_FOV_DEG
+        em = getattr(spec, "emulator", {}) or {}
+        return {"fovs": [{"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(fx), float(fy)],
+                          "label": spec.name}],
+                "exclusion_deg": {b: float(em[f"{b}_exclusion_deg"]) for b in ("sun", "moon", "earth")
+                                  if f"{b}_exclusion_deg" in em},
+                "rate_limit_deg_s": float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None}
     metrics = {
         "tracker_availability_after": "fraction of star-tracker solutions after time at_s that are valid",
         "tracker_error_cross_arcsec_p95": "95th percentile of the valid solutions' cross-boresight error (arcsec)",
@@ -204,7 +230,7 @@ class StarTrackerKind(DeviceKind):
 
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
-        from stand.plots import plot_tracker
+        from stand.devices.star_tracker_plots import plot_tracker
 
         lim = {c["metric"]: c for c in criteria}
 

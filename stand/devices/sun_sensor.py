@@ -104,6 +104,22 @@ class SunSensorReader:
 
 class SunSensorKind(DeviceKind):
     name = "sun_sensor"
+    senses = ("sun",)
+    column_meanings = {"currents": "the six heads' currents the host decoded (coarse sensor)",
+                       "angles": "the Sun's two angles in the sensor frame the host decoded (fine sensor)",
+                       "valid": "1 when that sample is valid",
+                       "sun_fraction": "the visible fraction of the Sun's disc (Earth shadow) at that sample"}
+    plot_files = {"sun_{name}.png": "head currents or angles with the Earth shadow, the Sun fraction and validity"}
+    view_layer_meanings = {"fovs": "the field of view, one cone per head of a coarse sensor, lit by its current"}
+    view_state = {"missing": "no sample", "flags": False, "invalid": ["sun_flag", "invalid"]}
+
+    def view_layers(self, spec) -> dict:
+        half = float(getattr(spec, "fov_half_deg", 90.0))
+        if getattr(spec, "type", "fine") != "coarse":
+            return {"fovs": [{"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": half, "label": spec.name}]}
+        return {"fovs": [{"shape": "cone", "axis_S": [float(x) for x in n], "half_deg": half,
+                          "label": f"{spec.name} {label}", "head": True}
+                         for n, label in zip(FACE_NORMALS, HEAD_LABELS, strict=True)]}
     links = (*LINKS, "model")
     default_link = "emulated"
 
@@ -154,7 +170,7 @@ class SunSensorKind(DeviceKind):
                 "model": ModelSunSensor}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
-        from stand.plots import plot_sun_sensor
+        from stand.devices.sun_sensor_plots import plot_sun_sensor
 
         return [plot_sun_sensor(tel, out_dir, name, head_labels=HEAD_LABELS if f"{name}.currents" in tel else None)]
 

@@ -78,7 +78,8 @@ def device_state(samples: dict, dev: dict, i: int) -> tuple[str, str]:
     hit = [(name, key) for bit, name, key in FLAG_BITS if flags is not None and int(flags[i]) & bit]
     if hit:
         return hit[0][1], "invalid: " + ", ".join(h[0] for h in hit)
-    return ("acquiring", "invalid: acquiring") if dev["kind"] == "star_tracker" else ("sun_flag", "invalid")
+    key, text = (dev.get("state") or {}).get("invalid") or ("sun_flag", "invalid")
+    return key, text
 
 
 def _boundary(fov: dict, n: int = 96) -> np.ndarray:

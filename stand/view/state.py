@@ -1,9 +1,8 @@
 """What the operator page shows, computed from a run folder (replay) or from the rows a live run hands over.
 
-``view.json`` (written beside the telemetry at run start by :func:`write_view_json`) holds what the page needs
-from the scenario: the epoch, the Earth-rotation model, and for every device its kind, mount ``q_SB`` and field
-of view. :func:`load_meta` reads it, or rebuilds it from the scenario named in ``summary.json`` for a run
-recorded before the file existed.
+``view.json`` (:mod:`stand.view.meta`: :func:`write_view_json`, :func:`load_meta`) holds what the page needs
+from the scenario: the epoch, the Earth-rotation model, and for every device its kind, mount and the layers its
+kind declares.
 
 :func:`derive` turns telemetry columns into the page's samples: the telemetry itself plus the Sun and Moon
 directions from the spacecraft (with their angular radii), the Earth's visible fraction of the Sun, the
@@ -34,10 +33,10 @@ from sim.frames import EarthRotation
 from sim.rotations import quat_from_dcm
 from sim.time import Epoch
 
-VIEW_FILE = "view.json"
+# The run's view description lives in .meta; the page's modules and benches take it from here as before.
+from .meta import VIEW_FILE, RunFileError, describe, dumps, load_meta, write_view_json  # noqa: F401
+
 R_MOON = 1.7374e6
-#: A tracker whose scenario gives no field (truth-source trackers) is drawn with the stand's default optics.
-DEFAULT_TRACKER_FOV_DEG = (20.0, 15.0)
 #: Most samples a replay sends the page for the whole run (the slider's resolution is duration / this).
 MAX_SAMPLES = 6000
 PROJECTIONS = ("equirectangular", "hammer")
@@ -53,169 +52,6 @@ LIVE_MAX_PENDING_ROWS = 100_000
 SERVER_SILENT_S = 15.0
 #: ... or when no page has been open for this long during the pause.
 UNATTENDED_PAUSE_S = 600.0
-
-
-# --------------------------------------------------------------------------------------------------- strict JSON
-
-def _finite_or_none(obj):
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite_or_none(v) for v in obj]
-    return obj
-
-
-def dumps(obj) -> str:
-    """JSON a browser can parse: NaN and infinities (a criterion a tracker that never solved could not score, an
-    event's time) become ``null``; Python's ``json`` would write ``NaN``, which ``JSON.parse`` refuses."""
-    try:
-        return json.dumps(obj, allow_nan=False)
-    except ValueError:
-        return json.dumps(_finite_or_none(obj), allow_nan=False)
-
-
-# --------------------------------------------------------------------------------------------------- metadata
-
-def _device_view(d) -> dict:
-    """Kind, mount and fields of view of one scenario device (anything with a field is drawn)."""
-    out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB], "fovs": []}
-    if d.kind == "star_tracker":
-        optics = getattr(d, "optics", None)
-        fx, fy = optics.fov_deg if optics is not None else DEFAULT_TRACKER_FOV_DEG
-        em = getattr(d, "emulator", {}) or {}
-        out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(fx), float(fy)],
-                            "label": d.name})
-        out["exclusion_deg"] = {b: float(em[f"{b}_exclusion_deg"]) for b in ("sun", "moon", "earth")
-                                if f"{b}_exclusion_deg" in em}
-        out["rate_limit_deg_s"] = float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None
-    elif d.kind == "sun_sensor":
-        half = float(getattr(d, "fov_half_deg", 90.0))
-        if getattr(d, "type", "fine") == "coarse":
-            from stand.devices.sun_sensor import FACE_NORMALS, HEAD_LABELS
-
-            for n, label in zip(FACE_NORMALS, HEAD_LABELS, strict=True):
-                out["fovs"].append({"shape": "cone", "axis_S": [float(x) for x in n], "half_deg": half,
-                                    "label": f"{d.name} {label}", "head": True})
-        else:
-            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": half, "label": d.name})
-    else:
-        fov = getattr(d, "fov_deg", None)
-        half = getattr(d, "fov_half_deg", None)
-        if fov is not None:
-            out["fovs"].append({"shape": "rect", "axis_S": [0.0, 0.0, 1.0], "fov_deg": [float(x) for x in fov],
-                                "label": d.name})
-        elif half is not None:
-            out["fovs"].append({"shape": "cone", "axis_S": [0.0, 0.0, 1.0], "half_deg": float(half), "label": d.name})
-    return out
-
-
-def describe(sc) -> dict:
-    """The page's view of a scenario (what ``view.json`` holds)."""
-    env = sc.environment
-    return {
-        "format": 1,
-        "scenario": sc.name,
-        "description": sc.description,
-        "epoch": sc.epoch.iso,
-        "duration_s": float(sc.duration_s),
-        "step_s": float(sc.step_s),
-        "record_rate_hz": float(sc.record_rate_hz),
-        "earth_rotation": {"model": env.earth_rotation, "era0_rad": float(env.era0_rad)},
-        "devices": [_device_view(d) for d in sc.devices],
-        "criteria": [{"name": c.name, "metric": c.metric, "max": c.max, "min": c.min, "at_s": c.at_s}
-                     for c in sc.criteria],
-    }
-
-
-def write_view_json(sc, run_dir, duration_s: float | None = None) -> Path:
-    """``view.json`` of a run (``duration_s``: the run's own when ``--duration`` changed it)."""
-    meta = describe(sc)
-    if duration_s is not None:
-        meta["duration_s"] = float(duration_s)
-    path = Path(run_dir) / VIEW_FILE
-    path.write_text(json.dumps(meta, indent=1) + "\n")
-    return path
-
-
-class RunFileError(ValueError):
-    """A run folder's ``view.json`` or ``summary.json`` the page cannot use (one sentence naming the file)."""
-
-
-def _number(x, positive: bool = False) -> bool:
-    ok = isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-    return ok and (x > 0 if positive else True)
-
-
-def _meta_problem(meta) -> str | None:
-    """What in a ``view.json`` the page could not draw from, or None."""
-    if not isinstance(meta, dict):
-        return f"it holds a JSON {type(meta).__name__}, not an object"
-    try:
-        Epoch.from_iso(meta.get("epoch"))
-    except (ValueError, TypeError, AttributeError):
-        return f"its epoch {meta.get('epoch')!r} is not an ISO 8601 UTC time"
-    for key in ("duration_s", "step_s", "record_rate_hz"):
-        if key in meta or key == "duration_s":
-            if not _number(meta.get(key), positive=True):
-                return f"its {key} {meta.get(key)!r} is not a positive number"
-    er = meta.get("earth_rotation", {})
-    if not isinstance(er, dict) or er.get("model", "iau2006") not in ("iau2006", "uniform") \
-            or not _number(er.get("era0_rad", 0.0)):
-        return f"its earth_rotation {er!r} is not {{\"model\": \"iau2006\" or \"uniform\", \"era0_rad\": NUMBER}}"
-    devices = meta.get("devices")
-    if not isinstance(devices, list):
-        return f"its devices {devices!r} are not a list"
-    for i, d in enumerate(devices):
-        if not (isinstance(d, dict) and isinstance(d.get("name"), str) and isinstance(d.get("kind"), str)
-                and isinstance(d.get("q_SB"), list) and len(d["q_SB"]) == 4 and all(map(_number, d["q_SB"]))
-                and isinstance(d.get("fovs"), list) and all(isinstance(f, dict) for f in d["fovs"])):
-            name = d.get("name") if isinstance(d, dict) else None
-            return (f"its device {i + 1} ({name!r}) lacks a name, a kind, a q_SB of 4 numbers or a list of fields "
-                    "of view")
-    if not isinstance(meta.get("criteria", []), list):
-        return "its criteria are not a list"
-    return None
-
-
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_text())
-    except UnicodeDecodeError:
-        raise RunFileError(f"{path} is not readable: it is not UTF-8 text.") from None
-    except json.JSONDecodeError as exc:
-        raise RunFileError(f"{path} is not readable: it is not valid JSON ({exc.msg} at line {exc.lineno}, "
-                           f"column {exc.colno}).") from None
-
-
-def load_meta(run_dir) -> dict:
-    """``view.json`` of a run, or the same rebuilt from the scenario its summary names; a file the page cannot use
-    raises :class:`RunFileError` naming it and what is wrong."""
-    run_dir = Path(run_dir)
-    path = run_dir / VIEW_FILE
-    if path.is_file():
-        meta = _read_json(path)
-        why = _meta_problem(meta)
-        if why is not None:
-            raise RunFileError(f"{path} is not a view description the page can use: {why}.")
-        return meta
-    summary = run_dir / "summary.json"
-    if not summary.is_file():
-        raise FileNotFoundError(f"{run_dir} is not a run folder: it holds neither {VIEW_FILE} nor summary.json.")
-    from stand.errors import ScenarioError
-    from stand.scenario import find, load
-
-    data = _read_json(summary)
-    source = data.get("source") if isinstance(data, dict) else None
-    try:
-        meta = describe(load(find(source)))
-        if data.get("status") == "completed" and _number(data.get("sim_duration_s"), positive=True):
-            meta["duration_s"] = float(data["sim_duration_s"])  # a --duration run
-        return meta
-    except (ScenarioError, TypeError, OSError):
-        raise FileNotFoundError(f"{run_dir} has no {VIEW_FILE} and its scenario {source!r} is neither a file on this "
-                                "machine nor a shipped scenario.") from None
 
 
 # --------------------------------------------------------------------------------------------------- geometry

@@ -8,7 +8,8 @@ import pytest
 from matplotlib.image import imread
 
 from sim.rotations import euler_from_quat, quat_from_axis_angle
-from stand import plots
+from stand import devices, plots
+from stand.devices import magnetorquer_plots, star_tracker_plots, sun_sensor_plots
 from stand.report import rate_limits, write_plots
 from stand.scenario import Criterion
 
@@ -125,9 +126,9 @@ def test_attitude_lines_never_jump_more_than_180_deg(tel, tmp_path):
 
 # ---------------------------------------------------------------------------------------- dipole
 def test_dipole_plot_shows_commanded_and_produced_in_words(tel, tmp_path):
-    assert plots.plot_dipole(tel, tmp_path, {"mtq": "mtq.dipole_B"}, "dipole_cmd_B") == "dipole.png"
+    assert magnetorquer_plots.plot_dipole(tel, tmp_path, {"mtq": "mtq.dipole_B"}, "dipole_cmd_B") == "dipole.png"
     _png(tmp_path / "dipole.png")
-    fig = plots.dipole_figure(tel, {"mtq": "mtq.dipole_B"}, "dipole_cmd_B")
+    fig = magnetorquer_plots.dipole_figure(tel, {"mtq": "mtq.dipole_B"}, "dipole_cmd_B")
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert "produced by board mtq" in labels and "commanded by the controller" in labels
     assert not any("dipole_B" in lab or "dipole_cmd" in lab for lab in labels)
@@ -149,29 +150,29 @@ def test_envelope_keeps_the_extremes_of_each_bin():
 
 def test_dipole_plot_needs_a_column():
     with pytest.raises(ValueError, match="produced or a commanded"):
-        plots.dipole_figure(_tel(10), {}, None)
+        magnetorquer_plots.dipole_figure(_tel(10), {}, None)
     with pytest.raises(KeyError, match="no column 'mtq.dipole_X'"):
-        plots.dipole_figure(_tel(10), {"mtq": "mtq.dipole_X"}, None)
+        magnetorquer_plots.dipole_figure(_tel(10), {"mtq": "mtq.dipole_X"}, None)
 
 
 # --------------------------------------------------------------------------------------- tracker
 def test_tracker_solutions_are_one_row_per_exposure(tel):
-    sol = plots.tracker_solutions(tel, "st1")
+    sol = star_tracker_plots.tracker_solutions(tel, "st1")
     t = tel["st1.t_exposure_s"]
     assert len(sol["t"]) == len(np.unique(t[np.isfinite(t)])) < np.isfinite(t).sum()
     assert np.all(np.diff(sol["t"]) > 0)
 
 
 def test_tracker_plot_errors_limits_and_status_strip(tel, tmp_path):
-    assert plots.plot_tracker(tel, tmp_path, "st1", 6.0, 30.0, (0.3, 200.0)) == "tracker_st1.png"
+    assert star_tracker_plots.plot_tracker(tel, tmp_path, "st1", 6.0, 30.0, (0.3, 200.0)) == "tracker_st1.png"
     _png(tmp_path / "tracker_st1.png")
-    fig = plots.tracker_figure(tel, "st1", 6.0, 30.0, (0.3, 200.0))
+    fig = star_tracker_plots.tracker_figure(tel, "st1", 6.0, 30.0, (0.3, 200.0))
     cross, roll, strip = fig.axes
     assert "arcsec" in cross.get_ylabel() and "arcsec" in roll.get_ylabel()
     assert [ln.get_ydata()[0] for ln in cross.get_lines() if ln.get_linestyle() == "--"] == [6.0]
     assert [ln.get_ydata()[0] for ln in roll.get_lines() if ln.get_linestyle() == "--"] == [30.0]
     # plotted errors are those of valid solutions only
-    sol = plots.tracker_solutions(tel, "st1")
+    sol = star_tracker_plots.tracker_solutions(tel, "st1")
     dots = cross.get_lines()[0]
     np.testing.assert_array_equal(dots.get_xdata(), sol["t"][sol["valid"] == 1.0])
     rows = [t.get_text() for t in strip.get_yticklabels()]
@@ -181,15 +182,15 @@ def test_tracker_plot_errors_limits_and_status_strip(tel, tmp_path):
 def test_tracker_codes_match_the_tracker_link():
     from stand.devices.star_tracker import FLAG_BITS, MODES
 
-    assert plots.TRACKER_MODES == MODES and plots.TRACKER_FLAG_BITS == FLAG_BITS
+    assert star_tracker_plots.TRACKER_MODES == MODES and star_tracker_plots.TRACKER_FLAG_BITS == FLAG_BITS
 
 
 # ------------------------------------------------------------------------------------ sun sensor
 @pytest.mark.parametrize("name, unit", [("css", "mA"), ("fss", "deg")])
 def test_sun_sensor_plot(tel, tmp_path, name, unit):
-    assert plots.plot_sun_sensor(tel, tmp_path, name) == f"sun_{name}.png"
+    assert sun_sensor_plots.plot_sun_sensor(tel, tmp_path, name) == f"sun_{name}.png"
     _png(tmp_path / f"sun_{name}.png")
-    fig = plots.sun_sensor_figure(tel, name)
+    fig = sun_sensor_plots.sun_sensor_figure(tel, name)
     main, strip = fig.axes
     assert unit in main.get_ylabel()
     labels = [t.get_text() for t in main.get_legend().get_texts()]
@@ -201,13 +202,18 @@ def test_sun_sensor_plot(tel, tmp_path, name, unit):
 
 def test_sun_sensor_plot_names_a_missing_sensor(tel):
     with pytest.raises(KeyError, match="neither xss.currents nor xss.angles"):
-        plots.sun_sensor_figure(tel, "xss")
+        sun_sensor_plots.sun_sensor_figure(tel, "xss")
 
 
 # ------------------------------------------------------------------------------------ the report
 def test_write_plots_keeps_its_files(tel, tmp_path):
     made = write_plots(tel, tmp_path, rate_limits=[("detumbled", 0.5, None)])
+    assert made == ["rate.png", "attitude.png"]
+    # The dipole is the magnetorquer kind's figure, drawn once for all its boards.
+    made += devices.get("magnetorquer").kind_plots(tel, ["mtq"], tmp_path)
     assert made == ["rate.png", "attitude.png", "dipole.png"]
+    bare = {k: v for k, v in tel.items() if "dipole" not in k}
+    assert devices.get("magnetorquer").kind_plots(bare, ["mtq"], tmp_path / "none") == []
     for name in made:
         _png(tmp_path / name)
     assert write_plots({"t_s": np.zeros(1)}, tmp_path / "empty") == []

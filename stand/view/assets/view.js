@@ -14,6 +14,9 @@
     nosol: "rgb(140,140,140)", axes: ["rgb(255,85,85)", "rgb(85,230,120)", "rgb(90,150,255)"] };
   const FLAG_BITS = [[1, "Sun", COLORS.sunFlag], [2, "Moon", COLORS.moonFlag], [4, "Earth", COLORS.earthFlag],
     [8, "rate", COLORS.rate]];
+  // Colour keys a kind may name for an invalid sample (stand/view/export.py's COLORS).
+  const STATE_COLORS = { acquiring: "rgb(230,200,60)", sun_flag: COLORS.sunFlag, moon_flag: COLORS.moonFlag,
+    earth_flag: COLORS.earthFlag, rate: COLORS.rate, none: COLORS.nosol, valid: COLORS.valid };
 
   // ------------------------------------------------------------------------------------------ small linear algebra
   function dcm(q) {
@@ -195,22 +198,18 @@
   }
 
   // device state at sample i: {color, label, valid}
+  // What the device's kind declares (view.json: state = {missing, flags, invalid: [colour key, text]}).
   function deviceState(dev, i) {
-    const st = S.store, n = dev.name;
-    if (dev.kind === "star_tracker") {
-      const v = st.get(n + ".valid", i), f = st.get(n + ".flags", i);
-      if (v === null || Number.isNaN(v)) return { color: COLORS.nosol, label: "no solution", valid: null };
-      if (v >= 0.5) return { color: COLORS.valid, label: "valid", valid: true };
-      const hit = FLAG_BITS.filter(([b]) => (f & b) !== 0);
-      if (hit.length) return { color: hit[0][2], label: "invalid: " + hit.map((h) => h[1]).join(", "), valid: false, flags: f };
-      return { color: "rgb(230,200,60)", label: "invalid: acquiring", valid: false, flags: f };
-    }
-    if (dev.kind === "sun_sensor") {
-      const v = st.get(n + ".valid", i);
-      if (v === null || Number.isNaN(v)) return { color: COLORS.nosol, label: "no sample", valid: null };
-      return v >= 0.5 ? { color: COLORS.valid, label: "valid", valid: true } : { color: COLORS.sunFlag, label: "invalid", valid: false };
-    }
-    return { color: COLORS.nosol, label: "", valid: null };
+    const st = S.store, n = dev.name, decl = dev.state;
+    if (!decl) return { color: COLORS.nosol, label: "", valid: null };
+    const v = st.get(n + ".valid", i);
+    if (v === null || Number.isNaN(v)) return { color: COLORS.nosol, label: decl.missing, valid: null };
+    if (v >= 0.5) return { color: COLORS.valid, label: "valid", valid: true };
+    const [key, text] = decl.invalid, color = STATE_COLORS[key] || COLORS.nosol;
+    if (!decl.flags) return { color, label: text, valid: false };
+    const f = st.get(n + ".flags", i), hit = FLAG_BITS.filter(([b]) => (f & b) !== 0);
+    if (hit.length) return { color: hit[0][2], label: "invalid: " + hit.map((h) => h[1]).join(", "), valid: false, flags: f };
+    return { color, label: text, valid: false, flags: f };
   }
 
   // ------------------------------------------------------------------------------------------ panorama
@@ -747,21 +746,33 @@
     const comp = ["x", "y", "z"], ccol = ["#ff6b6b", "#51cf66", "#4dabf7"];
     plots.push(new Plot("body rate ω_BN_B (deg/s)", comp.map((c, j) => ({ col: "omega_BN_B", idx: j, label: c, color: ccol[j], scale: R2D }))));
     const knowledge = [];
-    for (const d of devs.filter((d) => d.kind === "star_tracker")) {
-      knowledge.push({ col: d.name + ".err_cross", label: d.name + " cross", color: "#ffa94d" }, { col: d.name + ".err_roll", label: d.name + " roll", color: "#da77f2" });
+    const errColors = ["#ffa94d", "#da77f2", "#ffd43b", "#74c0fc"];
+    for (const d of devs) {  // the error columns each kind declares (view.json: error_columns)
+      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c, label: d.name + " " + c.replace(/^err_/, ""), color: errColors[j % errColors.length] }));
     }
     const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c));
     for (const c of pointing) knowledge.push({ col: c, label: c, color: "#63e6be" });
     plots.push(new Plot("pointing and knowledge error (arcsec)", knowledge, { log: true }));
-    // What the coils produced (the commanded dipole when no device reports one).
-    const produced = cols.filter((c) => c.endsWith(".dipole_B")), dip = produced.length ? produced : cols.filter((c) => c === "dipole_cmd_B");
-    plots.push(new Plot(`dipole ${dip.join(", ")} (A m²)`, dip.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
+    // The vector plots the kinds declare (view.json: plots), one panel per title for all their devices; a panel
+    // draws its fallback column (what the controller commanded) when no device records one.
+    const panels = new Map();
+    for (const d of devs) {
+      for (const p of d.plots || []) {
+        const panel = panels.get(p.title) || { unit: p.unit, fallback: p.fallback, cols: [] };
+        if (cols.includes(d.name + "." + p.column)) panel.cols.push(d.name + "." + p.column);
+        panels.set(p.title, panel);
+      }
+    }
+    for (const [title, panel] of panels) {
+      const shown = panel.cols.length ? panel.cols : cols.filter((c) => c === panel.fallback);
+      plots.push(new Plot(`${title} ${shown.join(", ")} (${panel.unit})`, shown.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
+    }
     const wheels = cols.filter((c) => /(wheel|rw).*(speed|omega)|\.speed/.test(c));
     plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
     S.plots = plots;
     S.plotsHaveData = st.n > 0;
-    const sensed = devs.filter((d) => d.kind === "star_tracker" || d.kind === "sun_sensor");
+    const sensed = devs.filter((d) => d.state);
     S.strip = sensed.length ? new Strip(sensed) : null;
   }
 
