@@ -169,7 +169,49 @@ class LoopbackBus(BusABC):
             if rx._waiting:
                 rx._wake.set()
 
+    def send_data(self, frame_id: int, payload: bytes) -> None:
+        """``send(drivers.can_bus.data_frame(frame_id, payload))``, the same frames delivered to the same queues, without
+        the sender's :class:`can.Message`: each receiver's is made from the id and payload directly (a CAN node sends
+        this way, several frames per tick)."""
+        if self._is_shutdown:
+            raise can.CanOperationError(f"Cannot send on {self.channel_info}: the bus is shut down.")
+        # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
+        timestamp = 0.0 if self.preserve_timestamps else time.time()
+        name = self.channel_id
+        for rx in self._channel.members:
+            own = rx is self
+            if own and not self.receive_own_messages:
+                continue
+            m = _new_message(_Message)
+            m.timestamp = timestamp
+            m.arbitration_id = frame_id
+            m.is_extended_id = False
+            m.is_remote_frame = False
+            m.is_error_frame = False
+            m.channel = name
+            m.data = bytearray(payload)
+            m.dlc = len(m.data)
+            m.is_fd = False
+            m.is_rx = not own
+            m.bitrate_switch = False
+            m.error_state_indicator = False
+            if rx._filters is not None and not rx._matches_filters(m):
+                continue
+            queue = rx._queue
+            if len(queue) == rx._maxlen:
+                rx.rx_overflow += 1
+            queue.append(m)
+            if rx._waiting:
+                rx._wake.set()
+
     # -- receiving ------------------------------------------------------------------------------
+
+    def ready_queue(self) -> deque[can.Message] | None:
+        """The receive queue, for a reader that pops frames from it itself (``popleft`` until it is empty gives what
+        ``recv(0)`` would, frame for frame), while this bus has no filters and is open; else None: use ``recv``."""
+        if self._filters is None and not self._is_shutdown:
+            return self._queue
+        return None
 
     def _take(self) -> can.Message | None:
         """The next queued frame that passes this bus's filters (others are discarded), or None."""
