@@ -100,6 +100,9 @@ class LoopbackBus(BusABC):
 
     Attributes:
         rx_overflow: frames dropped because this bus's receive queue was full.
+        rx_ready: the receive queue while the bus has no filters and is open, else None: a reader may pop frames
+            from it itself (``popleft`` until it is empty gives what ``recv(0)`` would, frame for frame, without a
+            call per frame); when None, use ``recv``.
     """
 
     def __init__(
@@ -130,6 +133,7 @@ class LoopbackBus(BusABC):
         self._maxlen = rx_queue_size
         self._waiting = False
         self._wake = threading.Event()
+        self._left = False  # shut down (BusABC's _is_shutdown is True until its __init__ has run)
         # set_filters (called by BusABC.__init__) needs the fields above.
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         self.channel_id = channel
@@ -145,7 +149,7 @@ class LoopbackBus(BusABC):
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
         # BusABC.set_filters keeps the list in self._filters; delivery reads it from there. Nothing
         # to compile: the deliverer calls BusABC._matches_filters, the reference semantics.
-        return None
+        self.rx_ready = self._queue if filters is None and not self._left else None
 
     # -- sending --------------------------------------------------------------------------------
 
@@ -166,6 +170,41 @@ class LoopbackBus(BusABC):
             if len(queue) == rx._maxlen:
                 rx.rx_overflow += 1
             queue.append(_copy_for(msg, timestamp, name, not own))
+            if rx._waiting:
+                rx._wake.set()
+
+    def send_data(self, frame_id: int, payload: bytes) -> None:
+        """``send(drivers.can_bus.data_frame(frame_id, payload))``: the same frames delivered to the same queues,
+        without the sender's :class:`can.Message` (each receiver's is made from the id and payload directly). A CAN
+        node sends this way, several frames per tick."""
+        if self._is_shutdown:
+            raise can.CanOperationError(f"Cannot send on {self.channel_info}: the bus is shut down.")
+        # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
+        timestamp = 0.0 if self.preserve_timestamps else time.time()
+        name = self.channel_id
+        for rx in self._channel.members:
+            own = rx is self
+            if own and not self.receive_own_messages:
+                continue
+            m = _new_message(_Message)
+            m.timestamp = timestamp
+            m.arbitration_id = frame_id
+            m.is_extended_id = False
+            m.is_remote_frame = False
+            m.is_error_frame = False
+            m.channel = name
+            m.data = bytearray(payload)
+            m.dlc = len(payload)
+            m.is_fd = False
+            m.is_rx = not own
+            m.bitrate_switch = False
+            m.error_state_indicator = False
+            if rx._filters is not None and not rx._matches_filters(m):
+                continue
+            queue = rx._queue
+            if len(queue) == rx._maxlen:
+                rx.rx_overflow += 1
+            queue.append(m)
             if rx._waiting:
                 rx._wake.set()
 
@@ -241,6 +280,8 @@ class LoopbackBus(BusABC):
         if self._is_shutdown:
             return
         super().shutdown()
+        self._left = True
+        self.rx_ready = None
         with _channels_lock:
             chan = self._channel
             chan.members = tuple(b for b in chan.members if b is not self)

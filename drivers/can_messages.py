@@ -16,6 +16,8 @@ def enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
     """The name of ``value`` in ``names``, given as a name (any case) or its index; ValueError naming ``field``, the
     value and every allowed name with its number otherwise."""
     if isinstance(value, str):
+        if value in names:  # as every decoded or emulated message gives it
+            return value
         upper = value.upper()
         if upper in names:
             return upper

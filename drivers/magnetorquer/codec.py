@@ -252,6 +252,12 @@ class MagnetorquerCodec:
         except ValueError as exc:  # an enum value outside its table
             raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
 
+    def payload_decoders(self) -> dict[int, tuple]:
+        """Frame id -> (unpack, build): ``build(unpack(data))`` is :meth:`decode` for a payload of the ICD's length,
+        without its look-up (a ValueError for an enum value outside its table). For
+        :class:`drivers.can_node.CanNode`."""
+        return {frame_id: (unpack, build) for frame_id, (_, unpack, build, _) in self._decoders.items()}
+
     # The builders take the values in _SIGNALS order.
     @staticmethod
     def _decode_dipole(v: tuple) -> DipoleCommand:

@@ -302,3 +302,9 @@ class ReactionWheelCodec:
             return build(unpack(data))
         except ValueError as exc:  # an enum value outside its table
             raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
+
+    def payload_decoders(self) -> dict[int, tuple]:
+        """This wheel's frame id -> (unpack, build): ``build(unpack(data))`` is :meth:`decode` for a payload of the
+        ICD's length, without its look-up (a ValueError for an enum value outside its table). For
+        :class:`drivers.can_node.CanNode`."""
+        return {frame_id: (unpack, build) for frame_id, (_, _, unpack, build) in self._decoders.items()}
