@@ -258,7 +258,7 @@ class TruthModel:
         self.dipole_B = (0.0, 0.0, 0.0)
         self._I = self.body._I
         self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
-        self._b_B = (-1, None)  # (k, b_B): the magnetometer and the recorder both ask each step
+        self._b_B = (-1, None)  # (k, b_B): a field sensor and the recorder both ask each step
         # RK4 with both torques written out in one function (rk4_magnetic_gg): the default scenario's step.
         self._fused = integrator == "rk4" and self.magnetic and self.gravity_gradient
         #: The body torque of the "torque" effects (N m, body axes), held over the step (:meth:`effector`).

@@ -56,6 +56,9 @@ class MagnetometerSpec(DeviceSpec):
 
 class MagnetometerKind(DeviceKind):
     name = "magnetometer"
+    senses = ("magnetic_field",)
+    column_meanings = {"mag_S": "the newest field sample the unit sent, sensor axes",
+                       "mag_valid": "1 when that sample is valid (not saturated, no fault)"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> MagnetometerSpec:
         codec = _codec()
