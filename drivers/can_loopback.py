@@ -97,6 +97,10 @@ class LoopbackBus(BusABC):
         protocol: the :class:`can.CanProtocol` reported by :attr:`protocol` (frames of any kind
             are carried as they are).
         can_filters: python-can acceptance filters, see :meth:`can.BusABC.set_filters`.
+        accept_ids: if given, only standard-id data frames of these ids are delivered to this bus, checked before
+            a frame is copied for it (a listen-only observer of a few ids costs the other frames nothing).
+        listen_only: this bus only reads and never changes a frame it receives (a telemetry observer): it may be
+            handed the frame object another receiver got for the same send instead of a copy of its own.
 
     Attributes:
         rx_overflow: frames dropped because this bus's receive queue was full.
@@ -113,6 +117,8 @@ class LoopbackBus(BusABC):
         preserve_timestamps: bool = False,
         protocol: CanProtocol = CanProtocol.CAN_20,
         can_filters: can.typechecking.CanFilters | None = None,
+        accept_ids: frozenset[int] | None = None,
+        listen_only: bool = False,
         **kwargs: Any,
     ) -> None:
         if isinstance(rx_queue_size, bool) or not isinstance(rx_queue_size, int) or rx_queue_size < 1:
@@ -129,6 +135,8 @@ class LoopbackBus(BusABC):
         self.preserve_timestamps = bool(preserve_timestamps)
         self._can_protocol = protocol
         self.rx_overflow = 0
+        self.accept_ids = None if accept_ids is None else frozenset(int(i) for i in accept_ids)
+        self.listen_only = bool(listen_only)
         self._queue: deque[can.Message] = deque(maxlen=rx_queue_size)
         self._maxlen = rx_queue_size
         self._waiting = False
@@ -164,6 +172,10 @@ class LoopbackBus(BusABC):
             own = rx is self
             if own and not self.receive_own_messages:
                 continue
+            ids = rx.accept_ids
+            if ids is not None and (msg.arbitration_id not in ids or msg.is_extended_id or msg.is_remote_frame
+                                    or msg.is_error_frame):
+                continue
             if rx._filters is not None and not rx._matches_filters(msg):
                 continue
             queue = rx._queue
@@ -182,9 +194,21 @@ class LoopbackBus(BusABC):
         # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
         timestamp = 0.0 if self.preserve_timestamps else time.time()
         name = self.channel_id
+        given = None  # the frame made for a receiver of this send, which a listen-only receiver may share
         for rx in self._channel.members:
             own = rx is self
             if own and not self.receive_own_messages:
+                continue
+            ids = rx.accept_ids
+            if ids is not None and frame_id not in ids:
+                continue
+            if given is not None and rx.listen_only and not own:
+                queue = rx._queue
+                if len(queue) == rx._maxlen:
+                    rx.rx_overflow += 1
+                queue.append(given)
+                if rx._waiting:
+                    rx._wake.set()
                 continue
             m = _new_message(_Message)
             m.timestamp = timestamp
@@ -201,6 +225,8 @@ class LoopbackBus(BusABC):
             m.error_state_indicator = False
             if rx._filters is not None and not rx._matches_filters(m):
                 continue
+            if not own:
+                given = m
             queue = rx._queue
             if len(queue) == rx._maxlen:
                 rx.rx_overflow += 1

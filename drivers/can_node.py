@@ -185,6 +185,15 @@ class CanNode(BusEndpoint):
     def _take(self, decoded: Any, t_s: float | None) -> None:  # pragma: no cover - every node overrides it
         raise NotImplementedError
 
+    #: Called with (frame id, payload) of every data frame this node put on the bus; see :meth:`add_sent_observer`.
+    _sent_observers: tuple = ()
+
+    def add_sent_observer(self, observer: Any) -> None:
+        """Have ``observer(frame_id, payload)`` called with every data frame this node sends, after the bus took it
+        (e.g. :meth:`drivers.can_observer.CanObserver.feed`: the stand's telemetry of an emulated device, beside
+        the flight code's driver and without a bus handle of its own). The node's state never depends on it."""
+        self._sent_observers = (*self._sent_observers, observer)
+
     def add_observer(self, observer: Any) -> None:
         """The listener hook (:meth:`drivers.endpoint.Endpoint.add_observer`): every frame the node takes, decoded
         once by its codec, goes to ``observer`` after :meth:`_take`. The hook wraps ``_take`` on this instance only
@@ -234,6 +243,9 @@ class CanNode(BusEndpoint):
                 f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
             ) from exc
         self.counters["sent"] += 1
+        if self._sent_observers:
+            for observer in self._sent_observers:
+                observer(frame_id, payload)
 
 
 class CanHost(CanNode):

@@ -28,33 +28,79 @@ class CanObserver(BusEndpoint):
     of each id; :meth:`newest` decodes it with ``codec`` (once per new frame). ``seen[id]`` counts the frames of each
     id, ``rejected`` those of a wrong length or that do not decode (the newest good message stays)."""
 
-    def __init__(self, bus: can.BusABC, codec: Any, ids: frozenset[int], name: str, *, owns_bus: bool = True) -> None:
+    def __init__(self, bus: can.BusABC | None, codec: Any, ids: frozenset[int], name: str, *,
+                 owns_bus: bool = True) -> None:
         self.name = name
         self.bus = bus
         self._owns_bus = owns_bus
         self._closed = False
         self._ids = frozenset(ids)
         self._decode = codec.decode
-        self._raw: dict[int, can.Message] = {}
-        self._decoded: dict[int, tuple[can.Message, Any]] = {}
+        self._raw: dict[int, bytes | bytearray] = {}  # id -> the newest payload of that id
+        self._decoded: dict[int, tuple[bytes | bytearray, Any]] = {}
         self.seen: dict[int, int] = dict.fromkeys(self._ids, 0)
+        #: The stand's in-process bus hands its receive queue over (``LoopbackBus.rx_ready``): drained directly.
+        self._ready = None if bus is None else getattr(bus, "rx_ready", None)
         self.rejected = 0
 
     def poll(self) -> int:
         """Drain every pending frame without blocking (frames of other ids, remote, error and 29-bit frames are
         skipped); returns how many were read. DriverError naming the bus if it fails."""
-        recv, ids, raw, seen = self.bus.recv, self._ids, self._raw, self.seen
+        ids, raw, seen = self._ids, self._raw, self.seen
+        ready = self._ready
+        if ready is not None:  # the stand's in-process bus: pop its queue, no recv call per frame
+            n = len(ready)
+            while ready:
+                msg = ready.popleft()
+                frame_id = msg.arbitration_id
+                if frame_id in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+                    raw[frame_id] = msg.data
+                    seen[frame_id] += 1
+            return n
+        if self.bus is None:  # fed by a device's transmit tap (feed): nothing to drain
+            return 0
+        recv = self.bus.recv
         n = 0
         try:
             while (msg := recv(0.0)) is not None:
                 n += 1
                 frame_id = msg.arbitration_id
                 if frame_id in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
-                    raw[frame_id] = msg
+                    raw[frame_id] = msg.data
                     seen[frame_id] += 1
         except can.CanError as exc:
             raise DriverError(f"{self.name}: cannot read from {self.bus.channel_info}: {exc}") from exc
         return n
+
+    def feed(self, frame_id: int, payload: bytes | bytearray) -> None:
+        """Take one data frame a device put on the bus (:meth:`drivers.can_node.CanNode.add_sent_observer`): on an
+        in-process link the stand watches the emulator's transmissions instead of holding a bus handle of its own,
+        which would cost every frame a copy. The payload is kept as sent and decoded when asked for."""
+        if frame_id in self._ids:
+            self._raw[frame_id] = payload
+            self.seen[frame_id] += 1
+
+    def poll_newest(self, frame_id: int) -> Any:
+        """:meth:`poll`, then :meth:`newest` of ``frame_id``: what a telemetry row asks every tick, in one call on
+        the stand's in-process bus."""
+        ready = self._ready
+        if ready is None:
+            self.poll()
+        elif ready:
+            ids, raw, seen = self._ids, self._raw, self.seen
+            while ready:
+                msg = ready.popleft()
+                fid = msg.arbitration_id
+                if fid in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
+                    raw[fid] = msg.data
+                    seen[fid] += 1
+        msg = self._raw.get(frame_id)
+        if msg is None:
+            return None
+        done = self._decoded.get(frame_id)
+        if done is not None and done[0] is msg:
+            return done[1]
+        return self.newest(frame_id)
 
     def newest(self, frame_id: int) -> Any:
         """The newest message of ``frame_id`` seen so far, decoded, or None."""
@@ -65,7 +111,7 @@ class CanObserver(BusEndpoint):
         if done is not None and done[0] is msg:
             return done[1]
         try:
-            value = self._decode(frame_id, msg.data)  # ProtocolError for a wrong length too
+            value = self._decode(frame_id, msg)  # ProtocolError for a wrong length too
         except ProtocolError:
             self.rejected += 1
             self._raw[frame_id] = done[0] if done is not None else None  # keep the newest good one
@@ -78,17 +124,15 @@ def open_observer(interface: str, channel: str, codec: Any, ids: frozenset[int],
     """A :class:`CanObserver` on a handle of its own on ``interface``/``channel`` (ConnectError naming the interface
     and channel when it cannot be opened).
 
-    On the stand's in-process bus the handle lets only ``ids`` through (its filters act when a frame is delivered,
-    so other frames cost no copy); elsewhere the observer skips the other frames itself, as python-can's generic
-    filtering in ``recv(0)`` gives up at the first frame that does not pass and would leave the newer ones queued."""
+    On the stand's in-process bus the handle lets only ``ids`` through (``accept_ids``, checked when a frame is
+    delivered, so other frames cost no copy) and shares the frame another receiver got (``listen_only``);
+    elsewhere the observer skips the other frames itself, as python-can's generic filtering in ``recv(0)`` gives up
+    at the first frame that does not pass and would leave the newer ones queued."""
     from drivers.can_bus import OWN_INTERFACES, open_bus
 
     if interface in OWN_INTERFACES:
-        filters = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in sorted(ids)]
-        bus = open_bus(interface, channel, can_filters=filters)
-        # The same acceptance as those filters, as one set lookup: the sender runs it for every frame on the channel
-        # (python-can's generic check walks the list of filter dicts), and this is the per-tick path.
-        wanted = frozenset(ids)
-        bus._matches_filters = lambda msg: msg.arbitration_id in wanted and not msg.is_extended_id
+        # Only the watched ids are delivered, checked by the sender before it copies a frame (this is the per-tick
+        # path): the observer then drains its queue without a recv call per frame.
+        bus = open_bus(interface, channel, accept_ids=frozenset(ids), listen_only=True)
         return CanObserver(bus, codec, ids, name)
     return CanObserver(open_bus(interface, channel), codec, ids, name)

@@ -117,6 +117,17 @@ class _Unit(Device):
     def columns(self):
         return [(f"{self.name}.mag_S", 3, "T"), (f"{self.name}.mag_valid", 1, "1")]
 
+    def _observe_sent(self, emulator) -> None:
+        """Telemetry of an in-process link: what the emulator put on the bus, decoded by the stand as a receiver
+        decodes it, beside the flight code and never through its driver. A bus handle of its own would see the same
+        frames, each copied once more (``_observe`` does that where no emulator is in the stand)."""
+        from drivers.can_observer import CanObserver
+
+        codec = _codec()
+        self.observer = CanObserver(None, codec, frozenset({codec.id_sample}), f"{self.name} observer", owns_bus=False)
+        self._sample_id = codec.id_sample
+        emulator.add_sent_observer(self.observer.feed)
+
     def _observe(self) -> None:
         """The stand's listen-only node on the unit's bus, for telemetry (opened before anything is sent)."""
         from drivers.can_observer import open_observer
@@ -127,9 +138,7 @@ class _Unit(Device):
         self._sample_id = codec.id_sample
 
     def row(self):
-        obs = self.observer
-        obs.poll()
-        return _row(obs.newest(self._sample_id))
+        return _row(self.observer.poll_newest(self._sample_id))
 
     def activity(self):
         if self.observer is None:
@@ -174,10 +183,10 @@ class EmulatedMagnetometer(_Unit):
 
         super().__init__(spec)
         try:
-            self._observe()
             self._buses.append(open_bus(spec.interface, spec.channel))
             self._buses.append(open_bus(spec.interface, spec.channel))
             self.emulator = _emulator(spec, ctx, self._buses[0])
+            self._observe_sent(self.emulator)
             self.host = MagnetometerHost(self._buses[1], codec=_codec(), name=spec.name)
         except BaseException:
             self.close()

@@ -147,6 +147,18 @@ class _Board(Device):
     def dipole_B(self):
         return self._m
 
+    def _observe_sent(self, emulator) -> None:
+        """Telemetry of an in-process link: what the emulator put on the bus, decoded by the stand as a receiver
+        decodes it, beside the flight code and never through its driver. A bus handle of its own would see the same
+        frames, each copied once more (``_observe`` does that where no emulator is in the stand)."""
+        from drivers.can_observer import CanObserver
+
+        codec = _codec()
+        self.observer = CanObserver(None, codec, frozenset({codec.id_mag_sample}), f"{self.name} observer",
+                                    owns_bus=False)
+        self._sample_id = codec.id_mag_sample
+        emulator.add_sent_observer(self.observer.feed)
+
     def _observe(self) -> None:
         """Telemetry records what the board sent as a listen-only node of the stand sees it on the bus, beside the
         flight code and never through its driver (opened before anything is sent)."""
@@ -158,9 +170,7 @@ class _Board(Device):
         self._sample_id = codec.id_mag_sample
 
     def _observed_row(self):
-        obs = self.observer
-        obs.poll()
-        s = obs.newest(self._sample_id)
+        s = self.observer.poll_newest(self._sample_id)
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
     def _observed_samples(self) -> int:
@@ -213,10 +223,10 @@ class EmulatedBoard(_Board):
 
         super().__init__(spec)
         try:
-            self._observe()
             self._buses.append(open_bus(spec.interface, spec.channel))
             self._buses.append(open_bus(spec.interface, spec.channel))
             self.emulator = _emulator(spec, ctx, self._buses[0])
+            self._observe_sent(self.emulator)
             self.host = MagnetorquerBoard(self._buses[1], name=spec.name)
         except BaseException:
             self.close()
