@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from stand.adcs.metrics import ARCSEC, error_angles_B
+
 DPI = 110
 #: Wider than the matplotlib default, so a whole orbit (about 6000 s) keeps its detail.
 WIDTH_IN = 10.0
@@ -212,8 +214,6 @@ def envelope(t: np.ndarray, y: np.ndarray, bins: int = ENVELOPE_BINS) -> tuple[n
 def pointing_figure(tel, modes=("detumble", "sun_acquisition", "fine_pointing")) -> Figure:
     """Pointing error (truth against the reference), knowledge error per body axis with the filter's 3-sigma,
     and the mode timeline, from the controller's ``adcs_*`` columns."""
-    from stand.adcs.metrics import ARCSEC, error_angles_B
-
     t = _time(tel)
     q = _column(tel, "q_BN")
     fig = Figure(figsize=(WIDTH_IN, 8.0), layout="constrained")

@@ -73,3 +73,44 @@ def test_no_import_circle():
     circles = strongly_connected(graph)
     assert not circles, "import circles (modules that import each other, directly or through others): " + "; ".join(
         f"{len(c)} modules: {', '.join(c)}" for c in circles)
+
+
+#: The command layer loads its sub-commands and benches on use, so that ``stand --help`` or one command does not
+#: import every other one (OpenCV, matplotlib, Dask...): a function-local import there is the design.
+COMMAND_LAYER = ("stand/cli.py", "stand/commands/", "stand/benches/")
+
+
+def _local_stand_imports(path) -> list[tuple[int, str]]:
+    """(line, module) of each import of a ``stand`` module inside a function of ``path``."""
+    import ast
+
+    tree = ast.parse(path.read_text())
+    found = []
+    for fn in ast.walk(tree):
+        if isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for node in ast.walk(fn):
+                if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").split(".")[0] == "stand"):
+                    found.append((node.lineno, node.module or "."))
+                elif isinstance(node, ast.Import) and any(a.name.split(".")[0] == "stand" for a in node.names):
+                    found.append((node.lineno, node.names[0].name))
+    return sorted(set(found))
+
+
+def test_the_core_imports_other_stand_modules_at_the_top_or_says_why_not():
+    """Outside the command layer a function-local import of another stand module is either gone (nothing to dodge:
+    there is no circle) or marked ``# lazy: <why>`` on the line above (a figure module that loads matplotlib only
+    when a report is drawn)."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    unexplained = []
+    for path in sorted((root / "stand").rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith(COMMAND_LAYER):
+            continue
+        lines = path.read_text().splitlines()
+        for lineno, module in _local_stand_imports(path):
+            above = lines[lineno - 2].strip() if lineno >= 2 else ""
+            if not above.startswith("# lazy:"):
+                unexplained.append(f"{rel}:{lineno} imports {module} inside a function")
+    assert unexplained == [], "\n".join(unexplained)

@@ -133,6 +133,7 @@ class GyroKind(DeviceKind):
         return {"emulated": EmulatedGyro, "hardware": HardwareGyro, "served": ServedGyro}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        # lazy: the figures load matplotlib, which only drawing a report needs
         from stand.devices.gyro_plots import plot_gyro
 
         return [plot_gyro(tel, out_dir, name)]

@@ -78,6 +78,7 @@ class MagnetorquerKind(DeviceKind):
     view_plots = ({"title": "dipole", "unit": "A m²", "column": "dipole_B", "fallback": "dipole_cmd_B"},)
 
     def kind_plots(self, tel, names, out_dir) -> list[str]:
+        # lazy: the figures load matplotlib, which only drawing a report needs
         from stand.devices.magnetorquer_plots import plot_dipole
 
         produced = {n: f"{n}.dipole_B" for n in names if f"{n}.dipole_B" in tel}

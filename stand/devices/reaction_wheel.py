@@ -133,6 +133,7 @@ class ReactionWheelKind(DeviceKind):
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        # lazy: the figures load matplotlib, which only drawing a report needs
         from stand.devices.reaction_wheel_plots import plot_wheel
 
         return [plot_wheel(tel, out_dir, name)]

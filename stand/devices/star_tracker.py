@@ -230,6 +230,7 @@ class StarTrackerKind(DeviceKind):
 
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        # lazy: the figures load matplotlib, which only drawing a report needs
         from stand.devices.star_tracker_plots import plot_tracker
 
         lim = {c["metric"]: c for c in criteria}

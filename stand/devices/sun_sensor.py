@@ -170,6 +170,7 @@ class SunSensorKind(DeviceKind):
                 "model": ModelSunSensor}[spec.link](spec, ctx)
 
     def plots(self, tel, name, out_dir, criteria) -> list[str]:
+        # lazy: the figures load matplotlib, which only drawing a report needs
         from stand.devices.sun_sensor_plots import plot_sun_sensor
 
         return [plot_sun_sensor(tel, out_dir, name, head_labels=HEAD_LABELS if f"{name}.currents" in tel else None)]

@@ -16,6 +16,7 @@ import numpy as np
 from sim.constants import R_EARTH
 from sim.rotations import dcm
 from sim.time import Epoch
+from stand.telemetry import load
 
 from . import state
 
@@ -291,8 +292,6 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
         raise ValueError(f"--mag {mag_limit!r} is not allowed: a magnitude limit from -2 to 9 (the catalog's).")
     meta = meta or state.load_meta(run_dir)
     if samples is None:
-        from stand.telemetry import load
-
         tel = load(run_dir)
         t_all = np.asarray(tel["t_s"])
         if len(t_all) == 0:
@@ -331,8 +330,6 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
 def report_panorama(run_dir, sc=None) -> str | None:
     """``panorama.png`` at the end of a run, for its report (None when the run recorded nothing).
     ``sc``: the run's scenario (else ``view.json`` or the scenario the summary names)."""
-    from stand.telemetry import load
-
     t = load(run_dir)["t_s"]
     if len(t) == 0:
         return None

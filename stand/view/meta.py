@@ -13,8 +13,10 @@ import math
 from pathlib import Path
 
 from sim.time import Epoch
+from stand import scenario
 from stand.devices import DeviceKind
 from stand.devices import get as get_kind
+from stand.errors import ScenarioError
 
 VIEW_FILE = "view.json"
 
@@ -163,13 +165,10 @@ def load_meta(run_dir) -> dict:
     summary = run_dir / "summary.json"
     if not summary.is_file():
         raise FileNotFoundError(f"{run_dir} is not a run folder: it holds neither {VIEW_FILE} nor summary.json.")
-    from stand.errors import ScenarioError
-    from stand.scenario import find, load
-
     data = _read_json(summary)
     source = data.get("source") if isinstance(data, dict) else None
     try:
-        meta = describe(load(find(source)))
+        meta = describe(scenario.load(scenario.find(source)))
         if data.get("status") == "completed" and _number(data.get("sim_duration_s"), positive=True):
             meta["duration_s"] = float(data["sim_duration_s"])  # a --duration run
         return meta

@@ -32,6 +32,7 @@ from sim.ephemeris import EphemerisTrack
 from sim.frames import EarthRotation
 from sim.rotations import quat_from_dcm
 from sim.time import Epoch
+from stand.telemetry import load
 
 # The run's view description lives in .meta; the page's modules and benches take it from here as before.
 from .meta import VIEW_FILE, RunFileError, describe, dumps, load_meta, write_view_json  # noqa: F401
@@ -123,8 +124,6 @@ def encode(samples: dict) -> dict:
 
 def replay_samples(run_dir, meta: dict, max_samples: int = MAX_SAMPLES, sky: Sky | None = None) -> dict:
     """The whole run, decimated, with everything derived."""
-    from stand.telemetry import load
-
     tel = load(run_dir)
     idx = decimate(tel["t_s"], max_samples)
     cols = {k: np.asarray(v)[idx] for k, v in tel.items()}
