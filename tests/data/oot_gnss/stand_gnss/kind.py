@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.framing import FrameObserver
+from stand.checks import rate
 from stand.devices import (
     SERIAL_LINES,
     BuildContext,
@@ -35,7 +37,7 @@ from stand.devices import (
     settle_serial,
 )
 from stand.devices.serving import ServeOption, Serving, numbers, serial_port_fields, serve_serial
-from stand.scenario import rate
+from stand_gnss.codec import GnssFix
 
 #: Fix periods a receiver may miss before the stand's watch reports it silent.
 SILENT_FIXES = 5
@@ -55,6 +57,10 @@ class GnssSpec(DeviceSpec):
 
 class GnssKind(DeviceKind):
     name = "gnss"
+    senses = ("position", "velocity", "time")
+    column_meanings = {"r_N": "the newest fix's position, inertial axes", "v_N": "its velocity, inertial axes",
+                       "gps_week": "its GPS week", "tow_s": "its GPS time of week",
+                       "t_fix_s": "its GPS time as stand time", "valid": "1 when the receiver says it is valid"}
     metrics = {METRIC: "largest distance between a fix and the truth's position at the fix's time, m"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> GnssSpec:
@@ -122,6 +128,9 @@ class _GnssDevice(SerialDevice):
         self._gps0_s = gps_seconds(ctx.epoch)  # GPS seconds at sim time 0, to give each fix its sim time
         self.emulator = None
         self.host = None
+        # What the telemetry records: the link as the stand sees it beside the flight code's driver (every fix the
+        # host's framing layer decodes, or a served emulator sends), never the driver's own state.
+        self.observer = FrameObserver()
 
     def columns(self):
         n = self.name
@@ -129,7 +138,7 @@ class _GnssDevice(SerialDevice):
                 (f"{n}.t_fix_s", 1, "s"), (f"{n}.valid", 1, "1")]
 
     def _latest(self):
-        return self.host.latest_fix
+        return self.observer.latest(GnssFix)
 
     def row(self):
         f = self._latest()
@@ -141,7 +150,7 @@ class _GnssDevice(SerialDevice):
         return (*f.r_N_m, *f.v_N_m_s, float(f.gps_week), f.tow_s, t_fix_s, float(f.valid))
 
     def activity(self):
-        return self.host.counters["fixes"]
+        return self.observer.count(GnssFix)
 
     def summary(self):
         return self.driver_counters()
@@ -155,6 +164,7 @@ class EmulatedGnss(_GnssDevice):
 
         super().__init__(spec, ctx)
         self.open_emulated(spec.port, lambda end: _emulator(end, spec, ctx), lambda end: GnssHost(end, name=spec.name))
+        self.host.add_observer(self.observer)
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
@@ -169,6 +179,7 @@ class HardwareGnss(_GnssDevice):
 
         super().__init__(spec, ctx)
         self.host = GnssHost(spec.port, baudrate=spec.baudrate, name=spec.name)
+        self.host.add_observer(self.observer)
 
     def publish(self, t_s: float) -> None:
         self.host.poll()
@@ -180,16 +191,12 @@ class ServedGnss(_GnssDevice):
     def __init__(self, spec: GnssSpec, ctx: BuildContext):
         super().__init__(spec, ctx)
         self.serve(_emulator(spec.port, spec, ctx, baudrate=spec.baudrate))
+        self.emulator.add_observer(self.observer)  # what it sent, decoded as the flight computer decodes it
 
     def publish(self, t_s: float) -> None:
         self.emulator.service(t_s)
         self.rejections.check(t_s)
 
-    def _latest(self):
-        return self.emulator.latest_fix
-
-    def activity(self):
-        return self.emulator.counters["fixes"]
 
 
 KIND = GnssKind()
