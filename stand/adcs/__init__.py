@@ -57,8 +57,11 @@ class BDot:
     """
 
     def __init__(self, board, period_s: float, gain_A_m2_s_per_T: float, max_dipole_A_m2: float,
-                 q_SB=(1.0, 0.0, 0.0, 0.0), skip_coil_active: bool = True, duty_cycle: float = 1.0):
+                 q_SB=(1.0, 0.0, 0.0, 0.0), skip_coil_active: bool = True, duty_cycle: float = 1.0, sensor=None):
         self.board = board
+        #: Where the field is read (``take_sample()``): a magnetometer of its own, else the board's (``q_SB`` is
+        #: that sensor's mount).
+        self.sensor = board if sensor is None else sensor
         self.period_s = period_s
         self.gain = gain_A_m2_s_per_T
         self.max_dipole = max_dipole_A_m2
@@ -77,7 +80,7 @@ class BDot:
         return self.last_command
 
     def update(self, t_s: float) -> None:
-        sample = self.board.take_sample()  # polls the bus
+        sample = self.sensor.take_sample()  # polls the bus
         if sample is not None:
             self.command_for(sample, t_s)
 

@@ -7,6 +7,7 @@ import functools
 from pathlib import Path
 
 from drivers.magnetorquer.codec import MagnetorquerCodec
+from stand import devices as kinds
 from stand.adcs import BDot
 from stand.checks import Table
 from stand.controllers import ControllerKind
@@ -19,9 +20,27 @@ def max_command_s() -> float:
     return MagnetorquerCodec().dbc.signal_range("MTQ_DIPOLE_CMD", "duration_ms")[1] * 1e-3
 
 
+def _field_sensor(t: Table, devices, board: str) -> str | None:
+    """``magnetometer``: the device B-dot reads the field from, any device whose kind senses the magnetic field
+    (None: the board's own magnetometer)."""
+    if not t.has("magnetometer"):
+        return None
+    sensing = [d for d in devices if "magnetic_field" in kinds.get(d.kind).senses and d.name != board]
+    names = [d.name for d in sensing]
+    if not names:
+        raise t.error("magnetometer", t.raw("magnetometer", None), "the name of a device that senses the magnetic "
+                      "field; this scenario has none besides the board (leave it out to read the board's)")
+    name = t.choice("magnetometer", names, names[0])
+    if sensing[names.index(name)].link == "served":
+        raise t.error("magnetometer", name, "a magnetometer the stand's B-dot can read: this one is served to a "
+                      "flight computer outside (link = 'served')")
+    return name
+
+
 class BDotKind(ControllerKind):
     name = "bdot"
-    keys = ("rate_hz", "budget_s", "device", "gain_A_m2_s_per_T", "max_dipole_A_m2", "skip_coil_active", "duty_cycle")
+    keys = ("rate_hz", "budget_s", "device", "magnetometer", "gain_A_m2_s_per_T", "max_dipole_A_m2",
+            "skip_coil_active", "duty_cycle")
     row_floats = 3  # the commanded dipole
 
     def parse_params(self, t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
@@ -36,6 +55,7 @@ class BDotKind(ControllerKind):
             raise t.error("device", board.name, "a board the stand's B-dot can command: this one is served to a "
                           "flight computer outside (link = 'served'); use controller.kind = 'external' or another "
                           "link")
+        params["magnetometer"] = _field_sensor(t, devices, board.name)
         params["gain_A_m2_s_per_T"] = t.number("gain_A_m2_s_per_T", lo=0.0, lo_open=True, hi=1e12)
         # A command the board cannot carry would abort the run at its first saturation.
         params["max_dipole_A_m2"] = t.number("max_dipole_A_m2", lo=0.0, lo_open=True, hi=board.max_dipole_A_m2)
@@ -56,10 +76,12 @@ class BDotKind(ControllerKind):
 
     def build(self, scenario, devices: dict, base: Path | None):
         p = scenario.controller.params
-        spec = next(d for d in scenario.devices if d.name == p["device"])
-        return BDot(devices[spec.name].host, 1.0 / scenario.controller.rate_hz, p["gain_A_m2_s_per_T"],
-                    p["max_dipole_A_m2"], q_SB=spec.q_SB, skip_coil_active=p["skip_coil_active"],
-                    duty_cycle=p.get("duty_cycle", 1.0))
+        board = next(d for d in scenario.devices if d.name == p["device"])
+        sensor = next((d for d in scenario.devices if d.name == p.get("magnetometer")), board)
+        return BDot(devices[board.name].host, 1.0 / scenario.controller.rate_hz, p["gain_A_m2_s_per_T"],
+                    p["max_dipole_A_m2"], q_SB=sensor.q_SB, skip_coil_active=p["skip_coil_active"],
+                    duty_cycle=p.get("duty_cycle", 1.0),
+                    sensor=None if sensor is board else devices[sensor.name].host)
 
 
 KIND = BDotKind()

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from stand.adcs import PluginError, load_plugin
-from stand.checks import Table
+from stand.checks import Table, unusable
 from stand.controllers import ControllerKind, not_opened
 
 
@@ -23,6 +23,10 @@ class PluginKind(ControllerKind):
         options = t.raw("options", {})
         if not isinstance(options, dict):
             raise t.error("options", options, "a table of keyword arguments for the plug-in's constructor")
+        opt = Table(options, t._name("options"), t.source)
+        for key, value in options.items():  # opaque to the stand, but they reach flight code: no NaN, no NUL
+            if unusable(value):
+                raise opt.error(key, value, "finite numbers of normal size (no subnormals) and text without NUL bytes")
         params["options"] = options
 
     def build(self, scenario, devices: dict, base: Path | None):

@@ -71,7 +71,7 @@ def test_the_shipped_detumble_with_a_standalone_magnetometer_passes(tmp_path):
 
 
 def test_bdot_reads_the_board_or_a_standalone_magnetometer():
-    from stand.adcs.bdot_devices import DeviceBDot
+    from stand.adcs import BDot
 
     class Sensor:
         def __init__(self, b_T):
@@ -89,14 +89,29 @@ def test_bdot_reads_the_board_or_a_standalone_magnetometer():
 
     for standalone in (False, True):
         board, unit = Sensor((1e-5, 0.0, 0.0)), Sensor((0.0, 2e-5, 0.0))
-        hosts = {"mtq": board, "mag": unit}
-        ctl = DeviceBDot(hosts, 0.1, "mtq", 5e4, 0.2, magnetometer="mag" if standalone else None)
+        ctl = BDot(board, 0.1, 5e4, 0.2, sensor=unit if standalone else None)
         ctl.update(0.0)
         ctl.update(0.1)
         assert (unit.taken, board.taken) == ((2, 0) if standalone else (0, 2))
         assert board.commands == [pytest.approx((-0.2, -0.2, -0.2))] and unit.commands == []  # -k dB/dt, clipped
-    with pytest.raises(ValueError, match="options.magnetometer = 'nope' is not a device of the scenario"):
-        DeviceBDot(hosts, 0.1, "mtq", 5e4, 0.2, magnetometer="nope")
+
+
+@pytest.mark.parametrize("value, message", [
+    ("nope", "controller.magnetometer = 'nope'"),
+    ("mtq", "controller.magnetometer = 'mtq'"),  # the board itself: leave the key out instead
+])
+def test_bdot_names_its_magnetometer_among_the_devices_that_sense_the_field(value, message):
+    import tomllib
+
+    from stand.errors import ScenarioError
+    from stand.scenario import SCENARIO_DIR, parse
+
+    data = tomllib.loads((SCENARIO_DIR / "detumble_magnetometer.toml").read_text())
+    sc = parse(data, "detumble_magnetometer.toml")
+    assert sc.controller.params["magnetometer"] == "mag"
+    data["controller"]["magnetometer"] = value
+    with pytest.raises(ScenarioError, match=message):
+        parse(data, "x.toml")
 
 
 @pytest.mark.parametrize("setting, message", [
