@@ -84,16 +84,8 @@ class CanObserver(BusEndpoint):
         """:meth:`poll`, then :meth:`newest` of ``frame_id``: what a telemetry row asks every tick, in one call on
         the stand's in-process bus."""
         ready = self._ready
-        if ready is None:
+        if ready is None or ready:  # nothing pending on the in-process bus: not even the call
             self.poll()
-        elif ready:
-            ids, raw, seen = self._ids, self._raw, self.seen
-            while ready:
-                msg = ready.popleft()
-                fid = msg.arbitration_id
-                if fid in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
-                    raw[fid] = msg.data
-                    seen[fid] += 1
         msg = self._raw.get(frame_id)
         if msg is None:
             return None
