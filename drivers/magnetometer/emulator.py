@@ -36,7 +36,6 @@ __all__ = ["COMMAND_BLOCK", "MagnetometerConfig", "MagnetometerEmulator"]
 #: The unit's command block: its command and the ids the ICD leaves free in it are addressed to it.
 COMMAND_BLOCK = frozenset(range(0x0E0, 0x0E8))
 
-_EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
 @dataclass(frozen=True)
@@ -90,6 +89,7 @@ class MagnetometerEmulator(CanDevice):
     """
 
     _heartbeat_type = Heartbeat
+    _sampling_modes = frozenset({"MEASURE"})  # MAG_FIELD is sent in mode MEASURE only
 
     def __init__(self, bus: can.BusABC, field_source: FieldSource, config: MagnetometerConfig | None = None,
                  rng: np.random.Generator | int = 0, codec: MagnetometerCodec | None = None, *,
@@ -115,6 +115,7 @@ class MagnetometerEmulator(CanDevice):
         self._heartbeat_counter = 0
         #: The newest sample sent, for a stand that serves this unit.
         self.last_sample: MagSample | None = None
+        self._sample, self._sample_period_s = self.measure, config.sample_period_s  # for CanDevice.publish
 
     def __repr__(self) -> str:
         return f"MagnetometerEmulator(mode={self.mode!r}, counters={self.counters})"
@@ -135,25 +136,6 @@ class MagnetometerEmulator(CanDevice):
         else:
             self.counters["commands_accepted"] += 1
             self._board["commands_accepted"] += 1
-
-    def publish(self, t_s: float) -> int:
-        """Send whatever is due at ``t_s`` (sample in mode MEASURE, status, heartbeat); returns frames sent."""
-        if self._closed:
-            self._check_open()
-        if self._t0 is None:
-            self._t0 = t_s
-        cfg = self.config
-        since = t_s - self._t0 + _EPS_S
-        sent = 0
-        if since >= self._k_sample * cfg.sample_period_s:
-            self._k_sample = self._next_slot(since, cfg.sample_period_s, self._k_sample, count_skips=True)
-            if self.mode == "MEASURE":
-                self.last_sample = self.measure(t_s)
-                self._send(self.last_sample)
-                sent += 1
-        if since >= self._housekeeping_due:
-            sent += self._housekeeping(since, t_s)
-        return sent
 
     def measure(self, t_s: float) -> MagSample:
         """The MAG_FIELD sample the unit measures at ``t_s`` (consumes noise; advances the sample counter)."""

@@ -55,7 +55,6 @@ __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulato
 
 SpeedSource = Callable[[float], Any]
 
-_EPS_S = 1e-6
 
 
 class WheelCommand(NamedTuple):
@@ -144,7 +143,10 @@ class ReactionWheelEmulator(CanDevice):
         self._expires_s = math.inf
         self._seq_ack = 0
         self._t0: float | None = None
-        self._k_tlm = self._k_status = self._k_heartbeat = 0
+        self._k_sample = self._k_status = self._k_heartbeat = 0
+        self._sample, self._sample_period_s = self.telemetry, cfg.telemetry_period_s  # for CanDevice.publish
+        #: The newest RW_SPEED_TLM sent.
+        self.last_sample: WheelSpeed | None = None
         self._tlm_seq = 0
         self._heartbeat_counter = 0
         t_lo, t_hi = codec.dbc.signal_range("RW_STATUS", "temperature")
@@ -217,23 +219,6 @@ class ReactionWheelEmulator(CanDevice):
     def _saturated(self) -> None:
         self.counters["saturations"] += 1
         self._board["saturations"] += 1
-
-    def publish(self, t_s: float) -> int:
-        """Send what is due at ``t_s``; returns the number of frames sent."""
-        if self._closed:
-            self._check_open()
-        if self._t0 is None:
-            self._t0 = t_s
-        cfg = self.config
-        since = t_s - self._t0 + _EPS_S
-        sent = 0
-        if since >= self._k_tlm * cfg.telemetry_period_s:
-            self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
-            self._send(self.telemetry(t_s))
-            sent += 1
-        if since >= self._housekeeping_due:
-            sent += self._housekeeping(since, t_s)
-        return sent
 
     def _status_messages(self, t_s: float) -> tuple[Status]:
         return (self.status(),)
