@@ -264,6 +264,18 @@ class CanHost(CanNode):
     _mode_command: Any
     _seq: int
 
+    def _init_host(self, bus: can.BusABC, codec: Any, name: str, accept: frozenset[int], own: frozenset[int],
+                   owns_bus: bool) -> None:
+        """The constructor's common part: the node on ``bus`` taking ``accept`` (what the device sends; ``own`` =
+        the commands, recognised as our echoes), ``counters["samples"]``, every ``_latest`` attribute None."""
+        self.codec = codec
+        self.name = name
+        self._init_node(bus, codec, accept=accept, own=own, extra_counters=("samples",), owns_bus=owns_bus)
+        for attr in self._latest.values():
+            setattr(self, attr, None)
+        self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
+        self._seq = 0  # of the last mode command (set_mode), echoed back by the device once applied
+
     def _next_seq(self) -> int:
         self._seq = (self._seq + 1) & 0xFF
         return self._seq
