@@ -28,6 +28,7 @@ from sim.truth import rotate_to_body
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
+from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, fixed_field, serve_can
 
 NAN3 = (math.nan, math.nan, math.nan)
 #: A unit that has sent nothing for this many sample periods is reported silent.
@@ -278,31 +279,19 @@ KIND = MagnetometerKind()
 def _serve(args, fail) -> int:
     """The standalone magnetometer on a python-can bus in wall time, seeing a fixed field."""
     from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
-    from stand.devices.serving import numbers, serve_can
 
     try:
-        field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
+        field = fixed_field(args)
     except ValueError as exc:
         return fail(str(exc))
     if not (math.isfinite(args.noise_nT) and args.noise_nT >= 0):
         return fail(f"--noise-nT {args.noise_nT:g} is not allowed; give a noise of 0 nT or more.")
     config = MagnetometerConfig(noise_T=args.noise_nT * 1e-9)
     return serve_can(args, fail, "magnetometer", _codec().unit_tx_ids,
-                     lambda bus: MagnetometerEmulator(bus, lambda _t: field_T, config, rng=args.seed, owns_bus=True))
+                     lambda bus: MagnetometerEmulator(bus, field, config, rng=args.seed, owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="A standalone 3-axis magnetometer on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("magnetometer"),
-        options=(ServeOption("--field-nT", "open loop: the field it sees, sensor axes, nT, as X,Y,Z", "20000,0,-40000"),
-                 ServeOption("--noise-nT", "1-sigma noise per axis, nT (default 0)", 0.0, float),
-                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "A standalone 3-axis magnetometer on a CAN bus.", "magnetometer", _serve,
+    (field_option("open loop: the field it sees, sensor axes, nT, as X,Y,Z"),
+     ServeOption("--noise-nT", "1-sigma noise per axis, nT (default 0)", 0.0, float), SEED_OPTION))

@@ -29,6 +29,7 @@ from sim.truth import rotate_to_body
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
+from stand.devices.serving import SEED_OPTION, can_serving, field_option, fixed_field, serve_can
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -356,31 +357,16 @@ KIND = MagnetorquerKind()
 
 def _serve(args, fail) -> int:
     """The CAN magnetorquer board (with its magnetometer) on a python-can bus in wall time, seeing a fixed field."""
-    from drivers.magnetorquer.codec import MagnetorquerCodec
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
-    from stand.devices.serving import numbers, serve_can
 
     try:
-        field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
+        field = fixed_field(args)
     except ValueError as exc:
         return fail(str(exc))
-    return serve_can(args, fail, "magnetorquer board", MagnetorquerCodec().board_tx_ids,
-                     lambda bus: MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed,
-                                                      owns_bus=True))
+    return serve_can(args, fail, "magnetorquer board", _codec().board_tx_ids,
+                     lambda bus: MagnetorquerEmulator(bus, field, EmulatorConfig(), rng=args.seed, owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="The magnetorquer board (coils and magnetometer) on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("magnetorquer"),
-        options=(ServeOption("--field-nT", "open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z",
-                             "20000,0,-40000"),
-                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "The magnetorquer board (coils and magnetometer) on a CAN bus.", "magnetorquer", _serve,
+    (field_option("open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z"), SEED_OPTION))

@@ -37,6 +37,7 @@ from sim.rotations import dcm
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import ServedCan
+from stand.devices.serving import ServeOption, can_serving, serve_can
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -331,7 +332,6 @@ def _serve(args, fail) -> int:
     """One reaction wheel on a python-can bus in wall time, reporting a fixed speed (open loop: no rotor model)."""
     from drivers.reaction_wheel.codec import ReactionWheelCodec
     from drivers.reaction_wheel.emulator import ReactionWheelEmulator
-    from stand.devices.serving import serve_can
 
     if not 0 <= args.wheel <= 15:
         return fail(f"--wheel {args.wheel!r} is not allowed; give a wheel number from 0 to 15.")
@@ -342,18 +342,7 @@ def _serve(args, fail) -> int:
                      lambda bus: ReactionWheelEmulator(bus, lambda _t: speed, wheel=args.wheel, owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="One reaction wheel (node 0x20 + wheel number) on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("reaction wheel"),
-        options=(ServeOption("--wheel", "wheel number, 0 to 15 (default 0)", 0, int),
-                 ServeOption("--speed-rad-s", "open loop: the rotor speed it reports, rad/s (default 0)", 0.0,
-                             float)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "One reaction wheel (node 0x20 + wheel number) on a CAN bus.", "reaction wheel", _serve,
+    (ServeOption("--wheel", "wheel number, 0 to 15 (default 0)", 0, int),
+     ServeOption("--speed-rad-s", "open loop: the rotor speed it reports, rad/s (default 0)", 0.0, float)))
