@@ -36,7 +36,7 @@ from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
-from stand.devices.served_can import ServedCan
+from stand.devices.served_can import CanSpec, ServedCan
 from stand.devices.serving import ServeOption, can_serving, serve_can
 
 RPM = math.pi / 30.0
@@ -46,9 +46,7 @@ SILENT_PERIODS = 5
 
 
 @dataclass(frozen=True)
-class ReactionWheelSpec(DeviceSpec):
-    interface: str = "stand_loopback"
-    channel: str = ""
+class ReactionWheelSpec(CanSpec):
     wheel: int = 0
     spin_axis_B: tuple = (0.0, 0.0, 1.0)
     inertia_kg_m2: float = 2e-3
@@ -268,20 +266,12 @@ class ServedWheel(ServedCan, _Wheel):
     cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
-        from drivers.can_bus import ServedBus, open_device_bus
         from drivers.reaction_wheel.codec import ReactionWheelCodec
 
         super().__init__(spec, ctx)
         self.motor = motor_of(spec)
-        self.link = ServedBus(open_device_bus(spec.interface, spec.channel),
-                              own_ids=ReactionWheelCodec(spec.wheel).wheel_tx_ids)
-        self._buses.append(self.link)
-        try:
-            self.emulator = _emulator(spec, self.link, self._source)
-        except BaseException:
-            self.close()
-            raise
-        self._watch_rejections(spec.name)
+        self._open_served(spec, ReactionWheelCodec(spec.wheel).wheel_tx_ids,
+                          lambda link: _emulator(spec, link, self._source))
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -289,7 +279,7 @@ class ServedWheel(ServedCan, _Wheel):
         self.rejections.check(t_s)
 
     def summary(self):
-        out = super().summary()
+        out = _Wheel.summary(self)  # the wheel's own, not ServedCan's
         out["emulator_counters"].update(self.link.counters)
         out["rejected_frames"] = self.served.rejected_frames()
         return out
