@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 from drivers.errors import EncodeError, ProtocolError, frame_hex
 
-__all__ = ["HEARTBEAT_STATES", "CanCodec", "Heartbeat", "ModeCommand", "enum_name"]
+__all__ = ["HEARTBEAT_STATES", "CanCodec", "Heartbeat", "ModeCommand", "ModeStatus", "enum_name"]
 
 #: Heartbeat states, in the order of the DBCs' VAL_ tables (each codec checks its DBC when it loads).
 HEARTBEAT_STATES: tuple[str, ...] = ("BOOT", "NOMINAL", "DEGRADED", "FAULT")
@@ -42,6 +42,18 @@ class Heartbeat:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "state", enum_name(self.state, HEARTBEAT_STATES, "Heartbeat.state"))
+
+
+@dataclass(frozen=True, slots=True)
+class ModeStatus:
+    """The first field of every device's status message: its mode, a name from its ICD's ``MODES`` or its number
+    (stored as the name). Each codec's ``Status`` subclasses it with its ``MODES`` and its own fields."""
+
+    mode: str | int
+    MODES: ClassVar[tuple[str, ...]] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mode", enum_name(self.mode, self.MODES, "Status.mode"))
 
 
 @dataclass(frozen=True, slots=True)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
 
 __all__ = ["MODES", "Heartbeat", "MagSample", "MagnetometerCodec", "ModeCommand", "Status", "default_dbc_path"]
@@ -52,17 +52,14 @@ class ModeCommand(can_messages.ModeCommand):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Mode and counters (16 bits for rejected frames and saturations, 8 bits for the last two)."""
 
-    mode: str | int
     rejected_frames: int = 0
     saturations: int = 0
     commands_accepted: int = 0
     mode_seq_ack: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 Message = ModeCommand | MagSample | Status | Heartbeat

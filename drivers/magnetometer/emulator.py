@@ -78,15 +78,10 @@ class MagnetometerConfig:
 
 
 class MagnetometerEmulator(CanDevice):
-    """The standalone magnetometer, emulated on ``bus`` (see the module docstring).
-
-    Args:
-        bus: an open :class:`can.BusABC` (closed by :meth:`close` only if ``owns_bus``).
-        field_source: ``field_source(t_s) -> (3,)`` true field at the sensor, sensor axes, T.
-        config: :class:`MagnetometerConfig`.
-        rng: a ``numpy.random.Generator`` or a seed.
-        codec: a :class:`MagnetometerCodec` (default: the ICD in ``fixtures/``).
-    """
+    """The standalone magnetometer, emulated on the open python-can ``bus`` (see the module docstring; ``bus`` is
+    closed by :meth:`close` only if ``owns_bus``). It measures ``field_source(t_s) -> (3,)``, the true field at the
+    sensor in sensor axes (T), as ``config`` (:class:`MagnetometerConfig`) says, with the noise of ``rng`` (a
+    ``numpy.random.Generator`` or a seed), and speaks the ICD of ``codec`` (default: the one in ``fixtures/``)."""
 
     _heartbeat_type = Heartbeat
     _sampling_modes = frozenset({"MEASURE"})  # MAG_FIELD is sent in mode MEASURE only

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
 from drivers.magnetometer.codec import MagSample  # the one sample type of every magnetometer
 
@@ -67,16 +67,13 @@ class ModeCommand(can_messages.ModeCommand):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Board status: mode, which coils are driven, coil currents (A), board temperature (degC)."""
 
-    mode: str | int
     coil_active: tuple[bool, bool, bool]
     coil_current_A: tuple[float, float, float]
     temperature_C: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 @dataclass(frozen=True, slots=True)

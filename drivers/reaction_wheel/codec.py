@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
 from drivers.errors import ProtocolError, frame_hex
 
@@ -137,19 +137,16 @@ class WheelSpeed(float):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Wheel status: mode, counters (each wraps at its DBC width), seq of the last command, temperature."""
 
-    mode: str | int
     rejected_frames: int = 0
     commands_accepted: int = 0
     seq_ack: int = 0
     watchdog_expiries: int = 0
     saturations: int = 0
     temperature_C: float = 20.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 Message = TorqueCommand | SpeedCommand | ModeCommand | WheelSpeed | Status | Heartbeat

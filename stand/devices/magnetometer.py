@@ -28,7 +28,7 @@ from sim.truth import rotate_to_body
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
-from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, fixed_field, serve_can
+from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
 #: A unit that has sent nothing for this many sample periods is reported silent.
@@ -232,15 +232,11 @@ def _serve(args, fail) -> int:
     """The standalone magnetometer on a python-can bus in wall time, seeing a fixed field."""
     from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
 
-    try:
-        field = fixed_field(args)
-    except ValueError as exc:
-        return fail(str(exc))
     if not (math.isfinite(args.noise_nT) and args.noise_nT >= 0):
         return fail(f"--noise-nT {args.noise_nT:g} is not allowed; give a noise of 0 nT or more.")
     config = MagnetometerConfig(noise_T=args.noise_nT * 1e-9)
-    return serve_can(args, fail, "magnetometer", _codec().unit_tx_ids,
-                     lambda bus: MagnetometerEmulator(bus, field, config, rng=args.seed, owns_bus=True))
+    return serve_can_in_field(args, fail, "magnetometer", _codec().unit_tx_ids,
+                              lambda bus, field: MagnetometerEmulator(bus, field, config, rng=args.seed, owns_bus=True))
 
 
 KIND.serving = can_serving(

@@ -29,7 +29,7 @@ from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
 from stand.devices.magnetometer import sensor_field
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
-from stand.devices.serving import SEED_OPTION, can_serving, field_option, fixed_field, serve_can
+from stand.devices.serving import SEED_OPTION, can_serving, field_option, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -284,12 +284,9 @@ def _serve(args, fail) -> int:
     """The CAN magnetorquer board (with its magnetometer) on a python-can bus in wall time, seeing a fixed field."""
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
 
-    try:
-        field = fixed_field(args)
-    except ValueError as exc:
-        return fail(str(exc))
-    return serve_can(args, fail, "magnetorquer board", _codec().board_tx_ids,
-                     lambda bus: MagnetorquerEmulator(bus, field, EmulatorConfig(), rng=args.seed, owns_bus=True))
+    return serve_can_in_field(args, fail, "magnetorquer board", _codec().board_tx_ids,
+                              lambda bus, field: MagnetorquerEmulator(bus, field, EmulatorConfig(), rng=args.seed,
+                                                                      owns_bus=True))
 
 
 KIND.serving = can_serving(

@@ -103,6 +103,16 @@ def fixed_field(args) -> Callable[[float], tuple[float, float, float]]:
     return lambda _t: field_T
 
 
+def serve_can_in_field(args, fail, what: str, own_ids, make: Callable[[Any, Callable[[float], Any]], Any]) -> int:
+    """:func:`serve_can` for a device with a magnetometer seeing the fixed field of ``--field-nT``:
+    ``make(bus, field)``; a bad ``--field-nT`` is a usage error."""
+    try:
+        field = fixed_field(args)
+    except ValueError as exc:
+        return fail(str(exc))
+    return serve_can(args, fail, what, own_ids, lambda bus: make(bus, field))
+
+
 def numbers(text: str, count: int, flag: str, unit: str) -> tuple[float, ...]:
     """``count`` finite numbers from ``A,B,...`` (ValueError naming the option, the value and what is allowed)."""
     try:
