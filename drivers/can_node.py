@@ -337,6 +337,15 @@ class CanHost(CanNode):
         return getattr(self, self._sample_attr)
 
 
+def check_positive(config: Any, names: tuple[str, ...]) -> None:
+    """An emulator configuration's check: ValueError naming the class, the field and the value for any of ``names``
+    that is not a finite number > 0."""
+    for name in names:
+        value = getattr(config, name)
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{type(config).__name__}.{name} must be a finite number > 0; got {value!r}.")
+
+
 #: A period boundary reached within 1 us counts as reached (float sums of steps drift).
 EPS_S = 1e-6
 

@@ -27,7 +27,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_node import CanDevice
+from drivers.can_node import CanDevice, check_positive
 from drivers.magnetometer.codec import MODES, Heartbeat, MagnetometerCodec, MagSample, ModeCommand, Status
 from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 
@@ -61,10 +61,7 @@ class MagnetometerConfig:
     noise_block: int = 4096
 
     def __post_init__(self) -> None:
-        for name in ("lsb_T", "sample_period_s", "status_period_s", "heartbeat_period_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"MagnetometerConfig.{name} must be a finite number > 0; got {value!r}.")
+        check_positive(self, ("lsb_T", "sample_period_s", "status_period_s", "heartbeat_period_s"))
         if not (isinstance(self.noise_T, (int, float)) and math.isfinite(self.noise_T) and self.noise_T >= 0):
             raise ValueError(f"MagnetometerConfig.noise_T must be a finite number >= 0; got {self.noise_T!r}.")
         bias = np.asarray(self.bias_T, dtype=float)

@@ -41,7 +41,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_node import EPS_S, CanDevice
+from drivers.can_node import EPS_S, CanDevice, check_positive
 from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 from drivers.magnetorquer.codec import (
     MODES,
@@ -100,11 +100,8 @@ class EmulatorConfig:
     noise_block: int = 4096
 
     def __post_init__(self) -> None:
-        for name in ("max_dipole_A_m2", "dipole_lsb_A_m2", "mag_lsb_T", "sample_period_s", "status_period_s",
-                     "heartbeat_period_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"EmulatorConfig.{name} must be a finite number > 0; got {value!r}.")
+        check_positive(self, ("max_dipole_A_m2", "dipole_lsb_A_m2", "mag_lsb_T", "sample_period_s", "status_period_s",
+                              "heartbeat_period_s"))
         if not (math.isfinite(self.mag_noise_T) and self.mag_noise_T >= 0):
             raise ValueError(
                 f"EmulatorConfig.mag_noise_T must be a finite number >= 0; got {self.mag_noise_T!r}."

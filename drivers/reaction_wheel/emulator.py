@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import can
 
-from drivers.can_node import CanDevice
+from drivers.can_node import CanDevice, check_positive
 from drivers.reaction_wheel.codec import (
     MODES,
     Heartbeat,
@@ -88,11 +88,8 @@ class WheelEmulatorConfig:
     initial_mode: str = "TORQUE"
 
     def __post_init__(self) -> None:
-        for name in ("max_torque_Nm", "max_speed_rad_s", "telemetry_period_s", "status_period_s",
-                     "heartbeat_period_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"WheelEmulatorConfig.{name} must be a finite number > 0; got {v!r}.")
+        check_positive(self, ("max_torque_Nm", "max_speed_rad_s", "telemetry_period_s", "status_period_s",
+                              "heartbeat_period_s"))
         if self.initial_mode not in MODES:
             raise ValueError(f"WheelEmulatorConfig.initial_mode must be one of {', '.join(MODES)}; "
                              f"got {self.initial_mode!r}.")

@@ -53,7 +53,23 @@ class MagnetometerSpec(CanSpec):
     field_source: str = "truth"
 
 
-class MagnetometerKind(DeviceKind):
+class FieldSensingKind(DeviceKind):
+    """A kind with a magnetometer reading the truth's field, or a cage's (its ``field_source``): this one and the
+    magnetorquer board's."""
+
+    #: What reads the field, named in the needs of the run (``{}``: the device's name).
+    field_reader = "magnetometer {}"
+
+    def refs(self, spec) -> dict[str, tuple[str, str]]:
+        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
+
+    def needs(self, spec) -> dict[str, str]:
+        if spec.link == "hardware" or spec.field_source != "truth":
+            return {}  # a real magnetometer, or one in a cage, reads the field where it is
+        return {"magnetic_field": self.field_reader.format(spec.name)}
+
+
+class MagnetometerKind(FieldSensingKind):
     name = "magnetometer"
     senses = ("magnetic_field",)
     column_meanings = {"mag_S": "the newest field sample the unit sent, sensor axes",
@@ -77,14 +93,6 @@ class MagnetometerKind(DeviceKind):
         )
         t.check_unknown()
         return spec
-
-    def refs(self, spec) -> dict[str, tuple[str, str]]:
-        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
-
-    def needs(self, spec) -> dict[str, str]:
-        if spec.link == "hardware" or spec.field_source != "truth":
-            return {}  # a real unit, or one in a cage, reads the field where it is
-        return {"magnetic_field": f"magnetometer {spec.name}"}
 
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"

@@ -26,8 +26,8 @@ import numpy as np
 from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
-from stand.devices.magnetometer import sensor_field
+from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint
+from stand.devices.magnetometer import FieldSensingKind, sensor_field
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
 from stand.devices.serving import SEED_OPTION, can_serving, field_option, serve_can_in_field
 
@@ -59,8 +59,9 @@ def _codec():
     return MagnetorquerCodec()
 
 
-class MagnetorquerKind(DeviceKind):
+class MagnetorquerKind(FieldSensingKind):
     name = "magnetorquer"
+    field_reader = "magnetometer of {}"
     senses = ("magnetic_field",)
     actuates = ("dipole",)
     column_meanings = {"mag_S": "the newest magnetometer sample the host decoded, sensor axes",
@@ -99,14 +100,6 @@ class MagnetorquerKind(DeviceKind):
         )
         t.check_unknown()
         return spec
-
-    def refs(self, spec) -> dict[str, tuple[str, str]]:
-        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
-
-    def needs(self, spec) -> dict[str, str]:
-        if spec.link == "hardware" or spec.field_source != "truth":
-            return {}  # a real board's magnetometer, or one in a cage, reads the field where it is
-        return {"magnetic_field": f"magnetometer of {spec.name}"}
 
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
