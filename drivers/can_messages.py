@@ -75,9 +75,9 @@ class CanCodec:
     """The encode / decode machinery of a device codec on one DBC (:class:`drivers.dbc.DbcCodec`).
 
     A kind's codec calls :meth:`_load` from its ``__init__`` with the signal order of each message and a builder per
-    message (values in that order -> message), and sets ``_encoders`` (message type -> method returning
-    ``(packer, values)``, the packer from ``_packers``). ``KIND`` names the device in errors; ``id_offset`` is
-    added to every DBC id (a wheel's number), ``where`` to every encode error (" for wheel 2").
+    message (values in that order -> message), then :meth:`_encoding` with, for each message type it encodes, the
+    DBC message and a function giving the message's values in that order. ``KIND`` names the device in errors;
+    ``id_offset`` is added to every DBC id (a wheel's number), ``where`` to every encode error (" for wheel 2").
 
     ``encode(msg) -> (frame_id, payload)`` raises :class:`~drivers.errors.EncodeError` naming the field, the value
     and the DBC's range; ``decode(frame_id, payload) -> message`` raises :class:`~drivers.errors.ProtocolError`
@@ -114,14 +114,21 @@ class CanCodec:
 
     # -- encode ---------------------------------------------------------------------------------
 
+    def _encoding(self, encoders: Mapping[type, tuple[str, Callable[[Any], tuple]]]) -> None:
+        """The encode table: message type -> (the DBC message, ``values(msg)`` in the order given to :meth:`_load`)."""
+        self._encoders: dict[type, tuple] = {
+            kind: (self._packers[name], values, self._packers[name].frame_id + self.id_offset)
+            for kind, (name, values) in encoders.items()}
+
     def encode(self, msg: Any) -> tuple[int, bytes]:
         """Encode one message: returns (frame id, 8-byte payload)."""
-        encoder = self._encoders.get(type(msg))
-        if encoder is None:
+        entry = self._encoders.get(type(msg))
+        if entry is None:
             raise self.UNKNOWN_TYPE_ERROR(f"Cannot encode {type(msg).__name__}: expected one of "
                                           f"{', '.join(t.__name__ for t in self._encoders)}.")
+        packer, values_of, frame_id = entry
         try:
-            packer, values = encoder(msg)
+            values = values_of(msg)
             payload = packer.pack(*values)
             if payload is None:  # the DBC codec's full checks, and their error messages
                 _, payload = self.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
@@ -129,14 +136,16 @@ class CanCodec:
             raise EncodeError(f"Cannot encode {msg!r}{self.where}: {exc}") from exc
         except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
             raise EncodeError(f"Cannot encode {msg!r}{self.where}: {type(exc).__name__}: {exc}") from exc
-        return packer.frame_id + self.id_offset, payload
+        return frame_id, payload
 
-    # The mode command and the heartbeat are the same messages in every ICD (their packers named here).
-    def _encode_mode(self, msg: ModeCommand) -> tuple[Any, tuple]:
-        return self._p_mode, (msg.MODES.index(msg.mode), bool(msg.reset_counters), msg.seq)
+    # The mode command and the heartbeat are the same messages in every ICD.
+    @staticmethod
+    def _mode_values(msg: ModeCommand) -> tuple:
+        return msg.MODES.index(msg.mode), bool(msg.reset_counters), msg.seq
 
-    def _encode_heartbeat(self, msg: Heartbeat) -> tuple[Any, tuple]:
-        return self._p_heartbeat, (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter)
+    @staticmethod
+    def _heartbeat_values(msg: Heartbeat) -> tuple:
+        return msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter
 
     # -- decode ---------------------------------------------------------------------------------
 

@@ -104,17 +104,17 @@ class MagnetometerCodec(CanCodec):
         self.mag_range_T: tuple[float, float] = (lo * _NT, hi * _NT)
         #: One LSB of MAG_FIELD, T.
         self.mag_lsb_T: float = dbc.signal_scale("MAG_FIELD", "b_x") * _NT
-        p = self._packers
-        self._p_mode, self._p_sample = p["MAG_MODE_CMD"], p["MAG_FIELD"]
-        self._p_status, self._p_heartbeat = p["MAG_STATUS"], p["MAG_HEARTBEAT"]
-        self._encoders = {ModeCommand: self._encode_mode, MagSample: self._encode_sample, Status: self._encode_status,
-                          Heartbeat: self._encode_heartbeat}
+        self._encoding({ModeCommand: ("MAG_MODE_CMD", self._mode_values),
+                        MagSample: ("MAG_FIELD", self._sample_values),
+                        Status: ("MAG_STATUS", self._status_values),
+                        Heartbeat: ("MAG_HEARTBEAT", self._heartbeat_values)})
 
     # The values in _SIGNALS order.
-    def _encode_sample(self, msg: MagSample) -> tuple:
+    @staticmethod
+    def _sample_values(msg: MagSample) -> tuple:
         bx, by, bz = msg.b_T
-        return self._p_sample, (bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.valid))
+        return bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.valid)
 
-    def _encode_status(self, msg: Status) -> tuple:
-        return self._p_status, (MODES.index(msg.mode), msg.rejected_frames, msg.saturations, msg.commands_accepted,
-                                msg.mode_seq_ack)
+    @staticmethod
+    def _status_values(msg: Status) -> tuple:
+        return MODES.index(msg.mode), msg.rejected_frames, msg.saturations, msg.commands_accepted, msg.mode_seq_ack

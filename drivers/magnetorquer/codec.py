@@ -157,37 +157,36 @@ class MagnetorquerCodec(CanCodec):
         self.current_lsb_A: float = dbc.signal_scale("MTQ_STATUS", "current_x") * _MA
         #: One LSB of MTQ_STATUS temperature, degC.
         self.temperature_lsb_C: float = dbc.signal_scale("MTQ_STATUS", "temperature")
-        p = self._packers
-        self._p_dipole, self._p_mode, self._p_sample = p["MTQ_DIPOLE_CMD"], p["MTQ_MODE_CMD"], p["MAG_SAMPLE"]
-        self._p_status, self._p_counters, self._p_heartbeat = p["MTQ_STATUS"], p["MTQ_COUNTERS"], p["MTQ_HEARTBEAT"]
-        self._encoders = {
-            DipoleCommand: self._encode_dipole,
-            ModeCommand: self._encode_mode,
-            MagSample: self._encode_sample,
-            Status: self._encode_status,
-            Counters: self._encode_counters,
-            Heartbeat: self._encode_heartbeat,
-        }
+        self._encoding({
+            DipoleCommand: ("MTQ_DIPOLE_CMD", self._dipole_values),
+            ModeCommand: ("MTQ_MODE_CMD", self._mode_values),
+            MagSample: ("MAG_SAMPLE", self._sample_values),
+            Status: ("MTQ_STATUS", self._status_values),
+            Counters: ("MTQ_COUNTERS", self._counters_values),
+            Heartbeat: ("MTQ_HEARTBEAT", self._heartbeat_values),
+        })
 
     # -- encode: the values in _SIGNALS order ---------------------------------------------------
 
-    def _encode_dipole(self, msg: DipoleCommand) -> tuple:
+    @staticmethod
+    def _dipole_values(msg: DipoleCommand) -> tuple:
         mx, my, mz = msg.dipole_A_m2
-        return self._p_dipole, (mx, my, mz, msg.duration_s / _MS)
+        return mx, my, mz, msg.duration_s / _MS
 
-    def _encode_sample(self, msg: MagSample) -> tuple:
+    @staticmethod
+    def _sample_values(msg: MagSample) -> tuple:
         bx, by, bz = msg.b_T
-        return self._p_sample, (bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.coil_active), bool(msg.valid))
+        return bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.coil_active), bool(msg.valid)
 
-    def _encode_status(self, msg: Status) -> tuple:
+    @staticmethod
+    def _status_values(msg: Status) -> tuple:
         ax, ay, az = msg.coil_active
         ix, iy, iz = msg.coil_current_A
-        return self._p_status, (MODES.index(msg.mode), bool(ax), bool(ay), bool(az), ix / _MA, iy / _MA, iz / _MA,
-                                msg.temperature_C)
+        return MODES.index(msg.mode), bool(ax), bool(ay), bool(az), ix / _MA, iy / _MA, iz / _MA, msg.temperature_C
 
-    def _encode_counters(self, msg: Counters) -> tuple:
-        return self._p_counters, (msg.rejected_frames, msg.watchdog_expiries, msg.saturations, msg.commands_accepted,
-                                  msg.mode_seq_ack)
+    @staticmethod
+    def _counters_values(msg: Counters) -> tuple:
+        return msg.rejected_frames, msg.watchdog_expiries, msg.saturations, msg.commands_accepted, msg.mode_seq_ack
 
     # -- decode: the builders take the values in _SIGNALS order ---------------------------------
 

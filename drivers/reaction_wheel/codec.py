@@ -211,17 +211,14 @@ class ReactionWheelCodec(CanCodec):
         self.tlm_torque_range_Nm: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "torque")
         self.speed_lsb_rad_s: float = d.signal_scale("RW_SPEED_TLM", "speed")
         self.torque_lsb_Nm: float = d.signal_scale("RW_SPEED_TLM", "torque")
-        p = self._packers
-        self._p_torque, self._p_speed, self._p_mode = p["RW_TORQUE_CMD"], p["RW_SPEED_CMD"], p["RW_MODE_CMD"]
-        self._p_tlm, self._p_status, self._p_heartbeat = p["RW_SPEED_TLM"], p["RW_STATUS"], p["RW_HEARTBEAT"]
-        self._encoders = {
-            TorqueCommand: self._encode_torque,
-            SpeedCommand: self._encode_speed,
-            ModeCommand: self._encode_mode,
-            WheelSpeed: self._encode_tlm,
-            Status: self._encode_status,
-            Heartbeat: self._encode_heartbeat,
-        }
+        self._encoding({
+            TorqueCommand: ("RW_TORQUE_CMD", self._torque_values),
+            SpeedCommand: ("RW_SPEED_CMD", self._speed_values),
+            ModeCommand: ("RW_MODE_CMD", self._mode_values),
+            WheelSpeed: ("RW_SPEED_TLM", self._tlm_values),
+            Status: ("RW_STATUS", self._status_values),
+            Heartbeat: ("RW_HEARTBEAT", self._heartbeat_values),
+        })
 
     def wheel_of(self, frame_id: int) -> int | None:
         """The wheel number a wheel id belongs to, or None for an id that is no wheel's."""
@@ -229,19 +226,23 @@ class ReactionWheelCodec(CanCodec):
 
     # -- encode: the values in _SIGNALS order ---------------------------------------------------
 
-    def _encode_torque(self, msg: TorqueCommand) -> tuple:
-        return self._p_torque, (msg.torque_Nm, msg.seq, msg.timeout_s / _MS)
+    @staticmethod
+    def _torque_values(msg: TorqueCommand) -> tuple:
+        return msg.torque_Nm, msg.seq, msg.timeout_s / _MS
 
-    def _encode_speed(self, msg: SpeedCommand) -> tuple:
-        return self._p_speed, (msg.speed_rad_s, msg.seq, msg.timeout_s / _MS)
+    @staticmethod
+    def _speed_values(msg: SpeedCommand) -> tuple:
+        return msg.speed_rad_s, msg.seq, msg.timeout_s / _MS
 
-    def _encode_tlm(self, msg: WheelSpeed) -> tuple:
-        return self._p_tlm, (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
-                             bool(msg.torque_limited))
+    @staticmethod
+    def _tlm_values(msg: WheelSpeed) -> tuple:
+        return (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
+                bool(msg.torque_limited))
 
-    def _encode_status(self, msg: Status) -> tuple:
-        return self._p_status, (MODES.index(msg.mode), msg.rejected_frames, msg.commands_accepted, msg.seq_ack,
-                                msg.watchdog_expiries, msg.saturations, msg.temperature_C)
+    @staticmethod
+    def _status_values(msg: Status) -> tuple:
+        return (MODES.index(msg.mode), msg.rejected_frames, msg.commands_accepted, msg.seq_ack, msg.watchdog_expiries,
+                msg.saturations, msg.temperature_C)
 
     # -- decode ---------------------------------------------------------------------------------
 
