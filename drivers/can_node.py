@@ -264,6 +264,18 @@ class CanHost(CanNode):
     _mode_command: Any
     _seq: int
 
+    def _init_host(self, bus: can.BusABC, codec: Any, name: str, accept: frozenset[int], own: frozenset[int],
+                   owns_bus: bool) -> None:
+        """The constructor's common part: the node on ``bus`` taking ``accept`` (what the device sends; ``own`` =
+        the commands, recognised as our echoes), ``counters["samples"]``, every ``_latest`` attribute None."""
+        self.codec = codec
+        self.name = name
+        self._init_node(bus, codec, accept=accept, own=own, extra_counters=("samples",), owns_bus=owns_bus)
+        for attr in self._latest.values():
+            setattr(self, attr, None)
+        self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
+        self._seq = 0  # of the last mode command (set_mode), echoed back by the device once applied
+
     def _next_seq(self) -> int:
         self._seq = (self._seq + 1) & 0xFF
         return self._seq
@@ -325,16 +337,39 @@ class CanHost(CanNode):
         return getattr(self, self._sample_attr)
 
 
+def check_positive(config: Any, names: tuple[str, ...]) -> None:
+    """An emulator configuration's check: ValueError naming the class, the field and the value for any of ``names``
+    that is not a finite number > 0."""
+    for name in names:
+        value = getattr(config, name)
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{type(config).__name__}.{name} must be a finite number > 0; got {value!r}.")
+
+
+#: A period boundary reached within 1 us counts as reached (float sums of steps drift).
+EPS_S = 1e-6
+
+
 class CanDevice(CanNode):
     """An emulated device: its periodic publication schedule and its heartbeat.
 
     Periodic messages are due at ``t0 + k * period`` (``t0`` = the first publication time); a subclass sets
-    ``self._t0 = None`` and ``self._heartbeat_counter = 0`` in its constructor, names its ICD's heartbeat
-    message (``_heartbeat_type``) and keeps ``counters["samples_skipped"]``.
+    ``self._t0 = None``, ``self._k_sample = self._k_status = self._k_heartbeat = 0`` and
+    ``self._heartbeat_counter = 0`` in its constructor, with ``self._sample`` (``t_s -> message``: its periodic
+    message, e.g. its bound ``measure``) and ``self._sample_period_s``; names its ICD's heartbeat message
+    (``_heartbeat_type``) and keeps ``counters["samples_skipped"]``.
     """
 
     _heartbeat_type: Any
     _t0: float | None
+    _k_sample: int
+    _sample: Any
+    _sample_period_s: float
+    mode: str
+    #: The modes in which the periodic message is sent (None: every mode).
+    _sampling_modes: frozenset[str] | None = None
+    #: A command with a duration is running: :meth:`publish` first runs the device's ``_watchdog(t_s)``.
+    _driven = False
     _heartbeat_counter: int
     _k_status: int
     _k_heartbeat: int
@@ -350,7 +385,31 @@ class CanDevice(CanNode):
     def receive(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
         raise NotImplementedError
 
-    def publish(self, t_s: float) -> int:  # pragma: no cover - every device overrides it
+    def publish(self, t_s: float) -> int:
+        """Send whatever is due at ``t_s`` (the periodic message, the status messages, the heartbeat); returns the
+        number of frames sent. The periodic message sent is kept as ``last_sample``, for a stand that serves the
+        device."""
+        if self._closed:
+            self._check_open()
+        if self._t0 is None:
+            self._t0 = t_s
+        if self._driven:
+            self._watchdog(t_s)
+        since = t_s - self._t0 + EPS_S
+        sent = 0
+        period = self._sample_period_s
+        if since >= self._k_sample * period:
+            self._k_sample = self._next_slot(since, period, self._k_sample, count_skips=True)
+            modes = self._sampling_modes
+            if modes is None or self.mode in modes:
+                self.last_sample = msg = self._sample(t_s)
+                self._send(msg)
+                sent += 1
+        if since >= self._housekeeping_due:
+            sent += self._housekeeping(since, t_s)
+        return sent
+
+    def _watchdog(self, t_s: float) -> None:  # pragma: no cover - a device that sets _driven overrides it
         raise NotImplementedError
 
     def _housekeeping(self, since: float, t_s: float) -> int:

@@ -80,35 +80,17 @@ class CanObserver(BusEndpoint):
             self._raw[frame_id] = payload
             self.seen[frame_id] += 1
 
-    def poll_newest(self, frame_id: int) -> Any:
-        """:meth:`poll`, then :meth:`newest` of ``frame_id``: what a telemetry row asks every tick, in one call on
-        the stand's in-process bus."""
+    def poll_newest(self, frame_id: int, poll: bool = True) -> Any:
+        """:meth:`poll` (unless ``poll`` is false), then :meth:`newest` of ``frame_id``: what a telemetry row asks
+        every tick, in one call."""
         ready = self._ready
-        if ready is None:
+        if poll and (ready is None or ready):  # nothing pending on the in-process bus: not even the call
             self.poll()
-        elif ready:
-            ids, raw, seen = self._ids, self._raw, self.seen
-            while ready:
-                msg = ready.popleft()
-                fid = msg.arbitration_id
-                if fid in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
-                    raw[fid] = msg.data
-                    seen[fid] += 1
         msg = self._raw.get(frame_id)
         if msg is None:
             return None
         done = self._decoded.get(frame_id)
-        if done is not None and done[0] is msg:
-            return done[1]
-        return self.newest(frame_id)
-
-    def newest(self, frame_id: int) -> Any:
-        """The newest message of ``frame_id`` seen so far, decoded, or None."""
-        msg = self._raw.get(frame_id)
-        if msg is None:
-            return None
-        done = self._decoded.get(frame_id)
-        if done is not None and done[0] is msg:
+        if done is not None and done[0] is msg:  # decoded already: most ticks
             return done[1]
         try:
             value = self._decode(frame_id, msg)  # ProtocolError for a wrong length too
@@ -118,6 +100,10 @@ class CanObserver(BusEndpoint):
             return done[1] if done is not None else None
         self._decoded[frame_id] = (msg, value)
         return value
+
+    def newest(self, frame_id: int) -> Any:
+        """The newest message of ``frame_id`` seen so far, decoded, or None."""
+        return self.poll_newest(frame_id, False)
 
 
 def open_observer(interface: str, channel: str, codec: Any, ids: frozenset[int], name: str) -> CanObserver:

@@ -12,11 +12,12 @@ The emulator and host modules import pymodbus; importing this package does not.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from drivers.cage.calibration import CageCalibration, fit_calibration
 from drivers.cage.model import CageConfig, CageModel
 from drivers.cage.registers import Register, RegisterMap, load_map
+from drivers.lazy import lazy_getattr
 
 if TYPE_CHECKING:  # pragma: no cover
     from drivers.cage.emulator import CageEmulator
@@ -36,17 +37,9 @@ __all__ = [
     "load_map",
 ]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "CageEmulator": "drivers.cage.emulator",
     "CageHost": "drivers.cage.host",
     "CageStatus": "drivers.cage.host",
     "FieldSample": "drivers.cage.host",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

@@ -10,9 +10,10 @@ The host and emulator modules import pyserial lazily (only to open a URL).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from drivers.gyro.codec import GyroCodec, GyroRate, SetOutputPeriod, SetTime
+from drivers.lazy import lazy_getattr
 
 if TYPE_CHECKING:  # pragma: no cover
     from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
@@ -20,16 +21,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["GyroCodec", "GyroEmulator", "GyroEmulatorConfig", "GyroHost", "GyroRate", "SetOutputPeriod", "SetTime"]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "GyroHost": "drivers.gyro.host",
     "GyroEmulator": "drivers.gyro.emulator",
     "GyroEmulatorConfig": "drivers.gyro.emulator",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

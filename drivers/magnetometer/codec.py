@@ -23,9 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
-from drivers.errors import EncodeError, ProtocolError, frame_hex
 
 __all__ = ["MODES", "Heartbeat", "MagSample", "MagnetometerCodec", "ModeCommand", "Status", "default_dbc_path"]
 
@@ -53,17 +52,14 @@ class ModeCommand(can_messages.ModeCommand):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Mode and counters (16 bits for rejected frames and saturations, 8 bits for the last two)."""
 
-    mode: str | int
     rejected_frames: int = 0
     saturations: int = 0
     commands_accepted: int = 0
     mode_seq_ack: int = 0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 Message = ModeCommand | MagSample | Status | Heartbeat
@@ -84,87 +80,41 @@ def default_dbc_path() -> Path:
     return fixture_path("devices/magnetometer.dbc")
 
 
-class MagnetometerCodec:
-    """Encode and decode standalone-magnetometer messages, from the DBC at ``dbc_path`` (default: the ICD).
+class MagnetometerCodec(CanCodec):
+    """Encode and decode standalone-magnetometer messages, from the DBC at ``dbc_path`` (default: the ICD); the
+    machinery and its errors are :class:`drivers.can_messages.CanCodec`'s."""
 
-    ``encode(msg) -> (frame_id, payload)`` raises :class:`~drivers.errors.EncodeError` naming the field, the value
-    and the DBC's range; ``decode(frame_id, payload) -> message`` raises :class:`~drivers.errors.ProtocolError`
-    (frame in hex) for an unknown id, a wrong length or an enum value outside its table.
-    """
+    KIND = "magnetometer"
 
     def __init__(self, dbc_path: str | Path | None = None) -> None:
-        self.dbc = dbc = DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
-        for msg, sig, names in (("MAG_MODE_CMD", "mode", MODES), ("MAG_STATUS", "mode", MODES),
-                                ("MAG_HEARTBEAT", "state", HEARTBEAT_STATES)):
-            table = dbc.choices(msg, sig)
-            if table != dict(enumerate(names)):
-                raise ValueError(f"{dbc.path.name}: the value table of {msg}.{sig} is {table}; this codec expects "
-                                 f"{dict(enumerate(names))}.")
+        dbc = DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
+        builders = {"MAG_MODE_CMD": lambda v: ModeCommand(v[0], bool(v[1]), v[2]),
+                    "MAG_FIELD": lambda v: MagSample((v[0] * _NT, v[1] * _NT, v[2] * _NT), False, v[4] == 1, v[3]),
+                    "MAG_STATUS": lambda v: Status(*v),
+                    "MAG_HEARTBEAT": lambda v: Heartbeat(v[0], v[1], v[2])}
+        self._load(dbc, _SIGNALS, builders, (("MAG_MODE_CMD", "mode", MODES), ("MAG_STATUS", "mode", MODES),
+                                             ("MAG_HEARTBEAT", "state", HEARTBEAT_STATES)))
         self.id_mode_cmd = dbc.frame_id("MAG_MODE_CMD")
         self.id_sample = dbc.frame_id("MAG_FIELD")
         #: Frame ids the unit sends (MAG) and the ones it receives (from HOST), from the DBC.
         self.unit_tx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "MAG" in dbc.senders(n))
         self.unit_rx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "HOST" in dbc.senders(n))
-        self.lengths: dict[int, int] = {dbc.frame_id(n): dbc.length(n) for n in dbc.names}
         lo, hi = dbc.signal_range("MAG_FIELD", "b_x")
         #: What MAG_FIELD can carry per axis, T (the sensor saturates there).
         self.mag_range_T: tuple[float, float] = (lo * _NT, hi * _NT)
         #: One LSB of MAG_FIELD, T.
         self.mag_lsb_T: float = dbc.signal_scale("MAG_FIELD", "b_x") * _NT
-        self.cycle_time_s: dict[str, float | None] = {n: dbc.cycle_time_s(n) for n in dbc.names}
-        p = {name: dbc.packer(name, order) for name, order in _SIGNALS.items()}
-        self._p_mode, self._p_sample = p["MAG_MODE_CMD"], p["MAG_FIELD"]
-        self._p_status, self._p_heartbeat = p["MAG_STATUS"], p["MAG_HEARTBEAT"]
-        self._encoders = {ModeCommand: self._encode_mode, MagSample: self._encode_sample, Status: self._encode_status,
-                          Heartbeat: self._encode_heartbeat}
-        builders = {"MAG_MODE_CMD": lambda v: ModeCommand(v[0], bool(v[1]), v[2]),
-                    "MAG_FIELD": lambda v: MagSample((v[0] * _NT, v[1] * _NT, v[2] * _NT), False, v[4] == 1, v[3]),
-                    "MAG_STATUS": lambda v: Status(*v),
-                    "MAG_HEARTBEAT": lambda v: Heartbeat(v[0], v[1], v[2])}
-        #: frame id -> (payload length, unpack, message builder, name).
-        self._decoders = {q.frame_id: (q.length, q.unpack, builders[name], name) for name, q in p.items()}
+        self._encoding({ModeCommand: ("MAG_MODE_CMD", self._mode_values),
+                        MagSample: ("MAG_FIELD", self._sample_values),
+                        Status: ("MAG_STATUS", self._status_values),
+                        Heartbeat: ("MAG_HEARTBEAT", self._heartbeat_values)})
 
-    def encode(self, msg: Message) -> tuple[int, bytes]:
-        """Encode one message: returns (frame id, 8-byte payload)."""
-        encoder = self._encoders.get(type(msg))
-        if encoder is None:
-            raise EncodeError(f"Cannot encode {type(msg).__name__}: expected one of "
-                              f"{', '.join(t.__name__ for t in self._encoders)}.")
-        try:
-            return encoder(msg)
-        except EncodeError as exc:
-            raise EncodeError(f"Cannot encode {msg!r}: {exc}") from exc
-        except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
-            raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
-
-    def _pack(self, packer, values: tuple) -> tuple[int, bytes]:
-        payload = packer.pack(*values)
-        if payload is None:  # the DBC codec's full checks, and their error messages
-            return self.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
-        return packer.frame_id, payload
-
-    def _encode_mode(self, msg: ModeCommand) -> tuple[int, bytes]:
-        return self._pack(self._p_mode, (MODES.index(msg.mode), bool(msg.reset_counters), msg.seq))
-
-    def _encode_sample(self, msg: MagSample) -> tuple[int, bytes]:
+    # The values in _SIGNALS order.
+    @staticmethod
+    def _sample_values(msg: MagSample) -> tuple:
         bx, by, bz = msg.b_T
-        return self._pack(self._p_sample, (bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.valid)))
+        return bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.valid)
 
-    def _encode_status(self, msg: Status) -> tuple[int, bytes]:
-        return self._pack(self._p_status, (MODES.index(msg.mode), msg.rejected_frames, msg.saturations,
-                                           msg.commands_accepted, msg.mode_seq_ack))
-
-    def _encode_heartbeat(self, msg: Heartbeat) -> tuple[int, bytes]:
-        return self._pack(self._p_heartbeat, (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter))
-
-    def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
-        """Decode one payload into its message (ProtocolError for unknown id / length / enum)."""
-        entry = self._decoders.get(frame_id)
-        if entry is None or len(data) != entry[0]:
-            name, _ = self.dbc.decode(frame_id, data)  # raises the ProtocolError that says why
-            raise ProtocolError(f"{name} is not a magnetometer message", frame_hex=frame_hex(frame_id, data))
-        _, unpack, build, name = entry
-        try:
-            return build(unpack(data))
-        except ValueError as exc:  # an enum value outside its table
-            raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
+    @staticmethod
+    def _status_values(msg: Status) -> tuple:
+        return MODES.index(msg.mode), msg.rejected_frames, msg.saturations, msg.commands_accepted, msg.mode_seq_ack

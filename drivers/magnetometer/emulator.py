@@ -27,7 +27,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_node import CanDevice
+from drivers.can_node import CanDevice, check_positive
 from drivers.magnetometer.codec import MODES, Heartbeat, MagnetometerCodec, MagSample, ModeCommand, Status
 from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 
@@ -36,7 +36,6 @@ __all__ = ["COMMAND_BLOCK", "MagnetometerConfig", "MagnetometerEmulator"]
 #: The unit's command block: its command and the ids the ICD leaves free in it are addressed to it.
 COMMAND_BLOCK = frozenset(range(0x0E0, 0x0E8))
 
-_EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
 @dataclass(frozen=True)
@@ -62,10 +61,7 @@ class MagnetometerConfig:
     noise_block: int = 4096
 
     def __post_init__(self) -> None:
-        for name in ("lsb_T", "sample_period_s", "status_period_s", "heartbeat_period_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"MagnetometerConfig.{name} must be a finite number > 0; got {value!r}.")
+        check_positive(self, ("lsb_T", "sample_period_s", "status_period_s", "heartbeat_period_s"))
         if not (isinstance(self.noise_T, (int, float)) and math.isfinite(self.noise_T) and self.noise_T >= 0):
             raise ValueError(f"MagnetometerConfig.noise_T must be a finite number >= 0; got {self.noise_T!r}.")
         bias = np.asarray(self.bias_T, dtype=float)
@@ -79,17 +75,13 @@ class MagnetometerConfig:
 
 
 class MagnetometerEmulator(CanDevice):
-    """The standalone magnetometer, emulated on ``bus`` (see the module docstring).
-
-    Args:
-        bus: an open :class:`can.BusABC` (closed by :meth:`close` only if ``owns_bus``).
-        field_source: ``field_source(t_s) -> (3,)`` true field at the sensor, sensor axes, T.
-        config: :class:`MagnetometerConfig`.
-        rng: a ``numpy.random.Generator`` or a seed.
-        codec: a :class:`MagnetometerCodec` (default: the ICD in ``fixtures/``).
-    """
+    """The standalone magnetometer, emulated on the open python-can ``bus`` (see the module docstring; ``bus`` is
+    closed by :meth:`close` only if ``owns_bus``). It measures ``field_source(t_s) -> (3,)``, the true field at the
+    sensor in sensor axes (T), as ``config`` (:class:`MagnetometerConfig`) says, with the noise of ``rng`` (a
+    ``numpy.random.Generator`` or a seed), and speaks the ICD of ``codec`` (default: the one in ``fixtures/``)."""
 
     _heartbeat_type = Heartbeat
+    _sampling_modes = frozenset({"MEASURE"})  # MAG_FIELD is sent in mode MEASURE only
 
     def __init__(self, bus: can.BusABC, field_source: FieldSource, config: MagnetometerConfig | None = None,
                  rng: np.random.Generator | int = 0, codec: MagnetometerCodec | None = None, *,
@@ -115,6 +107,7 @@ class MagnetometerEmulator(CanDevice):
         self._heartbeat_counter = 0
         #: The newest sample sent, for a stand that serves this unit.
         self.last_sample: MagSample | None = None
+        self._sample, self._sample_period_s = self.measure, config.sample_period_s  # for CanDevice.publish
 
     def __repr__(self) -> str:
         return f"MagnetometerEmulator(mode={self.mode!r}, counters={self.counters})"
@@ -135,25 +128,6 @@ class MagnetometerEmulator(CanDevice):
         else:
             self.counters["commands_accepted"] += 1
             self._board["commands_accepted"] += 1
-
-    def publish(self, t_s: float) -> int:
-        """Send whatever is due at ``t_s`` (sample in mode MEASURE, status, heartbeat); returns frames sent."""
-        if self._closed:
-            self._check_open()
-        if self._t0 is None:
-            self._t0 = t_s
-        cfg = self.config
-        since = t_s - self._t0 + _EPS_S
-        sent = 0
-        if since >= self._k_sample * cfg.sample_period_s:
-            self._k_sample = self._next_slot(since, cfg.sample_period_s, self._k_sample, count_skips=True)
-            if self.mode == "MEASURE":
-                self.last_sample = self.measure(t_s)
-                self._send(self.last_sample)
-                sent += 1
-        if since >= self._housekeeping_due:
-            sent += self._housekeeping(since, t_s)
-        return sent
 
     def measure(self, t_s: float) -> MagSample:
         """The MAG_FIELD sample the unit measures at ``t_s`` (consumes noise; advances the sample counter)."""

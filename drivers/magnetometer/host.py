@@ -33,18 +33,14 @@ class MagnetometerHost(CanHost):
     _mode_command = ModeCommand
     _latest = {MagSample: "latest_sample", Status: "latest_status", Heartbeat: "last_heartbeat"}
     _sample_type, _sample_attr = MagSample, "latest_sample"
+    latest_sample: MagSample | None
+    latest_status: Status | None
+    last_heartbeat: Heartbeat | None
 
     def __init__(self, bus: can.BusABC, codec: MagnetometerCodec | None = None, name: str = "mag", *,
                  owns_bus: bool = False) -> None:
-        self.codec = codec = codec if codec is not None else MagnetometerCodec()
-        self.name = name
-        self._init_node(bus, codec, accept=codec.unit_tx_ids, own=codec.unit_rx_ids, extra_counters=("samples",),
-                        owns_bus=owns_bus)
-        self.latest_sample: MagSample | None = None
-        self.latest_status: Status | None = None
-        self.last_heartbeat: Heartbeat | None = None
-        self._returned_samples = 0
-        self._seq = 0
+        codec = codec if codec is not None else MagnetometerCodec()
+        self._init_host(bus, codec, name, codec.unit_tx_ids, codec.unit_rx_ids, owns_bus)
 
     @classmethod
     def open(cls, interface: str, channel: str, *, codec: MagnetometerCodec | None = None, name: str = "mag",

@@ -9,8 +9,9 @@ The host and emulator modules import python-can; importing this package does not
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from drivers.lazy import lazy_getattr
 from drivers.magnetorquer.codec import (
     HEARTBEAT_STATES,
     MODES,
@@ -42,16 +43,8 @@ __all__ = [
     "Status",
 ]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "MagnetorquerBoard": "drivers.magnetorquer.host",
     "MagnetorquerEmulator": "drivers.magnetorquer.emulator",
     "EmulatorConfig": "drivers.magnetorquer.emulator",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

@@ -25,9 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
-from drivers.errors import EncodeError, ProtocolError, frame_hex
 from drivers.magnetometer.codec import MagSample  # the one sample type of every magnetometer
 
 __all__ = [
@@ -68,16 +67,13 @@ class ModeCommand(can_messages.ModeCommand):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Board status: mode, which coils are driven, coil currents (A), board temperature (degC)."""
 
-    mode: str | int
     coil_active: tuple[bool, bool, bool]
     coil_current_A: tuple[float, float, float]
     temperature_C: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,30 +109,30 @@ def default_dbc_path() -> Path:
     return fixture_path("devices/magnetorquer.dbc")
 
 
-class MagnetorquerCodec:
+class MagnetorquerCodec(CanCodec):
     """Encode and decode magnetorquer-board messages, from the DBC at ``dbc_path`` (default: the ICD).
 
-    ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message``. ``encode``
-    raises :class:`~drivers.errors.EncodeError` (a ValueError), and nothing else, naming the field,
-    the value and the DBC's range (or the message types it knows); ``decode`` raises
-    :class:`~drivers.errors.ProtocolError` (frame in hex) for an unknown id, a wrong length or an
-    enum value outside its table.
+    ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message`` (the machinery of
+    :class:`drivers.can_messages.CanCodec`). ``encode`` raises :class:`~drivers.errors.EncodeError` (a
+    ValueError), and nothing else, naming the field, the value and the DBC's range (or the message types it
+    knows); ``decode`` raises :class:`~drivers.errors.ProtocolError` (frame in hex) for an unknown id, a wrong
+    length or an enum value outside its table.
     """
 
+    KIND = "magnetorquer"
+
     def __init__(self, dbc_path: str | Path | None = None) -> None:
-        self.dbc = DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
-        dbc = self.dbc
-        for msg, sig, names in (
-            ("MTQ_MODE_CMD", "mode", MODES),
-            ("MTQ_STATUS", "mode", MODES),
-            ("MTQ_HEARTBEAT", "state", HEARTBEAT_STATES),
-        ):
-            table = dbc.choices(msg, sig)
-            if table != dict(enumerate(names)):
-                raise ValueError(
-                    f"{dbc.path.name}: the value table of {msg}.{sig} is {table}; this codec expects "
-                    f"{dict(enumerate(names))}."
-                )
+        dbc = DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
+        builders = {
+            "MTQ_DIPOLE_CMD": self._decode_dipole,
+            "MTQ_MODE_CMD": self._decode_mode,
+            "MAG_SAMPLE": self._decode_sample,
+            "MTQ_STATUS": self._decode_status,
+            "MTQ_COUNTERS": self._decode_counters,
+            "MTQ_HEARTBEAT": self._decode_heartbeat,
+        }
+        self._load(dbc, _SIGNALS, builders, (("MTQ_MODE_CMD", "mode", MODES), ("MTQ_STATUS", "mode", MODES),
+                                             ("MTQ_HEARTBEAT", "state", HEARTBEAT_STATES)))
         self.ids: dict[str, int] = {name: dbc.frame_id(name) for name in dbc.names}
         self.id_dipole_cmd = dbc.frame_id("MTQ_DIPOLE_CMD")
         self.id_mode_cmd = dbc.frame_id("MTQ_MODE_CMD")
@@ -147,7 +143,6 @@ class MagnetorquerCodec:
         #: Frame ids the board sends (MTQ) and the ones it receives (from HOST), from the DBC.
         self.board_tx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "MTQ" in dbc.senders(n))
         self.board_rx_ids = frozenset(dbc.frame_id(n) for n in dbc.names if "HOST" in dbc.senders(n))
-        self.lengths: dict[int, int] = {dbc.frame_id(n): dbc.length(n) for n in dbc.names}
         lo, hi = dbc.signal_range("MTQ_DIPOLE_CMD", "dipole_x")
         #: What MTQ_DIPOLE_CMD can carry per axis, A m^2 (the board's rating is lower).
         self.dipole_range_A_m2: tuple[float, float] = (lo, hi)
@@ -162,103 +157,39 @@ class MagnetorquerCodec:
         self.current_lsb_A: float = dbc.signal_scale("MTQ_STATUS", "current_x") * _MA
         #: One LSB of MTQ_STATUS temperature, degC.
         self.temperature_lsb_C: float = dbc.signal_scale("MTQ_STATUS", "temperature")
-        #: GenMsgCycleTime of each periodic message, s.
-        self.cycle_time_s: dict[str, float | None] = {n: dbc.cycle_time_s(n) for n in dbc.names}
-        self._encoders = {
-            DipoleCommand: self._encode_dipole,
-            ModeCommand: self._encode_mode,
-            MagSample: self._encode_sample,
-            Status: self._encode_status,
-            Counters: self._encode_counters,
-            Heartbeat: self._encode_heartbeat,
-        }
-        # Each message's signals in the order this codec passes them (positionally: no dict per frame).
-        p = {name: dbc.packer(name, order) for name, order in _SIGNALS.items()}
-        self._p_dipole, self._p_mode, self._p_sample = p["MTQ_DIPOLE_CMD"], p["MTQ_MODE_CMD"], p["MAG_SAMPLE"]
-        self._p_status, self._p_counters, self._p_heartbeat = p["MTQ_STATUS"], p["MTQ_COUNTERS"], p["MTQ_HEARTBEAT"]
-        builders = {
-            "MTQ_DIPOLE_CMD": self._decode_dipole,
-            "MTQ_MODE_CMD": self._decode_mode,
-            "MAG_SAMPLE": self._decode_sample,
-            "MTQ_STATUS": self._decode_status,
-            "MTQ_COUNTERS": self._decode_counters,
-            "MTQ_HEARTBEAT": self._decode_heartbeat,
-        }
-        #: frame id -> (payload length, unpack, message builder, name).
-        self._decoders = {q.frame_id: (q.length, q.unpack, builders[name], name) for name, q in p.items()}
-        #: True when the compiled bit packer (drivers._bitpack) runs every message, False for the generated Python.
-        self.compiled = all(q.compiled for q in p.values())
+        self._encoding({
+            DipoleCommand: ("MTQ_DIPOLE_CMD", self._dipole_values),
+            ModeCommand: ("MTQ_MODE_CMD", self._mode_values),
+            MagSample: ("MAG_SAMPLE", self._sample_values),
+            Status: ("MTQ_STATUS", self._status_values),
+            Counters: ("MTQ_COUNTERS", self._counters_values),
+            Heartbeat: ("MTQ_HEARTBEAT", self._heartbeat_values),
+        })
 
-    # -- encode ---------------------------------------------------------------------------------
+    # -- encode: the values in _SIGNALS order ---------------------------------------------------
 
-    def encode(self, msg: Message) -> tuple[int, bytes]:
-        """Encode one message: returns (frame id, 8-byte payload)."""
-        try:
-            encoder = self._encoders[type(msg)]
-        except KeyError:
-            raise EncodeError(
-                f"Cannot encode {type(msg).__name__}: expected one of "
-                f"{', '.join(t.__name__ for t in self._encoders)}."
-            ) from None
-        try:
-            return encoder(msg)
-        except EncodeError as exc:
-            raise EncodeError(f"Cannot encode {msg!r}: {exc}") from exc
-        except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
-            raise EncodeError(f"Cannot encode {msg!r}: {type(exc).__name__}: {exc}") from exc
-
-    def _pack(self, packer, values: tuple) -> tuple[int, bytes]:
-        payload = packer.pack(*values)
-        if payload is None:  # the DBC codec's full checks, and their error messages
-            return self.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
-        return packer.frame_id, payload
-
-    def _encode_dipole(self, msg: DipoleCommand) -> tuple[int, bytes]:
+    @staticmethod
+    def _dipole_values(msg: DipoleCommand) -> tuple:
         mx, my, mz = msg.dipole_A_m2
-        return self._pack(self._p_dipole, (mx, my, mz, msg.duration_s / _MS))
+        return mx, my, mz, msg.duration_s / _MS
 
-    def _encode_mode(self, msg: ModeCommand) -> tuple[int, bytes]:
-        return self._pack(self._p_mode, (MODES.index(msg.mode), bool(msg.reset_counters), msg.seq))
-
-    def _encode_sample(self, msg: MagSample) -> tuple[int, bytes]:
+    @staticmethod
+    def _sample_values(msg: MagSample) -> tuple:
         bx, by, bz = msg.b_T
-        return self._pack(self._p_sample, (bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.coil_active),
-                                           bool(msg.valid)))
+        return bx / _NT, by / _NT, bz / _NT, msg.seq, bool(msg.coil_active), bool(msg.valid)
 
-    def _encode_status(self, msg: Status) -> tuple[int, bytes]:
+    @staticmethod
+    def _status_values(msg: Status) -> tuple:
         ax, ay, az = msg.coil_active
         ix, iy, iz = msg.coil_current_A
-        return self._pack(self._p_status, (MODES.index(msg.mode), bool(ax), bool(ay), bool(az), ix / _MA, iy / _MA,
-                                           iz / _MA, msg.temperature_C))
+        return MODES.index(msg.mode), bool(ax), bool(ay), bool(az), ix / _MA, iy / _MA, iz / _MA, msg.temperature_C
 
-    def _encode_counters(self, msg: Counters) -> tuple[int, bytes]:
-        return self._pack(self._p_counters, (msg.rejected_frames, msg.watchdog_expiries, msg.saturations,
-                                             msg.commands_accepted, msg.mode_seq_ack))
+    @staticmethod
+    def _counters_values(msg: Counters) -> tuple:
+        return msg.rejected_frames, msg.watchdog_expiries, msg.saturations, msg.commands_accepted, msg.mode_seq_ack
 
-    def _encode_heartbeat(self, msg: Heartbeat) -> tuple[int, bytes]:
-        return self._pack(self._p_heartbeat, (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter))
+    # -- decode: the builders take the values in _SIGNALS order ---------------------------------
 
-    # -- decode ---------------------------------------------------------------------------------
-
-    def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
-        """Decode one payload into its message (ProtocolError for unknown id / length / enum)."""
-        entry = self._decoders.get(frame_id)
-        if entry is None or len(data) != entry[0]:
-            name, _ = self.dbc.decode(frame_id, data)  # raises the ProtocolError that says why
-            raise ProtocolError(f"{name} is not a magnetorquer message", frame_hex=frame_hex(frame_id, data))
-        _, unpack, build, name = entry
-        try:
-            return build(unpack(data))
-        except ValueError as exc:  # an enum value outside its table
-            raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
-
-    def payload_decoders(self) -> dict[int, tuple]:
-        """Frame id -> (unpack, build): ``build(unpack(data))`` is :meth:`decode` for a payload of the ICD's length,
-        without its look-up (a ValueError for an enum value outside its table). For
-        :class:`drivers.can_node.CanNode`."""
-        return {frame_id: (unpack, build) for frame_id, (_, unpack, build, _) in self._decoders.items()}
-
-    # The builders take the values in _SIGNALS order.
     @staticmethod
     def _decode_dipole(v: tuple) -> DipoleCommand:
         return DipoleCommand((v[0], v[1], v[2]), v[3] * _MS)

@@ -41,7 +41,7 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can_node import CanDevice
+from drivers.can_node import EPS_S, CanDevice, check_positive
 from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 from drivers.magnetorquer.codec import (
     MODES,
@@ -100,11 +100,8 @@ class EmulatorConfig:
     noise_block: int = 4096
 
     def __post_init__(self) -> None:
-        for name in ("max_dipole_A_m2", "dipole_lsb_A_m2", "mag_lsb_T", "sample_period_s", "status_period_s",
-                     "heartbeat_period_s"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"EmulatorConfig.{name} must be a finite number > 0; got {value!r}.")
+        check_positive(self, ("max_dipole_A_m2", "dipole_lsb_A_m2", "mag_lsb_T", "sample_period_s", "status_period_s",
+                              "heartbeat_period_s"))
         if not (math.isfinite(self.mag_noise_T) and self.mag_noise_T >= 0):
             raise ValueError(
                 f"EmulatorConfig.mag_noise_T must be a finite number >= 0; got {self.mag_noise_T!r}."
@@ -142,7 +139,6 @@ _OFF = (0.0, 0.0, 0.0)
 #: The board's command block: its two commands and the ids the ICD leaves free in it are addressed to the board.
 COMMAND_BLOCK = frozenset(range(0x090, 0x0A0))
 
-_EPS_S = 1e-6  # a period boundary reached within 1 us counts as reached (float sums of steps drift)
 
 
 class MagnetorquerEmulator(CanDevice):
@@ -215,6 +211,7 @@ class MagnetorquerEmulator(CanDevice):
         self._heartbeat_counter = 0
 
         self.last_sample: MagSample | None = None
+        self._sample, self._sample_period_s = self.measure, config.sample_period_s  # for CanDevice.publish
 
     _heartbeat_type = Heartbeat
 
@@ -328,7 +325,7 @@ class MagnetorquerEmulator(CanDevice):
         self._driven = True
         # The watchdog deadline gets the same tolerance as the publication schedule, so coils
         # commanded for exactly one period are off when the next period's sample is taken.
-        self._on_until_s = t_s + cmd.duration_s - _EPS_S
+        self._on_until_s = t_s + cmd.duration_s - EPS_S
 
     def _apply_mode(self, cmd: ModeCommand) -> None:
         if cmd.mode != self.mode:
@@ -342,26 +339,6 @@ class MagnetorquerEmulator(CanDevice):
             self._accepted()
 
     # -- publish ----------------------------------------------------------------------------------
-
-    def publish(self, t_s: float) -> int:
-        """Send whatever is due at ``t_s`` (sample, status + counters, heartbeat); returns frames sent."""
-        if self._closed:
-            self._check_open()
-        if self._t0 is None:
-            self._t0 = t_s
-        if self._driven:
-            self._watchdog(t_s)
-        cfg = self.config
-        since = t_s - self._t0 + _EPS_S
-        sent = 0
-        if since >= self._k_sample * cfg.sample_period_s:
-            self._k_sample = self._next_slot(since, cfg.sample_period_s, self._k_sample, count_skips=True)
-            self.last_sample = self.measure(t_s)  # what crossed the bus, for a stand that serves this board
-            self._send(self.last_sample)
-            sent += 1
-        if since >= self._housekeeping_due:
-            sent += self._housekeeping(since, t_s)
-        return sent
 
     def _status_messages(self, t_s: float) -> tuple[Status, Counters]:
         return self.status(t_s), self.board_counters()

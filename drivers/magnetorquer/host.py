@@ -66,16 +66,9 @@ class MagnetorquerBoard(CanHost):
         *,
         owns_bus: bool = False,
     ) -> None:
-        self.codec = codec = codec if codec is not None else MagnetorquerCodec()
-        self.name = name
-        self._init_node(bus, codec, accept=codec.board_tx_ids, own=codec.board_rx_ids, extra_counters=("samples",),
-                        owns_bus=owns_bus)
-        self.latest_sample: MagSample | None = None
-        self.latest_status: Status | None = None
-        self.latest_counters: Counters | None = None
-        self.last_heartbeat: Heartbeat | None = None
-        self._returned_samples = 0  # value of counters["samples"] when a sample was last handed out
-        self._seq = 0  # of the last MTQ_MODE_CMD (set_mode), echoed in latest_counters.mode_seq_ack once applied
+        codec = codec if codec is not None else MagnetorquerCodec()
+        # set_mode's seq is echoed in latest_counters.mode_seq_ack once applied.
+        self._init_host(bus, codec, name, codec.board_tx_ids, codec.board_rx_ids, owns_bus)
         self._sample_id = codec.id_mag_sample
 
     @classmethod
@@ -103,6 +96,10 @@ class MagnetorquerBoard(CanHost):
     _latest = {MagSample: "latest_sample", Status: "latest_status", Counters: "latest_counters",
                Heartbeat: "last_heartbeat"}
     _sample_type, _sample_attr = MagSample, "latest_sample"
+    latest_sample: MagSample | None
+    latest_status: Status | None
+    latest_counters: Counters | None
+    last_heartbeat: Heartbeat | None
 
     def __repr__(self) -> str:
         state = "closed" if self._closed else "open"

@@ -12,8 +12,9 @@ The host and emulator modules import python-can; importing this package does not
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from drivers.lazy import lazy_getattr
 from drivers.reaction_wheel.codec import (
     HEARTBEAT_STATES,
     MODES,
@@ -46,17 +47,9 @@ __all__ = [
     "WheelSpeed",
 ]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "ReactionWheelHost": "drivers.reaction_wheel.host",
     "ReactionWheelEmulator": "drivers.reaction_wheel.emulator",
     "WheelEmulatorConfig": "drivers.reaction_wheel.emulator",
     "WheelCommand": "drivers.reaction_wheel.emulator",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers import can_messages
-from drivers.can_messages import HEARTBEAT_STATES, Heartbeat, enum_name
+from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
-from drivers.errors import EncodeError, ProtocolError, frame_hex
+from drivers.errors import ProtocolError, frame_hex
 
 __all__ = [
     "HEARTBEAT_STATES",
@@ -137,19 +137,16 @@ class WheelSpeed(float):
 
 
 @dataclass(frozen=True, slots=True)
-class Status:
+class Status(can_messages.ModeStatus):
     """Wheel status: mode, counters (each wraps at its DBC width), seq of the last command, temperature."""
 
-    mode: str | int
     rejected_frames: int = 0
     commands_accepted: int = 0
     seq_ack: int = 0
     watchdog_expiries: int = 0
     saturations: int = 0
     temperature_C: float = 20.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mode", enum_name(self.mode, MODES, "Status.mode"))
+    MODES = MODES
 
 
 Message = TorqueCommand | SpeedCommand | ModeCommand | WheelSpeed | Status | Heartbeat
@@ -162,7 +159,7 @@ def default_dbc_path() -> Path:
     return fixture_path("devices/reaction_wheel.dbc")
 
 
-class ReactionWheelCodec:
+class ReactionWheelCodec(CanCodec):
     """Encode and decode the messages of wheel ``wheel`` (0..15, node 0x20 + wheel).
 
     ``encode(msg) -> (frame_id, payload)``; ``decode(frame_id, payload) -> message`` for this
@@ -177,48 +174,21 @@ class ReactionWheelCodec:
     ``cycle_time_s``.
     """
 
+    KIND = "reaction wheel"
+    UNKNOWN_TYPE_ERROR = TypeError
+
     def __init__(self, wheel: int = 0, dbc_path: str | Path | None = None, *, dbc: DbcCodec | None = None) -> None:
         if not (isinstance(wheel, int) and not isinstance(wheel, bool) and 0 <= wheel < MAX_WHEELS):
             raise ValueError(f"reaction wheel number = {wheel!r} is not allowed; allowed: an int from 0 to "
                              f"{MAX_WHEELS - 1} (node 0x{NODE_BASE:02X} + number).")
-        self.wheel = wheel
+        self.wheel = self.id_offset = wheel
+        self.where = f" for wheel {wheel}"
         self.node = NODE_BASE + wheel
-        self.dbc = dbc if dbc is not None else DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
-        d = self.dbc
-        for msg, sig, names in (("RW_MODE_CMD", "mode", MODES), ("RW_STATUS", "mode", MODES),
-                                ("RW_HEARTBEAT", "state", HEARTBEAT_STATES)):
-            table = d.choices(msg, sig)
-            if table != dict(enumerate(names)):
-                raise ValueError(f"{d.path.name}: the value table of {msg}.{sig} is {table}; this codec expects "
-                                 f"{dict(enumerate(names))}.")
+        d = dbc if dbc is not None else DbcCodec(default_dbc_path() if dbc_path is None else dbc_path)
         for name in d.names:
             if d.frame_id(name) & 0xF:
                 raise ValueError(f"{d.path.name}: {name} has id 0x{d.frame_id(name):03X}; wheel 0's ids must end in "
                                  "a zero hex digit (the wheel number is added to them).")
-        self.ids: dict[str, int] = {name: d.frame_id(name) + wheel for name in d.names}
-        self._names = {fid: name for name, fid in self.ids.items()}
-        self.wheel_tx_ids = frozenset(self.ids[n] for n in d.names if "RW" in d.senders(n))
-        self.wheel_rx_ids = frozenset(self.ids[n] for n in d.names if "HOST" in d.senders(n))
-        self.all_wheel_ids = frozenset(d.frame_id(n) + k for n in d.names for k in range(MAX_WHEELS))
-        self.lengths: dict[int, int] = {self.ids[n]: d.length(n) for n in d.names}
-        self.torque_range_Nm: tuple[float, float] = d.signal_range("RW_TORQUE_CMD", "torque")
-        self.speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_CMD", "speed")
-        #: What RW_SPEED_TLM can carry.
-        self.tlm_speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "speed")
-        self.tlm_torque_range_Nm: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "torque")
-        self.speed_lsb_rad_s: float = d.signal_scale("RW_SPEED_TLM", "speed")
-        self.torque_lsb_Nm: float = d.signal_scale("RW_SPEED_TLM", "torque")
-        self.cycle_time_s: dict[str, float | None] = {n: d.cycle_time_s(n) for n in d.names}
-        self._encoders = {
-            TorqueCommand: self._encode_torque,
-            SpeedCommand: self._encode_speed,
-            ModeCommand: self._encode_mode,
-            WheelSpeed: self._encode_tlm,
-            Status: self._encode_status,
-            Heartbeat: self._encode_heartbeat,
-        }
-        # Each message's signals in the order the encoders below pass them (positionally: no dict per frame).
-        self._packers = {name: d.packer(name, order) for name, order in _SIGNALS.items()}
         builders = {
             "RW_TORQUE_CMD": lambda v: TorqueCommand(v[0], v[1], v[2] * _MS),
             "RW_SPEED_CMD": lambda v: SpeedCommand(v[0], v[1], v[2] * _MS),
@@ -227,84 +197,61 @@ class ReactionWheelCodec:
             "RW_STATUS": lambda v: Status(*v),
             "RW_HEARTBEAT": lambda v: Heartbeat(v[0], v[1], v[2]),
         }
-        #: this wheel's frame id -> (name, payload length, unpack, message builder).
-        self._decoders = {self.ids[name]: (name, q.length, q.unpack, builders[name])
-                          for name, q in self._packers.items()}
+        self._load(d, _SIGNALS, builders, (("RW_MODE_CMD", "mode", MODES), ("RW_STATUS", "mode", MODES),
+                                           ("RW_HEARTBEAT", "state", HEARTBEAT_STATES)))
+        self.ids: dict[str, int] = {name: d.frame_id(name) + wheel for name in d.names}
+        self._names = {fid: name for name, fid in self.ids.items()}
+        self.wheel_tx_ids = frozenset(self.ids[n] for n in d.names if "RW" in d.senders(n))
+        self.wheel_rx_ids = frozenset(self.ids[n] for n in d.names if "HOST" in d.senders(n))
+        self.all_wheel_ids = frozenset(d.frame_id(n) + k for n in d.names for k in range(MAX_WHEELS))
+        self.torque_range_Nm: tuple[float, float] = d.signal_range("RW_TORQUE_CMD", "torque")
+        self.speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_CMD", "speed")
+        #: What RW_SPEED_TLM can carry.
+        self.tlm_speed_range_rad_s: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "speed")
+        self.tlm_torque_range_Nm: tuple[float, float] = d.signal_range("RW_SPEED_TLM", "torque")
+        self.speed_lsb_rad_s: float = d.signal_scale("RW_SPEED_TLM", "speed")
+        self.torque_lsb_Nm: float = d.signal_scale("RW_SPEED_TLM", "torque")
+        self._encoding({
+            TorqueCommand: ("RW_TORQUE_CMD", self._torque_values),
+            SpeedCommand: ("RW_SPEED_CMD", self._speed_values),
+            ModeCommand: ("RW_MODE_CMD", self._mode_values),
+            WheelSpeed: ("RW_SPEED_TLM", self._tlm_values),
+            Status: ("RW_STATUS", self._status_values),
+            Heartbeat: ("RW_HEARTBEAT", self._heartbeat_values),
+        })
 
     def wheel_of(self, frame_id: int) -> int | None:
         """The wheel number a wheel id belongs to, or None for an id that is no wheel's."""
         return (frame_id & 0xF) if frame_id in self.all_wheel_ids else None
 
-    # -- encode ---------------------------------------------------------------------------------
-
-    def encode(self, msg: Message) -> tuple[int, bytes]:
-        """Encode one message for this wheel: returns (frame id, 8-byte payload)."""
-        try:
-            encoder = self._encoders[type(msg)]
-        except KeyError:
-            raise TypeError(f"Cannot encode {type(msg).__name__}: expected one of "
-                            f"{', '.join(t.__name__ for t in self._encoders)}.") from None
-        try:
-            name, values = encoder(msg)
-            packer = self._packers[name]
-            payload = packer.pack(*values)
-            if payload is None:  # the DBC codec's full checks, and their error messages
-                _, payload = self.dbc.encode(name, dict(zip(packer.order, values, strict=True)))
-        except EncodeError as exc:
-            raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {exc}") from exc
-        except (TypeError, ValueError) as exc:
-            raise EncodeError(f"Cannot encode {msg!r} for wheel {self.wheel}: {type(exc).__name__}: {exc}") from exc
-        return packer.frame_id + self.wheel, payload
-
-    # The values in _SIGNALS order.
-    @staticmethod
-    def _encode_torque(msg: TorqueCommand) -> tuple[str, tuple]:
-        return "RW_TORQUE_CMD", (msg.torque_Nm, msg.seq, msg.timeout_s / _MS)
+    # -- encode: the values in _SIGNALS order ---------------------------------------------------
 
     @staticmethod
-    def _encode_speed(msg: SpeedCommand) -> tuple[str, tuple]:
-        return "RW_SPEED_CMD", (msg.speed_rad_s, msg.seq, msg.timeout_s / _MS)
+    def _torque_values(msg: TorqueCommand) -> tuple:
+        return msg.torque_Nm, msg.seq, msg.timeout_s / _MS
 
     @staticmethod
-    def _encode_mode(msg: ModeCommand) -> tuple[str, tuple]:
-        return "RW_MODE_CMD", (MODES.index(msg.mode), bool(msg.reset_counters), msg.seq)
+    def _speed_values(msg: SpeedCommand) -> tuple:
+        return msg.speed_rad_s, msg.seq, msg.timeout_s / _MS
 
     @staticmethod
-    def _encode_tlm(msg: WheelSpeed) -> tuple[str, tuple]:
-        return "RW_SPEED_TLM", (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
-                                bool(msg.torque_limited))
+    def _tlm_values(msg: WheelSpeed) -> tuple:
+        return (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
+                bool(msg.torque_limited))
 
     @staticmethod
-    def _encode_status(msg: Status) -> tuple[str, tuple]:
-        return "RW_STATUS", (MODES.index(msg.mode), msg.rejected_frames, msg.commands_accepted, msg.seq_ack,
-                             msg.watchdog_expiries, msg.saturations, msg.temperature_C)
-
-    @staticmethod
-    def _encode_heartbeat(msg: Heartbeat) -> tuple[str, tuple]:
-        return "RW_HEARTBEAT", (msg.uptime_s, HEARTBEAT_STATES.index(msg.state), msg.counter)
+    def _status_values(msg: Status) -> tuple:
+        return (MODES.index(msg.mode), msg.rejected_frames, msg.commands_accepted, msg.seq_ack, msg.watchdog_expiries,
+                msg.saturations, msg.temperature_C)
 
     # -- decode ---------------------------------------------------------------------------------
 
-    def decode(self, frame_id: int, data: bytes | bytearray) -> Message:
-        """Decode one payload of this wheel (ProtocolError for another id / length / enum)."""
-        entry = self._decoders.get(frame_id)
-        if entry is None:
+    def _reject(self, frame_id: int, data: bytes | bytearray) -> None:
+        if frame_id not in self._decoders:
             raise ProtocolError(
                 f"frame id 0x{frame_id:03X} is not one of wheel {self.wheel}'s (node 0x{self.node:02X})",
                 frame_hex=frame_hex(frame_id, data, extended=frame_id > 0x7FF),
                 expected="one of " + ", ".join(f"0x{i:03X}" for i in sorted(self._names)),
                 computed=f"0x{frame_id:03X}",
             )
-        name, length, unpack, build = entry
-        if len(data) != length:
-            self.dbc.decode(frame_id - self.wheel, data)  # raises the ProtocolError that says why
-        try:
-            return build(unpack(data))
-        except ValueError as exc:  # an enum value outside its table
-            raise ProtocolError(f"invalid {name}: {exc}", frame_hex=frame_hex(frame_id, data)) from exc
-
-    def payload_decoders(self) -> dict[int, tuple]:
-        """This wheel's frame id -> (unpack, build): ``build(unpack(data))`` is :meth:`decode` for a payload of the
-        ICD's length, without its look-up (a ValueError for an enum value outside its table). For
-        :class:`drivers.can_node.CanNode`."""
-        return {frame_id: (unpack, build) for frame_id, (_, _, unpack, build) in self._decoders.items()}
+        super()._reject(frame_id, data)

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import can
 
-from drivers.can_node import CanDevice
+from drivers.can_node import CanDevice, check_positive
 from drivers.reaction_wheel.codec import (
     MODES,
     Heartbeat,
@@ -55,7 +55,6 @@ __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulato
 
 SpeedSource = Callable[[float], Any]
 
-_EPS_S = 1e-6
 
 
 class WheelCommand(NamedTuple):
@@ -89,11 +88,8 @@ class WheelEmulatorConfig:
     initial_mode: str = "TORQUE"
 
     def __post_init__(self) -> None:
-        for name in ("max_torque_Nm", "max_speed_rad_s", "telemetry_period_s", "status_period_s",
-                     "heartbeat_period_s"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"WheelEmulatorConfig.{name} must be a finite number > 0; got {v!r}.")
+        check_positive(self, ("max_torque_Nm", "max_speed_rad_s", "telemetry_period_s", "status_period_s",
+                              "heartbeat_period_s"))
         if self.initial_mode not in MODES:
             raise ValueError(f"WheelEmulatorConfig.initial_mode must be one of {', '.join(MODES)}; "
                              f"got {self.initial_mode!r}.")
@@ -144,7 +140,10 @@ class ReactionWheelEmulator(CanDevice):
         self._expires_s = math.inf
         self._seq_ack = 0
         self._t0: float | None = None
-        self._k_tlm = self._k_status = self._k_heartbeat = 0
+        self._k_sample = self._k_status = self._k_heartbeat = 0
+        self._sample, self._sample_period_s = self.telemetry, cfg.telemetry_period_s  # for CanDevice.publish
+        #: The newest RW_SPEED_TLM sent.
+        self.last_sample: WheelSpeed | None = None
         self._tlm_seq = 0
         self._heartbeat_counter = 0
         t_lo, t_hi = codec.dbc.signal_range("RW_STATUS", "temperature")
@@ -217,23 +216,6 @@ class ReactionWheelEmulator(CanDevice):
     def _saturated(self) -> None:
         self.counters["saturations"] += 1
         self._board["saturations"] += 1
-
-    def publish(self, t_s: float) -> int:
-        """Send what is due at ``t_s``; returns the number of frames sent."""
-        if self._closed:
-            self._check_open()
-        if self._t0 is None:
-            self._t0 = t_s
-        cfg = self.config
-        since = t_s - self._t0 + _EPS_S
-        sent = 0
-        if since >= self._k_tlm * cfg.telemetry_period_s:
-            self._k_tlm = self._next_slot(since, cfg.telemetry_period_s, self._k_tlm, count_skips=True)
-            self._send(self.telemetry(t_s))
-            sent += 1
-        if since >= self._housekeeping_due:
-            sent += self._housekeeping(since, t_s)
-        return sent
 
     def _status_messages(self, t_s: float) -> tuple[Status]:
         return (self.status(),)

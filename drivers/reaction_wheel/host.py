@@ -53,18 +53,11 @@ class ReactionWheelHost(CanHost):
 
     def __init__(self, bus: can.BusABC, wheel: int = 0, codec: ReactionWheelCodec | None = None,
                  name: str | None = None, *, owns_bus: bool = False) -> None:
-        self.codec = codec if codec is not None else ReactionWheelCodec(wheel)
-        if self.codec.wheel != wheel:
-            raise ValueError(f"reaction wheel host: wheel = {wheel} but the codec is for wheel {self.codec.wheel}.")
-        self.name = name or f"rw{wheel}"
-        self._init_node(bus, self.codec, accept=self.codec.wheel_tx_ids, own=self.codec.wheel_rx_ids,
-                        extra_counters=("samples",), owns_bus=owns_bus)
-        self.latest_speed: WheelSpeed | None = None
-        self.latest_status: Status | None = None
-        self.last_heartbeat: Heartbeat | None = None
-        self._returned_samples = 0
-        self._seq = 0
-        self._tlm_id = self.codec.ids["RW_SPEED_TLM"]
+        codec = codec if codec is not None else ReactionWheelCodec(wheel)
+        if codec.wheel != wheel:
+            raise ValueError(f"reaction wheel host: wheel = {wheel} but the codec is for wheel {codec.wheel}.")
+        self._init_host(bus, codec, name or f"rw{wheel}", codec.wheel_tx_ids, codec.wheel_rx_ids, owns_bus)
+        self._tlm_id = codec.ids["RW_SPEED_TLM"]
 
     @classmethod
     def open(cls, interface: str, channel: str, *, wheel: int = 0, codec: ReactionWheelCodec | None = None,
@@ -78,6 +71,9 @@ class ReactionWheelHost(CanHost):
     _closed_text = "the reaction wheel driver is closed; open a new one."
     _mode_command = ModeCommand
     _latest = {WheelSpeed: "latest_speed", Status: "latest_status", Heartbeat: "last_heartbeat"}
+    latest_speed: WheelSpeed | None
+    latest_status: Status | None
+    last_heartbeat: Heartbeat | None
     _sample_type, _sample_attr = WheelSpeed, "latest_speed"
 
     def __repr__(self) -> str:

@@ -13,9 +13,10 @@ The host and emulator modules import pyserial lazily (only to open a URL).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from drivers.framing import SlipDecoder
+from drivers.lazy import lazy_getattr
 from drivers.star_tracker.codec import (
     Ack,
     Action,
@@ -60,17 +61,9 @@ __all__ = [
     "Unsubscribe",
 ]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "StarTrackerHost": "drivers.star_tracker.host",
     "StarTrackerEmulator": "drivers.star_tracker.emulator",
     "EmulatorConfig": "drivers.star_tracker.measurement",
     "TrackerTruth": "drivers.star_tracker.measurement",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

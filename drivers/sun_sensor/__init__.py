@@ -11,8 +11,9 @@ The host and emulator modules import pyserial lazily (only to open a URL).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from drivers.lazy import lazy_getattr
 from drivers.sun_sensor.codec import (
     CoarseSunSample,
     FineSunSample,
@@ -29,16 +30,8 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = ["CoarseSunSample", "FineSunSample", "RequestSample", "SetOutputPeriod", "SetTime",
            "SunEmulatorConfig", "SunSensorCodec", "SunSensorEmulator", "SunSensorHost"]
 
-_LAZY = {
+__getattr__ = lazy_getattr(__name__, {
     "SunSensorHost": "drivers.sun_sensor.host",
     "SunSensorEmulator": "drivers.sun_sensor.emulator",
     "SunEmulatorConfig": "drivers.sun_sensor.emulator",
-}
-
-
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        import importlib
-
-        return getattr(importlib.import_module(_LAZY[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+})

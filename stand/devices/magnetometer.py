@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from sim.truth import rotate_to_body
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
-from stand.devices.served_can import ServedCan
+from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
+from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
 #: A unit that has sent nothing for this many sample periods is reported silent.
@@ -43,9 +44,7 @@ def _codec():
 
 
 @dataclass(frozen=True)
-class MagnetometerSpec(DeviceSpec):
-    interface: str = "stand_loopback"
-    channel: str = ""
+class MagnetometerSpec(CanSpec):
     sample_rate_hz: float = 10.0
     status_rate_hz: float = 1.0
     noise_T: float = 0.0
@@ -54,7 +53,23 @@ class MagnetometerSpec(DeviceSpec):
     field_source: str = "truth"
 
 
-class MagnetometerKind(DeviceKind):
+class FieldSensingKind(DeviceKind):
+    """A kind with a magnetometer reading the truth's field, or a cage's (its ``field_source``): this one and the
+    magnetorquer board's."""
+
+    #: What reads the field, named in the needs of the run (``{}``: the device's name).
+    field_reader = "magnetometer {}"
+
+    def refs(self, spec) -> dict[str, tuple[str, str]]:
+        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
+
+    def needs(self, spec) -> dict[str, str]:
+        if spec.link == "hardware" or spec.field_source != "truth":
+            return {}  # a real magnetometer, or one in a cage, reads the field where it is
+        return {"magnetic_field": self.field_reader.format(spec.name)}
+
+
+class MagnetometerKind(FieldSensingKind):
     name = "magnetometer"
     senses = ("magnetic_field",)
     column_meanings = {"mag_S": "the newest field sample the unit sent, sensor axes",
@@ -79,14 +94,6 @@ class MagnetometerKind(DeviceKind):
         t.check_unknown()
         return spec
 
-    def refs(self, spec) -> dict[str, tuple[str, str]]:
-        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
-
-    def needs(self, spec) -> dict[str, str]:
-        if spec.link == "hardware" or spec.field_source != "truth":
-            return {}  # a real unit, or one in a cage, reads the field where it is
-        return {"magnetic_field": f"magnetometer {spec.name}"}
-
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
         return {"emulated": f"magnetometer emulated on {where} at {spec.sample_rate_hz:g} Hz",
@@ -106,9 +113,7 @@ def _row(sample) -> tuple:
     return (*sample.b_T, float(sample.valid)) if sample is not None else (*NAN3, math.nan)
 
 
-class _Unit(Device):
-    observer = None
-
+class _Unit(ObservedCan, Device):
     def __init__(self, spec: MagnetometerSpec):
         self.name, self.spec = spec.name, spec
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
@@ -117,34 +122,11 @@ class _Unit(Device):
     def columns(self):
         return [(f"{self.name}.mag_S", 3, "T"), (f"{self.name}.mag_valid", 1, "1")]
 
-    def _observe_sent(self, emulator) -> None:
-        """Telemetry of an in-process link: what the emulator put on the bus, decoded by the stand as a receiver
-        decodes it, beside the flight code and never through its driver. A bus handle of its own would see the same
-        frames, each copied once more (``_observe`` does that where no emulator is in the stand)."""
-        from drivers.can_observer import CanObserver
-
-        codec = _codec()
-        self.observer = CanObserver(None, codec, frozenset({codec.id_sample}), f"{self.name} observer", owns_bus=False)
-        self._sample_id = codec.id_sample
-        emulator.add_sent_observer(self.observer.feed)
-
-    def _observe(self) -> None:
-        """The stand's listen-only node on the unit's bus, for telemetry (opened before anything is sent)."""
-        from drivers.can_observer import open_observer
-
-        codec = _codec()
-        self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_sample}),
-                                      f"{self.name} observer")
-        self._sample_id = codec.id_sample
-
     def row(self):
         return _row(self.observer.poll_newest(self._sample_id))
 
     def activity(self):
-        if self.observer is None:
-            return 0
-        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
-        return self.observer.seen[self._sample_id]
+        return 0 if self.observer is None else self._observed_samples()
 
     def close(self) -> None:
         for part in (self.host, getattr(self, "emulator", None), self.observer):
@@ -155,9 +137,9 @@ class _Unit(Device):
         self._buses = []
 
 
-def _emulator(spec: MagnetometerSpec, ctx: BuildContext, bus):
-    from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
-
+def sensor_field(spec, ctx: BuildContext):
+    """``t_s -> field at the sensor, sensor axes, T`` of a magnetometer mounted at ``spec.q_SB``: the truth's, or
+    in a cage (``spec.field_source``) the cage's field, read through the mount."""
     truth = ctx.truth
     q_SB = tuple(float(x) for x in spec.q_SB)
     if spec.field_source != "truth":
@@ -166,31 +148,30 @@ def _emulator(spec: MagnetometerSpec, ctx: BuildContext, bus):
         def field_S(_t_s):
             return rotate_to_body(q_SB, stimulus())  # the unit sits in the cage, reading it through its mount
     elif q_SB == (1.0, 0.0, 0.0, 0.0):
-        field_S = truth.b_B
+        field_S = truth.b_B  # sensor axes are body axes: the truth's own (cached) field
     else:
         def field_S(_t_s):
+            # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
             return rotate_to_body(q_SB, truth.b_B())
+    return field_S
+
+
+def _emulator(spec: MagnetometerSpec, ctx: BuildContext, bus):
+    from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
 
     config = MagnetometerConfig(noise_T=spec.noise_T, bias_T=tuple(spec.bias_T), lsb_T=spec.lsb_T,
                                 sample_period_s=1.0 / spec.sample_rate_hz, status_period_s=1.0 / spec.status_rate_hz)
-    return MagnetometerEmulator(bus, field_S, config, ctx.rng, codec=_codec())
+    return MagnetometerEmulator(bus, sensor_field(spec, ctx), config, ctx.rng, codec=_codec())
 
 
 class EmulatedMagnetometer(_Unit):
     def __init__(self, spec: MagnetometerSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
         from drivers.magnetometer.host import MagnetometerHost
 
         super().__init__(spec)
-        try:
-            self._buses.append(open_bus(spec.interface, spec.channel))
-            self._buses.append(open_bus(spec.interface, spec.channel))
-            self.emulator = _emulator(spec, ctx, self._buses[0])
-            self._observe_sent(self.emulator)
-            self.host = MagnetometerHost(self._buses[1], codec=_codec(), name=spec.name)
-        except BaseException:
-            self.close()
-            raise
+        codec = _codec()
+        self._open_emulated(lambda bus: _emulator(spec, ctx, bus),
+                            lambda bus: MagnetometerHost(bus, codec=codec, name=spec.name), codec, codec.id_sample)
 
     def publish(self, t_s):
         self.emulator.publish(t_s)
@@ -214,14 +195,7 @@ class HardwareMagnetometer(_Unit):
         super().__init__(spec)
         self._buses.append(open_device_bus(spec.interface, spec.channel))
         self.host = MagnetometerHost(self._buses[0], codec=_codec(), name=spec.name)
-        from drivers.can_observer import SHARED_INTERFACES
-
-        if spec.interface in SHARED_INTERFACES:
-            try:
-                self._observe()
-            except BaseException:
-                self.close()
-                raise
+        self._observe(_codec(), _codec().id_sample)
 
     def publish(self, t_s):
         self.host.poll()
@@ -243,17 +217,8 @@ class ServedMagnetometer(ServedCan, _Unit):
     """The emulator on a real adapter for a flight computer outside; telemetry is what the emulator sent."""
 
     def __init__(self, spec: MagnetometerSpec, ctx: BuildContext):
-        from drivers.can_bus import ServedBus, open_device_bus
-
         super().__init__(spec)
-        self.link = ServedBus(open_device_bus(spec.interface, spec.channel), own_ids=_codec().unit_tx_ids)
-        self._buses.append(self.link)
-        try:
-            self.emulator = _emulator(spec, ctx, self.link)
-        except BaseException:
-            self.close()
-            raise
-        self._watch_rejections(spec.name)
+        self._open_served(spec, _codec().unit_tx_ids, lambda link: _emulator(spec, ctx, link))
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -265,10 +230,6 @@ class ServedMagnetometer(ServedCan, _Unit):
     def activity(self):
         return self.emulator.counters["sent"]
 
-    def summary(self):
-        return {"emulator": {**self.emulator.counters, **self.link.counters},
-                "rejected_frames": self.served.rejected_frames()}
-
 
 KIND = MagnetometerKind()
 
@@ -278,31 +239,15 @@ KIND = MagnetometerKind()
 def _serve(args, fail) -> int:
     """The standalone magnetometer on a python-can bus in wall time, seeing a fixed field."""
     from drivers.magnetometer.emulator import MagnetometerConfig, MagnetometerEmulator
-    from stand.devices.serving import numbers, serve_can
 
-    try:
-        field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
-    except ValueError as exc:
-        return fail(str(exc))
     if not (math.isfinite(args.noise_nT) and args.noise_nT >= 0):
         return fail(f"--noise-nT {args.noise_nT:g} is not allowed; give a noise of 0 nT or more.")
     config = MagnetometerConfig(noise_T=args.noise_nT * 1e-9)
-    return serve_can(args, fail, "magnetometer", _codec().unit_tx_ids,
-                     lambda bus: MagnetometerEmulator(bus, lambda _t: field_T, config, rng=args.seed, owns_bus=True))
+    return serve_can_in_field(args, fail, "magnetometer", _codec().unit_tx_ids,
+                              lambda bus, field: MagnetometerEmulator(bus, field, config, rng=args.seed, owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="A standalone 3-axis magnetometer on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("magnetometer"),
-        options=(ServeOption("--field-nT", "open loop: the field it sees, sensor axes, nT, as X,Y,Z", "20000,0,-40000"),
-                 ServeOption("--noise-nT", "1-sigma noise per axis, nT (default 0)", 0.0, float),
-                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "A standalone 3-axis magnetometer on a CAN bus.", "magnetometer", _serve,
+    (field_option("open loop: the field it sees, sensor axes, nT, as X,Y,Z"),
+     ServeOption("--noise-nT", "1-sigma noise per axis, nT (default 0)", 0.0, float), SEED_OPTION))

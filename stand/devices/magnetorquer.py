@@ -25,19 +25,13 @@ import numpy as np
 
 from sim.effects import Effect
 from sim.rotations import dcm
-from sim.truth import rotate_to_body
 from stand.checks import rate
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
-from stand.devices.served_can import ServedCan
+from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint
+from stand.devices.magnetometer import FieldSensingKind, sensor_field
+from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
+from stand.devices.serving import SEED_OPTION, can_serving, field_option, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
-
-
-def _open(spec: MagnetorquerSpec):
-    """A real adapter (hardware and served links): serial-line interfaces with short timeouts, held exclusively."""
-    from drivers.can_bus import open_device_bus
-
-    return open_device_bus(spec.interface, spec.channel)
 
 
 #: A board whose magnetometer has sent nothing for this many sample periods is reported silent.
@@ -45,9 +39,7 @@ SILENT_PERIODS = 5
 
 
 @dataclass(frozen=True)
-class MagnetorquerSpec(DeviceSpec):
-    interface: str = "stand_loopback"
-    channel: str = ""
+class MagnetorquerSpec(CanSpec):
     sample_rate_hz: float = 10.0
     status_rate_hz: float = 1.0
     max_dipole_A_m2: float = 0.2
@@ -67,8 +59,9 @@ def _codec():
     return MagnetorquerCodec()
 
 
-class MagnetorquerKind(DeviceKind):
+class MagnetorquerKind(FieldSensingKind):
     name = "magnetorquer"
+    field_reader = "magnetometer of {}"
     senses = ("magnetic_field",)
     actuates = ("dipole",)
     column_meanings = {"mag_S": "the newest magnetometer sample the host decoded, sensor axes",
@@ -109,14 +102,6 @@ class MagnetorquerKind(DeviceKind):
         t.check_unknown()
         return spec
 
-    def refs(self, spec) -> dict[str, tuple[str, str]]:
-        return {} if spec.field_source == "truth" else {"field_source": (spec.field_source, "magnetic_field")}
-
-    def needs(self, spec) -> dict[str, str]:
-        if spec.link == "hardware" or spec.field_source != "truth":
-            return {}  # a real board's magnetometer, or one in a cage, reads the field where it is
-        return {"magnetic_field": f"magnetometer of {spec.name}"}
-
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
         return {"emulated": f"magnetorquer board emulated on {where}, magnetometer at {spec.sample_rate_hz:g} Hz",
@@ -132,8 +117,7 @@ class MagnetorquerKind(DeviceKind):
         return {"emulated": EmulatedBoard, "hardware": HardwareBoard, "served": ServedBoard}[spec.link](spec, ctx)
 
 
-class _Board(Device):
-    observer = None  # the stand's listen-only node on the board's bus, for telemetry
+class _Board(ObservedCan, Device):
 
     def __init__(self, spec: MagnetorquerSpec):
         self.name, self.spec = spec.name, spec
@@ -148,35 +132,9 @@ class _Board(Device):
     def dipole_B(self):
         return self._m
 
-    def _observe_sent(self, emulator) -> None:
-        """Telemetry of an in-process link: what the emulator put on the bus, decoded by the stand as a receiver
-        decodes it, beside the flight code and never through its driver. A bus handle of its own would see the same
-        frames, each copied once more (``_observe`` does that where no emulator is in the stand)."""
-        from drivers.can_observer import CanObserver
-
-        codec = _codec()
-        self.observer = CanObserver(None, codec, frozenset({codec.id_mag_sample}), f"{self.name} observer",
-                                    owns_bus=False)
-        self._sample_id = codec.id_mag_sample
-        emulator.add_sent_observer(self.observer.feed)
-
-    def _observe(self) -> None:
-        """Telemetry records what the board sent as a listen-only node of the stand sees it on the bus, beside the
-        flight code and never through its driver (opened before anything is sent)."""
-        from drivers.can_observer import open_observer
-
-        codec = _codec()
-        self.observer = open_observer(self.spec.interface, self.spec.channel, codec, frozenset({codec.id_mag_sample}),
-                                      f"{self.name} observer")
-        self._sample_id = codec.id_mag_sample
-
     def _observed_row(self):
         s = self.observer.poll_newest(self._sample_id)
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
-
-    def _observed_samples(self) -> int:
-        self.observer.poll()  # the watch asks once a second of sim time, telemetry may ask less often
-        return self.observer.seen[self._sample_id]
 
     def effects(self):
         return (Effect("dipole", self.dipole_B),)
@@ -192,21 +150,6 @@ class _Board(Device):
 def _emulator(spec: MagnetorquerSpec, ctx: BuildContext, bus):
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
 
-    truth = ctx.truth
-    q_SB = tuple(float(x) for x in spec.q_SB)
-    if spec.field_source != "truth":
-        stimulus = ctx.stimuli[spec.field_source].stimulus_field_B
-
-        def field_S(_t_s):
-            # The board sits in the cage: it reads the cage's field (body axes) through its mount.
-            return rotate_to_body(q_SB, stimulus())
-    elif q_SB == (1.0, 0.0, 0.0, 0.0):
-        field_S = truth.b_B  # sensor axes are body axes: the truth's own (cached) field
-    else:
-        def field_S(_t_s):
-            # Composition of q_SB after q_BN on floats: v_S = dcm(q_SB) dcm(q_BN) b_N.
-            return rotate_to_body(q_SB, truth.b_B())
-
     config = EmulatorConfig(
         max_dipole_A_m2=spec.max_dipole_A_m2, dipole_lsb_A_m2=spec.dipole_lsb_A_m2,
         mag_noise_T=spec.mag_noise_T, mag_bias_T=tuple(spec.mag_bias_T),
@@ -214,24 +157,17 @@ def _emulator(spec: MagnetorquerSpec, ctx: BuildContext, bus):
         coil_area_turns_m2=tuple(spec.coil_area_turns_m2),
         sample_period_s=1.0 / spec.sample_rate_hz, status_period_s=1.0 / spec.status_rate_hz,
     )
-    return MagnetorquerEmulator(bus, field_S, config, ctx.rng)
+    return MagnetorquerEmulator(bus, sensor_field(spec, ctx), config, ctx.rng)
 
 
 class EmulatedBoard(_Board):
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.can_bus import open_bus
         from drivers.magnetorquer.host import MagnetorquerBoard
 
         super().__init__(spec)
-        try:
-            self._buses.append(open_bus(spec.interface, spec.channel))
-            self._buses.append(open_bus(spec.interface, spec.channel))
-            self.emulator = _emulator(spec, ctx, self._buses[0])
-            self._observe_sent(self.emulator)
-            self.host = MagnetorquerBoard(self._buses[1], name=spec.name)
-        except BaseException:
-            self.close()
-            raise
+        codec = _codec()
+        self._open_emulated(lambda bus: _emulator(spec, ctx, bus), lambda bus: MagnetorquerBoard(bus, name=spec.name),
+                            codec, codec.id_mag_sample)
         self._publish, self._receive, self._held = self.emulator.publish, self.emulator.receive, \
             self.emulator.dipole_xyz_at
 
@@ -261,20 +197,15 @@ class HardwareBoard(_Board):
     """The host driver on a real board; the truth gets the dipole the board reports (coil currents x N A)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.can_observer import SHARED_INTERFACES
+        from drivers.can_bus import open_device_bus
         from drivers.magnetorquer.host import MagnetorquerBoard
 
         super().__init__(spec)
-        self._buses.append(_open(spec))
+        self._buses.append(open_device_bus(spec.interface, spec.channel))
         self.host = MagnetorquerBoard(self._buses[0], name=spec.name)
         self._na = tuple(float(x) for x in spec.coil_area_turns_m2)
         self._status_seen = 0
-        if spec.interface in SHARED_INTERFACES:  # a serial-line adapter is one stream the host driver holds alone
-            try:
-                self._observe()
-            except BaseException:
-                self.close()
-                raise
+        self._observe(_codec(), _codec().id_mag_sample)
 
     def start(self, events):
         # The board's DBC has no time message: its clock cannot be set. Its heartbeat uptime is logged against
@@ -322,19 +253,10 @@ class ServedBoard(ServedCan, _Board):
     computer sends that the board cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: MagnetorquerSpec, ctx: BuildContext):
-        from drivers.can_bus import ServedBus
-
         super().__init__(spec)
-        self.link = ServedBus(_open(spec), own_ids=_codec().board_tx_ids)
-        self._buses.append(self.link)
-        try:
-            self.emulator = _emulator(spec, ctx, self.link)
-        except BaseException:
-            self.close()
-            raise
+        self._open_served(spec, _codec().board_tx_ids, lambda link: _emulator(spec, ctx, link))
         # Silence here means the flight computer stopped commanding.
         self.silent_after_s = SILENT_PERIODS / spec.sample_rate_hz
-        self._watch_rejections(spec.name)
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -345,9 +267,6 @@ class ServedBoard(ServedCan, _Board):
         s = self.emulator.last_sample
         return (*s.b_T, float(s.coil_active), *self._m) if s else (*NAN3, math.nan, *self._m)
 
-    def summary(self):
-        return {"emulator": {**self.emulator.counters, **self.link.counters},
-                "rejected_frames": self.served.rejected_frames()}
 
 
 KIND = MagnetorquerKind()
@@ -357,31 +276,13 @@ KIND = MagnetorquerKind()
 
 def _serve(args, fail) -> int:
     """The CAN magnetorquer board (with its magnetometer) on a python-can bus in wall time, seeing a fixed field."""
-    from drivers.magnetorquer.codec import MagnetorquerCodec
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
-    from stand.devices.serving import numbers, serve_can
 
-    try:
-        field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
-    except ValueError as exc:
-        return fail(str(exc))
-    return serve_can(args, fail, "magnetorquer board", MagnetorquerCodec().board_tx_ids,
-                     lambda bus: MagnetorquerEmulator(bus, lambda _t: field_T, EmulatorConfig(), rng=args.seed,
-                                                      owns_bus=True))
+    return serve_can_in_field(args, fail, "magnetorquer board", _codec().board_tx_ids,
+                              lambda bus, field: MagnetorquerEmulator(bus, field, EmulatorConfig(), rng=args.seed,
+                                                                      owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="The magnetorquer board (coils and magnetometer) on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("magnetorquer"),
-        options=(ServeOption("--field-nT", "open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z",
-                             "20000,0,-40000"),
-                 ServeOption("--seed", "noise seed (default 0)", 0, int)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "The magnetorquer board (coils and magnetometer) on a CAN bus.", "magnetorquer", _serve,
+    (field_option("open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z"), SEED_OPTION))

@@ -36,7 +36,8 @@ from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
-from stand.devices.served_can import ServedCan
+from stand.devices.served_can import CanSpec, ServedCan
+from stand.devices.serving import ServeOption, can_serving, serve_can
 
 RPM = math.pi / 30.0
 MODE_CODES = {"IDLE": 0.0, "TORQUE": 1.0, "SPEED": 2.0}
@@ -45,9 +46,7 @@ SILENT_PERIODS = 5
 
 
 @dataclass(frozen=True)
-class ReactionWheelSpec(DeviceSpec):
-    interface: str = "stand_loopback"
-    channel: str = ""
+class ReactionWheelSpec(CanSpec):
     wheel: int = 0
     spin_axis_B: tuple = (0.0, 0.0, 1.0)
     inertia_kg_m2: float = 2e-3
@@ -268,20 +267,12 @@ class ServedWheel(ServedCan, _Wheel):
     cannot decode is counted and dropped (:class:`drivers.can_bus.ServedBus`)."""
 
     def __init__(self, spec: ReactionWheelSpec, ctx: BuildContext):
-        from drivers.can_bus import ServedBus, open_device_bus
         from drivers.reaction_wheel.codec import ReactionWheelCodec
 
         super().__init__(spec, ctx)
         self.motor = motor_of(spec)
-        self.link = ServedBus(open_device_bus(spec.interface, spec.channel),
-                              own_ids=ReactionWheelCodec(spec.wheel).wheel_tx_ids)
-        self._buses.append(self.link)
-        try:
-            self.emulator = _emulator(spec, self.link, self._source)
-        except BaseException:
-            self.close()
-            raise
-        self._watch_rejections(spec.name)
+        self._open_served(spec, ReactionWheelCodec(spec.wheel).wheel_tx_ids,
+                          lambda link: _emulator(spec, link, self._source))
 
     def receive(self, t_s):
         self.emulator.receive(t_s)
@@ -289,7 +280,7 @@ class ServedWheel(ServedCan, _Wheel):
         self.rejections.check(t_s)
 
     def summary(self):
-        out = super().summary()
+        out = _Wheel.summary(self)  # the wheel's own, not ServedCan's
         out["emulator_counters"].update(self.link.counters)
         out["rejected_frames"] = self.served.rejected_frames()
         return out
@@ -332,7 +323,6 @@ def _serve(args, fail) -> int:
     """One reaction wheel on a python-can bus in wall time, reporting a fixed speed (open loop: no rotor model)."""
     from drivers.reaction_wheel.codec import ReactionWheelCodec
     from drivers.reaction_wheel.emulator import ReactionWheelEmulator
-    from stand.devices.serving import serve_can
 
     if not 0 <= args.wheel <= 15:
         return fail(f"--wheel {args.wheel!r} is not allowed; give a wheel number from 0 to 15.")
@@ -343,18 +333,7 @@ def _serve(args, fail) -> int:
                      lambda bus: ReactionWheelEmulator(bus, lambda _t: speed, wheel=args.wheel, owns_bus=True))
 
 
-def _serving():
-    from stand.devices.serving import ServeOption, Serving, can_port_fields
-
-    return Serving(
-        summary="One reaction wheel (node 0x20 + wheel number) on a CAN bus.",
-        port_help="INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)",
-        serve=_serve,
-        port_fields=can_port_fields("reaction wheel"),
-        options=(ServeOption("--wheel", "wheel number, 0 to 15 (default 0)", 0, int),
-                 ServeOption("--speed-rad-s", "open loop: the rotor speed it reports, rad/s (default 0)", 0.0,
-                             float)),
-    )
-
-
-KIND.serving = _serving()
+KIND.serving = can_serving(
+    "One reaction wheel (node 0x20 + wheel number) on a CAN bus.", "reaction wheel", _serve,
+    (ServeOption("--wheel", "wheel number, 0 to 15 (default 0)", 0, int),
+     ServeOption("--speed-rad-s", "open loop: the rotor speed it reports, rad/s (default 0)", 0.0, float)))

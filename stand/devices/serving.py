@@ -79,6 +79,40 @@ def can_port_fields(what: str) -> Callable[[str, Any], dict[str, str]]:
     return fields
 
 
+#: ``--port`` of every CAN kind.
+CAN_PORT_HELP = "INTERFACE:CHANNEL of python-can (socketcan:can0, serial:/dev/ttyUSB0, virtual:adcs)"
+#: ``--seed`` of an emulator with noise.
+SEED_OPTION = ServeOption("--seed", "noise seed (default 0)", 0, int)
+
+
+def can_serving(summary: str, what: str, serve: Callable[[Any, Callable[[str], int]], int],
+                options: tuple[ServeOption, ...]) -> Serving:
+    """How a CAN kind is served: on ``--port INTERFACE:CHANNEL`` (``what`` names the device in errors)."""
+    return Serving(summary=summary, port_help=CAN_PORT_HELP, serve=serve, port_fields=can_port_fields(what),
+                   options=options)
+
+
+def field_option(help_text: str) -> ServeOption:
+    """``--field-nT X,Y,Z``: the fixed field a magnetometer sees open loop."""
+    return ServeOption("--field-nT", help_text, "20000,0,-40000")
+
+
+def fixed_field(args) -> Callable[[float], tuple[float, float, float]]:
+    """``t_s -> field, T`` from ``--field-nT`` (ValueError naming the option, the value and what is allowed)."""
+    field_T = tuple(x * 1e-9 for x in numbers(args.field_nT, 3, "--field-nT", "nT (X,Y,Z)"))
+    return lambda _t: field_T
+
+
+def serve_can_in_field(args, fail, what: str, own_ids, make: Callable[[Any, Callable[[float], Any]], Any]) -> int:
+    """:func:`serve_can` for a device with a magnetometer seeing the fixed field of ``--field-nT``:
+    ``make(bus, field)``; a bad ``--field-nT`` is a usage error."""
+    try:
+        field = fixed_field(args)
+    except ValueError as exc:
+        return fail(str(exc))
+    return serve_can(args, fail, what, own_ids, lambda bus: make(bus, field))
+
+
 def numbers(text: str, count: int, flag: str, unit: str) -> tuple[float, ...]:
     """``count`` finite numbers from ``A,B,...`` (ValueError naming the option, the value and what is allowed)."""
     try:
