@@ -239,6 +239,7 @@ def _draw_plots(scene: Scene, tel, out_dir: Path, criteria: list[dict]) -> tuple
     n = len(tel["t_s"])
     if n < 2:
         return [], [f"no plots: the telemetry has {n} row{'s' if n != 1 else ''}; a plot needs at least 2"]
+    # lazy: the panorama loads matplotlib and the star catalogue, which only drawing a report needs
     from .view.export import report_panorama
 
     made, notes = [], []
@@ -359,6 +360,7 @@ def rate_limits(criteria) -> list[tuple[str, float, float | None]]:
 def write_plots(tel, out_dir: Path, *, rate_limits: list | None = None) -> list[str]:
     """rate.png, attitude.png and, with the reference ADCS's columns, pointing.png: the plots of every run (each
     kind draws its own: ``DeviceKind.kind_plots`` and ``plots``)."""
+    # lazy: matplotlib, which only drawing a report needs
     from . import plots
 
     if len(tel["t_s"]) < 2:

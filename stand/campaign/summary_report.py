@@ -14,6 +14,7 @@ from .store import finished
 # ----------------------------------------------------------------------------------------------- report
 def write_report(out: str | Path, result: dict) -> list[str]:
     """report.md with pass rates, metric distributions, worst cases and the plots."""
+    # lazy: matplotlib, which only drawing a report needs
     from .. import plots as _plots  # noqa: F401 - the stand's matplotlib settings (Agg figures)
 
     out = Path(out)
