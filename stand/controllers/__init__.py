@@ -13,13 +13,12 @@ Kinds are found by name in :data:`CONTROLLERS` (``name -> "module:attribute"``, 
 from __future__ import annotations
 
 import functools
-import importlib
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
 from stand.checks import Table, rate
+from stand.registry import installed_names, load_named
 
 ENTRY_POINT_GROUP = "adcs_stand.controllers"
 
@@ -97,23 +96,12 @@ def names() -> tuple[str, ...]:
 
 @functools.cache
 def _installed() -> tuple[str, ...]:
-    return tuple(sorted(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in CONTROLLERS))
+    return installed_names(ENTRY_POINT_GROUP, CONTROLLERS)
 
 
 def get(name: str) -> ControllerKind:
     """The controller kind called ``name`` (imported on first use). KeyError for an unknown name."""
-    if name in _loaded:
-        return _loaded[name]
-    if name in CONTROLLERS:
-        module, _, attr = CONTROLLERS[name].partition(":")
-        kind = getattr(importlib.import_module(module), attr)
-    else:
-        found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
-        if not found:
-            raise KeyError(name)
-        kind = found[0].load()
-    _loaded[name] = kind
-    return kind
+    return load_named(name, CONTROLLERS, ENTRY_POINT_GROUP, _loaded)
 
 
 def parse_controller(t: Table, step_s: float, devices) -> ControllerSpec:

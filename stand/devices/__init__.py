@@ -24,10 +24,8 @@ Links (``link = ...`` in a ``[[devices]]`` table):
 from __future__ import annotations
 
 import functools
-import importlib
 import math
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import Any
 
 import numpy as np
@@ -35,6 +33,7 @@ import numpy as np
 from sim.effects import EFFECT_TYPES, Effect  # noqa: F401 - the effector interface, re-exported for kinds
 from stand.checks import Table
 from stand.errors import ScenarioError
+from stand.registry import installed_names, load_named
 
 LINKS = ("emulated", "hardware", "served")
 #: Links whose other end lives in wall time: the run must be paced.
@@ -85,25 +84,13 @@ def kind_names() -> tuple[str, ...]:
 
 @functools.cache
 def _installed_kinds() -> tuple[str, ...]:
-    # Scanning the installed distributions takes milliseconds and validation asks for every device and criterion;
-    # packages installed while the process runs are seen by the next one.
-    return tuple(sorted(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name not in KINDS))
+    # Validation asks for every device and criterion: scanned once per process.
+    return installed_names(ENTRY_POINT_GROUP, KINDS)
 
 
 def get(name: str) -> DeviceKind:
     """The kind called ``name`` (imported on first use). KeyError for an unknown name."""
-    if name in _loaded:
-        return _loaded[name]
-    if name in KINDS:
-        module, _, attr = KINDS[name].partition(":")
-        kind = getattr(importlib.import_module(module), attr)
-    else:
-        found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == name]
-        if not found:
-            raise KeyError(name)
-        kind = found[0].load()
-    _loaded[name] = kind
-    return kind
+    return load_named(name, KINDS, ENTRY_POINT_GROUP, _loaded)
 
 
 @dataclass(frozen=True)
