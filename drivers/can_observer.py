@@ -41,6 +41,10 @@ class CanObserver(BusEndpoint):
         self.seen: dict[int, int] = dict.fromkeys(self._ids, 0)
         #: The stand's in-process bus hands its receive queue over (``LoopbackBus.rx_ready``): drained directly.
         self._ready = None if bus is None else getattr(bus, "rx_ready", None)
+        #: Fed by a device's transmit tap (no bus): what it sent was made by the same codec, so its payloads have
+        #: their ICD length and decode through the codec's table without its look-up (``payload_decoders``).
+        self._fed = bus is None
+        self._routes = codec.payload_decoders() if self._fed and hasattr(codec, "payload_decoders") else None
         self.rejected = 0
 
     def poll(self) -> int:
@@ -84,7 +88,7 @@ class CanObserver(BusEndpoint):
         """:meth:`poll` (unless ``poll`` is false), then :meth:`newest` of ``frame_id``: what a telemetry row asks
         every tick, in one call."""
         ready = self._ready
-        if poll and (ready is None or ready):  # nothing pending on the in-process bus: not even the call
+        if poll and not self._fed and (ready is None or ready):  # nothing pending: not even the call
             self.poll()
         msg = self._raw.get(frame_id)
         if msg is None:
@@ -92,6 +96,11 @@ class CanObserver(BusEndpoint):
         done = self._decoded.get(frame_id)
         if done is not None and done[0] is msg:  # decoded already: most ticks
             return done[1]
+        if self._routes is not None:  # this node's own transmissions: one new payload a row
+            unpack, build = self._routes[frame_id]
+            value = build(unpack(msg))
+            self._decoded[frame_id] = (msg, value)
+            return value
         try:
             value = self._decode(frame_id, msg)  # ProtocolError for a wrong length too
         except ProtocolError:

@@ -197,9 +197,9 @@ def _fail_start(scene, monkeypatch):
 
 
 def _fail_row(scene, monkeypatch):
-    def poll():
+    def poll_newest(frame_id, poll=True):
         raise KeyError("latest")
-    scene.devices["mtq"].observer.poll = poll  # the row reads the bus through the stand's own observer
+    scene.devices["mtq"].observer.poll_newest = poll_newest  # the row reads what the stand's own observer saw
 
 
 def _fail_truth(scene, monkeypatch):
