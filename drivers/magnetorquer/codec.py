@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from drivers import can_messages
 from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
@@ -51,9 +52,9 @@ _MA = 1e-3  # A per mA
 _MS = 1e-3  # s per ms
 
 
-@dataclass(frozen=True, slots=True)
-class DipoleCommand:
-    """Drive the coils with ``dipole_A_m2`` (per board axis) for ``duration_s``; 0 s = coils off."""
+class DipoleCommand(NamedTuple):
+    """Drive the coils with ``dipole_A_m2`` (per board axis) for ``duration_s``; 0 s = coils off. A named tuple
+    for the reason :class:`MagSample` is one: made twice a tick (the flight code's command, the board's decode)."""
 
     dipole_A_m2: tuple[float, float, float]
     duration_s: float
