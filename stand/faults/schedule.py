@@ -166,7 +166,8 @@ class FaultSchedule:
         if ftype.instant:
             self._followers("cleared", f.name, t_s)
         else:
-            occ.end_s = max(occ.end_s, t_s)
+            # Started at this tick (a fault seen on a row starts at the next one): it lasts its whole duration.
+            occ.end_s = math.inf if f.duration_s is None else t_s + f.duration_s
             self.active.append(occ)
         self._followers("fault", f.name, t_s)
 
