@@ -103,6 +103,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     for key, spec in sc.sections.items():
         section = scenario.section(key)
         choices.append(Choice(section.model, True, section.describe(spec)))
+    for f in sc.faults:
+        choices.append(Choice(f"fault.{f.name}", True, f.describe()))
+    if not sc.faults:
+        choices.append(Choice("faults", False, "no [[faults]] in the scenario: no fault schedule, nothing per tick "
+                              "(stand run --view builds one for faults injected live)"))
     ctl = controllers.get(sc.controller.kind)
     choices.append(Choice(f"controller.{sc.controller.kind}", ctl.in_stand, ctl.describe(sc)))
     choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
