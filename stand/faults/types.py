@@ -224,7 +224,7 @@ PROTOCOL = (
     _protocol("frame_reorder", "reorder", "frames swap places with the next one", (PROBABILITY,)),
     _protocol("frame_duplicate", "duplicate", "frames arrive twice", (PROBABILITY,)),
     _protocol("babble", "babble", "a babbling node floods the line or bus with frames", (
-        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 0.0, 1e6, True),)),
+        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 0.0, 1e6),)),
     _protocol("silence", "silence", "nothing gets through", ()),
     _protocol("can_error_frame", "error_frame", "CAN error frames on the bus, where the interface carries them",
               (PROBABILITY,)),

@@ -215,3 +215,10 @@ def test_every_type_is_declared_once_with_a_layer():
     assert len(FAULT_TYPES) >= 20
     assert {t.layer for t in FAULT_TYPES.values()} == {"physics", "protocol", "time"}
     assert all(t.text and t.tap for t in FAULT_TYPES.values())
+
+
+def test_fault_types_doc_is_generated_from_the_code():
+    from stand.faults import doc
+
+    path = SCENARIO_DIR.parents[1] / "docs" / "fault_types.md"
+    assert path.read_text() == doc.render(), "regenerate: python -m stand.faults.doc > docs/fault_types.md"
