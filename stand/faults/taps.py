@@ -26,6 +26,7 @@ TAPS = {
     "tracker": "a star tracker's solution (blinding, loss, misidentification, latency)",
     "coils": "a magnetorquer's coils (the dipole it produces)",
     "cage": "a Helmholtz cage's coil pairs (the field it produces)",
+    "stimulus": "what a stimulator shows a real sensor (the star screen's sky, the Helmholtz cage's field)",
 }
 
 
@@ -54,6 +55,8 @@ def _conventional(device, name: str):
         return link_tap(emulator if emulator is not None else host)
     if name in ("clock", "reboot", "wheel", "tracker", "coils", "cage"):
         return emulator
+    if name == "stimulus":
+        return device
     return None
 
 

@@ -146,6 +146,12 @@ def _axis_item(attr, value):
     return start, stop
 
 
+def _rotvec(p) -> tuple:
+    """The rotation vector (rad) of a fault's ``angle_deg`` (SI by now) about its ``axis_S``."""
+    axis = np.asarray(p["axis_S"], dtype=float)
+    return tuple(float(x) for x in axis / np.linalg.norm(axis) * p["angle_deg"])
+
+
 def _kind(name, tap, text, params, start_stop, instant=False):
     return FaultType(name, "physics", tap, text, params, *start_stop, instant=instant)
 
@@ -173,8 +179,7 @@ KIND_PHYSICS = (
           "and still flagged valid", (
               Param("angle_deg", "number", 1.0, "the error angle", 0.0, 180.0, scale=DEG),
               Param("axis_S", "vector3", [1.0, 0.0, 0.0], "the error's rotation axis, sensor frame")),
-          _set("misid_rad", lambda p, old: tuple(
-              float(x) for x in np.asarray(p["axis_S"]) / np.linalg.norm(p["axis_S"]) * p["angle_deg"]))),
+          _set("misid_rad", lambda p, old: _rotvec(p))),
     _kind("tracker_slow", "tracker", "solutions come late", (
         Param("delay_s", "number", 0.5, "the extra latency of each solution", 0.0, 60.0),),
         _set("solution_delay_s", lambda p, old: p["delay_s"])),
@@ -184,6 +189,16 @@ KIND_PHYSICS = (
           _axis_item("stuck_on_axes", True)),
     _kind("cage_coil_failure", "cage", "one coil pair of the cage produces no field", (AXIS,),
           _axis_item("coil_failed", True)),
+    # Stimulators: physics faults a real sensor sees (docs/faults.md, "Every link").
+    _kind("screen_wrong_attitude", "stimulus", "the star screen shows the sky of an attitude off by an angle about "
+          "an axis: a real tracker reports it, valid", (
+              Param("angle_deg", "number", 1.0, "the error angle", 0.0, 180.0, scale=DEG),
+              Param("axis_S", "vector3", [1.0, 0.0, 0.0], "the error's rotation axis, tracker frame")),
+          _set("screen_misid_rad", lambda p, old: _rotvec(p))),
+    _kind("cage_field_step", "stimulus", "the Helmholtz cage adds a field step to what it reproduces: the "
+          "magnetometer in it reads a bias", (
+              Param("step_T", "vector3", None, "the step, body axes"),),
+          _set("field_step_B_T", lambda p, old: tuple(p["step_T"]))),
 )
 
 
