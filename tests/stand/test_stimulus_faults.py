@@ -55,7 +55,8 @@ def test_a_screen_wrong_attitude_rotates_the_sky_the_screen_shows():
 
     tracker = object.__new__(ScreenTracker)  # only what drawing a frame reads
     tracker.stream, tracker._speed, tracker._start, tracker.latency_s, tracker._step_s = Stream(), 1.0, 0.0, 0.0, 0.1
-    tracker._lateness, tracker.frames_late, tracker._frames, tracker._truth = [], 0, [], type("T", (), {"v_N": (0, 0, 0)})
+    tracker._lateness, tracker.frames_late, tracker._frames = [], 0, []
+    tracker._truth = type("Truth", (), {"v_N": (0.0, 0.0, 0.0)})
     q = (1.0, 0.0, 0.0, 0.0)
     tracker._send_frame(0.0, 0.0, q, (0.0, 0.0, 0.0), 0.0)
     tracker.screen_misid_rad = (0.0, 0.0, math.radians(2.0))
