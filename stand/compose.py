@@ -401,7 +401,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
         scene.controller = controllers.build_controller(sc, scene.devices, base)
-        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults)
+        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults, duration_s)
     except BaseException:
         scene.close()
         raise

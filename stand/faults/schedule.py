@@ -251,10 +251,12 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def build(scenario, devices: dict, controller=None, live: bool = False) -> FaultSchedule | None:
-    """The schedule of a run, or None when it has no faults and takes none live (it then costs nothing)."""
+def build(scenario, devices: dict, controller=None, live: bool = False, duration_s: float | None = None
+          ) -> FaultSchedule | None:
+    """The schedule of a run of ``duration_s`` (default the scenario's), or None when it has no faults and takes
+    none live (it then costs nothing)."""
     faults = getattr(scenario, "faults", ())
     if not faults and not live:
         return None
-    return FaultSchedule(faults, devices, {d.name: d for d in scenario.devices}, scenario.seed, scenario.duration_s,
-                         controller, scenario.source)
+    return FaultSchedule(faults, devices, {d.name: d for d in scenario.devices}, scenario.seed,
+                         scenario.duration_s if duration_s is None else duration_s, controller, scenario.source)
