@@ -550,6 +550,14 @@ def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SE
     ``timeout_s`` of wall time."""
     if emulator.counters["sent"] <= frames_in(host.counters):
         return
+    if getattr(emulator.port, "wrapped", None) is not None:
+        # A protocol fault sits on this line (stand.faults): frames may be lost, held or added on purpose, so the
+        # counts cannot match; the host takes in whatever has arrived (a pipe hands it over at once).
+        for _ in range(8):
+            if not host.port.in_waiting:
+                break
+            host.poll()
+        return
     import time
 
     from drivers.errors import DeviceTimeoutError
