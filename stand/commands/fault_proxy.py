@@ -37,6 +37,10 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--baud", type=int, default=115200, help="serial: baud rate of device paths")
     p.add_argument("--host", help="CAN: the host's bus as INTERFACE:CHANNEL (e.g. socketcan:vcan0)")
     p.add_argument("--device", help="CAN: the device's bus as INTERFACE:CHANNEL")
+    p.add_argument("--host-bus-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="CAN: a keyword for the host's python-can bus (repeatable), e.g. port=43114 or bitrate=500000")
+    p.add_argument("--device-bus-arg", action="append", default=[], metavar="KEY=VALUE",
+                   help="CAN: a keyword for the device's python-can bus (repeatable)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND:P=V,...",
                    help="a fault (repeatable), e.g. drop:rate=0.1 or delay:delay_s=0.05,direction=to_host,at_s=5")
     p.add_argument("--faults", metavar="TOML", help="a file of [[faults]] tables (type = KIND and its parameters)")
@@ -113,6 +117,16 @@ def _bus_arg(flag: str, value: str | None) -> tuple[str, str]:
     return interface, channel
 
 
+def _bus_kwargs(flag: str, items: list[str]) -> dict[str, Any]:
+    out = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip().isidentifier():
+            raise ValueError(f"{flag} = {item!r} is not allowed; allowed: KEY=VALUE, e.g. port=43114.")
+        out[key.strip()] = _value(value.strip())
+    return out
+
+
 def _check_port(flag: str, value: str | None) -> str:
     from stand.devices import is_loopback_host
 
@@ -133,9 +147,9 @@ def _open(args) -> Any:
         return SerialFaultProxy(args.host_port, args.device_port, framing=_framing(args.framing), baudrate=args.baud)
     from drivers.can_bus import open_bus
 
-    host = open_bus(*_bus_arg("--host", args.host))
+    host = open_bus(*_bus_arg("--host", args.host), **_bus_kwargs("--host-bus-arg", args.host_bus_arg))
     try:
-        device = open_bus(*_bus_arg("--device", args.device))
+        device = open_bus(*_bus_arg("--device", args.device), **_bus_kwargs("--device-bus-arg", args.device_bus_arg))
     except Exception:
         host.shutdown()
         raise
@@ -155,6 +169,8 @@ def run(args) -> int:
         else:
             _bus_arg("--host", args.host)
             _bus_arg("--device", args.device)
+            _bus_kwargs("--host-bus-arg", args.host_bus_arg)
+            _bus_kwargs("--device-bus-arg", args.device_bus_arg)
         from drivers.fault_proxy import check_faults
 
         check_faults(tables, ("error_frame",) if args.mode == "can" else ())
