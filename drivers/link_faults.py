@@ -559,7 +559,8 @@ class FaultyPort(_LinkFaultsFront):
             Writes are taken as one frame each.
 
     Call :meth:`advance` with the current time while a fault is active (the stand's tick, in sim time): delayed
-    frames and babble go out then.
+    frames and babble go out then. While a fault is active or frames are held the wrapper offers no ``fileno``, so
+    :func:`drivers.serial_port.write_available` (the emulators' non-blocking write) goes through :meth:`write`.
     """
 
     _OWN = frozenset({"_port", "_faults", "_out_dir", "_in_dir", "_splitter", "_rx"})
@@ -574,6 +575,10 @@ class FaultyPort(_LinkFaultsFront):
         object.__setattr__(self, "_rx", bytearray())  # bytes read from the port, after the faults, for the reader
 
     def __getattr__(self, name: str) -> Any:
+        if name == "fileno" and self._faults.busy:
+            # drivers.serial_port.write_available writes straight to a port's descriptor when it has one: while a
+            # fault is active the port has none, so an emulator's writes come through write() and its faults.
+            raise AttributeError("fileno")
         return getattr(self._port, name)
 
     def __setattr__(self, name: str, value: Any) -> None:

@@ -557,3 +557,44 @@ def test_slip_and_datagram_streams_are_cut_into_frames():
 
 def test_a_wrapped_port_without_fileno_has_none(gyro):
     assert not hasattr(gyro.dev_end, "fileno") and not hasattr(gyro.link, "fileno")
+
+
+def test_faults_reach_an_emulator_writing_straight_to_a_pty_descriptor():
+    """The star tracker writes with write_available, which uses a port's descriptor when it has one: while a fault is
+    active the wrapper has none, so the frames pass its faults; clean again, the descriptor is back."""
+    import os
+    import time
+
+    from drivers.serial_port import open_port, pty_pair
+
+    master, slave_path, slave_fd = pty_pair()
+    host_port, _ = open_port(slave_path, timeout=0.0)
+    link = FaultyPort(master, framing="slip")
+    assert link.fileno() == master.fileno()
+    emu = StarTrackerEmulator(link, Truth(), FAST)
+    host = StarTrackerHost(host_port, poll_s=0.0)
+    try:
+        host.send_command(Subscribe(emu.codec.solution_id, 0.0))
+        h = link.start("drop", {"rate": 1.0, "direction": "to_host"}, rng(), 0.0)
+        assert not hasattr(link, "fileno")
+        for k in range(40):
+            link.advance(k * 0.02)
+            emu.service(k * 0.02)
+            host.poll()
+        assert emu.counters["sent"] == link.counters["dropped"] >= 10 and host.counters["frames_received"] == 0
+        link.stop(h)
+        assert link.fileno() == master.fileno()
+        for k in range(40, 80):
+            emu.service(k * 0.02)
+            host.poll()
+        expected = emu.counters["sent"] - link.counters["dropped"]
+        for _ in range(200):  # a pty hands bytes over asynchronously: wait (bounded) for the last ones
+            if host.counters["frames_received"] >= expected:
+                break
+            time.sleep(0.01)
+            host.poll()
+        assert host.counters["frames_received"] == emu.counters["sent"] - link.counters["dropped"] >= 10
+    finally:
+        host_port.close()
+        master.close()
+        os.close(slave_fd)
