@@ -450,8 +450,9 @@ class Splitter:
         self._buf = bytearray()
 
     @property
-    def pending(self) -> bytes:
-        return bytes(self._buf)
+    def pending(self) -> int:
+        """Bytes kept for the next frame."""
+        return len(self._buf)
 
     def feed(self, data: bytes) -> list[bytes]:
         if self.kind == "chunk":
@@ -623,15 +624,19 @@ class FaultyPort(_LinkFaultsFront):
             for out in link.process(frame, self._in_dir):
                 self._rx += out
 
+    def _clean(self) -> bool:
+        """No fault, nothing held, nothing read and not yet handed over: reads go straight to the port."""
+        return not self._faults.busy and not self._rx and not self._splitter.pending
+
     @property
     def in_waiting(self) -> int:
-        if not self._faults.busy and not self._rx:
+        if self._clean():
             return self._port.in_waiting
         self._pump(False)
         return len(self._rx)
 
     def read(self, size: int = 1) -> bytes:
-        if not self._faults.busy and not self._rx:
+        if self._clean():
             return self._port.read(size)
         if len(self._rx) < size:
             self._pump(not self._rx and getattr(self._port, "timeout", 0) != 0)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from drivers.can_bus import open_bus
-from drivers.gyro.codec import GyroCodec, GyroRate
+from drivers.gyro.codec import GyroCodec, GyroRate, SetTime
 from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
 from drivers.gyro.host import GyroHost
 from drivers.link_faults import COUNTERS, KINDS, FaultyBus, FaultyPort, LinkFaults, splitter_for
@@ -598,3 +598,14 @@ def test_faults_reach_an_emulator_writing_straight_to_a_pty_descriptor():
         host_port.close()
         master.close()
         os.close(slave_fd)
+
+
+def test_a_frame_cut_in_two_by_a_faults_end_is_still_read_whole(gyro):
+    frame = CODEC.encode(SetTime(3_000_000))
+    h = gyro.start("duplicate", rate=0.0, direction="to_device")
+    gyro.host_end.write(frame[:4])
+    gyro.run(0.1)  # the first 4 bytes wait in the link for the rest of their datagram
+    gyro.link.stop(h)
+    gyro.host_end.write(frame[4:])
+    gyro.run(0.1)
+    assert gyro.emu.counters["commands_applied"] == 1 and gyro.emu.counters["bytes_dropped"] == 0
