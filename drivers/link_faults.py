@@ -123,7 +123,21 @@ def _check_params(kind: str, params: dict, kinds: tuple[str, ...], medium: str) 
             if default is not None:
                 out[name] = default
     out["direction"] = params.get("direction", "both")
+    if kind == "babble":
+        _check_babble(out, medium)
     return out
+
+
+def _check_babble(params: dict, medium: str) -> None:
+    """What a babble frame can be depends on the medium: bytes on a line, an id and at most 8 data bytes on CAN."""
+    if medium == "CAN":
+        if "frame_hex" in params:
+            raise ValueError("babble frame_hex is not allowed on a CAN link; allowed there: frame_id and length.")
+        if params.get("length", 0) > 8:
+            raise ValueError(f"babble length = {params['length']!r} is not allowed on a CAN link; allowed: 0 to 8 "
+                             "data bytes.")
+    elif "frame_id" in params:
+        raise ValueError("babble frame_id is not allowed on a serial link; allowed there: length or frame_hex.")
 
 
 def _hex_frame(value: Any) -> bytes:
@@ -222,7 +236,7 @@ class _CanFrames:
 
         fid = fault.params.get("frame_id")
         frame_id = int(fault.rng.integers(0, 0x800)) if fid is None else int(fid)
-        length = min(int(fault.params.get("length", 8)), 8)
+        length = int(fault.params.get("length", 8))
         data = fault.rng.integers(0, 256, size=length, dtype=np.uint8).tobytes()
         return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
 
@@ -317,6 +331,8 @@ class LinkFaults:
         if not out:
             return []
         out = self._reorder(out, direction, faults)
+        if not out:
+            return []
         delay_s = self._delay_s(faults)
         if delay_s > 0.0 or self._held_in(direction):
             if delay_s > 0.0:

@@ -518,10 +518,16 @@ def test_can_silence_and_commands_lost_on_the_way_to_the_device(wheel):
     ("flood", {}, "link fault kind = 'flood' is unknown"),
     ("babble", {"frames_per_s": 1e6}, "babble frames_per_s = 1000000.0 is not allowed"),
     ("babble", {"frames_per_s": 10, "frame_hex": "zz"}, "babble frame_hex = 'zz' is not allowed"),
+    ("babble", {"frames_per_s": 10, "frame_id": 5}, "babble frame_id is not allowed on a serial link"),
 ])
 def test_bad_parameters_are_named_with_what_is_allowed(kind, params, text):
     with pytest.raises(ValueError, match=re.escape(text)):
         LinkFaults().start(kind, params, rng(), 0.0)
+
+
+def test_a_can_babble_frame_holds_at_most_8_data_bytes():
+    with pytest.raises(ValueError, match="babble length = 9 is not allowed on a CAN link; allowed: 0 to 8"):
+        LinkFaults("can").start("babble", {"frames_per_s": 10, "length": 9}, rng(), 0.0)
 
 
 def test_every_kind_is_accepted_with_its_parameters_on_can():
