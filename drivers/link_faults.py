@@ -53,8 +53,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["CAN_KINDS", "COUNTERS", "DIRECTIONS", "KINDS", "SERIAL_KINDS", "FaultyBus", "FaultyPort", "LinkFaults",
-           "Splitter", "splitter_for"]
+__all__ = ["CAN_KINDS", "COUNTERS", "DIRECTIONS", "KINDS", "PARAMETERS", "SERIAL_KINDS", "TO_DEVICE", "TO_HOST",
+           "FaultyBus", "FaultyPort", "LinkFaults", "Splitter", "splitter_for"]
 
 TO_HOST = "to_host"
 TO_DEVICE = "to_device"
@@ -82,6 +82,8 @@ _PARAMS: dict[str, dict[str, tuple[Any, Callable[[float], bool], str]]] = {
     "error_frame": {"rate": _RATE},
 }
 KINDS = tuple(_PARAMS)
+#: kind -> {parameter: what is allowed} (besides ``direction``, every kind's; babble's ``frame_hex`` is serial only).
+PARAMETERS: dict[str, dict[str, str]] = {k: {p: spec[2] for p, spec in v.items()} for k, v in _PARAMS.items()}
 CAN_KINDS = KINDS
 SERIAL_KINDS = tuple(k for k in KINDS if k != "error_frame")
 #: Babble frames one advance() may emit at most (a long pause between calls does not become one huge flood).
