@@ -75,7 +75,8 @@ class _Proxy:
         self._plan = [[kind, params, at_s, end_s, np.random.default_rng([seed, i]), None]
                       for i, (kind, params, at_s, end_s) in enumerate(check_faults(faults, kinds))]
 
-    def _due(self, t_s: float) -> None:
+    def due(self, t_s: float) -> None:
+        """Start and stop the scheduled faults due at ``t_s`` (:meth:`run` calls it before each step)."""
         for entry in getattr(self, "_plan", ()):
             kind, params, at_s, end_s, rng, handle = entry
             if handle is None and t_s >= at_s and (end_s is None or t_s < end_s):
@@ -93,7 +94,7 @@ class _Proxy:
             t = clock() - self.t0
             if (duration_s is not None and t >= duration_s) or (stop is not None and stop()):
                 break
-            self._due(t)
+            self.due(t)
             self.step(t, slice_s)
 
     def step(self, t_s: float, wait_s: float) -> int:  # pragma: no cover - each proxy fills it

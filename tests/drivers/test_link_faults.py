@@ -348,7 +348,7 @@ class WheelRig:
     """Reaction wheel emulator behind a FaultyBus and its host, on one in-process bus channel."""
 
     def __init__(self, interface: str = "stand_loopback", wrap: bool = True) -> None:
-        channel = f"faults-{uuid.uuid4().hex}"
+        self.channel = channel = f"faults-{uuid.uuid4().hex}"
         self.dev_bus = open_bus(interface, channel)
         self.host_bus = open_bus(interface, channel)
         self.spy = open_bus(interface, channel)  # what went on the bus
@@ -615,3 +615,19 @@ def test_a_frame_cut_in_two_by_a_faults_end_is_still_read_whole(gyro):
     gyro.host_end.write(frame[4:])
     gyro.run(0.1)
     assert gyro.emu.counters["commands_applied"] == 1 and gyro.emu.counters["bytes_dropped"] == 0
+
+
+def test_a_host_side_bus_loses_the_commands_it_sends(wheel):
+    own_bus = open_bus("stand_loopback", wheel.channel)
+    host_link = FaultyBus(own_bus, side="host")
+    host = ReactionWheelHost(host_link, name="fc wheel behind faults")
+    h = host_link.start("drop", {"rate": 1.0, "direction": "to_device"}, rng(), 0.0)
+    host.command_torque(1e-3)
+    wheel.run(0.5)
+    assert wheel.emu.counters["commands_accepted"] == 0 and host_link.counters["dropped"] == 1
+    host_link.stop(h)
+    host.command_torque(1e-3)
+    wheel.run(0.5)
+    host.poll()
+    assert wheel.emu.counters["commands_accepted"] == 1 and host.counters["samples"] >= 5
+    own_bus.shutdown()

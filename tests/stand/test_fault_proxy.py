@@ -237,3 +237,46 @@ def test_the_can_proxy_drops_corrupts_and_delays_frames_between_processes_in_a_p
     assert host["rejected_other"] == c["corrupted"] and host["rejected_length"] == host["rejected_unknown_id"] == 0
     # The device took the commands the proxy did not drop.
     assert emu["commands_accepted"] == emu["received"] - emu["echoes"] == 6 - 2
+
+
+def test_the_serial_proxy_in_process_duplicates_reorders_and_floods_on_schedule():
+    """SerialFaultProxy between two in-process lines, stepped in a made-up time: faults start and stop on their
+    schedule and the host's counters agree with the proxy's."""
+    from drivers.fault_proxy import SerialFaultProxy
+    from drivers.gyro.codec import GyroCodec
+    from drivers.gyro.emulator import GyroEmulator, GyroEmulatorConfig
+    from drivers.gyro.host import GyroHost
+    from drivers.serial_port import pipe_pair
+
+    host_end, proxy_host = pipe_pair("host-line")
+    proxy_device, device_end = pipe_pair("device-line")
+    emu = GyroEmulator(device_end, lambda t: (0.0, 0.0, 0.1), GyroEmulatorConfig(output_period_s=0.1))
+    host = GyroHost(host_end)
+    seen = []
+    host.add_observer(seen.append)
+    proxy = SerialFaultProxy(proxy_host, proxy_device, framing=GyroCodec())
+    proxy.schedule([{"type": "duplicate", "rate": 0.5, "at_s": 1.0, "duration_s": 2.0},
+                    {"type": "reorder", "rate": 0.5, "at_s": 3.0, "duration_s": 2.0},
+                    {"type": "babble", "frames_per_s": 50, "length": 10, "direction": "to_host", "at_s": 5.0,
+                     "duration_s": 1.0}], seed=2)
+    held_at_stop = None
+    for k in range(140):
+        t = k * 0.05
+        if k == 100:  # the reorder ends now: a frame it holds goes out next, in order (no swap to see)
+            held_at_stop = proxy.faults.in_flight
+        proxy.due(t)
+        emu.service(t)
+        proxy.step(t, 0.0)
+        host.poll()
+    report = proxy.report()
+    c = report["counters"]
+    # Babble: one frame every 1/50 s after its start at 5 s, up to the last step before its end at 6 s (5.95 s).
+    assert c["duplicated"] >= 3 and c["reordered"] >= 3 and c["babbled"] == 47
+    assert report["forwarded"]["frames_from_device"] == emu.counters["sent"]
+    assert host.counters["frames_received"] == emu.counters["sent"] + c["duplicated"]
+    assert host.counters["bytes_dropped"] == 47 * 10
+    s = [m.seq for m in seen]
+    assert sum(1 for a, b in zip(s[:-1], s[1:], strict=True) if a == b) == c["duplicated"]
+    assert held_at_stop in (0, 1)
+    assert sum(1 for a, b in zip(s[:-1], s[1:], strict=True) if a == b + 1) == c["reordered"] - held_at_stop
+    assert proxy.faults.active == [] and report["in_flight"] == 0
