@@ -534,3 +534,45 @@ def test_reboot_and_clock_fault_values_outside_what_is_allowed_are_named(board: 
         board.emu.reboot(1.0, boot_s=-1.0)
     with pytest.raises(ValueError, match="jump_s"):
         board.emu.clock_fault(1.0, jump_s=math.nan)
+
+
+def test_a_rebooting_wheel_drops_its_command_and_restarts_its_counters() -> None:
+    from drivers.reaction_wheel.codec import Heartbeat as WheelHeartbeat
+    from drivers.reaction_wheel.codec import ReactionWheelCodec, TorqueCommand, WheelSpeed
+    from drivers.reaction_wheel.emulator import ReactionWheelEmulator
+
+    codec = ReactionWheelCodec(0)
+    buses = [can.Bus(interface="virtual", channel=f"faults-rw-{id(codec)}") for _ in range(2)]
+    try:
+        emu = ReactionWheelEmulator(buses[0], lambda t: 10.0, codec=codec)
+        send = buses[1]
+
+        def command(torque: float) -> None:
+            frame_id, payload = codec.encode(TorqueCommand(torque, seq=7))
+            send.send(can.Message(arbitration_id=frame_id, data=payload, is_extended_id=False))
+
+        def sent() -> list:
+            out = []
+            while (msg := send.recv(0.0)) is not None:
+                out.append(codec.decode(msg.arbitration_id, bytes(msg.data)))
+            return out
+
+        for k in range(10):
+            emu.publish(k * 0.1)
+        command(0.002)
+        emu.receive(1.0)
+        assert emu.torque_command_Nm(1.0) == 0.002
+        sent()
+        emu.reboot(1.0, boot_s=0.2)
+        assert emu.torque_command_Nm(1.0) == 0.0 and emu.mode == "TORQUE"
+        emu.publish(1.1)
+        emu.publish(1.19)
+        assert sent() == []
+        emu.publish(1.2)
+        assert sent() == [WheelHeartbeat(0, "BOOT", 0)]
+        emu.publish(1.2 + emu.config.telemetry_period_s)
+        (tlm,) = [m for m in sent() if isinstance(m, WheelSpeed)]
+        assert tlm.seq == 0
+    finally:
+        for b in buses:
+            b.shutdown()
