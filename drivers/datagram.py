@@ -485,8 +485,9 @@ class DatagramEmulator(DeviceFaults, SerialServer):
         self._reboot_device(t_up)
 
     def _drop_input(self) -> None:
-        """A device that is off takes nothing from the line: what waits there is read and lost (counted in
-        ``bytes_lost_in_boot``)."""
+        """A device that is off takes nothing from the line: what waits there is read and lost, counted in
+        ``bytes_lost_in_boot`` and, whole datagrams, in ``rejected_while_off`` (so every frame the host sent is
+        accounted for)."""
         port = self.port
         try:
             n = port.in_waiting
@@ -496,6 +497,7 @@ class DatagramEmulator(DeviceFaults, SerialServer):
                 raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
             raise
         self._lost_in_boot("bytes_lost_in_boot", len(data))
+        self._lost_in_boot("rejected_while_off", len(self._decoder.feed(data)) if data else 0)
 
     # -- receive and send -----------------------------------------------------------------------
 

@@ -490,15 +490,18 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
             self._dev[k] = 0
 
     def _drop_input(self) -> None:
-        """A device that is off takes nothing from the line: what waits there is read and lost (counted in
-        ``bytes_lost_in_boot``)."""
-        lost = 0
+        """A device that is off takes nothing from the line: what waits there is read and lost, counted in
+        ``bytes_lost_in_boot`` and, whole frames, in ``rejected_while_off`` (so every frame the host sent is
+        accounted for)."""
+        lost = frames = 0
         for _ in range(64):  # bounded: a flooding host cannot hold the caller here
             data = self._read_available()
             if not data:
                 break
             lost += len(data)
+            frames += len(self._decoder.feed(data))
         self._lost_in_boot("bytes_lost_in_boot", lost)
+        self._lost_in_boot("rejected_while_off", frames)
 
     # -- receive --------------------------------------------------------------------------------
 

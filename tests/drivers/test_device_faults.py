@@ -459,6 +459,7 @@ def test_a_rebooting_gyro_is_silent_then_restarts_its_counter_and_clock_unsynced
     assert first.time_us == 0  # the clock restarted at power-up (clock_offset_s 0)
     assert [round(t, 2) for t, _ in after] == [1.5, 1.6, 1.7, 1.8, 1.9, 2.0]  # the configured period
     assert g.emu.counters["bytes_lost_in_boot"] == 2 * GYRO.messages["SET_OUTPUT_PERIOD"].length
+    assert g.emu.counters["rejected_while_off"] == 2
     assert g.emu.counters["commands_applied"] == 1  # the SET_TIME before the reboot only
 
 
@@ -515,6 +516,7 @@ def test_a_rebooting_tracker_is_silent_then_boots_unsynced_with_its_subscription
     rig.send(RequestTelemetry(STATUS))  # sent while it is off: lost, unanswered
     assert rig.run_until(1.49) == []
     assert rig.emu.counters["bytes_lost_in_boot"] > 0
+    assert rig.emu.counters["rejected_while_off"] == 1  # every frame the host sent is accounted for
     assert rig.run_until(1.59) == []  # powered up at 1.5 s, in BOOT: nothing unasked
     rig.send(RequestTelemetry(STATUS))
     rig.emu.service(1.6)
