@@ -256,7 +256,11 @@ class MagnetorquerEmulator(CanDevice):
         """
         if self._driven and t_s < self._on_until_s:
             return self._driven_array()
-        return _ZERO3 if self._idle_xyz is _OFF else np.array(self._idle_xyz)
+        if self._idle_xyz is _OFF:
+            return _ZERO3
+        idle = np.array(self._idle_xyz)  # stuck coils with no command
+        idle.flags.writeable = False
+        return idle
 
     def dipole_xyz_at(self, t_s: float) -> tuple[float, float, float]:
         """:meth:`dipole_at` as a tuple of floats (no array: the stand's loop reads it every tick)."""

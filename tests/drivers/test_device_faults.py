@@ -144,6 +144,9 @@ def test_a_stuck_coil_holds_the_rated_dipole_with_its_last_sign_whatever_is_comm
     emu.receive(0.6)
     assert emu.mode == "OFF" and emu.dipole_xyz_at(0.7) == (-rated, 0.0, 0.0)
     assert emu.coil_active(0.7)
+    np.testing.assert_array_equal(emu.dipole_at(0.7), [-rated, 0.0, 0.0])
+    with pytest.raises(ValueError):
+        emu.dipole_at(0.7)[0] = 0.0  # read-only, as without the fault
     st = _status(board, 1.0)
     assert st.coil_active == (True, False, False)
     assert st.coil_current_A[0] == pytest.approx(-rated / cfg.coil_area_turns_m2[0], abs=MTQ.current_lsb_A)
