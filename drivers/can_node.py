@@ -34,6 +34,7 @@ from typing import Any
 import can
 
 from drivers.can_bus import data_frame, loops_back
+from drivers.device_faults import DeviceFaults
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError, frame_hex
 
@@ -357,14 +358,22 @@ def check_positive(config: Any, names: tuple[str, ...]) -> None:
 EPS_S = 1e-6
 
 
-class CanDevice(CanNode):
-    """An emulated device: its periodic publication schedule and its heartbeat.
+class CanDevice(DeviceFaults, CanNode):
+    """An emulated device: its periodic publication schedule, its heartbeat, and the clock faults and reboot of
+    :mod:`drivers.device_faults`.
 
     Periodic messages are due at ``t0 + k * period`` (``t0`` = the first publication time); a subclass sets
     ``self._t0 = None``, ``self._k_sample = self._k_status = self._k_heartbeat = 0`` and
     ``self._heartbeat_counter = 0`` in its constructor, with ``self._sample`` (``t_s -> message``: its periodic
     message, e.g. its bound ``measure``) and ``self._sample_period_s``; names its ICD's heartbeat message
     (``_heartbeat_type``) and keeps ``counters["samples_skipped"]``.
+
+    The device clock is the heartbeat's ``uptime_s`` (the DBCs carry no other time tag), from the first
+    publication (power-up); a clock fault shifts it. Reboot (:meth:`reboot`): frames waiting on the bus and
+    arriving while the device is off are lost (``frames_lost_in_boot``); at the first :meth:`publish` after the
+    boot the device powers up and sends first its heartbeat in state BOOT (the ICD's boot message) with uptime 0
+    and counter 0, then its periodic message one period later and its status one status period later; the
+    device's ``_reboot_device`` puts its own state back (mode, sequence numbers, on-board counters).
     """
 
     _heartbeat_type: Any
@@ -399,6 +408,8 @@ class CanDevice(CanNode):
         if self._closed:
             self._check_open()
         if self._t0 is None:
+            if self.booting(t_s):  # rebooting: off until the boot ends
+                return 0
             self._t0 = t_s
         if self._driven:
             self._watchdog(t_s)
@@ -451,13 +462,61 @@ class CanDevice(CanNode):
             self.counters["samples_skipped"] += nxt - k - 1
         return nxt
 
+    #: The next heartbeat is the first after a reboot: state BOOT.
+    _boot_heartbeat = False
+
     def heartbeat(self, t_s: float) -> Any:
-        """The heartbeat the device sends at ``t_s``: whole seconds since the first publication, NOMINAL, and a
-        counter (advanced here)."""
-        uptime = int(max(t_s - (self._t0 if self._t0 is not None else t_s), 0.0)) & 0xFFFFFFFF
+        """The heartbeat the device sends at ``t_s``: whole seconds since the first publication (with any clock
+        fault), NOMINAL (BOOT the first after a reboot), and a counter (advanced here)."""
+        up_s = t_s - (self._t0 if self._t0 is not None else t_s)
+        if self._clock_fault is not None:
+            up_s += self._clock_fault.offset_s(t_s)
+        uptime = int(max(up_s, 0.0)) & 0xFFFFFFFF
         counter = self._heartbeat_counter
         self._heartbeat_counter = (counter + 1) & 0xFF
-        return self._heartbeat_type(uptime, "NOMINAL", counter)
+        state = "NOMINAL"
+        if self._boot_heartbeat:
+            self._boot_heartbeat = False
+            state = "BOOT"
+        return self._heartbeat_type(uptime, state, counter)
+
+    # -- reboot (drivers.device_faults) -------------------------------------------------------------
+
+    def _reboot(self, t_s: float, t_up: float) -> None:
+        self._t0 = None  # powers up at the first publish after the boot
+        # At power-up only the boot heartbeat; the periodic message and the status follow a period later.
+        self._k_sample = self._k_status = 1
+        self._k_heartbeat = 0
+        self._housekeeping_due = 0.0
+        self._heartbeat_counter = 0
+        self._boot_heartbeat = True
+        self._reboot_device(t_up)
+        self._deaf_until_up(t_s)
+        self._drain(t_s)  # what waits on the bus now is lost
+
+    def _deaf_until_up(self, t_reboot: float) -> None:
+        """Frames taken at the reboot or while the device is off are lost (counted): ``_take`` is wrapped on this
+        instance until the first frame after the boot, as :meth:`add_observer` wraps it, so a device never rebooted
+        pays nothing."""
+        self._t_reboot = t_reboot
+        if "_take_up" in self.__dict__:  # rebooted again while off: the wrapper is in place
+            return
+        own = self.__dict__.get("_take")  # an observer's wrapper, or None
+        self._take_up = take = self._take
+
+        def take_booting(decoded: Any, t_s: float | None) -> None:
+            if t_s is not None and (t_s <= self._t_reboot or self.booting(t_s)):
+                self._lost_in_boot("frames_lost_in_boot", 1)
+                return
+            if own is None:
+                del self._take
+            else:
+                self._take = own  # type: ignore[method-assign]
+            del self._take_up
+            take(decoded, t_s)
+
+        self._take = take_booting  # type: ignore[method-assign]
+        self._lost_in_boot("frames_lost_in_boot", 0)
 
 
 class ServedNode:

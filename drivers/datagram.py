@@ -29,6 +29,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
+from drivers.device_faults import DeviceFaults
 from drivers.errors import DriverError, EncodeError, ProtocolError
 from drivers.framing import check_crc16_spec, crc16, crc16_doc
 from drivers.icd_codec import (
@@ -401,9 +402,10 @@ class DatagramHost(SerialHost):
             self._read(block=True)
 
 
-class DatagramEmulator(SerialServer):
+class DatagramEmulator(DeviceFaults, SerialServer):
     """Generic device side of a datagram device: the port, receiving commands (bad traffic counted,
-    never raised), sending, a device clock that SET_TIME sets, and the wall-clock serving loop.
+    never raised), sending, a device clock that SET_TIME sets, the wall-clock serving loop, and the
+    clock faults and reboot of :mod:`drivers.device_faults`.
 
     A device's emulator calls :meth:`_receive` and its own publishing from ``service(t_s)``, fills
     :meth:`_apply` (one decoded command) and :meth:`next_due_s` (for :meth:`run`).
@@ -420,6 +422,11 @@ class DatagramEmulator(SerialServer):
     line takes it at once, the rest of it before the next one, and a datagram the line has no room
     for is dropped whole and counted (``tx_dropped``), so a flight computer that stops reading
     cannot stall the stand. An open port handed in (the stand's in-process line) is written as it is.
+
+    Reboot: a device keeps its power-up time in ``_t_on`` (None until its first service); its ``_reboot_device``
+    sets it back to None and its ``service`` powers up again (sequence numbers from 0) at the first call that is
+    not :meth:`booting`, calling :meth:`_drop_input` until then. The device clock restarts at the end of the
+    boot, not synchronised.
     """
 
     def __init__(self, port: Any, codec: DatagramCodec, *, baudrate: int, name: str,
@@ -435,7 +442,7 @@ class DatagramEmulator(SerialServer):
             "rejected_other": 0, "bytes_dropped": 0, "tx_dropped": 0,
         }
         self._tx_rest = b""  # the part of the last datagram the line has not taken yet (owned ports)
-        self._clock_offset_s = float(clock_offset_s)
+        self._clock_offset_s = self._clock_offset0_s = float(clock_offset_s)
         self._clock_ref: tuple[float, float] | None = None  # (sim t, device s) after SET_TIME
         #: Sends dropped silently while True (a device that went quiet; for tests and fault injection).
         self.silent = False
@@ -454,15 +461,43 @@ class DatagramEmulator(SerialServer):
     def set_time(self, t_s: float, device_time_us: int) -> None:
         """SET_TIME applied at sim time ``t_s``: the device clock reads ``device_time_us`` then."""
         self._clock_ref = (t_s, device_time_us * 1e-6)
+        self._clock_set(t_s)
 
     def device_time_us(self, t_s: float) -> int:
-        """The device clock at sim time ``t_s`` (us, never negative)."""
+        """The device clock at sim time ``t_s`` (us, never negative), with any clock fault."""
         if self._clock_ref is None:
             s = self._clock_offset_s + t_s
         else:
             t_ref, dev_ref = self._clock_ref
             s = dev_ref + (t_s - t_ref)
+        if self._clock_fault is not None:
+            s += self._clock_fault.offset_s(t_s)
         return max(round(s * 1e6), 0)
+
+    # -- reboot (drivers.device_faults) ---------------------------------------------------------
+
+    def _reboot(self, t_s: float, t_up: float) -> None:
+        self._drop_input()  # what the host sent and the device had not taken yet is lost
+        self._decoder.reset()
+        self._tx_rest = b""
+        self._clock_ref = None  # not synchronised; the clock reads clock_offset_s at power-up
+        self._clock_offset_s = self._clock_offset0_s - t_up
+        self._reboot_device(t_up)
+
+    def _drop_input(self) -> None:
+        """A device that is off takes nothing from the line: what waits there is read and lost, counted in
+        ``bytes_lost_in_boot`` and, whole datagrams, in ``rejected_while_off`` (so every frame the host sent is
+        accounted for)."""
+        port = self.port
+        try:
+            n = port.in_waiting
+            data = port.read(n) if n else b""
+        except Exception as exc:
+            if is_port_error(exc):
+                raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
+            raise
+        self._lost_in_boot("bytes_lost_in_boot", len(data))
+        self._lost_in_boot("rejected_while_off", len(self._decoder.feed(data)) if data else 0)
 
     # -- receive and send -----------------------------------------------------------------------
 

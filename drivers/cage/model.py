@@ -20,6 +20,10 @@ Physics per axis, every regulator period ``h`` (the supply's control period):
   the cross-coupling of real coils); the magnetometer samples it every ``mag_period_s`` with white
   noise and saturates at ``mag_range_T``.
 
+Coil failure (fault injection): :attr:`CageModel.failed_coil_axes` (axis indices, none by default) are open
+circuits: no current flows in those pairs whatever the supply does (its regulator then runs to the compliance
+voltage), so they add no field and their current reads 0.
+
 Interlocks hold whatever is written: set points above the limit are held at the limit, every change
 is slew-limited, a heartbeat older than the timeout or a coil above the trip temperature switches
 the outputs off (latched), and relays never switch under current. The ``interlocks`` register and
@@ -215,6 +219,22 @@ class CageModel:
         self._holding = self.map.holding
         self._input_regs = list(self.map.input.values())
         self._setpoint_scale = self._holding["current_setpoint_x_A"].scale
+        self._failed_axes: tuple[int, ...] = ()  # open coil pairs (fault injection)
+
+    @property
+    def failed_coil_axes(self) -> tuple[int, ...]:
+        """The coil pairs (0 x, 1 y, 2 z) that are open circuits: no current, no field (module docstring)."""
+        return self._failed_axes
+
+    @failed_coil_axes.setter
+    def failed_coil_axes(self, axes) -> None:
+        try:
+            failed = tuple(sorted({int(a) for a in axes}))
+        except (TypeError, ValueError):
+            failed = (-1,)
+        if not all(0 <= a <= 2 for a in failed):
+            raise ValueError(f"failed_coil_axes = {axes!r} is not allowed; give axis indices 0 (x), 1 (y), 2 (z).")
+        self._failed_axes = failed
 
     # -- time ------------------------------------------------------------------------------------
 
@@ -252,6 +272,7 @@ class CageModel:
             self._trip("over_temperature")
         limit = cfg.current_limit_A
         step_max = cfg.slew_limit_A_s * h
+        failed = self._failed_axes
         for a, ax in enumerate(self.axes):
             want_negative = bool(self.polarity_request >> a & 1)
             target = min(self.setpoint_raw[a] * self._setpoint_scale, limit)
@@ -281,6 +302,8 @@ class CageModel:
                 ax.slewing = False
             i_ss = v / r
             ax.i_A = max(i_ss + (ax.i_A - i_ss) * d, 0.0)
+            if failed and a in failed:
+                ax.i_A = 0.0  # an open coil pair: nothing flows
             if not on:
                 ax.ref_A = ax.i_A  # bumpless: a later ramp starts from the current that flows
             ax.v_V = v

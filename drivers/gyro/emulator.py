@@ -18,6 +18,9 @@ Behaviour (times are sim seconds passed to :meth:`GyroEmulator.service`; no cloc
   ``range_rad_s`` is clipped, flagged ``saturated_*`` and clears ``valid``.
 - Time stamp: ``t_k`` in the device clock (``clock_offset_s + t`` until SET_TIME sets it).
 - Commands with a bad CRC or a value outside its range are counted and ignored (no replies).
+- Reboot (:meth:`GyroEmulator.reboot`, :mod:`drivers.device_faults`): silent for the boot, then a power-up as
+  above: counter from 0, ``startup`` for ``startup_time_s``, the clock restarted and not synchronised, the
+  configured output period.
 
 ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
 ``rejected_undecodable`` (each stretch of bytes that held no good datagram, once), ``rejected_other``,
@@ -124,10 +127,20 @@ class GyroEmulator(DatagramEmulator):
         """Apply received commands at ``t_s``, then publish every sample due by ``t_s``."""
         self._check_open()
         if self._t_on is None:
+            if self.booting(t_s):  # rebooting (drivers.device_faults): off until the boot ends
+                self._drop_input()
+                return
             self._t_on = self._grid0 = t_s
             self._k = 0  # a sample at power-up
         self._receive(t_s)
         self._publish(t_s)
+
+    def _reboot_device(self, t_up: float) -> None:
+        # Power-up again at the first service after the boot: sample counter from 0, the configured period,
+        # and the startup flag for startup_time_s.
+        self._t_on = None
+        self.period_s = self.config.output_period_s
+        self._seq = 0
 
     def next_due_s(self) -> float | None:
         return None if self._t_on is None else self._grid0 + self._k * self.period_s

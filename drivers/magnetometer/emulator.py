@@ -12,6 +12,8 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
   to ``lsb_T``, saturated at the DBC's range (then ``valid`` = 0). In mode OFF no sample is sent and no noise drawn.
 - MAG_STATUS every ``status_period_s``, MAG_HEARTBEAT every ``heartbeat_period_s``.
 - MAG_MODE_CMD sets the mode and echoes its ``seq``; ``reset_counters`` zeroes the on-board counters.
+- Reboot and clock faults: :class:`drivers.can_node.CanDevice` (heartbeat BOOT first; mode, sample counter and
+  on-board counters back to power-up).
 - Frames are sorted by :class:`drivers.can_node.CanNode`: the unit's range is its command block 0x0E0..0x0E7;
   other nodes' frames are ignored, frames addressed to it that it cannot accept are counted, never raised.
 
@@ -115,6 +117,14 @@ class MagnetometerEmulator(CanDevice):
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
         return self._drain(t_s)
+
+    def _reboot_device(self, t_up: float) -> None:
+        # A cold power-up (drivers.device_faults): the configured mode, sample counter and on-board counters from 0.
+        self.mode = self.config.initial_mode
+        self._mode_seq_ack = 0
+        self._sample_seq = 0
+        for key in self._board:
+            self._board[key] = 0
 
     def _take(self, cmd: Any, t_s: float | None) -> None:
         if type(cmd) is not ModeCommand:  # pragma: no cover - unit_rx_ids only holds the mode command

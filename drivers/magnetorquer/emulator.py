@@ -14,6 +14,14 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
   (one ``saturations`` count per clipped command), quantised to ``dipole_lsb_A_m2`` (the PWM
   step), driven from ``t`` until ``t + duration``; then the watchdog switches the coils off and
   counts a ``watchdog_expiries``. A new command replaces the previous one; duration 0 = off now.
+- Coil faults (attributes, neutral by default; set at any time, they act at once): ``coil_gain`` per axis
+  scales the dipole a coil produces from what the board drives (1 nominal, 0 an open coil, -1 a coil wired
+  with its polarity reversed); ``stuck_on_axes`` (axis indices 0..2): those coils hold the rated dipole with the
+  sign of the last command that drove them (+ if none did), whatever is commanded, in every mode and past the
+  watchdog. The board reports in MTQ_STATUS the current its drivers measure: nothing through an open coil, the
+  commanded current through a reversed one (the board cannot tell), the full current through a stuck one.
+- Reboot and clock faults: :class:`drivers.can_node.CanDevice` (heartbeat BOOT first; mode, coils off, sample
+  counter and on-board counters back to power-up; coil faults are hardware and stay).
 - MAG_SAMPLE every ``sample_period_s``, measured by :class:`drivers.magnetometer.sensor.MagnetometerModel`
   (the one magnetometer model of the stand): ``truth + bias + noise`` (+ ``coupling @ dipole`` and the
   ``coil_active`` flag while the coils are driven), quantised to ``mag_lsb_T``, saturated at the
@@ -204,6 +212,15 @@ class MagnetorquerEmulator(CanDevice):
         self._driven = False  # a command with a duration is running
         self._on_until_s = -math.inf
         self._any_nonzero = False
+        # Coil faults (module docstring). Without one the produced dipole is the driven one and nothing below is
+        # looked at per tick: _idle_xyz is what the coils produce with no command (stuck coils only).
+        self._coil_gain = (1.0, 1.0, 1.0)
+        self._stuck_on_axes: tuple[int, ...] = ()
+        self._stuck_sign = (1.0, 1.0, 1.0)
+        self._coil_faulted = False
+        self._commanded_xyz = _OFF  # what the board drives for the current command, before coil faults
+        self._idle_xyz = _OFF
+        self._idle_active = False
 
         self._t0: float | None = None
         self._k_sample = self._k_status = self._k_heartbeat = 0
@@ -239,17 +256,103 @@ class MagnetorquerEmulator(CanDevice):
         """
         if self._driven and t_s < self._on_until_s:
             return self._driven_array()
-        return _ZERO3
+        if self._idle_xyz is _OFF:
+            return _ZERO3
+        idle = np.array(self._idle_xyz)  # stuck coils with no command
+        idle.flags.writeable = False
+        return idle
 
     def dipole_xyz_at(self, t_s: float) -> tuple[float, float, float]:
         """:meth:`dipole_at` as a tuple of floats (no array: the stand's loop reads it every tick)."""
         if self._driven and t_s < self._on_until_s:
             return self._dipole_xyz
-        return _OFF
+        return self._idle_xyz
 
     def coil_active(self, t_s: float) -> bool:
-        """True when at least one coil is driven (non-zero dipole) at ``t_s``."""
-        return self._driven and self._any_nonzero and t_s < self._on_until_s
+        """True when at least one coil produces a dipole at ``t_s``."""
+        if self._driven and t_s < self._on_until_s:
+            return self._any_nonzero
+        return self._idle_active
+
+    # -- coil faults (module docstring) -----------------------------------------------------------
+
+    @property
+    def coil_gain(self) -> tuple[float, float, float]:
+        """Per axis, the dipole produced per dipole driven: 1 nominal, 0 coil open, -1 polarity reversed."""
+        return self._coil_gain
+
+    @coil_gain.setter
+    def coil_gain(self, gain) -> None:
+        try:
+            g = tuple(float(x) for x in gain)
+        except (TypeError, ValueError):
+            g = ()
+        if len(g) != 3 or not all(math.isfinite(x) and abs(x) <= 10.0 for x in g):
+            raise ValueError(f"{self.name}: coil_gain = {gain!r} is not allowed; give 3 numbers from -10 to 10 "
+                             "(1 nominal, 0 open, -1 reversed).")
+        self._coil_gain = g  # type: ignore[assignment]
+        self._refresh_coils()
+
+    @property
+    def stuck_on_axes(self) -> tuple[int, ...]:
+        """The axes (0 x, 1 y, 2 z) whose coil holds the rated dipole with its last sign whatever is commanded."""
+        return self._stuck_on_axes
+
+    @stuck_on_axes.setter
+    def stuck_on_axes(self, axes) -> None:
+        try:
+            stuck = tuple(sorted({int(a) for a in axes}))
+        except (TypeError, ValueError):
+            stuck = (-1,)
+        if not all(0 <= a <= 2 for a in stuck):
+            raise ValueError(f"{self.name}: stuck_on_axes = {axes!r} is not allowed; give axis indices 0 (x), "
+                             "1 (y), 2 (z).")
+        # A coil sticks with the sign it was last driven with (kept for a coil already stuck).
+        sign = list(self._stuck_sign)
+        for a in stuck:
+            if a not in self._stuck_on_axes:
+                sign[a] = -1.0 if self._commanded_xyz[a] < 0.0 else 1.0
+        self._stuck_sign = tuple(sign)  # type: ignore[assignment]
+        self._stuck_on_axes = stuck
+        self._refresh_coils()
+
+    def _faulty(self, driven: tuple[float, float, float]) -> tuple[float, float, float]:
+        """The dipole the coils produce when the board drives ``driven`` (coil faults applied)."""
+        full = self._dipole_levels * self.config.dipole_lsb_A_m2
+        g, stuck, sign = self._coil_gain, self._stuck_on_axes, self._stuck_sign
+        return tuple(sign[a] * full if a in stuck else driven[a] * g[a] for a in range(3))  # type: ignore[return-value]
+
+    def _refresh_coils(self) -> None:
+        """Recompute what the coils produce after a coil fault changed (the current command and idle)."""
+        self._coil_faulted = self._coil_gain != (1.0, 1.0, 1.0) or bool(self._stuck_on_axes)
+        if self._coil_faulted:
+            self._idle_xyz = self._faulty(_OFF)
+            self._idle_active = any(self._idle_xyz)
+        else:
+            self._idle_xyz, self._idle_active = _OFF, False
+        if self._driven:
+            self._produce(self._commanded_xyz)
+
+    def _produce(self, driven: tuple[float, float, float]) -> None:
+        """The coils driven with ``driven`` (what the board's drivers put out) from now on."""
+        self._commanded_xyz = driven
+        if self._coil_faulted:
+            driven = self._faulty(driven)
+        self._dipole_xyz = driven
+        self._dipole_array = self._coil_field = None  # built from driven when first asked for
+        self._any_nonzero = any(driven)
+
+    def _driver_dipole_xyz_at(self, t_s: float) -> tuple[float, float, float]:
+        """The dipole the board's drivers put out at ``t_s``, as its current sensors see it: the produced dipole
+        without coil faults; with one, nothing on an open coil, the driven current on a reversed one and the full
+        current on a stuck one."""
+        if not self._coil_faulted:
+            return self.dipole_xyz_at(t_s)
+        driven = self._commanded_xyz if self._driven and t_s < self._on_until_s else _OFF
+        full = self._dipole_levels * self.config.dipole_lsb_A_m2
+        g, stuck, sign = self._coil_gain, self._stuck_on_axes, self._stuck_sign
+        return tuple(sign[a] * full if a in stuck else (0.0 if g[a] == 0.0 else driven[a])  # type: ignore[return-value]
+                     for a in range(3))
 
     # -- service ----------------------------------------------------------------------------------
 
@@ -273,6 +376,12 @@ class MagnetorquerEmulator(CanDevice):
         if self._coil_field is None:
             self._coil_field = tuple((self._coupling @ self._driven_array()).tolist())
         return self._coil_field
+
+    def _coil_field_at(self, t_s: float) -> tuple[float, float, float]:
+        """The field the producing coils add at the magnetometer at ``t_s`` (called only when they produce)."""
+        if self._driven and t_s < self._on_until_s:
+            return self._coil_field_now()
+        return tuple((self._coupling @ np.array(self._idle_xyz)).tolist())  # stuck coils with no command
 
     def _watchdog(self, t_s: float) -> None:
         if self._driven and t_s >= self._on_until_s:
@@ -316,16 +425,24 @@ class MagnetorquerEmulator(CanDevice):
             self._board["saturations"] += 1
         # PWM steps clipped to the rating's step count, written out per axis: a generator over
         # three components costs more than the arithmetic, and this runs once per command.
-        driven = (min(max(round(mx / lsb), -levels), levels) * lsb,
-                  min(max(round(my / lsb), -levels), levels) * lsb,
-                  min(max(round(mz / lsb), -levels), levels) * lsb)
-        self._dipole_xyz = driven
-        self._dipole_array = self._coil_field = None  # built from driven when first asked for
-        self._any_nonzero = any(driven)
+        self._produce((min(max(round(mx / lsb), -levels), levels) * lsb,
+                       min(max(round(my / lsb), -levels), levels) * lsb,
+                       min(max(round(mz / lsb), -levels), levels) * lsb))
         self._driven = True
         # The watchdog deadline gets the same tolerance as the publication schedule, so coils
         # commanded for exactly one period are off when the next period's sample is taken.
         self._on_until_s = t_s + cmd.duration_s - EPS_S
+
+    def _reboot_device(self, t_up: float) -> None:
+        # A cold power-up (drivers.device_faults): the configured mode, coils off, counters from 0. Coil faults
+        # are the hardware's and stay.
+        self.mode = self.config.initial_mode
+        self._coils_off()
+        self._on_until_s = -math.inf
+        self._mode_seq_ack = 0
+        self._sample_seq = 0
+        for key in self._board:
+            self._board[key] = 0
 
     def _apply_mode(self, cmd: ModeCommand) -> None:
         if cmd.mode != self.mode:
@@ -346,7 +463,7 @@ class MagnetorquerEmulator(CanDevice):
     def measure(self, t_s: float) -> MagSample:
         """The MAG_SAMPLE the board measures at ``t_s`` (consumes noise; advances the sample counter)."""
         active = self.coil_active(t_s)
-        b_T, valid = self.magnetometer.measure(t_s, self._coil_field_now() if active else None)
+        b_T, valid = self.magnetometer.measure(t_s, self._coil_field_at(t_s) if active else None)
         if not valid:
             self.counters["mag_saturations"] += 1
         seq = self._sample_seq
@@ -356,7 +473,7 @@ class MagnetorquerEmulator(CanDevice):
     def status(self, t_s: float) -> Status:
         """The MTQ_STATUS the board reports at ``t_s``."""
         # On the command's floats, not the (3,) array: this runs once a second in every emulated board.
-        mx, my, mz = self.dipole_xyz_at(t_s)
+        mx, my, mz = self._driver_dipole_xyz_at(t_s)
         nx, ny, nz = self._na_xyz
         i_max = self._i_max
         return Status(

@@ -217,6 +217,15 @@ class ReactionWheelEmulator(CanDevice):
         self.counters["saturations"] += 1
         self._board["saturations"] += 1
 
+    def _reboot_device(self, t_up: float) -> None:
+        # A cold power-up (drivers.device_faults): the configured mode, no command held, counters from 0.
+        self.mode, self._torque, self._speed = self.config.initial_mode, 0.0, 0.0
+        self._torque_limited = False
+        self._expires_s = math.inf
+        self._seq_ack = self._tlm_seq = 0
+        for k in self._board:
+            self._board[k] = 0
+
     def _status_messages(self, t_s: float) -> tuple[Status]:
         return (self.status(),)
 

@@ -42,6 +42,23 @@ reads no clock there; :meth:`StarTrackerEmulator.run` is the stand-alone wall-cl
   whole and counted (``tx_dropped``), as a real device's UART buffer overflows when nobody reads
   the line; ``sent`` counts frames written completely.
 
+Faults (attributes, neutral by default, set at any time; they act from the next exposure):
+
+- ``blinded``: every exposure sees the Sun in the field (flag ``sun_in_field``, no star matched, not valid);
+- ``lost``: no star is identified: the solution carries no attitude (the identity quaternion), no star
+  matched, mode LOST_IN_SPACE at once, not valid; once cleared the tracker reacquires as from lost in space;
+- ``misid_rad``: a rotation vector (rad, tracker axes) composed onto the measured attitude, which keeps its
+  flags (misidentified stars: off by ``|misid_rad|``, still valid when the exposure is good);
+- ``solution_delay_s``: each solution becomes available this much later than ``output_delay_s`` (late);
+- ``slow_factor``: a whole number >= 1: exposures ``slow_factor`` times the output interval apart (a lower
+  rate), the grid anchored at the last exposure.
+
+Clock faults and reboot: :mod:`drivers.device_faults`. A reboot is a power cycle: off (deaf and silent) for
+``boot_s``, then a power-up as above (mode BOOT for ``boot_time_s`` with ``auto_boot``), the parameters and
+subscriptions back to their power-up values (the ICD: a subscription lasts until UNSUBSCRIBE or a reboot, so the
+host must subscribe again), solution counter and STATUS counters from 0, the clock restarted at
+``clock_offset_s`` and not synchronised.
+
 ``counters``: ``bytes_received``, ``frames_received`` (good, for this address), ``sent``,
 ``rejected_crc``, ``rejected_address``, ``rejected_unknown_id``, ``rejected_length``,
 ``rejected_other`` (short, bad escape, oversize, bad value), ``commands_nacked``, ``solutions``,
@@ -59,6 +76,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.device_faults import DeviceFaults
 from drivers.errors import DriverError, EncodeError
 from drivers.framing import SlipDecoder, escape
 from drivers.serial_port import SerialServer, is_port_error, open_port, port_name, write_available
@@ -96,7 +114,7 @@ __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "Tracke
 _EPS_S = 1e-9
 
 
-class StarTrackerEmulator(SerialServer):
+class StarTrackerEmulator(DeviceFaults, SerialServer):
     """The star tracker, emulated on ``port`` (see the module docstring for the behaviour).
 
     Args:
@@ -154,6 +172,7 @@ class StarTrackerEmulator(SerialServer):
                     f"allowed {allowed}."
                 )
             self.params[ps.attr] = value_si
+        self._params0 = dict(self.params)  # what a power-up starts from
         self._bias = tuple(float(b) * ARCSEC for b in cfg.bias_arcsec)
         self._decoder = SlipDecoder(codec.max_body)
         self.counters: dict[str, int] = {
@@ -181,6 +200,15 @@ class StarTrackerEmulator(SerialServer):
         self._subs: dict[int, list[float]] = {}  # telemetry id -> [period_s, next_due_s]
         self._new_solution = False
         self._now = 0.0
+        #: Faults (module docstring); _faulted says whether any of blinded, lost, misid is set, so an exposure
+        #: without one tests a single attribute.
+        self._blinded = self._lost = self._faulted = False
+        self._misid_rad = (0.0, 0.0, 0.0)
+        self._misid_q: tuple[float, float, float, float] | None = None
+        self._solution_delay_s = 0.0
+        self._output_delay_s = cfg.output_delay_s
+        self._slow_factor = 1
+        self._interval_s = self.params["output_interval_s"]  # between exposures: the parameter x slow_factor
         # A short write timeout: only ports without a descriptor (loop://) use the port's own write.
         self.port, self._owns_port = open_port(port, baudrate=baudrate, timeout=0.0, name=name, write_timeout=0.05)
         self._closed = False
@@ -196,16 +224,23 @@ class StarTrackerEmulator(SerialServer):
     # -- device clock ---------------------------------------------------------------------------
 
     def device_time_s(self, t_s: float) -> float:
-        """The device clock at sim time ``t_s``, s."""
+        """The device clock at sim time ``t_s``, s (with any clock fault)."""
         rate = 1.0 + self.config.clock_drift_ppm * 1e-6
         if self._clock_ref is None:
-            return self.config.clock_offset_s + t_s * rate
-        t_set, dev_set = self._clock_ref
-        return dev_set + (t_s - t_set) * rate
+            s = self.config.clock_offset_s + t_s * rate
+        else:
+            t_set, dev_set = self._clock_ref
+            s = dev_set + (t_s - t_set) * rate
+        if self._clock_fault is not None:
+            s += self._clock_fault.offset_s(t_s)
+        return s
 
     def sim_time_s(self, time_us: int) -> float:
         """The sim time at which the device clock read ``time_us`` (the inverse of :meth:`device_time_s`)."""
         rate = 1.0 + self.config.clock_drift_ppm * 1e-6
+        if self._clock_fault is not None:  # the clock is affine in sim time: invert it about now
+            t_a = self._now
+            return t_a + (time_us * 1e-6 - self.device_time_s(t_a)) / (rate + self._clock_fault.drift)
         if self._clock_ref is None:
             return (time_us * 1e-6 - self.config.clock_offset_s) / rate
         t_set, dev_set = self._clock_ref
@@ -223,6 +258,9 @@ class StarTrackerEmulator(SerialServer):
             raise DriverError(f"{self.name}: closed; create a new one.")
         self._now = t_s
         if self._t_on is None:
+            if self.booting(t_s):  # rebooting (drivers.device_faults): off until the boot ends
+                self._drop_input()
+                return
             self._t_on = t_s
             if self.config.auto_boot:
                 self._start_boot(t_s)
@@ -247,7 +285,7 @@ class StarTrackerEmulator(SerialServer):
             if t_s + _EPS_S < self._t_ready:
                 return
             self.mode = "LOST_IN_SPACE"
-        interval = self.params["output_interval_s"]
+        interval = self._interval_s
         since = t_s - self._t_ready + _EPS_S
         if since >= self._k_exposure * interval:
             last = math.floor(since / interval)
@@ -255,7 +293,7 @@ class StarTrackerEmulator(SerialServer):
                 self.counters["exposures_skipped"] += last - self._k_exposure
             t_e = self._t_ready + last * interval
             sol = self.expose(t_e)
-            self._pending.append((t_e + self.config.output_delay_s, sol))
+            self._pending.append((t_e + self._output_delay_s, sol))
             self._k_exposure = last + 1
         while self._pending and self._pending[0][0] <= t_s + _EPS_S:
             self.latest_solution = self._pending.popleft()[1]
@@ -288,11 +326,14 @@ class StarTrackerEmulator(SerialServer):
         moon = in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
         earth = in_field(truth.earth_T, truth.earth_radius_rad, p["earth_exclusion_rad"])
         rate_high = rate > p["rate_limit_rad_s"]
+        faulted = self._faulted
+        if faulted and self._blinded:
+            sun = True
         rng = self.rng
         n_stars = truth.stars_in_field if truth.stars_in_field is not None else int(rng.poisson(cfg.mean_stars))
         n_stars = min(max(int(n_stars), 0), 255)
-        if sun:
-            matched = 0  # the Sun blinds the detector
+        if sun or (faulted and self._lost):
+            matched = 0  # the Sun blinds the detector; a lost tracker identifies no star
         elif truth.stars_matched is not None:
             matched = min(max(int(truth.stars_matched), 0), n_stars)
         else:
@@ -308,6 +349,8 @@ class StarTrackerEmulator(SerialServer):
             self._bad_run += 1
             if self.mode == "TRACKING" and self._bad_run >= p["track_loss_count"]:
                 self.mode = "LOST_IN_SPACE"
+        if faulted and self._lost:
+            self.mode = "LOST_IN_SPACE"
         valid = good and self.mode == "TRACKING"
         sc = cfg.noise_cross_arcsec * ARCSEC
         sr = cfg.noise_roll_arcsec * ARCSEC
@@ -315,6 +358,8 @@ class StarTrackerEmulator(SerialServer):
         b = self._bias
         dq = small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
         qm = hamilton(q, dq)
+        if faulted:
+            qm = self._faulty_attitude(qm)
         if qm[0] < 0:
             qm = (-qm[0], -qm[1], -qm[2], -qm[3])
         self.counters["solutions"] += 1
@@ -341,6 +386,122 @@ class StarTrackerEmulator(SerialServer):
             temperature_C=cfg.temperature_C,
             seq=seq,
         )
+
+    # -- faults (module docstring) ---------------------------------------------------------------
+
+    def _refresh_faults(self) -> None:
+        self._faulted = self._blinded or self._lost or self._misid_q is not None
+
+    @property
+    def blinded(self) -> bool:
+        """Every exposure sees the Sun in the field."""
+        return self._blinded
+
+    @blinded.setter
+    def blinded(self, value: bool) -> None:
+        self._blinded = bool(value)
+        self._refresh_faults()
+
+    @property
+    def lost(self) -> bool:
+        """No star is identified: no attitude, mode LOST_IN_SPACE."""
+        return self._lost
+
+    @lost.setter
+    def lost(self, value: bool) -> None:
+        self._lost = bool(value)
+        self._refresh_faults()
+
+    @property
+    def misid_rad(self) -> tuple[float, float, float]:
+        """Rotation vector (rad, tracker axes) composed onto the measured attitude, flags kept."""
+        return self._misid_rad
+
+    @misid_rad.setter
+    def misid_rad(self, v) -> None:
+        try:
+            r = tuple(float(x) for x in v)
+        except (TypeError, ValueError):
+            r = ()
+        if len(r) != 3 or not all(math.isfinite(x) for x in r) or math.sqrt(sum(x * x for x in r)) > math.pi:
+            raise ValueError(f"{self.name}: misid_rad = {v!r} is not allowed; give a rotation vector of 3 numbers "
+                             "(rad, tracker axes) of at most pi rad.")
+        self._misid_rad = r  # type: ignore[assignment]
+        self._misid_q = small_rotation(r) if any(r) else None
+        self._refresh_faults()
+
+    @property
+    def solution_delay_s(self) -> float:
+        """Extra time from an exposure to its solution being available, s (on top of ``output_delay_s``)."""
+        return self._solution_delay_s
+
+    @solution_delay_s.setter
+    def solution_delay_s(self, value: float) -> None:
+        if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0.0 <= value <= 3600.0):
+            raise ValueError(f"{self.name}: solution_delay_s = {value!r} is not allowed; give seconds from 0 to 3600.")
+        self._solution_delay_s = float(value)
+        self._output_delay_s = self.config.output_delay_s + self._solution_delay_s
+
+    @property
+    def slow_factor(self) -> int:
+        """Exposures this many output intervals apart (1 nominal)."""
+        return self._slow_factor
+
+    @slow_factor.setter
+    def slow_factor(self, value: int) -> None:
+        if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 1000:
+            raise ValueError(f"{self.name}: slow_factor = {value!r} is not allowed; give a whole number from 1 to "
+                             "1000 (exposures stay on the output interval's grid).")
+        self._regrid()
+        self._slow_factor = value
+        self._interval_s = self.params["output_interval_s"] * value
+
+    def _regrid(self) -> None:
+        """Anchor the exposure grid at the last exposure before its interval changes."""
+        if self._t_ready is not None and self._k_exposure > 0:
+            self._t_ready += (self._k_exposure - 1) * self._interval_s
+            self._k_exposure = 1
+
+    def _faulty_attitude(self, qm: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        if self._lost:
+            return (1.0, 0.0, 0.0, 0.0)  # no star identified: no attitude
+        if self._misid_q is not None:
+            return hamilton(qm, self._misid_q)
+        return qm
+
+    # -- reboot (drivers.device_faults) ---------------------------------------------------------
+
+    def _reboot(self, t_s: float, t_up: float) -> None:
+        self._drop_input()  # what the host sent and the device had not taken is lost, and what it had queued
+        self._decoder.reset()
+        self._tx.clear()
+        self._tx_bytes = 0
+        self._t_on = self._t_ready = None
+        self._start_boot(t_up)
+        self._t_ready = None
+        self._seq = 0
+        self._clock_ref = (t_up, self.config.clock_offset_s)  # restarted, not synchronised
+        self.time_synced = False
+        self._subs.clear()
+        self._new_solution = False
+        self.params = dict(self._params0)
+        self._interval_s = self.params["output_interval_s"] * self._slow_factor
+        for k in self._dev:
+            self._dev[k] = 0
+
+    def _drop_input(self) -> None:
+        """A device that is off takes nothing from the line: what waits there is read and lost, counted in
+        ``bytes_lost_in_boot`` and, whole frames, in ``rejected_while_off`` (so every frame the host sent is
+        accounted for)."""
+        lost = frames = 0
+        for _ in range(64):  # bounded: a flooding host cannot hold the caller here
+            data = self._read_available()
+            if not data:
+                break
+            lost += len(data)
+            frames += len(self._decoder.feed(data))
+        self._lost_in_boot("bytes_lost_in_boot", lost)
+        self._lost_in_boot("rejected_while_off", frames)
 
     # -- receive --------------------------------------------------------------------------------
 
@@ -434,11 +595,10 @@ class StarTrackerEmulator(SerialServer):
             return self._refuse(cid, "UNKNOWN_PARAMETER")
         if ps.check_wire(msg.value) is not None:
             return self._refuse(cid, "VALUE_OUT_OF_RANGE")
-        if ps.attr == "output_interval_s" and self._t_ready is not None and self._k_exposure > 0:
-            # a new exposure grid, anchored at the last exposure
-            self._t_ready += (self._k_exposure - 1) * self.params["output_interval_s"]
-            self._k_exposure = 1
+        if ps.attr == "output_interval_s":
+            self._regrid()  # a new exposure grid, anchored at the last exposure
         self.params[ps.attr] = msg.value * ps.scale
+        self._interval_s = self.params["output_interval_s"] * self._slow_factor
         return Ack(cid)
 
     def _on_get_param(self, msg: GetParam, t_s: float) -> Message | None:
@@ -454,6 +614,7 @@ class StarTrackerEmulator(SerialServer):
         elif msg.action == "SET_TIME":
             self._clock_ref = (t_s, msg.argument * 1e-6)
             self.time_synced = True
+            self._clock_set(t_s)
         elif msg.action == "RESET_COUNTERS":
             for k in self._dev:
                 self._dev[k] = 0
@@ -564,7 +725,7 @@ class StarTrackerEmulator(SerialServer):
         """Sim time of the next exposure or of the next solution waiting for its output delay, or None."""
         due = None
         if self._t_ready is not None:
-            due = self._t_ready + self._k_exposure * self.params["output_interval_s"]
+            due = self._t_ready + self._k_exposure * self._interval_s
         if self._pending:
             due = self._pending[0][0] if due is None else min(due, self._pending[0][0])
         return due

@@ -17,6 +17,8 @@ Behaviour (times are sim seconds passed to :meth:`SunSensorEmulator.service`; no
 - Fine: ``intensity`` is the third element of the source's answer, else 1 when valid and 0 when
   not. Coarse: a head beyond the current range is clipped and flags ``saturated`` (not valid).
 - Commands with a bad CRC or a value outside its range are counted and ignored.
+- Reboot (:meth:`SunSensorEmulator.reboot`, :mod:`drivers.device_faults`): silent for the boot, then a power-up
+  as above: counter from 0, the clock restarted and not synchronised, the configured output period.
 
 ``counters``: ``bytes_received``, ``frames_received``, ``sent``, ``rejected_crc``,
 ``rejected_undecodable`` (each stretch of bytes that held no good datagram, once), ``rejected_other``,
@@ -119,10 +121,19 @@ class SunSensorEmulator(DatagramEmulator):
         """Apply received commands (answering requests) at ``t_s``, then publish what is due."""
         self._check_open()
         if self._t_on is None:
+            if self.booting(t_s):  # rebooting (drivers.device_faults): off until the boot ends
+                self._drop_input()
+                return
             self._t_on = self._grid0 = t_s
             self._k = 0
         self._receive(t_s)
         self._publish(t_s)
+
+    def _reboot_device(self, t_up: float) -> None:
+        # Power-up again at the first service after the boot: counter from 0, the configured period.
+        self._t_on = None
+        self.period_s = self.config.output_period_s
+        self._seq = 0
 
     def next_due_s(self) -> float | None:
         if self._t_on is None or self.period_s <= 0:
