@@ -190,13 +190,14 @@ class Device:
         return None
 
 
-def fault_taps(link: str, *own: str, measurement: dict | None = None) -> dict:
+def fault_taps(link: str, *own: str, measurement: dict | None = None, medium: str = "serial") -> dict:
     """The fault taps of a device whose emulator runs in the stand (emulated and served links: ``own`` physics
     taps, its ``measurement`` (``{"n": axes, "unit": key suffix}``), its line or bus, its clock, its reboot) or
-    that is real (hardware: only its line or bus, through the in-process fault proxy on the host's port)."""
+    that is real (hardware: only its line or bus, through the in-process fault proxy on the host's port).
+    ``medium``: "serial" or "can", what its link carries."""
     if link == "hardware":
-        return {"link": {}}
-    out = {"link": {}, "clock": {}, "reboot": {}, **{t: {} for t in own}}
+        return {"link": {"medium": medium}}
+    out = {"link": {"medium": medium}, "clock": {}, "reboot": {}, **{t: {} for t in own}}
     if measurement is not None:
         out["measurement"] = measurement
     return out

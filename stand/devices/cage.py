@@ -238,6 +238,11 @@ class Cage(Device):
         return [(f"{n}.b_cmd_B", 3, "T"), (f"{n}.b_cage_B", 3, "T"), (f"{n}.currents", 3, "A"),
                 (f"{n}.interlocks", 1, "1")]
 
+    def fault_tap(self, name: str):
+        if name == "cage" and self.emulator is not None:  # the emulated coil pairs (drivers.cage.model)
+            return self.emulator.model
+        return None
+
     def publish(self, t_s: float) -> None:
         if self.emulator is not None:
             self.emulator.step(t_s)

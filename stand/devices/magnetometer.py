@@ -105,7 +105,7 @@ class MagnetometerKind(FieldSensingKind):
         return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=4)
 
     def fault_taps(self, spec: MagnetometerSpec) -> dict:
-        return fault_taps(spec.link, measurement={"n": 3, "unit": "T"})
+        return fault_taps(spec.link, measurement={"n": 3, "unit": "T"}, medium="can")
 
     def build(self, spec: MagnetometerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedMagnetometer, "hardware": HardwareMagnetometer,

@@ -114,7 +114,7 @@ class MagnetorquerKind(FieldSensingKind):
         return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=7)
 
     def fault_taps(self, spec: MagnetorquerSpec) -> dict:
-        return fault_taps(spec.link, "coils", measurement={"n": 3, "unit": "T"})
+        return fault_taps(spec.link, "coils", measurement={"n": 3, "unit": "T"}, medium="can")
 
     def build(self, spec: MagnetorquerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedBoard, "hardware": HardwareBoard, "served": ServedBoard}[spec.link](spec, ctx)

@@ -129,7 +129,7 @@ class ReactionWheelKind(DeviceKind):
                 "served": f"reaction wheel served on {where} for a flight computer outside, {what}"}[spec.link]
 
     def fault_taps(self, spec: ReactionWheelSpec) -> dict:
-        return fault_taps(spec.link, "wheel")
+        return fault_taps(spec.link, "wheel", medium="can")
 
     def build(self, spec: ReactionWheelSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)

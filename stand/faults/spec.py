@@ -123,6 +123,10 @@ def one(t: Table, index: int, by_name: dict, duration_s: float) -> FaultSpec:
         able = sorted(n for n, ft in FAULT_TYPES.items() if ft.tap in offered)
         raise t.error("type", type_name, f"a fault type device {device!r} ({spec.kind}, {spec.link} link) can "
                       f"take: {', '.join(able) or 'none'} ({type_name} needs its {ftype.tap} tap)")
+    medium = (offered[ftype.tap] or {}).get("medium", "serial")
+    if ftype.medium is not None and ftype.medium != medium:
+        raise t.error("type", type_name, f"a fault of a {medium} device: {type_name} needs a {ftype.medium} bus, "
+                      f"device {device!r} is on a {medium} line")
     name = t.text("name", f"{device}.{type_name}")
     if not NAME_PATTERN.fullmatch(name):
         raise t.error("name", name, "a plain name of letters, digits, '_', '.' and '-' (events and the page show it)")

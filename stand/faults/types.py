@@ -16,7 +16,7 @@ A type's ``start(tap, p, a)`` acts on the tap with the parameters ``p`` (SI, val
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -51,7 +51,6 @@ class Activation:
     t_s: float
     rng: np.random.Generator
     info: dict
-    keep: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -65,6 +64,8 @@ class FaultType:
     stop: Any
     #: A fault that happens at an instant (a reboot, a clock jump): ``duration_s`` is refused.
     instant: bool = False
+    #: The medium a link fault needs ("can"), checked against the device's ``link`` tap; None: any.
+    medium: str | None = None
 
 
 # -- measurement (physics, any sensor with a measurement tap) ----------------------------------------------------
@@ -152,6 +153,20 @@ def _rotvec(p) -> tuple:
     return tuple(float(x) for x in axis / np.linalg.norm(axis) * p["angle_deg"])
 
 
+def _axes_member(attr):
+    """A fault adding one axis to a tuple of axis indices (``stuck_on_axes``...), taken out again at the stop."""
+    def start(tap, p, a):
+        axes, axis = tuple(getattr(tap, attr)), p["axis"]
+        setattr(tap, attr, tuple(sorted({*axes, axis})))
+        return axis, axis not in axes  # whether this fault added it (another may hold it too)
+
+    def stop(tap, handle, a):
+        axis, added = handle
+        if added:
+            setattr(tap, attr, tuple(x for x in getattr(tap, attr) if x != axis))
+    return start, stop
+
+
 def _kind(name, tap, text, params, start_stop, instant=False):
     return FaultType(name, "physics", tap, text, params, *start_stop, instant=instant)
 
@@ -185,10 +200,10 @@ KIND_PHYSICS = (
         _set("solution_delay_s", lambda p, old: p["delay_s"])),
     _kind("coil_open", "coils", "one coil is open: it produces no dipole", (AXIS,), _axis_item("coil_gain", 0.0)),
     _kind("coil_reversed", "coils", "one coil's polarity is reversed", (AXIS,), _axis_item("coil_gain", -1.0)),
-    _kind("coil_stuck_on", "coils", "one coil holds its largest dipole whatever is commanded", (AXIS,),
-          _axis_item("stuck_on_axes", True)),
-    _kind("cage_coil_failure", "cage", "one coil pair of the cage produces no field", (AXIS,),
-          _axis_item("coil_failed", True)),
+    _kind("coil_stuck_on", "coils", "one coil holds its rated dipole, with the sign of its last command, whatever "
+          "is commanded", (AXIS,), _axes_member("stuck_on_axes")),
+    _kind("cage_coil_failure", "cage", "one coil pair of the cage is an open circuit: no current, no field", (AXIS,),
+          _axes_member("failed_coil_axes")),
     # Stimulators: physics faults a real sensor sees (docs/faults.md, "Every link").
     _kind("screen_wrong_attitude", "stimulus", "the star screen shows the sky of an attitude off by an angle about "
           "an axis: a real tracker reports it, valid", (
@@ -231,7 +246,7 @@ PROTOCOL = (
     _protocol("bit_error", "bit_error", "bits flip in frames, so the receiver's CRC check fires", (
         PROBABILITY, Param("bits", "integer", 1, "bits flipped per hit frame", 1, 64))),
     _protocol("frame_truncated", "truncate", "frames are cut short", (
-        PROBABILITY, Param("keep_fraction", "number", 0.5, "the part of a frame kept", 0.0, 1.0))),
+        PROBABILITY, Param("keep_fraction", "number", 0.5, "the part of a frame kept (below 1)", 0.0, 0.999))),
     _protocol("frame_delay", "delay", "every frame arrives late", (
         Param("latency_s", "number", 0.1, "the added latency of every frame", 0.0, 60.0),)),
     _protocol("frame_jitter", "jitter", "frames arrive late by a random extra delay", (
@@ -239,10 +254,11 @@ PROTOCOL = (
     _protocol("frame_reorder", "reorder", "frames swap places with the next one", (PROBABILITY,)),
     _protocol("frame_duplicate", "duplicate", "frames arrive twice", (PROBABILITY,)),
     _protocol("babble", "babble", "a babbling node floods the line or bus with frames", (
-        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 0.0, 1e6),)),
+        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 1e-3, 1e4),)),
     _protocol("silence", "silence", "nothing gets through", ()),
-    _protocol("can_error_frame", "error_frame", "CAN error frames on the bus, where the interface carries them",
-              (PROBABILITY,)),
+    FaultType("can_error_frame", "protocol", "link", "CAN error frames on the bus before frames (each then "
+              "retransmitted), where the interface carries them", (PROBABILITY, DIRECTION), *_link("error_frame"),
+              medium="can"),
 )
 
 
@@ -252,10 +268,10 @@ def _reboot_start(tap, p, a):
 
 def _clock(param, key):
     def start(tap, p, a):
-        tap.clock_fault(a.t_s, **{key: p[param]})
+        return tap.clock_fault(a.t_s, **{key: p[param]})
 
     def stop(tap, handle, a):
-        tap.clear_clock_fault(a.t_s)
+        tap.clear_clock_fault(a.t_s, handle)  # this fault alone: a jump and a drift clear apart
     return start, stop
 
 
