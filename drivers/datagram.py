@@ -296,6 +296,10 @@ class DatagramDecoder:
 # -- endpoints ------------------------------------------------------------------------------------
 
 
+#: How far back a sample counter may step and the sample still be taken for one arriving late (not a restart).
+STALE_STEPS = 8
+
+
 class DatagramHost(SerialHost):
     """Generic host side of a datagram device: the port (a URL it reopens after a failure, or an
     open object the caller keeps), sending commands, and receiving without ever raising on bad
@@ -336,6 +340,21 @@ class DatagramHost(SerialHost):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({port_name(self.port)!r}, online={self.online}, counters={self.counters})"
+
+    def _fresh(self, last_seq: int, seq: int, modulus: int) -> bool:
+        """Whether a sample with counter ``seq`` after one with ``last_seq`` is new. A repeat of the last counter is a
+        duplicate and a step back of at most :data:`STALE_STEPS` a sample arriving late (out of order): both are
+        counted (``duplicates``, ``stale``) and not taken as the newest. Any other step is new, its gap counted in
+        ``samples_lost`` (a larger step back is a counter restarted, a device rebooted)."""
+        step = (seq - last_seq) % modulus
+        if step == 0:
+            self.counters["duplicates"] = self.counters.get("duplicates", 0) + 1
+            return False
+        if step >= modulus - STALE_STEPS:
+            self.counters["stale"] = self.counters.get("stale", 0) + 1
+            return False
+        self.counters["samples_lost"] += step - 1
+        return True
 
     # -- send and receive (the port's reopening is SerialHost's) ---------------------------------
 

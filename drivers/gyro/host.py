@@ -10,7 +10,7 @@ socat link or ``socket://``: the driver cannot tell. The gyro streams; the drive
 
 Receiving never raises on bad traffic: datagrams with a bad CRC or a field outside its table, and
 bytes between datagrams, are counted in :attr:`GyroHost.counters` and dropped. A gap in the sample
-counter is counted in ``samples_lost``. :meth:`GyroHost.read_rate` waits up to a monotonic deadline
+counter is counted in ``samples_lost``; a repeated or late sample (``duplicates``, ``stale``) is not taken. :meth:`GyroHost.read_rate` waits up to a monotonic deadline
 and raises :class:`~drivers.errors.DeviceTimeoutError`; a port that fails (a USB adapter unplugged)
 is reopened on the next call when the driver opened it from a URL.
 """
@@ -57,8 +57,8 @@ class GyroHost(DatagramHost):
     def _accept_message(self, msg: Any) -> None:
         if type(msg) is GyroRate:
             last = self.latest_rate
-            if last is not None:
-                self.counters["samples_lost"] += (msg.seq - last.seq - 1) & 0xFF
+            if last is not None and not self._fresh(last.seq, msg.seq, 0x100):
+                return  # a duplicate or a sample late out of order: not the newest
             self.latest_rate = msg
             self.counters["samples"] += 1
             self._taken = False

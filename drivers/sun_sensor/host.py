@@ -59,8 +59,8 @@ class SunSensorHost(DatagramHost):
     def _accept_message(self, msg: Any) -> None:
         if isinstance(msg, (FineSunSample, CoarseSunSample)):
             last = self.latest_sample
-            if last is not None and type(last) is type(msg):
-                self.counters["samples_lost"] += (msg.seq - last.seq - 1) & 0xFFFF
+            if last is not None and type(last) is type(msg) and not self._fresh(last.seq, msg.seq, 0x10000):
+                return  # a duplicate or a sample late out of order: not the newest
             self.latest_sample = msg
             self.counters["samples"] += 1
             self._taken = False

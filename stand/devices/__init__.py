@@ -564,10 +564,10 @@ def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SE
     A pty hands bytes over asynchronously (a pipe at once); settling each tick makes every sample reach the flight
     code in the tick it was sent, the same in every run. Raises :class:`drivers.errors.DeviceTimeoutError` after
     ``timeout_s`` of wall time."""
-    if emulator.counters["sent"] <= frames_in(host.counters):
-        return
-    if line_faulted(emulator):
+    if line_faulted(emulator):  # checked first: duplicates and babble can put the host's count ahead
         take_in_arrived(host)
+        return
+    if emulator.counters["sent"] <= frames_in(host.counters):
         return
     import time
 

@@ -196,8 +196,8 @@ KIND_PHYSICS = (
               Param("axis_S", "vector3", [1.0, 0.0, 0.0], "the error's rotation axis, sensor frame")),
           _set("misid_rad", lambda p, old: _rotvec(p))),
     _kind("tracker_slow", "tracker", "solutions come late", (
-        Param("delay_s", "number", 0.5, "the extra latency of each solution", 0.0, 60.0),),
-        _set("solution_delay_s", lambda p, old: p["delay_s"])),
+        Param("latency_s", "number", 0.5, "the extra latency of each solution", 0.0, 60.0),),
+        _set("solution_delay_s", lambda p, old: p["latency_s"])),
     _kind("coil_open", "coils", "one coil is open: it produces no dipole", (AXIS,), _axis_item("coil_gain", 0.0)),
     _kind("coil_reversed", "coils", "one coil's polarity is reversed", (AXIS,), _axis_item("coil_gain", -1.0)),
     _kind("coil_stuck_on", "coils", "one coil holds its rated dipole, with the sign of its last command, whatever "
