@@ -11,8 +11,8 @@ from pathlib import Path
 from .. import scenario as scenario_mod
 from ..errors import ScenarioError, shown
 from .dispersions import Dispersions, apply, case_values, parse_dispersions
-from .fault_groups import case_faults
 from .errors import CampaignError
+from .fault_groups import case_faults
 
 MAX_RUNS = 100_000
 
