@@ -71,9 +71,6 @@ def _locate(data: dict, path: str, where: str) -> tuple[dict | list, str]:
             raise CampaignError(f"{where}: field = {path!r} is not allowed: {'.'.join(parts[:i])} is a value, "
                                 "not a table.")
     if isinstance(node, list):  # the path names a whole entry of a list of tables
-        if len(parts) < 2:
-            raise CampaignError(f"{where}: field = {path!r} is not allowed: {path} is a list of tables; name an "
-                                "entry, e.g. faults.NAME or devices.NAME.KEY.")
         _entry(node, parts[-1], path, ".".join(parts[:-1]), where)
         return node, parts[-1]
     if not isinstance(node, dict):
