@@ -205,6 +205,22 @@ def test_pass_rates_group_the_cases_by_fault_type_and_by_device():
     assert cm.fault_lines({}) == []
 
 
+def test_a_fault_s_device_is_dispersed_and_each_device_of_the_choice_is_checked(tmp_path, pointing):
+    text = PROBE + '[[dispersions]]\nfield = "faults.probe.device"\ndistribution = "choice"\nvalues = ["imu", "st"]\n'
+    (tmp_path / "d.toml").write_text(text)
+    with pytest.raises(cm.CampaignError, match=r"^dispersions\[0\] \(faults.probe.device, choice, in d.toml\): "
+                                               r"values\[1\] = 'st' is refused by the scenario, .*: faults\[0\].type = "
+                                               r"'stuck' .* a fault type device 'st' \(star_tracker"):
+        cm.validate(cm.make_spec(SCENARIO, tmp_path / "d.toml"), 1)
+    # A type both take: each case runs it on the device it drew.
+    (tmp_path / "d.toml").write_text(text.replace('"stuck"', '"silence"').replace('"st"]', '"st", "rw3"]'))
+    spec = cm.make_spec(SCENARIO, tmp_path / "d.toml")
+    tasks = cm.validate(spec, 12)
+    assert {t["faults"][0]["device"] for t in tasks} == {"imu", "st", "rw3"}
+    assert all(t["faults"][0]["device"] == t["values"]["faults.probe.device"] == t["data"]["faults"][0]["device"]
+               for t in tasks)
+
+
 # ---------------------------------------------------------------------------------------------- the campaign
 def _rerun_alone(camp, index: int, tmp_path) -> tuple[bytes, bool]:
     sc, base, rec = cm.load_case(camp, index)
