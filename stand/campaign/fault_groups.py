@@ -91,8 +91,8 @@ def report_lines(result: dict, limit: int = 8) -> list[str]:
         if not table:
             continue
         extra = "layer | devices" if key == "type" else "fault types"
-        lines += ["", f"## Pass rate by {title}", "",
-                  f"| {key} | {extra} | passed | rate | 95 % interval | failed cases |", "|---|---|---|---|---|---|"]
+        header = f"| {key} | {extra} | passed | rate | 95 % interval | failed cases |"
+        lines += ["", f"## Pass rate by {title}", "", header, "|---" * (header.count("|") - 1) + "|"]
         for name, g in table.items():
             what = f"{g['layer']} | {', '.join(g['devices'])}" if key == "type" else ", ".join(g["types"])
             failed = g["failed_cases"]

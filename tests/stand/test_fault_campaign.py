@@ -203,6 +203,15 @@ def test_pass_rates_group_the_cases_by_fault_type_and_by_device():
     lines = cm.fault_lines({"by_fault_type": by_type, "by_fault_device": by_device})
     assert lines[0] == "fault stuck (physics): 2/4 passed (50.0 %, 95 % interval 6.8 to 93.2 %); failed: case 1, 2"
     assert cm.fault_lines({}) == []
+    # report.md's tables: a header, its rule and one row per group, every line with the header's cells.
+    md = cm.fault_groups.report_lines({"by_fault_type": by_type, "by_fault_device": by_device})
+    tables = [[line for line in md[k + 2:] if line.startswith("|")][:2 + n] for k, n in
+              ((md.index("## Pass rate by fault type"), 3), (md.index("## Pass rate by device"), 3))]
+    for table in tables:
+        assert table[1] == "|---" * (table[0].count("|") - 1) + "|"
+        assert {line.count("|") for line in table} == {table[0].count("|")} and len(table) == 5
+    assert tables[0][2] == "| stuck | physics | imu, mag | 2/4 | 50.0 % | 6.8 to 93.2 % | 1, 2 |"
+    assert cm.fault_groups.report_lines({}) == []
 
 
 def test_a_fault_s_device_is_dispersed_and_each_device_of_the_choice_is_checked(tmp_path, pointing):
