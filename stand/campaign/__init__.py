@@ -56,8 +56,10 @@ from .dispersions import (
                           get_field,
                           parse_dispersions,
                           put_field,
+                          with_faults,
 )
 from .errors import CampaignError
+from .fault_groups import case_faults, fault_lines
 from .pool import WORKER_DEATHS
 from .rerun import compare_case, load_case
 from .results import CONFIDENCE, aggregate, clopper_pearson, metric_table
@@ -68,7 +70,7 @@ from .summary_report import write_report
 
 __all__ = ["CASE_DIGITS", "CASE_TIMEOUT_S", "CONFIDENCE", "DASK_HTTP_ADDRESS", "DISTRIBUTIONS", "KEYS",
            "MAX_CASE_TIMEOUT_S", "MAX_RUNS", "RUN_FILES", "WALL_CLOCK_KEYS", "WORKER_DEATHS", "CampaignError",
-           "CampaignProgress", "Dispersion", "Dispersions", "Spec", "aggregate", "apply", "case_dir", "case_values",
-           "clopper_pearson", "comparable", "compare_case", "digest", "finished", "get_field", "load_case",
-           "make_spec", "metric_table", "parse_dispersions", "put_field", "run_campaign", "run_case", "validate",
-           "warm", "write_report"]
+           "CampaignProgress", "Dispersion", "Dispersions", "Spec", "aggregate", "apply", "case_dir", "case_faults",
+           "case_values", "clopper_pearson", "comparable", "compare_case", "digest", "fault_lines", "finished",
+           "get_field", "load_case", "make_spec", "metric_table", "parse_dispersions", "put_field", "run_campaign",
+           "run_case", "validate", "warm", "with_faults", "write_report"]

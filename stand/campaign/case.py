@@ -16,6 +16,7 @@ from ..compose import build
 from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
+from .fault_groups import started
 
 #: Exit code of a Dask worker process ended by the per-case limit.
 EXIT_OVERRUN = 70
@@ -47,6 +48,7 @@ def _error_record(task: dict, reason: str, t_start: float | None = None) -> dict
     """The record of a case that gave no summary: an error, counted as failed, with the reason in one line."""
     now = time.time()
     return {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
+            "faults": task.get("faults", []),
             "host": os.uname().nodename, "pid": os.getpid(), "status": "error", "passed": False, "error": reason,
             "criteria": [], "timing": {"worker_start": now if t_start is None else t_start, "worker_end": now}}
 
@@ -95,7 +97,8 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
             if watchdog is not None:
                 watchdog.cancel()
     t_end = time.time()
-    rec.update(status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
+    rec.update(faults=started(task.get("faults", []), summary),
+               status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
                criteria=[{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
                          for c in summary["criteria"]],
                rate_deg_s_at=summary.get("rate_deg_s_at", {}),

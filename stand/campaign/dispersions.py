@@ -10,7 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MISSING, ScenarioError
+from ..errors import MISSING, ScenarioError, shown
+from ..faults.spec import TRIGGERS
 from .errors import CampaignError
 
 DISTRIBUTIONS = ("normal", "uniform", "rotation", "uniform_rotation", "choice")
@@ -28,8 +29,30 @@ MAX_INTEGER = 2**53
 
 
 # ------------------------------------------------------------------------------ dotted paths in scenario dicts
-def _locate(data: dict, path: str, where: str) -> tuple[dict, str]:
-    """The table holding ``path``'s last key; list entries are addressed by their ``name``."""
+#: Per list: the keys a table drawn for a whole entry leaves as the entry has them unless the drawn table gives
+#: a key of the first group. A fault keeps its trigger (and an ``after``'s delay_s) unless the table gives one of
+#: its own, so which fault happens and when it happens are dispersed apart (``faults.probe`` a choice of fault
+#: tables, ``faults.probe.at_s`` a uniform time); ``delay_s`` alone is no trigger (tracker_slow's parameter has
+#: that name). An entry always keeps its name.
+KEPT = {"faults": (TRIGGERS, (*TRIGGERS, "delay_s"))}
+
+
+def _entry(entries: list, name: str, path: str, parent: str, where: str) -> dict:
+    """The entry of a list of tables named ``name`` (list entries are addressed by their ``name``)."""
+    match = [d for d in entries if isinstance(d, dict) and d.get("name") == name]
+    if not match:
+        names = [str(d.get("name")) for d in entries if isinstance(d, dict) and "name" in d]
+        unnamed = sum(1 for d in entries if not (isinstance(d, dict) and "name" in d))
+        hint = f"; {unnamed} entries without a name, which a path cannot address: give them name = ..." if unnamed \
+            else ""
+        raise CampaignError(f"{where}: field = {path!r} is not allowed: {parent} has no entry named {name!r} "
+                            f"(entries: {', '.join(names) or 'none'}{hint}).")
+    return match[0]
+
+
+def _locate(data: dict, path: str, where: str) -> tuple[dict | list, str]:
+    """The table holding ``path``'s last key, or the list whose entry named by the last part ``path`` is (a whole
+    ``[[faults]]`` entry: ``faults.NAME``); list entries are addressed by their ``name``."""
     parts = path.split(".")
     if not path or any(not p for p in parts):
         raise CampaignError(f"{where}: field = {path!r} is not allowed: a dotted scenario key such as "
@@ -38,12 +61,7 @@ def _locate(data: dict, path: str, where: str) -> tuple[dict, str]:
     for i, part in enumerate(parts[:-1]):
         so_far = ".".join(parts[: i + 1])
         if isinstance(node, list):
-            names = [d.get("name") for d in node if isinstance(d, dict)]
-            match = [d for d in node if isinstance(d, dict) and d.get("name") == part]
-            if not match:
-                raise CampaignError(f"{where}: field = {path!r} is not allowed: {'.'.join(parts[:i])} has no entry "
-                                    f"named {part!r} (entries: {', '.join(map(str, names)) or 'none'}).")
-            node = match[0]
+            node = _entry(node, part, path, ".".join(parts[:i]), where)
         elif isinstance(node, dict):
             if part not in node:
                 raise CampaignError(f"{where}: field = {path!r} is not allowed: the scenario has no {so_far} (a "
@@ -52,9 +70,9 @@ def _locate(data: dict, path: str, where: str) -> tuple[dict, str]:
         else:
             raise CampaignError(f"{where}: field = {path!r} is not allowed: {'.'.join(parts[:i])} is a value, "
                                 "not a table.")
-    if isinstance(node, list):
-        raise CampaignError(f"{where}: field = {path!r} is not allowed: {'.'.join(parts[:-1])} is a list of "
-                            "tables; name an entry, e.g. devices.NAME.KEY.")
+    if isinstance(node, list):  # the path names a whole entry of a list of tables
+        _entry(node, parts[-1], path, ".".join(parts[:-1]), where)
+        return node, parts[-1]
     if not isinstance(node, dict):
         raise CampaignError(f"{where}: field = {path!r} is not allowed: {'.'.join(parts[:-1])} is a value, "
                             "not a table.")
@@ -62,13 +80,39 @@ def _locate(data: dict, path: str, where: str) -> tuple[dict, str]:
 
 
 def get_field(data: dict, path: str, where: str = "dispersion"):
-    table, key = _locate(data, path, where)
-    return table.get(key, MISSING)
+    """The value at ``path``; a whole list entry (``faults.NAME``) is its table."""
+    node, key = _locate(data, path, where)
+    if isinstance(node, list):
+        return _entry(node, key, path, "", where)
+    return node.get(key, MISSING)
 
 
 def put_field(data: dict, path: str, value, where: str = "dispersion") -> None:
-    table, key = _locate(data, path, where)
-    table[key] = value
+    """Set the value at ``path``. A table put at a whole list entry (``faults.NAME``) replaces the entry's keys
+    except its name, and except the keys :data:`KEPT` for that list unless the table gives one of them."""
+    node, key = _locate(data, path, where)
+    if not isinstance(node, list):
+        node[key] = value
+        return
+    entry = _entry(node, key, path, "", where)
+    if not isinstance(value, dict):
+        raise CampaignError(f"{where}: field = {path!r} names a whole entry: a table of its keys is required, not "
+                            f"{shown(value)}.")
+    gives, kept = KEPT.get(path.split(".")[-2], ((), ()))
+    keep = ("name",) if any(k in value for k in gives) else ("name", *kept)
+    old = {k: entry[k] for k in keep if k in entry}
+    entry.clear()
+    entry.update(old)
+    entry.update(value)
+
+
+def with_faults(scenario: dict, faults) -> dict:
+    """A deep copy of a scenario dict with ``faults`` (a dispersion file's ``[[faults]]``) after its own."""
+    data = json.loads(json.dumps(scenario))
+    if faults:
+        own = data.get("faults", [])
+        data["faults"] = [*own, *json.loads(json.dumps(list(faults)))] if isinstance(own, list) else own
+    return data
 
 
 # ------------------------------------------------------------------------------------------- dispersions
@@ -207,7 +251,7 @@ def _dispersion(entry, k: int, scenario: dict) -> Dispersion:
     if dist in ("rotation", "uniform_rotation"):
         return _rotation(entry, where, fld, dist, nominal)
     if dist == "choice":
-        return _choice(entry, where, fld, nominal)
+        return _choice(entry, where, fld, nominal, whole=isinstance(_locate(scenario, fld, where)[0], list))
     shape = _shape_of(nominal) if nominal is not MISSING else None
     if nominal is not MISSING and shape is None:
         raise CampaignError(f"{where}: the scenario's value {nominal!r} is not a number or a list of numbers; a "
@@ -287,11 +331,19 @@ def _rotation(entry, where, fld, dist, nominal) -> Dispersion:
     return Dispersion(fld, dist, (4,), [float(x) for x in q], params)
 
 
-def _choice(entry, where, fld, nominal) -> Dispersion:
+def _choice(entry, where, fld, nominal, whole: bool = False) -> Dispersion:
+    """One of ``values``; for a whole list entry (``faults.NAME``), each value a table of the entry's keys."""
     p = _Params(entry, where, ())
     values = entry.get("values", MISSING)
     if not isinstance(values, list) or not values:
         raise p.error("values", values, "a non-empty list of the values to choose from")
+    for k, v in enumerate(values if whole else ()):
+        if not isinstance(v, dict) or not v:
+            raise p.error(f"values[{k}]", v, f"a table of the keys of entry {fld} (it names a whole entry: the drawn "
+                          "table replaces the entry's keys but its name), e.g. {type = 'stuck', device = 'imu'}")
+        if "name" in v:
+            raise p.error(f"values[{k}].name", v["name"], f"no name: the drawn table keeps the entry's own name "
+                          f"({fld.split('.')[-1]!r}), which the other dispersions and the report address")
     weights = entry.get("weights", MISSING)
     if weights is MISSING:
         w = np.full(len(values), 1.0 / len(values))
@@ -310,6 +362,9 @@ class Dispersions:
     seed: int | None  # the file's [campaign] seed
     text: str
     source: str
+    #: The file's ``[[faults]]``: faults every case has, after the scenario's own (dispersions address them by
+    #: name like the scenario's), so a nominal scenario runs under a campaign of faults unchanged.
+    faults: tuple = ()
 
 
 def parse_dispersions(text: str, scenario: dict, source: str = "<string>") -> Dispersions:
@@ -318,10 +373,14 @@ def parse_dispersions(text: str, scenario: dict, source: str = "<string>") -> Di
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CampaignError(f"--dispersions {source} is not allowed: valid TOML is required ({exc}).") from None
-    unknown = sorted(set(data) - {"campaign", "dispersions"})
+    unknown = sorted(set(data) - {"campaign", "dispersions", "faults"})
     if unknown:
-        raise CampaignError(f"{unknown[0]} in {source} is not allowed: a dispersion file has a [campaign] table "
-                            "and [[dispersions]] entries.")
+        raise CampaignError(f"{unknown[0]} in {source} is not allowed: a dispersion file has a [campaign] table, "
+                            "[[dispersions]] entries and [[faults]] tables.")
+    added = data.get("faults", [])
+    if not isinstance(added, list) or not all(isinstance(f, dict) for f in added):
+        raise CampaignError(str(ScenarioError("faults", added, "[[faults]] tables: faults every case of the campaign "
+                                              "has, after the scenario's own", source)))
     camp = data.get("campaign", {})
     if not isinstance(camp, dict) or set(camp) - {"seed"}:
         raise CampaignError(f"[campaign] in {source} is not allowed: it takes only seed = N.")
@@ -333,7 +392,8 @@ def parse_dispersions(text: str, scenario: dict, source: str = "<string>") -> Di
         raise CampaignError(f"dispersions in {source} is not allowed: at least one [[dispersions]] entry with "
                             "field and distribution is required.")
     try:
-        items = tuple(_dispersion(e, k, scenario) for k, e in enumerate(entries))
+        base = with_faults(scenario, added)
+        items = tuple(_dispersion(e, k, base) for k, e in enumerate(entries))
     except CampaignError as exc:  # the entry's sentence, with the file it is in
         raise CampaignError(f"{source}: {exc}") from None
     fields = [d.field for d in items]
@@ -343,7 +403,7 @@ def parse_dispersions(text: str, scenario: dict, source: str = "<string>") -> Di
     if any(f in ("scenario.seed", "scenario.duration_s") for f in fields):
         raise CampaignError(f"dispersions in {source}: scenario.seed and scenario.duration_s are set by the "
                             "campaign (the case seed, --duration), not dispersed.")
-    return Dispersions(items, seed, text, source)
+    return Dispersions(items, seed, text, source, tuple(added))
 
 
 def case_values(dispersions: Dispersions, seed: int, index: int) -> tuple[int, dict]:
@@ -355,10 +415,12 @@ def case_values(dispersions: Dispersions, seed: int, index: int) -> tuple[int, d
     return run_seed, values
 
 
-def apply(scenario: dict, values: dict, run_seed: int, duration_s: float | None) -> dict:
-    """A deep copy of the scenario dict with the case's values, seed and duration."""
-    data = json.loads(json.dumps(scenario))
-    for fld, value in values.items():
+def apply(scenario: dict, values: dict, run_seed: int, duration_s: float | None, faults=()) -> dict:
+    """A deep copy of the scenario dict with the dispersion file's ``faults``, the case's values, seed and
+    duration. A table goes in before the keys under it (``faults.probe`` before ``faults.probe.at_s``): a key
+    dispersed on its own is not undone by the table drawn for its entry, whatever the order in the file."""
+    data = with_faults(scenario, faults)
+    for fld, value in sorted(values.items(), key=lambda item: item[0].count(".")):
         put_field(data, fld, value)
     data.setdefault("scenario", {})["seed"] = run_seed
     if duration_s is not None:

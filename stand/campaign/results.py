@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..report import write_json_atomic
+from .fault_groups import group
 from .store import finished
 
 #: Worst cases listed per criterion.
@@ -111,6 +112,10 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
         "metrics": {name: _stats(v) for name, v in metric_table(records).items()},
         "inputs": {name: _stats(v) for name, v in _inputs(records).items()},
         "worst_cases": _worst(records),
+        # A campaign of faults: pass rates by the type and by the device of the faults the cases ran with.
+        **({"by_fault_type": group(records, "type", clopper_pearson),
+            "by_fault_device": group(records, "device", clopper_pearson)}
+           if any(r.get("faults") for r in records) else {}),
         "failed_cases": [{"case": r["index"], "status": r.get("status"), "error": r.get("error"),
                           "failed": [c["name"] for c in r.get("criteria", []) if not c["pass"]]}
                          for r in records if not r.get("passed")],
@@ -119,6 +124,7 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
         "execution": ex,
         "cases": [{"case": r["index"], "seed": r["seed"], "status": r.get("status"), "pass": r.get("passed"),
                    "values": r.get("values"), "criteria": {c["name"]: c["value"] for c in r.get("criteria", [])},
+                   **({"faults": [f"{f['type']}@{f['device']}" for f in r["faults"]]} if r.get("faults") else {}),
                    "digest": r.get("digest")} for r in records],
     }
     write_json_atomic(out / "campaign.json", result)

@@ -112,7 +112,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
 
 def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignProgress, lost: list[str]) -> None:
     """Write every case the executor answers: its files, or an error record with the reason."""
-    meta = {t["index"]: {k: t[k] for k in ("index", "seed", "values", "scalars")} for t in todo}
+    meta = {t["index"]: {k: t[k] for k in ("index", "seed", "values", "scalars", "faults")} for t in todo}
     for index, result, reason in executor.results(todo):
         if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
             lost.append(f"case {index}: {reason}")

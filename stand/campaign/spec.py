@@ -12,6 +12,7 @@ from .. import scenario as scenario_mod
 from ..errors import ScenarioError, shown
 from .dispersions import Dispersions, apply, case_values, parse_dispersions
 from .errors import CampaignError
+from .fault_groups import case_faults
 
 MAX_RUNS = 100_000
 
@@ -47,12 +48,13 @@ class Spec:
         """The task of case ``index``: its scenario dict (dispersed, seeded), values and seed."""
         disp = dispersions or self.dispersions()
         run_seed, values = case_values(disp, self.seed, index)
-        data = apply(self.scenario_dict(), values, run_seed, self.duration_s)
+        data = apply(self.scenario_dict(), values, run_seed, self.duration_s, disp.faults)
         scalars: dict[str, float] = {}
         for d in disp.items:
             scalars.update(d.scalars(values[d.field]))
         return {"index": index, "seed": run_seed, "values": values, "scalars": scalars, "data": data,
-                "source": f"{self.scenario_name}#case{index}", "base": self.scenario_base}
+                "faults": case_faults(data), "source": f"{self.scenario_name}#case{index}",
+                "base": self.scenario_base}
 
     def to_json(self) -> dict:
         return {**dataclasses.asdict(self), "overrides": list(self.overrides), "key": self.key}
@@ -97,6 +99,7 @@ def validate(spec: Spec, runs: int) -> list[dict]:
     """Every case's task, each scenario parsed before the first run; CampaignError names the dispersion and
     the case whose value the scenario refuses."""
     disp = spec.dispersions()
+    _check_each_choice(spec, disp)
     tasks = []
     for k in range(runs):
         task = spec.case(k, disp)
@@ -108,11 +111,31 @@ def validate(spec: Spec, runs: int) -> list[dict]:
     return tasks
 
 
+def _check_each_choice(spec: Spec, disp: Dispersions) -> None:
+    """The dispersion file's ``[[faults]]`` on the nominal scenario, then every value of every choice alone, through
+    the scenario's validation: a bad entry of a long list (one fault table among thirty) is named before the first
+    run, whether or not a case draws it."""
+    base, source = spec.scenario_dict(), f"{spec.scenario_name} with the [[faults]] of {disp.source}"
+    seed = spec.seed  # any seed: validation does not draw
+    try:
+        scenario_mod.parse(apply(base, {}, seed, spec.duration_s, disp.faults), source)
+    except ScenarioError as exc:
+        raise CampaignError(f"{disp.source}: its [[faults]] are refused by the scenario: {exc}") from None
+    for k, d in enumerate(disp.items):
+        for i, value in enumerate(d.params["values"] if d.distribution == "choice" else ()):
+            try:
+                scenario_mod.parse(apply(base, {d.field: value}, seed, spec.duration_s, disp.faults), source)
+            except ScenarioError as exc:
+                raise CampaignError(f"dispersions[{k}] ({d.field}, choice, in {disp.source}): values[{i}] = "
+                                    f"{shown(value)} is refused by the scenario, so no case may draw it: {exc}"
+                                    ) from None
+
+
 def _culprit(spec: Spec, disp: Dispersions, task: dict, exc: ScenarioError) -> str:
     """Which dispersion (alone) makes the scenario refuse a case's values, with the scenario's sentence."""
     base = spec.scenario_dict()
     for k, d in enumerate(disp.items):
-        data = apply(base, {d.field: task["values"][d.field]}, task["seed"], spec.duration_s)
+        data = apply(base, {d.field: task["values"][d.field]}, task["seed"], spec.duration_s, disp.faults)
         try:
             scenario_mod.parse(data, task["source"])
         except ScenarioError as alone:

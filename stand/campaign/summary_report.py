@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .fault_groups import report_lines
 from .results import _inputs, metric_table
 from .store import finished
 
@@ -38,6 +39,7 @@ def write_report(out: str | Path, result: dict) -> list[str]:
         lim = " and ".join(f"{k} {v:g}" for k, v in c["limit"].items())
         lines.append(f"| {name} | {lim} | {c['passed']}/{c['runs']} | {_pct(c['rate'])} | "
                      f"{_pct(c['ci95'][0])} to {_pct(c['ci95'][1])} |")
+    lines += report_lines(result)
     for title, table in (("Metrics", result["metrics"]), ("Dispersed inputs", result["inputs"])):
         lines += ["", f"## {title}", "", "| name | n | mean | std | min | p5 | p50 | p95 | max |",
                   "|---|---|---|---|---|---|---|---|---|"]

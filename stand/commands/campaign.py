@@ -46,7 +46,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from stand.campaign import CASE_TIMEOUT_S, CampaignError, make_spec, run_campaign
+    from stand.campaign import CASE_TIMEOUT_S, CampaignError, fault_lines, make_spec, run_campaign
     from stand.errors import ScenarioError, fail
 
     workers = 1 if args.workers is None else args.workers
@@ -71,6 +71,8 @@ def run(args) -> int:
     for name, c in result["criteria"].items():
         print(f"{name}: {c['passed']}/{c['runs']} passed ({100 * c['rate']:.1f} %, 95 % interval "
               f"{100 * c['ci95'][0]:.1f} to {100 * c['ci95'][1]:.1f} %)")
+    for line in fault_lines(result):  # a campaign of faults: pass rates by fault type and by device
+        print(line)
     for w in result["worst_cases"][:3]:
         print(f"worst: case {w['case']} ({w['criterion']}"
               + (f", margin {w['margin']:+.4g}" if w["margin"] is not None else "")
