@@ -127,7 +127,7 @@ def one(t: Table, index: int, by_name: dict, duration_s: float) -> FaultSpec:
     if ftype.medium is not None and ftype.medium != medium:
         raise t.error("type", type_name, f"a fault of a {medium} device: {type_name} needs a {ftype.medium} bus, "
                       f"device {device!r} is on a {medium} line")
-    name = t.text("name", f"{device}.{type_name}")
+    name = t.text("name", f"{device}_{type_name}")  # no dot: a dispersion names it in a dotted path
     if not NAME_PATTERN.fullmatch(name):
         raise t.error("name", name, "a plain name of letters, digits, '_', '.' and '-' (events and the page show it)")
     info = offered[ftype.tap] or {}

@@ -85,7 +85,7 @@ def test_measurement_fault_on_the_wire(tmp_path, nominal, fault, expect, lsb):
     assert np.array_equal(w[outside], w0[outside]) and np.array_equal(tel["q_BN"], tel0["q_BN"])
     kinds = [e["kind"] for e in events if e["kind"].startswith("fault_")]
     assert kinds == ["fault_injected", "fault_cleared"]
-    assert summary["faults"][f"imu.{fault['type']}"]["occurrences"] == [[4.0, 8.0]]
+    assert summary["faults"][f"imu_{fault['type']}"]["occurrences"] == [[4.0, 8.0]]
 
 
 def test_stuck_holds_one_value_and_noise_is_seeded(tmp_path):
