@@ -102,6 +102,11 @@ class MagnetorquerKind(FieldSensingKind):
         t.check_unknown()
         return spec
 
+    def datasheet(self, spec: MagnetorquerSpec) -> dict:
+        # The coils' rating and the magnetometer's rate; its bias, noise and coil coupling are the simulated board's.
+        return {"max_dipole_A_m2": spec.max_dipole_A_m2, "dipole_lsb_A_m2": spec.dipole_lsb_A_m2,
+                "sample_rate_hz": spec.sample_rate_hz, "coil_area_turns_m2": spec.coil_area_turns_m2}
+
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
         return {"emulated": f"magnetorquer board emulated on {where}, magnetometer at {spec.sample_rate_hz:g} Hz",
