@@ -289,3 +289,56 @@ def test_plugins_md_lists_every_public_method_of_each_host_driver(target):
 def test_plugins_md_states_the_sign_of_command_torque_and_why_subscribe():
     assert "positive `command_torque` speeds the rotor up" in DOCS
     assert "`subscribe(" in DOCS and "SOLUTION" in DOCS
+
+
+# -- stand emulate: --scenario of any scenario, and the magnetorquer's open loop says what it adds ------------------
+
+def test_emulate_with_scenario_detumble_hands_the_b_dot_loop_to_the_flight_computer(pty_pair, tmp_path, capsys):
+    stand_end, _fc_end = pty_pair
+    out = tmp_path / "run"
+    code = main(["emulate", "magnetorquer", "--port", f"serial:{stand_end}", "--scenario", "detumble", "--speed", "20",
+                 "--duration", "2", "--out", str(out)])
+    printed = capsys.readouterr()
+    assert "the scenario's controller (bdot) uses mtq; the flight computer on the other end takes its place " \
+           "(controller.kind = 'external')" in printed.out, printed.err
+    summary = _summary(out)
+    # Nobody commanded the coils from the other end of the pty: the run completes, and its detumble criterion fails.
+    assert summary["status"] == "completed" and summary["sim_duration_s"] == pytest.approx(2.0)
+    assert code == 1 and [c["pass"] for c in summary["criteria"]] == [False, True]
+    assert summary["device_counters"]["mtq"]["emulator"]["sent"] > 0  # served: the board published its samples
+
+
+def test_emulate_magnetorquer_open_loop_serves_the_field_as_given_unless_asked(capsys):
+    import threading
+
+    from drivers.can_bus import open_bus
+    from drivers.magnetorquer.host import MagnetorquerBoard
+
+    got = {}
+
+    def flight_computer():
+        with MagnetorquerBoard(open_bus("virtual", "plugapi-emulate"), owns_bus=True) as board:
+            got["first"] = board.read_sample(timeout_s=3.0)
+            board.command_dipole((0.1, 0.0, -0.1), 2.0)
+            for _ in range(300):  # bounded: samples come at 10 Hz
+                s = board.read_sample(timeout_s=1.0)
+                if s.coil_active:
+                    got["driven"] = s
+                    break
+
+    fc = threading.Thread(target=flight_computer)
+    fc.start()
+    code = main(["emulate", "magnetorquer", "--port", "virtual:plugapi-emulate", "--duration", "2.5",
+                 "--field-nT", "21000,-3000,-41000"])
+    fc.join(timeout=10)
+    out = capsys.readouterr().out
+    assert code == 0
+    assert out.splitlines()[0] == ("stand emulate: the board's magnetometer reads --field-nT with noise 0 nT, bias "
+                                   "0,0,0 nT and coil coupling off (--noise-nT, --bias-nT, --coil-coupling)")
+    field = np.array([21000e-9, -3000e-9, -41000e-9])
+    # No noise, no bias, no coupling: the field as given, to the 5 nT step of the board's magnetometer.
+    np.testing.assert_allclose(got["first"].b_T, field, rtol=0, atol=2.5e-9)
+    np.testing.assert_allclose(got["driven"].b_T, field, rtol=0, atol=2.5e-9)
+    assert main(["emulate", "magnetorquer", "--port", "virtual:plugapi-emulate", "--duration", "1",
+                 "--coil-coupling", "1,2,3"]) == 2
+    assert "--coil-coupling '1,2,3' is not allowed; give 9 numbers" in capsys.readouterr().err
