@@ -296,12 +296,12 @@ def _serve(args, fail) -> int:
         return fail(str(exc))
     config = EmulatorConfig(mag_noise_T=noise_nT * 1e-9, mag_bias_T=tuple(b * 1e-9 for b in bias_nT),
                             coil_coupling_T_per_A_m2=(coupling[0:3], coupling[3:6], coupling[6:9]))
-    print(f"stand emulate: the board's magnetometer reads --field-nT with noise {noise_nT:g} nT, bias "
-          f"{','.join(f'{b:g}' for b in bias_nT)} nT and coil coupling {'on' if any(coupling) else 'off'} "
-          "(--noise-nT, --bias-nT, --coil-coupling)", flush=True)
+    detail = (f"its magnetometer reads --field-nT with noise {noise_nT:g} nT, bias "
+              f"{','.join(f'{b:g}' for b in bias_nT)} nT and coil coupling {'on' if any(coupling) else 'off'} "
+              "(--noise-nT, --bias-nT, --coil-coupling)")
     return serve_can_in_field(args, fail, "magnetorquer board", _codec().board_tx_ids,
                               lambda bus, field: MagnetorquerEmulator(bus, field, config, rng=args.seed,
-                                                                      owns_bus=True))
+                                                                      owns_bus=True), detail)
 
 
 KIND.serving = can_serving(

@@ -333,8 +333,8 @@ def test_emulate_magnetorquer_open_loop_serves_the_field_as_given_unless_asked(c
     fc.join(timeout=10)
     out = capsys.readouterr().out
     assert code == 0
-    assert out.splitlines()[0] == ("stand emulate: the board's magnetometer reads --field-nT with noise 0 nT, bias "
-                                   "0,0,0 nT and coil coupling off (--noise-nT, --bias-nT, --coil-coupling)")
+    assert out.splitlines()[0].endswith("; its magnetometer reads --field-nT with noise 0 nT, bias 0,0,0 nT and coil "
+                                        "coupling off (--noise-nT, --bias-nT, --coil-coupling)")
     field = np.array([21000e-9, -3000e-9, -41000e-9])
     # No noise, no bias, no coupling: the field as given, to the 5 nT step of the board's magnetometer.
     np.testing.assert_allclose(got["first"].b_T, field, rtol=0, atol=2.5e-9)
