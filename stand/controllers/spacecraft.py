@@ -128,9 +128,10 @@ def spacecraft_of(scenario) -> Spacecraft:
     infos, wheels = {}, []
     for spec in scenario.devices:
         kind = device_kind(spec.kind)
-        sheet = {k: _frozen(v) for k, v in kind.datasheet(spec).items()}
+        # A kind of a bench's own that predates the hook declares nothing beyond the mount.
+        sheet = {k: _frozen(v) for k, v in (getattr(kind, "datasheet", None) or (lambda _s: {}))(spec).items()}
         infos[spec.name] = DeviceInfo(spec.name, spec.kind, spec.link, _floats(spec.q_SB), MappingProxyType(sheet))
-        wheel = kind.momentum_wheel(spec)
+        wheel = kind.momentum_wheel(spec) if hasattr(kind, "momentum_wheel") else None
         if wheel is not None:
             axis, inertia, _speed0 = wheel  # the initial speed is the truth's, not the flight team's
             wheels.append(Wheel(spec.name, _floats(axis), float(inertia), sheet.get("max_torque_Nm"),
