@@ -19,7 +19,11 @@ What the stand guarantees:
   None. Stable methods: magnetorquer ``take_sample()`` (``.b_T`` sensor axes, ``.valid``, ``.coil_active``) and
   ``command_dipole(m_A_m2, duration_s)``; star tracker ``take_solution()`` (``.q_TN`` tracker frame in GCRS,
   ``.valid``, ``.time_us``); sun sensor ``take_sun()`` (``.currents_A`` or ``.angles_rad``, ``.valid``).
-  ``take_*`` return the newest reading once, or None when nothing new arrived.
+  ``take_*`` return the newest reading once, or None when nothing new arrived. Every method of every kind, with
+  signs and units: docs/plugins.md.
+* A constructor that names a ``spacecraft`` parameter also gets the scenario's description of the spacecraft and
+  its devices (mass properties, mounts, wheel axes, ratings: ``stand.controllers.spacecraft.Spacecraft``); a
+  pointing plug-in built on it: ``examples/pointing_template.py``.
 * ``update(t_s)`` is called once per control period (``period_s``) with sim time.
 * ``telemetry_columns()`` / ``telemetry()``: columns of your own, recorded with every telemetry row
   (read them back with ``stand.telemetry.load(run_dir)["fsw.mode"]``).

@@ -19,6 +19,7 @@ from . import devices
 from .adcs.metrics import METRICS as POINTING_METRICS
 from .adcs.metrics import value as pointing_metric
 from .compose import Scene, ticks_per
+from .controllers.spacecraft import METRIC_COLUMNS
 from .loop import RunResult
 from .scenario import METRIC_UNITS, Criterion, all_metrics
 from .telemetry import load
@@ -79,6 +80,14 @@ def _why_no_value(c: Criterion, tel, scene_devices=()) -> str:
     after = f" after t = {c.at_s:g} s" if c.at_s is not None else ""
     if c.at_s is not None and c.at_s > t[-1] + 1e-9:
         return f"the telemetry ends at t = {t[-1]:g} s, before t = {c.at_s:g} s"
+    missing = [col for col in METRIC_COLUMNS.get(c.metric, ()) if col not in tel]
+    if missing:
+        return (f"the telemetry has no column {', '.join(missing)}: the controller does not record it (a plug-in "
+                "reports its attitude estimate and commanded attitude through telemetry_columns(), docs/plugins.md)")
+    for col in METRIC_COLUMNS.get(c.metric, ()):
+        sel = t >= (c.at_s or 0.0) - 1e-9
+        if not np.any(np.all(np.isfinite(np.asarray(tel[col]).reshape(len(t), -1)[sel]), axis=1)):
+            return f"the controller recorded no finite {col}{after} (NaN in every row)"
     for d in scene_devices:
         valid = tel.get(f"{d.name}.valid")
         if c.metric in devices.get(d.kind).metrics and valid is not None:

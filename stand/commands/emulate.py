@@ -10,7 +10,9 @@ the shipped ones and those of the ``adcs_stand.devices`` entry point alike: KIND
 ``_`` (``star-tracker``, ``sun-sensor``, ``reaction-wheel``, ``gyro``, ``magnetorquer``, ``cage``). The kind says
 what ``--port`` is (a serial URL or path, a CAN ``INTERFACE:CHANNEL``, a Modbus endpoint) and which fixed values
 it serves open loop. With ``--scenario`` the device is fed by that scenario's truth instead: the scenario runs
-paced with the device on a ``served`` link and the flight computer outside.
+paced with the device on a ``served`` link and the flight computer outside. When the scenario's own controller
+uses that device (``detumble``'s B-dot and its magnetorquer), the flight computer takes its place
+(``controller.kind = "external"``), and the console says so.
 
 Sim time is wall time since start. It stops on Ctrl-C (or SIGTERM) or after ``--duration`` seconds and prints its
 counters as one JSON line. Exit codes: 0 stopped normally, 1 a device error (port lost), 2 usage error (a port
@@ -128,8 +130,17 @@ def run_served(args, kind, serving) -> int:
                                                                               else "") + ".")
     name = names[0]
     sets = [f"devices.{name}.link=served"] + [f"devices.{name}.{key}={value}" for key, value in fields.items()]
+    try:
+        takes_over = _flight_computer_takes_over(args.scenario, sc, sets)
+    except ScenarioError as exc:
+        return _fail(str(exc))
     print(f"stand emulate: {args.device} {name!r} of scenario {sc.name}, served on {args.port} and fed by the "
           "scenario's truth (closed loop with the flight computer on the other end)", flush=True)
+    if takes_over:
+        sets.append(EXTERNAL_CONTROLLER)
+        print(f"stand emulate: the scenario's controller ({sc.controller.kind}) uses {name}; the flight computer on "
+              "the other end takes its place (controller.kind = 'external'): the stand commands nothing, its other "
+              "devices run as the scenario has them", flush=True)
     argv = ["run", args.scenario, "--speed", args.speed or "realtime"]
     for item in sets:
         argv += ["--set", item]
@@ -138,6 +149,28 @@ def run_served(args, kind, serving) -> int:
     if args.out:
         argv += ["--out", args.out]
     return stand_main(argv)
+
+
+#: The override that hands the loop to the flight computer outside (an inline table replaces the whole table).
+EXTERNAL_CONTROLLER = 'controller={kind = "external"}'
+
+
+def _flight_computer_takes_over(scenario: str, sc, sets: list[str]) -> bool:
+    """Whether the scenario's own controller uses the device about to be served: it then cannot run (its device
+    belongs to the flight computer outside), so the flight computer takes its place. Any other refusal of the served
+    scenario is the scenario's (ScenarioError)."""
+    from stand import controllers
+    from stand import scenario as scenario_mod
+    from stand.errors import ScenarioError
+
+    try:
+        scenario_mod.load(scenario, sets)
+        return False
+    except ScenarioError as exc:
+        if not (exc.field.startswith("controller.") and controllers.get(sc.controller.kind).in_stand):
+            raise
+    scenario_mod.load(scenario, [*sets, EXTERNAL_CONTROLLER])  # what remains wrong is the scenario's: said as is
+    return True
 
 
 def _unknown_options(command: str, kind: str, unknown: list[str], kinds: dict[str, str]) -> str:

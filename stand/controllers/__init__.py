@@ -75,8 +75,24 @@ class ControllerKind:
     def parse_params(self, t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
         """Validate the kind's own keys into ``params``."""
 
+    #: Whether the columns it records are known only once it is built (a plug-in's ``telemetry_columns()``): then
+    #: :meth:`check_scenario` leaves the criteria's columns to the build and ``stand check``.
+    columns_when_built: bool = False
+
     def check_scenario(self, scenario) -> None:
-        """Checks that need the whole scenario, at load (ScenarioError)."""
+        """Checks that need the whole scenario, at load (ScenarioError): by default, that no criterion reads a
+        controller's column (``adcs_q_RN``...) this kind never records (it records those of its own ``metrics``)."""
+        if self.columns_when_built:
+            return
+        from stand.controllers.spacecraft import unwritten, unwritten_text
+        from stand.errors import ScenarioError
+
+        problems = [p for p in unwritten(scenario.criteria, ()) if p[1] not in self.metrics]
+        if problems:
+            k = next(i for i, c in enumerate(scenario.criteria) if c.name == problems[0][0])
+            raise ScenarioError(f"criteria[{k}].metric", problems[0][1], "a metric whose telemetry is recorded: "
+                                + unwritten_text(problems[:1], f"controller.kind = {self.name!r}").rstrip("."),
+                                scenario.source)
 
     def describe(self, scenario) -> str:
         return f"at {scenario.controller.rate_hz:g} Hz through the host drivers"

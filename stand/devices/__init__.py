@@ -253,6 +253,13 @@ class DeviceKind:
         None."""
         return None
 
+    def datasheet(self, spec: DeviceSpec) -> dict[str, Any]:
+        """What a flight team knows of a device of this spec from its datasheet and ICD, handed to flight code
+        (:mod:`stand.controllers.spacecraft`): rates, ranges, ratings, SI units named in the key (``max_torque_Nm``).
+        Never the simulated device's errors (noise, bias, misalignment): those are the truth the flight code is
+        tested against. Default: nothing beyond the name, kind, link and mount every device has."""
+        return {}
+
     def refs(self, spec: DeviceSpec) -> dict[str, tuple[str, str]]:
         """Other devices this one takes something from: scenario key -> (device name, what it must provide)."""
         return {}

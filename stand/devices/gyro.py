@@ -120,6 +120,11 @@ class GyroKind(DeviceKind):
         t.check_unknown()
         return spec
 
+    def datasheet(self, spec: GyroSpec) -> dict:
+        # Rates and range only: its noise and bias are the simulated unit's, not what a flight team knows.
+        return {"output_rate_hz": spec.output_rate_hz, "range_rad_s": spec.range_rad_s, "latency_s": spec.latency_s,
+                "startup_time_s": spec.startup_time_s}
+
     def describe(self, spec) -> str:
         model = "the true rate (ideal)" if spec.ideal else (
             f"ARW {spec.arw_rad_sqrt_s / ARW_UNIT:g} deg/sqrt(h), RRW {spec.rrw_rad_s_sqrt_s / RRW_UNIT:g} "

@@ -94,6 +94,9 @@ class MagnetometerKind(FieldSensingKind):
         t.check_unknown()
         return spec
 
+    def datasheet(self, spec: MagnetometerSpec) -> dict:
+        return {"sample_rate_hz": spec.sample_rate_hz, "lsb_T": spec.lsb_T}
+
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
         return {"emulated": f"magnetometer emulated on {where} at {spec.sample_rate_hz:g} Hz",

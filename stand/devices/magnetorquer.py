@@ -29,7 +29,7 @@ from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint, fault_taps
 from stand.devices.magnetometer import FieldSensingKind, measurement_tap, sensor_field
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
-from stand.devices.serving import SEED_OPTION, can_serving, field_option, serve_can_in_field
+from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -101,6 +101,11 @@ class MagnetorquerKind(FieldSensingKind):
         )
         t.check_unknown()
         return spec
+
+    def datasheet(self, spec: MagnetorquerSpec) -> dict:
+        # The coils' rating and the magnetometer's rate; its bias, noise and coil coupling are the simulated board's.
+        return {"max_dipole_A_m2": spec.max_dipole_A_m2, "dipole_lsb_A_m2": spec.dipole_lsb_A_m2,
+                "sample_rate_hz": spec.sample_rate_hz, "coil_area_turns_m2": spec.coil_area_turns_m2}
 
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel}"
@@ -281,14 +286,36 @@ KIND = MagnetorquerKind()
 # -- how `stand emulate magnetorquer` serves it -------------------------------------------------------------------
 
 def _serve(args, fail) -> int:
-    """The CAN magnetorquer board (with its magnetometer) on a python-can bus in wall time, seeing a fixed field."""
+    """The CAN magnetorquer board (with its magnetometer) on a python-can bus in wall time, seeing a fixed field.
+    Open loop the magnetometer reads ``--field-nT`` plus only the errors asked for (noise, bias, the coils' coupling;
+    all off by default), and the banner says which."""
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
+    from stand.devices.serving import numbers
 
+    try:
+        noise_nT = float(args.noise_nT)
+        if not (math.isfinite(noise_nT) and noise_nT >= 0):
+            raise ValueError(f"--noise-nT {args.noise_nT!r} is not allowed; give a noise of 0 nT or more.")
+        bias_nT = numbers(args.bias_nT, 3, "--bias-nT", "nT (X,Y,Z)")
+        coupling = numbers(args.coil_coupling, 9, "--coil-coupling", "T per A m^2, the 3 x 3 matrix row by row")
+    except ValueError as exc:
+        return fail(str(exc))
+    config = EmulatorConfig(mag_noise_T=noise_nT * 1e-9, mag_bias_T=tuple(b * 1e-9 for b in bias_nT),
+                            coil_coupling_T_per_A_m2=(coupling[0:3], coupling[3:6], coupling[6:9]))
+    detail = (f"its magnetometer reads --field-nT with noise {noise_nT:g} nT, bias "
+              f"{','.join(f'{b:g}' for b in bias_nT)} nT and coil coupling {'on' if any(coupling) else 'off'} "
+              "(--noise-nT, --bias-nT, --coil-coupling)")
     return serve_can_in_field(args, fail, "magnetorquer board", _codec().board_tx_ids,
-                              lambda bus, field: MagnetorquerEmulator(bus, field, EmulatorConfig(), rng=args.seed,
-                                                                      owns_bus=True))
+                              lambda bus, field: MagnetorquerEmulator(bus, field, config, rng=args.seed,
+                                                                      owns_bus=True), detail)
 
 
 KIND.serving = can_serving(
     "The magnetorquer board (coils and magnetometer) on a CAN bus.", "magnetorquer", _serve,
-    (field_option("open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z"), SEED_OPTION))
+    (field_option("open loop: the field its magnetometer sees, sensor axes, nT, as X,Y,Z (plus only the errors "
+                  "below)"),
+     ServeOption("--noise-nT", "the magnetometer's 1-sigma noise per axis, nT (default 0)", "0"),
+     ServeOption("--bias-nT", "the magnetometer's bias, sensor axes, nT, as X,Y,Z (default 0,0,0)", "0,0,0"),
+     ServeOption("--coil-coupling", "the field the driven coils add at the magnetometer, T per A m^2: the 3 x 3 "
+                 "matrix row by row, 9 numbers (default all 0: none)", ",".join(["0"] * 9)),
+     SEED_OPTION))

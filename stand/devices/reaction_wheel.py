@@ -117,6 +117,12 @@ class ReactionWheelKind(DeviceKind):
     def momentum_wheel(self, spec: ReactionWheelSpec):
         return np.array(spec.spin_axis_B), spec.inertia_kg_m2, spec.speed0_rad_s
 
+    def datasheet(self, spec: ReactionWheelSpec) -> dict:
+        # The rating and the rotor; friction and lag are the simulated unit's.
+        return {"spin_axis_B": spec.spin_axis_B, "inertia_kg_m2": spec.inertia_kg_m2,
+                "max_torque_Nm": spec.max_torque_Nm, "max_speed_rad_s": spec.max_speed_rad_s,
+                "telemetry_rate_hz": spec.telemetry_rate_hz, "wheel": spec.wheel}
+
     def describe(self, spec) -> str:
         where = f"CAN {spec.interface}:{spec.channel} node {spec.wheel}"
         axis = ", ".join(f"{x:.3f}" for x in spec.spin_axis_B)

@@ -103,14 +103,15 @@ def fixed_field(args) -> Callable[[float], tuple[float, float, float]]:
     return lambda _t: field_T
 
 
-def serve_can_in_field(args, fail, what: str, own_ids, make: Callable[[Any, Callable[[float], Any]], Any]) -> int:
+def serve_can_in_field(args, fail, what: str, own_ids, make: Callable[[Any, Callable[[float], Any]], Any],
+                       detail: str = "") -> int:
     """:func:`serve_can` for a device with a magnetometer seeing the fixed field of ``--field-nT``:
-    ``make(bus, field)``; a bad ``--field-nT`` is a usage error."""
+    ``make(bus, field)``; a bad ``--field-nT`` is a usage error. ``detail`` ends the banner (what is added to it)."""
     try:
         field = fixed_field(args)
     except ValueError as exc:
         return fail(str(exc))
-    return serve_can(args, fail, what, own_ids, lambda bus: make(bus, field))
+    return serve_can(args, fail, what, own_ids, lambda bus: make(bus, field), detail)
 
 
 def numbers(text: str, count: int, flag: str, unit: str) -> tuple[float, ...]:
@@ -124,9 +125,9 @@ def numbers(text: str, count: int, flag: str, unit: str) -> tuple[float, ...]:
     return values
 
 
-def banner(what: str, where: str, duration_s: float | None) -> None:
+def banner(what: str, where: str, duration_s: float | None, detail: str = "") -> None:
     print(f"stand emulate: {what} on {where}" + (f" for {duration_s:g} s" if duration_s else " until Ctrl-C")
-          + OPEN_LOOP, flush=True)
+          + OPEN_LOOP + (f"; {detail}" if detail else ""), flush=True)
 
 
 def report(args, **fields) -> None:
@@ -192,7 +193,7 @@ def serve_serial(args, fail, what: str, make: Callable[[], Any]) -> int:
     return status
 
 
-def serve_can(args, fail, what: str, own_ids, make: Callable[[Any], Any]) -> int:
+def serve_can(args, fail, what: str, own_ids, make: Callable[[Any], Any], detail: str = "") -> int:
     """A CAN emulator ``make(bus)`` on ``args.port`` (INTERFACE:CHANNEL; a serial-line adapter is held exclusively)
     served in wall time, 1 ms between services. What the flight computer sends that the device cannot decode is
     counted and dropped, never raised (``ServedBus``)."""
@@ -212,7 +213,7 @@ def serve_can(args, fail, what: str, own_ids, make: Callable[[Any], Any]) -> int
         bus.shutdown()
         return fail(str(exc))
     with emu:
-        banner(what, f"CAN {interface}:{channel}", args.duration)
+        banner(what, f"CAN {interface}:{channel}", args.duration, detail)
         t0 = time.monotonic()
         try:
             while args.duration is None or time.monotonic() - t0 < args.duration:

@@ -189,6 +189,17 @@ class StarTrackerKind(DeviceKind):
                 "(pattern database built at compose time)")
         return out
 
+    def datasheet(self, spec: StarTrackerSpec) -> dict:
+        # Timing and exclusion angles (the ICD's parameters); its noise is the simulated unit's.
+        e = spec.emulator
+        out = {"output_interval_s": e.get("output_interval_s"), "output_delay_s": e.get("output_delay_s"),
+               "rate_limit_rad_s": math.radians(e["rate_limit_deg_s"]) if "rate_limit_deg_s" in e else None,
+               **{f"{b}_exclusion_rad": math.radians(e[f"{b}_exclusion_deg"]) if f"{b}_exclusion_deg" in e else None
+                  for b in ("sun", "moon", "earth")}}
+        if spec.optics is not None:
+            out["fov_rad"] = tuple(math.radians(x) for x in spec.optics.fov_deg)
+        return {k: v for k, v in out.items() if v is not None}
+
     def describe(self, spec) -> str:
         what = "solved from its rendered detector image" if spec.source == "image" else f"{spec.source} plus noise"
         every = f"a solution every {spec.emulator['output_interval_s']:g} s"

@@ -152,6 +152,9 @@ class SunSensorKind(DeviceKind):
         why = f"sun sensor {spec.name}"
         return {"sun": why, "eclipse": why}
 
+    def datasheet(self, spec: SunSensorSpec) -> dict:
+        return {"type": spec.type, "rate_hz": spec.rate_hz, "fov_half_rad": math.radians(spec.fov_half_deg)}
+
     def describe(self, spec) -> str:
         what = f"{spec.type} sun sensor"
         fed = f"at {spec.rate_hz:g} Hz, sampled from the truth, eclipse-aware"
