@@ -97,7 +97,7 @@ class CanNode(BusEndpoint):
         self.last_rejected: str | None = None
         self.counters: dict[str, int] = dict.fromkeys((*NODE_COUNTERS, *extra_counters), 0)
 
-    def use_bus(self, bus: can.BusABC) -> None:
+    def _rebind_bus(self, bus: can.BusABC) -> None:
         """Talk through ``bus`` from now on: the same bus wrapped (a fault-injecting proxy, ``drivers.link_faults``);
         the fast paths are taken from the wrapper, which hands them over only while it has nothing to do."""
         self.bus = bus

@@ -10,7 +10,8 @@ socat link or ``socket://``: the driver cannot tell. The gyro streams; the drive
 
 Receiving never raises on bad traffic: datagrams with a bad CRC or a field outside its table, and
 bytes between datagrams, are counted in :attr:`GyroHost.counters` and dropped. A gap in the sample
-counter is counted in ``samples_lost``; a repeated or late sample (``duplicates``, ``stale``) is not taken. :meth:`GyroHost.read_rate` waits up to a monotonic deadline
+counter is counted in ``samples_lost``; a repeated or late sample is counted (``duplicates``,
+``stale``) and not taken. :meth:`GyroHost.read_rate` waits up to a monotonic deadline
 and raises :class:`~drivers.errors.DeviceTimeoutError`; a port that fails (a USB adapter unplugged)
 is reopened on the next call when the driver opened it from a URL.
 """

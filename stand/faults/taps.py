@@ -80,6 +80,6 @@ def link_tap(endpoint, side: str):
     if bus is not None:
         if not isinstance(bus, FaultyBus):
             bus = FaultyBus(bus, side=side)
-            endpoint.use_bus(bus)  # the node re-reads its fast paths from the wrapper
+            endpoint._rebind_bus(bus)  # the node re-reads its fast paths from the wrapper (not a flight-code call)
         return bus
     return None
