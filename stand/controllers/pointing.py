@@ -146,6 +146,8 @@ def pointing_options(sc) -> dict:
     opts.setdefault("wheel_axes_B", [list(w.spin_axis_B) for w in wheels])
     opts.setdefault("wheel_inertia_kg_m2", [w.inertia_kg_m2 for w in wheels])
     opts.setdefault("max_wheel_torque_Nm", min(w.max_torque_Nm for w in wheels))
+    if opts.get("fdir", True) is True:
+        opts.setdefault("max_wheel_speed_rad_s", min(w.max_speed_rad_s for w in wheels))  # its wheel check's bound
     if "star_tracker" in opts:
         st = specs[opts["star_tracker"]]
         opts.setdefault("star_tracker_q_TB", st.q_SB.tolist())
@@ -169,7 +171,7 @@ def pointing_options(sc) -> dict:
 class PointingKind(ControllerKind):
     name = "pointing"
     keys = ("rate_hz", "budget_s", "options", "datasheet", "datasheet_margin")
-    row_floats = 24
+    row_floats = 25
     # Read from the controller's telemetry columns by convention (stand.adcs.metrics): a plug-in that records the
     # same columns gets them too. They all take at_s, the settle time.
     metrics = METRICS
