@@ -83,7 +83,7 @@ class WheelMonitor:
     def update(self, fresh_speeds) -> list[int]:
         """This period's fresh speeds (n, NaN for none); returns the wheels that failed the check ``persist`` times in a
         row (the caller records the period's commands afterwards with :meth:`commanded`)."""
-        self._speeds.append(np.asarray(fresh_speeds, dtype=float))
+        self._speeds.append(np.array(fresh_speeds, dtype=float))  # a copy: the caller refills its array
         if len(self._speeds) <= self.periods or len(self._cmds) < self.periods:
             return []
         w0, w1 = self._speeds[0], self._speeds[-1]
@@ -97,7 +97,7 @@ class WheelMonitor:
         return [i for i in range(self.n) if self._strikes[i] >= self.persist]
 
     def commanded(self, torques_Nm) -> None:
-        self._cmds.append(np.asarray(torques_Nm, dtype=float))
+        self._cmds.append(np.array(torques_Nm, dtype=float))
 
 
 class GyroMonitor:

@@ -58,7 +58,7 @@ OPTIONS = frozenset({"inertia_kg_m2", "star_tracker", "star_tracker_q_TB", "trac
     "sun_sensor_q_SB", "sun_sensor_normals_B", "sun_axis_B", "guidance", "q_RN", "orbit_r_N_m",
     "orbit_v_N_m_s", "epoch", "secondary_N", "target_itrs_m", "law", "natural_frequency_rad_s",
     "damping_ratio", "detumble_gain_N_m_s", "initial_mode", "modes", "gate_sigma", "initial_bias_rad_s",
-    "sigma_bias_rad_s", *fdir_mod.OPTIONS})
+    "sigma_bias_rad_s", "wheel_coulomb_Nm", "wheel_viscous_Nm_s", *fdir_mod.OPTIONS})
 #: Control periods of on-board orbit solved in one vectorised call.
 ORBIT_BATCH = 1000
 
@@ -94,6 +94,13 @@ def _positive(options, name, default):
     v = options.get(name, default)
     if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
         raise ValueError(f"options.{name} = {v!r}; it must be a finite positive number.")
+    return float(v)
+
+
+def _non_negative(options, name):
+    v = options.get(name, 0.0)
+    if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
+        raise ValueError(f"options.{name} = {v!r}; it must be a finite number >= 0.")
     return float(v)
 
 
@@ -174,6 +181,10 @@ class PointingController:
                              "spin inertia (kg m^2, one value or one per wheel).")
         self.wheel_inertia = J
         self.speed_target = float(options.get("wheel_speed_target_rad_s", 0.0))
+        # The wheels' bearing friction from their datasheet, fed forward (0: none): without it a spin-biased cluster
+        # leaves a steady pointing error of friction / stiffness, as the PD law has no integral term.
+        self.wheel_coulomb = _non_negative(options, "wheel_coulomb_Nm")
+        self.wheel_viscous = _non_negative(options, "wheel_viscous_Nm_s")
         self.null_gain = float(options.get("null_gain_per_s", 0.0))
         self.q_TB = _mount(options, "star_tracker_q_TB")
         self.dcm_BS_gyro = dcm(_mount(options, "gyro_q_SB")).T
@@ -353,7 +364,8 @@ class PointingController:
                                    sigma_bias_rad_s=self.sigma_bias, arw_rad_s05=self.arw, rrw_rad_s15=self.rrw)
                 accepted = True
             else:
-                accepted = self.filter.update_attitude(q_meas, self.R_tracker_B, self.gate_sigma)
+                accepted = self.filter.update_attitude(q_meas, self.R_tracker_B, self.gate_sigma,
+                                                       self._gate_slack_rad2() if fd is not None else 0.0)
             if fd is not None:
                 # A rejected solution is no fix: the mode manager counts the outage, the rate fall-back skips it.
                 fix = accepted
@@ -389,15 +401,32 @@ class PointingController:
         if fd is not None:
             fd.wheels.commanded(cmd)
 
+    def _gate_slack_rad2(self) -> float:
+        """The innovation gate's allowance for a solution's age (rad^2): the attitude turned through in three control
+        periods at the present rate. The filter takes a solution as of now, so while the body turns a late one is off
+        by its age times the rate; that is no lie, and the gate must not reject it."""
+        w = self._omega_meas_B
+        if w is None:
+            return 0.0
+        bias = self.filter.bias if self.filter is not None else self.initial_bias
+        return float(np.sum((w - bias) ** 2)) * (3.0 * self.period_s) ** 2
+
     def _allocate(self, u_B) -> np.ndarray:
         """Motor torques for the body torque ``u_B``: over every wheel, or over those left after an isolation (the
         pseudo-inverse of their spin axes; an isolated wheel is commanded zero)."""
         keep = self._keep
         if keep is None:
-            return self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
-        cmd = np.zeros(len(self.wheels))
-        cmd[keep] = self._dist_kept.motor_torques(u_B, self._speeds[keep], self.wheel_inertia[keep],
-                                                  self.speed_target, self.null_gain)
+            cmd = self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
+        else:
+            cmd = np.zeros(len(self.wheels))
+            cmd[keep] = self._dist_kept.motor_torques(u_B, self._speeds[keep], self.wheel_inertia[keep],
+                                                      self.speed_target, self.null_gain)
+        if self.wheel_coulomb or self.wheel_viscous:
+            w = self._speeds
+            ff = self.wheel_coulomb * np.sign(w) + self.wheel_viscous * w
+            if keep is not None:
+                ff[[i for i in range(len(w)) if i not in keep]] = 0.0
+            cmd = np.clip(cmd + ff, -self.max_wheel_torque, self.max_wheel_torque)
         return cmd
 
     def _fdir_sense(self, t_s: float) -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stand.adcs import PluginError
-from stand.adcs.metrics import METRICS
+from stand.adcs.metrics import FAULT_METRICS, METRICS
 from stand.adcs.modes import ModeConfig
 from stand.adcs.pointing import OPTIONS, PointingController
 from stand.checks import MISSING, ScenarioError, Table, unusable
@@ -174,7 +174,7 @@ class PointingKind(ControllerKind):
     row_floats = 25
     # Read from the controller's telemetry columns by convention (stand.adcs.metrics): a plug-in that records the
     # same columns gets them too. They all take at_s, the settle time.
-    metrics = METRICS
+    metrics = {**METRICS, **FAULT_METRICS}  # the fault metrics name their fault, not a time
     metrics_at = tuple(METRICS)
 
     def parse_params(self, t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:

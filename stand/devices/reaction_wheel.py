@@ -128,10 +128,6 @@ class ReactionWheelKind(DeviceKind):
                 "hardware": f"reaction wheel on {where} (hardware: the truth gets the motor torque it reports), {what}",
                 "served": f"reaction wheel served on {where} for a flight computer outside, {what}"}[spec.link]
 
-    def fault_taps(self, spec: ReactionWheelSpec) -> tuple[str, ...]:
-        """The wheel's physics faults act on its motor model and emulator: not on a real wheel (hardware link)."""
-        return () if spec.link == "hardware" else ("wheel",)
-
     def build(self, spec: ReactionWheelSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)
 
@@ -201,10 +197,11 @@ class _Wheel(Device):
         return self.truth.wheel_speeds_rad_s[self.wheel_index]
 
     def fault_tap(self, name: str):
-        """``"wheel"``: the :class:`WheelFaults` of an emulated or served wheel (a real wheel has none)."""
+        """``"wheel"``: the :class:`WheelFaults` of an emulated or served wheel; None for any other tap, or on a real
+        wheel (stand.faults then looks where a kind's taps conventionally are)."""
         if name == "wheel" and self.emulator is not None and getattr(self, "motor", None) is not None:
             return WheelFaults(self.motor, self.emulator)
-        raise KeyError(f"{self.name} offers no fault tap {name!r}")
+        return None
 
     def columns(self):
         n = self.name
