@@ -24,7 +24,7 @@ from sim.time import seconds_to_ns
 from sim.truth import CHUNK_S, TruthModel, chunk_points
 from sim.wheels import WheelCluster
 
-from . import controllers, devices, scenario
+from . import controllers, devices, faults, scenario
 from .checks import ticks_per
 from .devices import BuildContext
 from .errors import ScenarioError
@@ -103,6 +103,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     for key, spec in sc.sections.items():
         section = scenario.section(key)
         choices.append(Choice(section.model, True, section.describe(spec)))
+    for f in sc.faults:
+        choices.append(Choice(f"fault.{f.name}", True, f.describe()))
+    if not sc.faults:
+        choices.append(Choice("faults", False, "no [[faults]] in the scenario: no fault schedule, nothing per tick "
+                              "(stand run --view builds one for faults injected live)"))
     ctl = controllers.get(sc.controller.kind)
     choices.append(Choice(f"controller.{sc.controller.kind}", ctl.in_stand, ctl.describe(sc)))
     choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
@@ -302,6 +307,8 @@ class Scene:
     choices: list[Choice]
     devices: dict = field(default_factory=dict)  # name -> stand.devices.Device
     controller: object | None = None
+    #: The run's fault schedule (``stand.faults.FaultSchedule``), or None: no ``[[faults]]`` and none taken live.
+    faults: object | None = None
     closed: bool = False
 
     @property
@@ -339,13 +346,15 @@ def initial_state(sc: Scenario):
 
 
 def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
-          out_dir: Path | None = None, allow_remote: tuple[str, ...] | list[str] = ()) -> Scene:
+          out_dir: Path | None = None, allow_remote: tuple[str, ...] | list[str] = (), live_faults: bool = False
+          ) -> Scene:
     """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
     (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
     relative to (the scenario's); ``duration_s`` and ``out_dir``, the run's length (default the scenario's) and
     folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``); ``allow_remote``, the
     hosts and multicast groups beyond this machine the operator allows devices to reach
-    (:func:`stand.devices.check_network`)."""
+    (:func:`stand.devices.check_network`); ``live_faults``, whether the operator may inject faults during the run
+    (the fault schedule is built then even without ``[[faults]]``)."""
     devices.check_network(sc.devices, allow_remote)  # before anything connects
     choices = plan(sc, duration_s, out_dir)
     built = {c.model for c in choices if c.built}
@@ -392,6 +401,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
         scene.controller = controllers.build_controller(sc, scene.devices, base)
+        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults, duration_s)
     except BaseException:
         scene.close()
         raise
