@@ -270,8 +270,11 @@ class MEKF:
         S = H @ self.P @ H.T + R
         Sinv = np.linalg.inv(S)
         if gate_sigma is not None:
-            S_gate_inv = Sinv if gate_slack_rad2 <= 0.0 else np.linalg.inv(S + gate_slack_rad2 * np.eye(len(z)))
-            if float(z @ S_gate_inv @ z) > gate_sigma ** 2 * len(z):
+            limit = gate_sigma ** 2 * len(z)
+            # The slack only widens the gate: a residual inside it without the slack needs no second inverse.
+            if float(z @ Sinv @ z) > limit and (
+                    gate_slack_rad2 <= 0.0
+                    or float(z @ np.linalg.inv(S + gate_slack_rad2 * np.eye(len(z))) @ z) > limit):
                 self.rejected += 1
                 return False
         K = self.P @ H.T @ Sinv

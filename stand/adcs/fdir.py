@@ -75,7 +75,9 @@ class WheelMonitor:
         self.persist = persist
         self.judged_below = 0.9 * max_speed_rad_s  # above it the back-EMF may rightly withhold torque
         self._speeds: deque = deque(maxlen=self.periods + 1)  # per period: n speeds, NaN when no fresh sample
-        self._cmds: deque = deque(maxlen=self.periods)  # per period: the n torques commanded
+        # The last `periods` commands in a ring (row k % periods), so their mean is one sum per period.
+        self._cmds = np.zeros((self.periods, self.n))
+        self._n_cmds = 0
         self._strikes = np.zeros(self.n, dtype=int)
         #: The newest residual torque per wheel (N m; NaN: not judged).
         self.residual_Nm = np.full(self.n, math.nan)
@@ -84,11 +86,11 @@ class WheelMonitor:
         """This period's fresh speeds (n, NaN for none); returns the wheels that failed the check ``persist`` times in a
         row (the caller records the period's commands afterwards with :meth:`commanded`)."""
         self._speeds.append(np.array(fresh_speeds, dtype=float))  # a copy: the caller refills its array
-        if len(self._speeds) <= self.periods or len(self._cmds) < self.periods:
+        if len(self._speeds) <= self.periods or self._n_cmds < self.periods:
             return []
         w0, w1 = self._speeds[0], self._speeds[-1]
         got = self.J * (w1 - w0) / self.window_s
-        want = np.mean(self._cmds, axis=0)
+        want = self._cmds.sum(axis=0) / self.periods
         r = got - want
         judged = np.isfinite(r) & (np.abs(w0) < self.judged_below) & (np.abs(w1) < self.judged_below)
         self.residual_Nm = np.where(judged, r, math.nan)
@@ -97,7 +99,8 @@ class WheelMonitor:
         return [i for i in range(self.n) if self._strikes[i] >= self.persist]
 
     def commanded(self, torques_Nm) -> None:
-        self._cmds.append(np.array(torques_Nm, dtype=float))
+        self._cmds[self._n_cmds % self.periods] = torques_Nm
+        self._n_cmds += 1
 
 
 class GyroMonitor:
