@@ -27,7 +27,9 @@ four), ``wheel_inertia_kg_m2``, ``max_wheel_torque_Nm``, ``wheel_speed_target_ra
 ``"sun"`` with ``epoch`` (ISO UTC) and ``secondary_N``; ``"target"`` with the orbit, ``epoch`` and
 ``target_itrs_m``), ``law`` (``"mrp"`` or ``"quaternion"``), ``natural_frequency_rad_s``,
 ``damping_ratio``, ``detumble_gain_N_m_s``, ``initial_mode``, ``modes`` (a dict of
-:class:`~.modes.ModeConfig` fields), ``gate_sigma``.
+:class:`~.modes.ModeConfig` fields), ``gate_sigma``, ``wheel_coulomb_Nm`` and ``wheel_viscous_Nm_s`` (datasheet
+friction fed forward), and the FDIR's (:mod:`.fdir`): ``fdir`` (default true), ``fdir_window_s``,
+``fdir_wheel_threshold_Nm``, ``fdir_persist``, ``fdir_lost_s``, ``max_wheel_speed_rad_s``.
 """
 
 from __future__ import annotations
@@ -459,8 +461,8 @@ class PointingController:
             return
         fd.isolated.append(i)
         self._keep, self._dist_kept = keep, dist
-        fd.events.append((t_s, f"{name} isolated: it took {r:+.3g} N m more than commanded over "
-                               f"{fd.wheels.window_s:g} s"))
+        fd.events.append((t_s, f"{name} isolated: over {fd.wheels.window_s:g} s its speed change showed {r:+.3g} N m "
+                               "beside the torque commanded"))
 
     # -- pieces -------------------------------------------------------------------------------------
     def _rate_B(self) -> np.ndarray:
