@@ -74,7 +74,8 @@ def link_tap(endpoint, side: str):
             codec = getattr(endpoint, "codec", None)
             # Bytes read are cut into frames the way the endpoint's own framing does: fixed-length datagrams by
             # identifier, or SLIP.
-            port = endpoint.port = FaultyPort(port, side=side, framing=codec if hasattr(codec, "by_id") else "slip")
+            datagrams = hasattr(codec, "by_id") and hasattr(codec, "byte_order")
+            port = endpoint.port = FaultyPort(port, side=side, framing=codec if datagrams else "slip")
         return port
     if bus is not None:
         if not isinstance(bus, FaultyBus):

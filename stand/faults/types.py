@@ -208,7 +208,7 @@ DIRECTION = Param("direction", "choice", "both", "which way frames are hit", opt
 PROBABILITY = Param("probability", "number", 0.5, "the chance per frame", 0.0, 1.0)
 #: Scenario key -> the link's parameter name (drivers.link_faults).
 LINK_KEYS = {"probability": "rate", "frames": "frames", "bits": "bits", "keep_fraction": "keep_fraction",
-             "delay_s": "delay_s", "jitter_max_s": "max_s", "frames_per_s": "frames_per_s", "direction": "direction"}
+             "latency_s": "delay_s", "jitter_max_s": "max_s", "frames_per_s": "frames_per_s", "direction": "direction"}
 
 
 def _link(kind):
@@ -233,7 +233,7 @@ PROTOCOL = (
     _protocol("frame_truncated", "truncate", "frames are cut short", (
         PROBABILITY, Param("keep_fraction", "number", 0.5, "the part of a frame kept", 0.0, 1.0))),
     _protocol("frame_delay", "delay", "every frame arrives late", (
-        Param("delay_s", "number", 0.1, "the delay", 0.0, 60.0),)),
+        Param("latency_s", "number", 0.1, "the added latency of every frame", 0.0, 60.0),)),
     _protocol("frame_jitter", "jitter", "frames arrive late by a random extra delay", (
         Param("jitter_max_s", "number", 0.05, "the largest extra delay (uniform)", 0.0, 60.0),)),
     _protocol("frame_reorder", "reorder", "frames swap places with the next one", (PROBABILITY,)),
