@@ -12,8 +12,10 @@ Each control period :class:`Fdir` is told what the controller read and commanded
   its rated speed (back-EMF roll-off) or with no fresh speed is not judged.
 * **gyro** (:class:`GyroMonitor`): failed when its samples are flagged invalid for ``invalid_periods`` periods in a
   row, when it is silent for ``lost_s``, or stuck (``stuck_samples`` successive samples exactly equal: a live gyro's
-  noise never repeats to the bit). The rate then comes from the star tracker's attitude differenced over
-  ``TRACKER_RATE_SPAN`` solutions; it goes back to the gyro after ``recover_samples`` good samples in a row.
+  noise never repeats to the bit; a noiseless one, the stand's ``ideal`` gyro, does whenever the body's rate is
+  steady to the wire's resolution, so ``fdir_gyro_stuck_samples = 0`` turns this check off for it). The rate then
+  comes from the star tracker's attitude differenced over ``TRACKER_RATE_SPAN`` solutions; it goes back to the gyro
+  after ``recover_samples`` good samples in a row.
 * **tracker**: a solution whose MEKF innovation fails the chi-square gate (``gate_sigma``, see
   :meth:`stand.adcs.determination.MEKF.update_attitude`) is rejected (a misidentified star field, still flagged valid).
 * **lost devices**: a device that has given no sample for ``lost_s`` is reported (flag 8), not silently held.
@@ -45,7 +47,7 @@ FLAGS = {WHEEL_ISOLATED: "a wheel is isolated (the others carry the pointing)",
 TRACKER_RATE_SPAN = 6
 #: Options of the FDIR (``PointingController`` options, SI units) and their defaults; None: derived (see the module).
 OPTIONS = {"fdir": True, "fdir_window_s": 2.0, "fdir_wheel_threshold_Nm": None, "fdir_persist": 3,
-           "fdir_lost_s": 5.0, "max_wheel_speed_rad_s": None}
+           "fdir_lost_s": 5.0, "fdir_gyro_stuck_samples": 10, "max_wheel_speed_rad_s": None}
 #: The innovation gate (``gate_sigma``) when the FDIR is on and the option is not given: 5 sigma on each of the three
 #: axes, a chi-square of 75 on 3 degrees of freedom (a false rejection about once in 10^15 solutions).
 GATE_SIGMA = 5.0
@@ -129,7 +131,7 @@ class GyroMonitor:
         w = tuple(float(x) for x in omega)
         self._same = self._same + 1 if w == self._last else 0
         self._last = w
-        if self._same + 1 >= self.stuck_samples:
+        if self.stuck_samples and self._same + 1 >= self.stuck_samples:
             self._good = 0
             self._fail(f"stuck: {self._same + 1} identical samples")
             return
@@ -149,9 +151,9 @@ class GyroMonitor:
 class Fdir:
     """The FDIR state of one :class:`~stand.adcs.pointing.PointingController` (see the module docstring)."""
 
-    def __init__(self, wheel_monitor: WheelMonitor, lost_s: float, device_names):
+    def __init__(self, wheel_monitor: WheelMonitor, lost_s: float, device_names, gyro_stuck_samples: int = 10):
         self.wheels = wheel_monitor
-        self.gyro = GyroMonitor()
+        self.gyro = GyroMonitor(stuck_samples=gyro_stuck_samples)
         self.lost_s = lost_s
         self.isolated: list[int] = []
         self.tracker_rejected = False

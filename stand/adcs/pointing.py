@@ -29,7 +29,8 @@ four), ``wheel_inertia_kg_m2``, ``max_wheel_torque_Nm``, ``wheel_speed_target_ra
 ``damping_ratio``, ``detumble_gain_N_m_s``, ``initial_mode``, ``modes`` (a dict of
 :class:`~.modes.ModeConfig` fields), ``gate_sigma``, ``wheel_coulomb_Nm`` and ``wheel_viscous_Nm_s`` (datasheet
 friction fed forward), and the FDIR's (:mod:`.fdir`): ``fdir`` (default true), ``fdir_window_s``,
-``fdir_wheel_threshold_Nm``, ``fdir_persist``, ``fdir_lost_s``, ``max_wheel_speed_rad_s``.
+``fdir_wheel_threshold_Nm``, ``fdir_persist``, ``fdir_lost_s``, ``fdir_gyro_stuck_samples``,
+``max_wheel_speed_rad_s``.
 """
 
 from __future__ import annotations
@@ -97,6 +98,13 @@ def _positive(options, name, default):
     if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
         raise ValueError(f"options.{name} = {v!r}; it must be a finite positive number.")
     return float(v)
+
+
+def _count(options, name, lo: int, what: str) -> int:
+    v = options.get(name, fdir_mod.OPTIONS[name])
+    if not (isinstance(v, int) and not isinstance(v, bool) and lo <= v <= 1000):
+        raise ValueError(f"options.{name} = {v!r}; a whole number of {what} from {lo} to 1000.")
+    return v
 
 
 def _non_negative(options, name):
@@ -248,9 +256,8 @@ class PointingController:
         threshold = options.get("fdir_wheel_threshold_Nm")
         threshold = 0.25 * self.max_wheel_torque if threshold is None else _positive(options, "fdir_wheel_threshold_Nm",
                                                                                      None)
-        persist = options.get("fdir_persist", fdir_mod.OPTIONS["fdir_persist"])
-        if not (isinstance(persist, int) and not isinstance(persist, bool) and 1 <= persist <= 1000):
-            raise ValueError(f"options.fdir_persist = {persist!r}; a whole number of control periods from 1 to 1000.")
+        persist = _count(options, "fdir_persist", 1, "control periods")
+        stuck = _count(options, "fdir_gyro_stuck_samples", 0, "gyro samples (0: no frozen-output check)")
         window = _positive(options, "fdir_window_s", fdir_mod.OPTIONS["fdir_window_s"])
         max_speed = options.get("max_wheel_speed_rad_s")
         max_speed = math.inf if max_speed is None else _positive(options, "max_wheel_speed_rad_s", None)
@@ -258,7 +265,7 @@ class PointingController:
         # The sun sensor is read in sun acquisition only: its silence elsewhere is no fault.
         names = [options[k] for k in ("gyro", "star_tracker", "magnetorquer") if options.get(k)]
         return fdir_mod.Fdir(monitor, _positive(options, "fdir_lost_s", fdir_mod.OPTIONS["fdir_lost_s"]),
-                             names + list(options["wheels"]))
+                             names + list(options["wheels"]), stuck)
 
     # -- guidance -----------------------------------------------------------------------------------
     def _setup_guidance(self, options) -> None:

@@ -12,7 +12,14 @@ import numpy as np
 import pytest
 
 from sim.rotations import angle_between, compose, quat_from_axis_angle
-from stand.adcs.fdir import DEVICE_LOST, GYRO_FAILED, TRACKER_REJECTED, WHEEL_ISOLATED, rate_from_attitudes
+from stand.adcs.fdir import (
+    DEVICE_LOST,
+    GYRO_FAILED,
+    TRACKER_REJECTED,
+    WHEEL_ISOLATED,
+    GyroMonitor,
+    rate_from_attitudes,
+)
 from stand.adcs.modes import FINE_POINTING
 from stand.adcs.pointing import PointingController, default_wheel_axes_B
 from stand.adcs.quat import qmul
@@ -166,3 +173,19 @@ def test_a_lying_tracker_is_rejected_by_the_innovation_gate():
     assert np.max(log["err"][lying]) < 60 * ARCSEC  # held on the gyro
     log_off, _ = results[False]
     assert np.max(log_off["err"][log_off["t"] >= 80.0]) > math.radians(0.2)  # the lie is where it points now
+
+
+def test_the_frozen_output_check_counts_identical_samples_and_can_be_turned_off():
+    on, off = GyroMonitor(stuck_samples=10), GyroMonitor(stuck_samples=0)
+    for _ in range(9):
+        on.sample((1e-3, 0.0, 0.0), True)
+        off.sample((1e-3, 0.0, 0.0), True)
+    assert not on.failed
+    on.sample((1e-3, 0.0, 0.0), True)
+    assert on.failed and on.why == "stuck: 10 identical samples"
+    for _ in range(100):
+        off.sample((1e-3, 0.0, 0.0), True)
+    assert not off.failed
+    for k in range(10):  # ten live samples bring it back
+        on.sample((1e-3 + (k + 1) * 1e-9, 0.0, 0.0), True)
+    assert not on.failed
