@@ -225,6 +225,68 @@ class WheelMotor:
             raise ValueError(f"the wheel's breakaway friction {wheel.static!r} N m exceeds max_torque_Nm = "
                              f"{max_torque_Nm!r} N m: the motor could never start it.")
         self._lag: dict[float, tuple[float, float]] = {}
+        # Faults (issue 24): plain attributes with neutral values; :meth:`step` checks one flag, ``_faulty``, kept
+        # true while any of them is off its neutral value, so a healthy wheel steps exactly as before.
+        self._faulty = False
+        self._friction_scale = 1.0
+        self._seized = False
+        self._torque_scale = 1.0
+        self._motor_on = True
+        self._scaled_rotor: ReactionWheel | None = None
+
+    # -- faults ------------------------------------------------------------------------------------------
+    @property
+    def friction_scale(self) -> float:
+        """Bearing friction (Coulomb, viscous and breakaway) times this (>= 0; 1 = healthy; a friction rise > 1)."""
+        return self._friction_scale
+
+    @friction_scale.setter
+    def friction_scale(self, value: float) -> None:
+        self._friction_scale = _non_negative("friction_scale", value, "")
+        w = self.wheel
+        self._scaled_rotor = None if self._friction_scale == 1.0 else ReactionWheel(
+            w.inertia, w.coulomb * self._friction_scale, w.viscous * self._friction_scale,
+            w.static * self._friction_scale)
+        self._update_faulty()
+
+    @property
+    def seized(self) -> bool:
+        """The rotor seizes: a bearing torque of :data:`SEIZURE_TORQUE_RATIO` times ``max_torque_Nm`` stops it
+        relative to the body within a few steps and holds it there; the motor's torque goes nowhere (stator and
+        rotor are locked to the body) and the rotor's momentum goes to the body through the step's body torque."""
+        return self._seized
+
+    @seized.setter
+    def seized(self, value: bool) -> None:
+        self._seized = bool(value)
+        self._update_faulty()
+
+    @property
+    def torque_scale(self) -> float:
+        """Torque loss: the motor gives this fraction of its torque (0..1; 1 = healthy)."""
+        return self._torque_scale
+
+    @torque_scale.setter
+    def torque_scale(self, value: float) -> None:
+        v = float(value)
+        if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+            raise ValueError(f"torque_scale = {value!r}; it must be a fraction from 0 to 1.")
+        self._torque_scale = v
+        self._update_faulty()
+
+    @property
+    def motor_on(self) -> bool:
+        """False: the motor is off (no torque whatever the command, its lag state dropped); friction still acts."""
+        return self._motor_on
+
+    @motor_on.setter
+    def motor_on(self, value: bool) -> None:
+        self._motor_on = bool(value)
+        self._update_faulty()
+
+    def _update_faulty(self) -> None:
+        self._faulty = (self._friction_scale != 1.0 or self._seized or self._torque_scale != 1.0
+                        or not self._motor_on)
 
     @property
     def inertia(self) -> float:
@@ -277,6 +339,8 @@ class WheelMotor:
         w0, tau0 = float(state[0]), float(state[1])
         if not (math.isfinite(w0) and math.isfinite(tau0) and math.isfinite(float(u_cmd_Nm))):
             raise ValueError(f"state = {tuple(state)!r}, u_cmd_Nm = {u_cmd_Nm!r}; all must be finite.")
+        if self._faulty:
+            return self._step_faulty(w0, tau0, u_cmd_Nm, h)
         u = self.available_torque(w0, u_cmd_Nm)
         decay, mean = self._lag_factors(h)
         tau_end = u + (tau0 - u) * decay
@@ -292,6 +356,36 @@ class WheelMotor:
         """:meth:`step` in speed mode: the speed loop computes the torque command."""
         return self.step(state, self.speed_loop_torque(state, omega_cmd_rad_s, h_s), h_s)
 
+    def _step_faulty(self, w0: float, tau0: float, u_cmd_Nm: float, h: float) -> tuple[WheelState, float, float]:
+        """:meth:`step` with a fault active (see the fault attributes); same outputs."""
+        J = self.wheel.inertia
+        if self._seized:
+            # The seized bearing's torque opposes the motion until the rotor stands still relative to the body;
+            # the motor's torque acts between two parts locked to the body and moves nothing.
+            dw = SEIZURE_TORQUE_RATIO * self.max_torque_Nm * h / J
+            w1 = 0.0 if abs(w0) <= dw else w0 - math.copysign(dw, w0)
+            friction = 0.5 * J * (w0 * w0 - w1 * w1)
+            tau_end = tau0 * self._lag_factors(h)[0] if self._motor_on else 0.0
+            return WheelState(w1, tau_end), -J * (w1 - w0) / h, friction
+        if self._motor_on:
+            u = self.available_torque(w0, u_cmd_Nm) * self._torque_scale
+        else:
+            u = tau0 = 0.0
+        decay, mean = self._lag_factors(h)
+        tau_end = u + (tau0 - u) * decay
+        tau_mean = u + (tau0 - u) * mean
+        rotor = self._scaled_rotor if self._scaled_rotor is not None else self.wheel
+        w1, _, friction = rotor.step(w0, tau_mean, h)
+        cap = max(self.max_speed_rad_s, abs(w0))
+        if abs(w1) > cap and tau_mean * w1 > 0.0:
+            w1 = math.copysign(cap, w1)
+        return WheelState(w1, tau_end), -J * (w1 - w0) / h, friction
+
+
+#: A seized rotor's bearing torque, as a multiple of the motor's rated torque: it stops a wheel at its rated speed
+#: and inertia J within ``J w_max / (20 tau_max)`` seconds (a few steps for a small wheel), much faster than the motor
+#: could brake it.
+SEIZURE_TORQUE_RATIO = 20.0
 
 #: Tilt of the spin axes from the pyramid's axis that gives equal torque capability about all three
 #: body axes: arccos(1 / sqrt(3)) = 54.7356 deg.

@@ -16,6 +16,7 @@ import numpy as np
 from sim.time import seconds_to_ns
 
 from . import devices
+from .adcs.metrics import FAULT_METRICS, MetricUnavailable, fault_value, fault_windows
 from .adcs.metrics import METRICS as POINTING_METRICS
 from .adcs.metrics import value as pointing_metric
 from .compose import Scene, ticks_per
@@ -29,8 +30,11 @@ def _rate_deg_s(tel) -> np.ndarray:
     return np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
 
 
-def metric_value(c: Criterion, tel, result: RunResult, scene_devices=()) -> float:
+def metric_value(c: Criterion, tel, result: RunResult, scene_devices=(), faults: dict | None = None) -> float:
+    """``faults``: fault name -> (start s, clearing s or None), from the run's events (:func:`run_faults`)."""
     t = tel["t_s"]
+    if c.metric in FAULT_METRICS:
+        return fault_value(c.metric, c.fault, tel, faults or {}, c.within_deg)
     if c.metric == "final_rate_deg_s":
         return float(_rate_deg_s(tel)[-1]) if len(t) else math.nan
     if c.metric == "rate_deg_s_at":
@@ -97,13 +101,33 @@ def _why_no_value(c: Criterion, tel, scene_devices=()) -> str:
     return f"the telemetry holds no valid sample for {c.metric}{after}"
 
 
-def evaluate(criteria, tel, result: RunResult, scene_devices=()) -> list[dict]:
+def run_faults(out_dir: Path) -> dict:
+    """Fault name -> (start s, clearing s or None) from the run's ``events.jsonl`` (unreadable lines skipped)."""
+    try:
+        lines = (Path(out_dir) / "events.jsonl").read_text(errors="replace").splitlines()
+    except OSError:
+        return {}
+    events = []
+    for line in lines:
+        if '"fault_' in line:  # most lines are not about faults: no need to parse them
+            try:
+                e = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(e, dict):
+                events.append(e)
+    return fault_windows(events)
+
+
+def evaluate(criteria, tel, result: RunResult, scene_devices=(), faults: dict | None = None) -> list[dict]:
     """Each criterion's value against its limits; one that cannot be computed fails with a ``reason``."""
     out = []
     for c in criteria:
         reason = None
         try:
-            v = float(metric_value(c, tel, result, scene_devices))
+            v = float(metric_value(c, tel, result, scene_devices, faults))
+        except MetricUnavailable as exc:
+            v, reason = math.nan, str(exc)
         except (ArithmeticError, IndexError, KeyError, TypeError) as exc:
             v, reason = math.nan, f"computing {c.metric} failed ({type(exc).__name__}: {exc})"
         if not math.isfinite(v):
@@ -112,7 +136,8 @@ def evaluate(criteria, tel, result: RunResult, scene_devices=()) -> list[dict]:
         limit = {"max": c.max} if c.min is None else {"min": c.min} if c.max is None else {"min": c.min, "max": c.max}
         out.append({"name": c.name, "metric": c.metric, "value": v if reason is None else None,
                     "unit": metric_unit(c.metric), "limit": limit, "pass": bool(ok),
-                    **({"at_s": c.at_s} if c.at_s is not None else {}), **({"reason": reason} if reason else {})})
+                    **({"at_s": c.at_s} if c.at_s is not None else {}),
+                    **({"fault": c.fault} if c.fault is not None else {}), **({"reason": reason} if reason else {})})
     return out
 
 
@@ -191,7 +216,7 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
     out_dir = Path(out_dir)
     sc = scene.scenario
     tel = load(out_dir)
-    criteria = evaluate(sc.criteria, tel, result, sc.devices)
+    criteria = evaluate(sc.criteria, tel, result, sc.devices, run_faults(out_dir))
     problems = unvouched(scene, result, tel, out_dir, duration_s)
     passed = not problems and all(c["pass"] for c in criteria)
     status, error = result.status, result.error

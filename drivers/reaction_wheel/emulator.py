@@ -17,7 +17,8 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 - RW_SPEED_TLM every ``telemetry_period_s``: the speed from ``speed_source(t)`` (a float, rad/s,
   or a ``(speed_rad_s, motor_torque_Nm)`` pair; with a float the held torque command is reported as
   the motor torque in TORQUE mode, 0 otherwise), quantised by the wire; ``speed_limited`` at or
-  beyond ``max_speed_rad_s``; a speed the field cannot carry is clipped with ``valid`` = 0.
+  beyond ``max_speed_rad_s``; a speed the field cannot carry is clipped with ``valid`` = 0. With the fault
+  attribute ``speed_sensor_failed`` set (a dead tachometer) the speed is 0 with ``valid`` = 0.
 - RW_STATUS every ``status_period_s``, RW_HEARTBEAT every ``heartbeat_period_s``, on the grid
   ``t0 + k * period`` (``t0`` = the first service time); a late call sends one message and counts the
   missed telemetry slots in ``samples_skipped``.
@@ -150,6 +151,9 @@ class ReactionWheelEmulator(CanDevice):
         self._temperature = min(max(cfg.temperature_C, t_lo), t_hi)
         self._tlm_speed_max = codec.tlm_speed_range_rad_s[1]
         self._tlm_torque_max = codec.tlm_torque_range_Nm[1]
+        #: Fault (issue 24): the tachometer is dead: RW_SPEED_TLM carries speed 0 with ``valid`` = 0 (the motor
+        #: torque it reports still comes from the drive).
+        self.speed_sensor_failed = False
 
     _heartbeat_type = Heartbeat
 
@@ -248,6 +252,8 @@ class ReactionWheelEmulator(CanDevice):
         valid = abs(speed) <= self._tlm_speed_max
         if not valid:
             speed = math.copysign(self._tlm_speed_max, speed)
+        if self.speed_sensor_failed:
+            speed, valid = 0.0, False
         torque = min(max(torque, -self._tlm_torque_max), self._tlm_torque_max)
         seq = self._tlm_seq
         self._tlm_seq = (seq + 1) & 0xFF

@@ -231,10 +231,12 @@ class MEKF:
         self._set_P(Phi @ self.P @ Phi.T + Q, "propagation")
 
     # -- updates ------------------------------------------------------------------------------------
-    def update_attitude(self, q_BN_meas, R_B, gate_sigma: float | None = None) -> bool:
+    def update_attitude(self, q_BN_meas, R_B, gate_sigma: float | None = None, gate_slack_rad2: float = 0.0) -> bool:
         """Update with a measured ``q_BN`` (e.g. a star tracker's, through its mount) whose error has covariance
         ``R_B`` (rad^2, body axes: 3 x 3, or 3 variances, or one variance). With ``gate_sigma``, a measurement
         whose residual exceeds that many sigma (chi-square on 3 dof) is rejected and counted; returns whether used.
+        ``gate_slack_rad2`` (rad^2) is added to each axis's variance for the gate only (not the update): the error
+        the model leaves out, such as a solution's age times the body rate.
         """
         qm = _quat(q_BN_meas, "q_BN_meas")
         dq = qmul(conj(self.q), qm)
@@ -249,7 +251,7 @@ class MEKF:
             checked = _covariance(R_B, "R_B")
             if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3):
                 self._R_checked = (R_B.copy(), checked)
-        return self._update(z, _H_ATTITUDE, checked, gate_sigma)
+        return self._update(z, _H_ATTITUDE, checked, gate_sigma, gate_slack_rad2)
 
     def update_vector(self, b_B, r_N, sigma_rad: float, gate_sigma: float | None = None) -> bool:
         """Update with a measured unit direction ``b_B`` of the reference direction ``r_N`` (sun, field), with
@@ -264,12 +266,17 @@ class MEKF:
         R = sigma_rad ** 2 * (np.eye(3) - np.outer(pred, pred)) + (1e-3 * sigma_rad) ** 2 * np.eye(3)
         return self._update(b - pred, H, R, gate_sigma)
 
-    def _update(self, z, H, R, gate_sigma) -> bool:
+    def _update(self, z, H, R, gate_sigma, gate_slack_rad2: float = 0.0) -> bool:
         S = H @ self.P @ H.T + R
         Sinv = np.linalg.inv(S)
-        if gate_sigma is not None and float(z @ Sinv @ z) > gate_sigma ** 2 * len(z):
-            self.rejected += 1
-            return False
+        if gate_sigma is not None:
+            limit = gate_sigma ** 2 * len(z)
+            # The slack only widens the gate: a residual inside it without the slack needs no second inverse.
+            if float(z @ Sinv @ z) > limit and (
+                    gate_slack_rad2 <= 0.0
+                    or float(z @ np.linalg.inv(S + gate_slack_rad2 * np.eye(len(z))) @ z) > limit):
+                self.rejected += 1
+                return False
         K = self.P @ H.T @ Sinv
         dx = K @ z
         IKH = np.eye(6) - K @ H

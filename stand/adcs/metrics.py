@@ -89,3 +89,111 @@ METRICS = {
     "knowledge_within_3sigma_fraction": "fraction of the estimate's per-axis errors after time at_s within the "
                                         "filter's own 3-sigma (adcs_sigma3_B)",
 }
+
+
+# -- FDIR criteria (issue 24) -------------------------------------------------------------------------------------
+#: The column a controller reports its FDIR in (bit flags, stand.adcs.fdir.FLAGS); adcs_mode is MODE above.
+FDIR = "adcs_fdir"
+#: adcs_fdir bits that are a reconfiguration (a wheel isolated, the rate taken from the tracker), not only a report.
+RECONFIGURED_BITS = 1 | 2
+#: Metric -> description with the unit; each names its fault (the criterion's ``fault``), whose start and clearing
+#: are the run's ``fault_injected`` / ``fault_cleared`` events (the first injection and the first clearing after it).
+FAULT_METRICS = {
+    "fdir_detect_s": "seconds from the fault's start to the first change of the controller's adcs_fdir (s)",
+    "fdir_safe_s": "seconds from the fault's start to a safe or reconfigured mode: adcs_mode falls back from its "
+                   "value at the start, or adcs_fdir gains a reconfiguration bit (1 wheel isolated, 2 rate from the "
+                   "tracker) (s)",
+    "fault_worst_pointing_deg": "largest angle between the true attitude and the controller's reference "
+                                "(adcs_q_RN) from the fault's start to its clearing, or to the end (deg)",
+    "fault_recovery_s": "seconds from the fault's clearing until the pointing error is back within within_deg for "
+                        "the rest of the run (s)",
+}
+
+
+class MetricUnavailable(ValueError):
+    """A metric that cannot be computed from this run; the message says why in one sentence."""
+
+
+def fault_windows(events) -> dict[str, tuple[float, float | None]]:
+    """Fault name -> (start s, clearing s or None) from ``events.jsonl`` records (dicts): the first
+    ``fault_injected`` of each fault and the first ``fault_cleared`` after it. Records without a name or a finite
+    time are skipped."""
+    out: dict[str, tuple[float, float | None]] = {}
+    for e in events:
+        name, t = e.get("fault"), e.get("t_s")
+        if not isinstance(name, str) or not isinstance(t, int | float) or not math.isfinite(t):
+            continue
+        if e.get("kind") == "fault_injected" and name not in out:
+            out[name] = (float(t), None)
+        elif e.get("kind") == "fault_cleared" and name in out and out[name][1] is None and t >= out[name][0]:
+            out[name] = (out[name][0], float(t))
+    return out
+
+
+def _column(tel, name: str) -> np.ndarray:
+    if name not in tel:
+        raise MetricUnavailable(f"the telemetry has no {name} column (the controller does not report it)")
+    return np.asarray(tel[name])
+
+
+def _before(t: np.ndarray, values: np.ndarray, t0: float):
+    """The value on the last row before ``t0`` (the first row's when none is before)."""
+    i = int(np.searchsorted(t, t0 - 1e-9)) - 1
+    return values[max(i, 0)]
+
+
+def fault_value(metric: str, fault: str, tel, windows: dict, within_deg: float | None = None) -> float:
+    """One of :data:`FAULT_METRICS` for fault ``fault``; raises :class:`MetricUnavailable` saying why it cannot be
+    computed (no such fault in the events, a column missing, no change after the fault)."""
+    if fault not in windows:
+        known = ", ".join(sorted(windows)) or "none"
+        raise MetricUnavailable(f"the run's events.jsonl has no fault_injected event for fault {fault!r} (faults "
+                                f"injected: {known})")
+    start, clear = windows[fault]
+    t = np.asarray(tel["t_s"])
+    after = t >= start - 1e-9
+    if metric == "fdir_detect_s":
+        f = _column(tel, FDIR)
+        hit = np.nonzero(after & (f != _before(t, f, start)))[0]
+        if not len(hit):
+            raise MetricUnavailable(f"adcs_fdir never changed after fault {fault!r} started at t = {start:g} s")
+        return float(t[hit[0]] - start)
+    if metric == "fdir_safe_s":
+        f, mode = _column(tel, FDIR).astype(np.int64), _column(tel, MODE)
+        new_bits = f & ~int(_before(t, f, start)) & RECONFIGURED_BITS
+        hit = np.nonzero(after & ((new_bits != 0) | (mode < _before(t, mode, start))))[0]
+        if not len(hit):
+            raise MetricUnavailable(f"neither adcs_mode fell back nor adcs_fdir reported a reconfiguration after "
+                                    f"fault {fault!r} started at t = {start:g} s")
+        return float(t[hit[0]] - start)
+    ok = _after(tel, 0.0, REFERENCE)
+    if ok is None:
+        raise MetricUnavailable("the telemetry has no adcs_q_RN column (the controller records no reference)")
+    if metric == "fault_worst_pointing_deg":
+        sel = ok & after & (t <= (clear if clear is not None else math.inf) + 1e-9)
+        if not np.any(sel):
+            raise MetricUnavailable(f"no row records the controller's reference while fault {fault!r} lasts")
+        return math.degrees(float(np.max(np.linalg.norm(error_angles_B(tel["q_BN"][sel], tel[REFERENCE][sel]),
+                                                        axis=1))))
+    if metric == "fault_recovery_s":
+        return _recovery_s(fault, clear, t, tel, ok, within_deg)
+    raise ValueError(f"unknown fault metric {metric!r}")
+
+
+def _recovery_s(fault: str, clear: float | None, t, tel, ok, within_deg: float | None) -> float:
+    if within_deg is None:
+        raise MetricUnavailable("fault_recovery_s needs the criterion's within_deg (the pointing limit)")
+    if clear is None:
+        raise MetricUnavailable(f"fault {fault!r} never cleared during the run")
+    sel = ok & (t >= clear - 1e-9)
+    if not np.any(sel):
+        raise MetricUnavailable(f"no row records the controller's reference after fault {fault!r} cleared")
+    ts = t[sel]
+    e = np.degrees(np.linalg.norm(error_angles_B(tel["q_BN"][sel], tel[REFERENCE][sel]), axis=1))
+    out = np.nonzero(e > within_deg)[0]
+    if not len(out):
+        return 0.0
+    if out[-1] == len(e) - 1:
+        raise MetricUnavailable(f"the pointing error is still {e[-1]:.3g} deg > within_deg = {within_deg:g} deg at "
+                                f"the end of the run (t = {ts[-1]:g} s)")
+    return float(ts[out[-1] + 1] - clear)

@@ -27,7 +27,10 @@ four), ``wheel_inertia_kg_m2``, ``max_wheel_torque_Nm``, ``wheel_speed_target_ra
 ``"sun"`` with ``epoch`` (ISO UTC) and ``secondary_N``; ``"target"`` with the orbit, ``epoch`` and
 ``target_itrs_m``), ``law`` (``"mrp"`` or ``"quaternion"``), ``natural_frequency_rad_s``,
 ``damping_ratio``, ``detumble_gain_N_m_s``, ``initial_mode``, ``modes`` (a dict of
-:class:`~.modes.ModeConfig` fields), ``gate_sigma``.
+:class:`~.modes.ModeConfig` fields), ``gate_sigma``, ``wheel_coulomb_Nm`` and ``wheel_viscous_Nm_s`` (datasheet
+friction fed forward), and the FDIR's (:mod:`.fdir`): ``fdir`` (default true), ``fdir_window_s``,
+``fdir_wheel_threshold_Nm``, ``fdir_persist``, ``fdir_lost_s``, ``fdir_gyro_stuck_samples``,
+``max_wheel_speed_rad_s``.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import numpy as np
 
 from sim.rotations import dcm
 
+from . import fdir as fdir_mod
 from . import guidance as gd
 from .control import LAWS, WheelDistribution, control_torque, dumping_dipole, pd_gains
 from .determination import MEKF
@@ -57,7 +61,7 @@ OPTIONS = frozenset({"inertia_kg_m2", "star_tracker", "star_tracker_q_TB", "trac
     "sun_sensor_q_SB", "sun_sensor_normals_B", "sun_axis_B", "guidance", "q_RN", "orbit_r_N_m",
     "orbit_v_N_m_s", "epoch", "secondary_N", "target_itrs_m", "law", "natural_frequency_rad_s",
     "damping_ratio", "detumble_gain_N_m_s", "initial_mode", "modes", "gate_sigma", "initial_bias_rad_s",
-    "sigma_bias_rad_s"})
+    "sigma_bias_rad_s", "wheel_coulomb_Nm", "wheel_viscous_Nm_s", *fdir_mod.OPTIONS})
 #: Control periods of on-board orbit solved in one vectorised call.
 ORBIT_BATCH = 1000
 
@@ -93,6 +97,20 @@ def _positive(options, name, default):
     v = options.get(name, default)
     if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
         raise ValueError(f"options.{name} = {v!r}; it must be a finite positive number.")
+    return float(v)
+
+
+def _count(options, name, lo: int, what: str) -> int:
+    v = options.get(name, fdir_mod.OPTIONS[name])
+    if not (isinstance(v, int) and not isinstance(v, bool) and lo <= v <= 1000):
+        raise ValueError(f"options.{name} = {v!r}; a whole number of {what} from {lo} to 1000.")
+    return v
+
+
+def _non_negative(options, name):
+    v = options.get(name, 0.0)
+    if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
+        raise ValueError(f"options.{name} = {v!r}; it must be a finite number >= 0.")
     return float(v)
 
 
@@ -152,6 +170,9 @@ class PointingController:
                                  f"{sorted(devices)}.")
             return devices[name]
 
+        self.tracker_name, self.gyro_name, self.mtq_name = (options.get(k) for k in ("star_tracker", "gyro",
+                                                                                      "magnetorquer"))
+        self.wheel_names = list(options.get("wheels") or ())
         self.tracker = device("star_tracker")
         self.gyro = device("gyro", required=True)
         self.mtq = device("magnetorquer")
@@ -170,6 +191,10 @@ class PointingController:
                              "spin inertia (kg m^2, one value or one per wheel).")
         self.wheel_inertia = J
         self.speed_target = float(options.get("wheel_speed_target_rad_s", 0.0))
+        # The wheels' bearing friction from their datasheet, fed forward (0: none): without it a spin-biased cluster
+        # leaves a steady pointing error of friction / stiffness, as the PD law has no integral term.
+        self.wheel_coulomb = _non_negative(options, "wheel_coulomb_Nm")
+        self.wheel_viscous = _non_negative(options, "wheel_viscous_Nm_s")
         self.null_gain = float(options.get("null_gain_per_s", 0.0))
         self.q_TB = _mount(options, "star_tracker_q_TB")
         self.dcm_BS_gyro = dcm(_mount(options, "gyro_q_SB")).T
@@ -183,6 +208,7 @@ class PointingController:
         self.initial_bias = _option_vec(options, "initial_bias_rad_s", 3, (0.0, 0.0, 0.0))
         self.sigma_bias = _positive(options, "sigma_bias_rad_s", 1e-4)
         self.gate_sigma = options.get("gate_sigma")
+        self.fdir = self._setup_fdir(options)
         self.law = options.get("law", "mrp")
         if self.law not in LAWS:
             raise ValueError(f"options.law = {self.law!r}; allowed: {', '.join(LAWS)}.")
@@ -211,6 +237,35 @@ class PointingController:
         self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
         self._w_RN_prev: tuple | None = None  # (t_s, omega_RN_R) of the last fine-pointing period
         self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0, "gyro_rejected": 0}
+        self._fresh_speeds = np.full(n, math.nan)  # this period's wheel speeds, NaN where none came (for the FDIR)
+        self._keep: list[int] | None = None  # the wheels still used after an isolation (None: all)
+
+    def _setup_fdir(self, options) -> fdir_mod.Fdir | None:
+        """The FDIR (:mod:`.fdir`) unless ``options.fdir`` is false; its wheel threshold from the datasheet torque."""
+        on = options.get("fdir", True)
+        if not isinstance(on, bool):
+            raise ValueError(f"options.fdir = {on!r}; true or false.")
+        if not on:
+            for key in fdir_mod.OPTIONS:
+                if key != "fdir" and key in options:
+                    raise ValueError(f"options.{key} = {options[key]!r} is unused with options.fdir = false; "
+                                     "remove it.")
+            return None
+        if self.gate_sigma is None:
+            self.gate_sigma = fdir_mod.GATE_SIGMA
+        threshold = options.get("fdir_wheel_threshold_Nm")
+        threshold = 0.25 * self.max_wheel_torque if threshold is None else _positive(options, "fdir_wheel_threshold_Nm",
+                                                                                     None)
+        persist = _count(options, "fdir_persist", 1, "control periods")
+        stuck = _count(options, "fdir_gyro_stuck_samples", 0, "gyro samples (0: no frozen-output check)")
+        window = _positive(options, "fdir_window_s", fdir_mod.OPTIONS["fdir_window_s"])
+        max_speed = options.get("max_wheel_speed_rad_s")
+        max_speed = math.inf if max_speed is None else _positive(options, "max_wheel_speed_rad_s", None)
+        monitor = fdir_mod.WheelMonitor(self.wheel_inertia, max_speed, self.period_s, window, threshold, persist)
+        # The sun sensor is read in sun acquisition only: its silence elsewhere is no fault.
+        names = [options[k] for k in ("gyro", "star_tracker", "magnetorquer") if options.get(k)]
+        return fdir_mod.Fdir(monitor, _positive(options, "fdir_lost_s", fdir_mod.OPTIONS["fdir_lost_s"]),
+                             names + list(options["wheels"]), stuck)
 
     # -- guidance -----------------------------------------------------------------------------------
     def _setup_guidance(self, options) -> None:
@@ -279,6 +334,7 @@ class PointingController:
                 ("adcs_q_RN", 4, ""), ("adcs_wheel_torque_cmd", len(self.wheels), "N m")]
         if self.mtq is not None:
             cols.append(("adcs_dipole_cmd_B", 3, "A m^2"))
+        cols.append(("adcs_fdir", 1, ""))  # bit flags, stand.adcs.fdir.FLAGS (0 with the FDIR off)
         return cols
 
     def telemetry(self) -> tuple:
@@ -290,31 +346,44 @@ class PointingController:
                *self.last_wheel_cmd)
         if self.mtq is not None:
             row += tuple(self.last_dipole)
+        row += (self.fdir.flags if self.fdir is not None else 0,)
         return tuple(float(x) for x in row)
 
     def update(self, t_s: float) -> None:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
         w_prev = self._omega_meas_B
-        self._read_gyro()
-        self._read_wheels()
-        self._read_magnetometer()
-        q_meas = self._read_tracker()
+        fd = self.fdir
+        self._read_gyro(t_s)
+        self._read_wheels(t_s)
+        self._read_magnetometer(t_s)
+        q_meas = self._read_tracker(t_s)
+        if fd is not None:
+            self._fdir_sense(t_s)
         w = self._omega_meas_B
         if self.filter is not None and w is not None:
             # The rate over the last period: the mean of its end samples (second order while slewing).
             self.filter.propagate(w if w_prev is None else 0.5 * (w + w_prev), dt)
+        fix = q_meas is not None
         if q_meas is not None:
             if self.filter is None:
                 # The first solution is the estimate: its uncertainty is the tracker's.
                 sigma0 = math.sqrt(float(np.max(np.linalg.eigvalsh(self.R_tracker_B))))
                 self.filter = MEKF(q_meas, self.initial_bias, sigma_attitude_rad=sigma0,
                                    sigma_bias_rad_s=self.sigma_bias, arw_rad_s05=self.arw, rrw_rad_s15=self.rrw)
+                accepted = True
             else:
-                self.filter.update_attitude(q_meas, self.R_tracker_B, self.gate_sigma)
+                accepted = self.filter.update_attitude(q_meas, self.R_tracker_B, self.gate_sigma,
+                                                       self._gate_slack_rad2() if fd is not None else 0.0)
+            if fd is not None:
+                # A rejected solution is no fix: the mode manager counts the outage, the rate fall-back skips it.
+                fix = accepted
+                fd.tracker_rejected = not accepted
+                if accepted:
+                    fd.tracker_solution(t_s, q_meas)
         rate = self._rate_B()
         sigma3 = float(np.max(self.filter.sigma3_attitude_rad)) if self.filter is not None else math.inf
-        mode = self.modes.update(t_s, float(np.linalg.norm(rate)), q_meas is not None, sigma3)
+        mode = self.modes.update(t_s, float(np.linalg.norm(rate)), fix, sigma3)
         h_w = self.dist.momentum_B(self._speeds, self.wheel_inertia)
         if mode == FINE_POINTING and self.filter is not None:
             q_RN, w_RN = self.reference(t_s)
@@ -334,10 +403,73 @@ class PointingController:
         m_B = self._dump(h_w) if self.mtq is not None else None
         if m_B is not None and self._b_B is not None:
             u_B = u_B - cross(m_B, self._b_B)  # the magnetic torque is already on the body
-        cmd = self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
+        cmd = self._allocate(u_B)
         for wheel, u in zip(self.wheels, cmd, strict=True):
             wheel.command_torque(float(u))
         self.last_wheel_cmd = cmd
+        if fd is not None:
+            fd.wheels.commanded(cmd)
+
+    def _gate_slack_rad2(self) -> float:
+        """The innovation gate's allowance for a solution's age (rad^2): the attitude turned through in three control
+        periods at the present rate. The filter takes a solution as of now, so while the body turns a late one is off
+        by its age times the rate; that is no lie, and the gate must not reject it."""
+        w = self._omega_meas_B
+        if w is None:
+            return 0.0
+        bias = self.filter.bias if self.filter is not None else self.initial_bias
+        return float(np.sum((w - bias) ** 2)) * (3.0 * self.period_s) ** 2
+
+    def _allocate(self, u_B) -> np.ndarray:
+        """Motor torques for the body torque ``u_B``: over every wheel, or over those left after an isolation (the
+        pseudo-inverse of their spin axes; an isolated wheel is commanded zero)."""
+        keep = self._keep
+        if keep is None:
+            cmd = self.dist.motor_torques(u_B, self._speeds, self.wheel_inertia, self.speed_target, self.null_gain)
+        else:
+            cmd = np.zeros(len(self.wheels))
+            cmd[keep] = self._dist_kept.motor_torques(u_B, self._speeds[keep], self.wheel_inertia[keep],
+                                                      self.speed_target, self.null_gain)
+        if self.wheel_coulomb or self.wheel_viscous:
+            w = self._speeds
+            ff = self.wheel_coulomb * np.sign(w) + self.wheel_viscous * w
+            if keep is not None:
+                ff[[i for i in range(len(w)) if i not in keep]] = 0.0
+            cmd = np.clip(cmd + ff, -self.max_wheel_torque, self.max_wheel_torque)
+        return cmd
+
+    def _fdir_sense(self, t_s: float) -> None:
+        """The FDIR's checks of this period (after the sensors are read, before the filter and the control)."""
+        fd = self.fdir
+        fd.check_silence(t_s)
+        if self.gyro_name in fd.lost:
+            fd.gyro.silent(fd.silent_s(self.gyro_name, t_s))
+        if fd.gyro.failed:
+            w_B = fd.tracker_rate_B()
+            if w_B is not None:
+                bias = self.filter.bias if self.filter is not None else self.initial_bias
+                self._omega_meas_B = w_B + bias  # the filter and the control subtract the bias again
+        for i in fd.wheels.update(self._fresh_speeds):
+            if i not in fd.isolated:
+                self._isolate(t_s, i)
+
+    def _isolate(self, t_s: float, i: int) -> None:
+        fd = self.fdir
+        keep = [k for k in range(len(self.wheels)) if k != i and k not in fd.isolated]
+        name = self.wheel_names[i]
+        r = fd.wheels.residual_Nm[i]
+        try:
+            if len(keep) < 3:
+                raise ValueError("fewer than three wheels would be left")
+            dist = WheelDistribution(self.dist.A[:, keep], self.max_wheel_torque)
+        except ValueError as exc:
+            if not any(name in what and "cannot be isolated" in what for _, what in fd.events):
+                fd.events.append((t_s, f"{name} does not follow its commands but cannot be isolated: {exc}"))
+            return
+        fd.isolated.append(i)
+        self._keep, self._dist_kept = keep, dist
+        fd.events.append((t_s, f"{name} isolated: over {fd.wheels.window_s:g} s its speed change showed {r:+.3g} N m "
+                               "beside the torque commanded"))
 
     # -- pieces -------------------------------------------------------------------------------------
     def _rate_B(self) -> np.ndarray:
@@ -346,29 +478,46 @@ class PointingController:
         bias = self.filter.bias if self.filter is not None else self.initial_bias
         return self._omega_meas_B - bias
 
-    def _read_gyro(self) -> None:
+    def _read_gyro(self, t_s: float) -> None:
         s = self.gyro.take_rate()
+        fd = self.fdir
+        if s is not None and fd is not None:
+            fd.heard(self.gyro_name, t_s)
         if s is None or not getattr(s, "valid", True):
             self.counters["gyro_missing"] += 1
+            if s is not None and fd is not None:
+                fd.gyro.sample(None, False)
             return
         w = np.asarray(s.omega_rad_s, dtype=float)
         if w.shape != (3,) or not np.all(np.isfinite(w)):
             self.counters["gyro_rejected"] += 1  # flagged valid but unusable: flight code drops it, keeps flying
+            if fd is not None:
+                fd.gyro.sample(None, False)
             return
+        if fd is not None:
+            fd.gyro.sample(w, True)
         self._omega_meas_B = self.dcm_BS_gyro @ w
 
-    def _read_wheels(self) -> None:
+    def _read_wheels(self, t_s: float) -> None:
+        fd = self.fdir
         for i, wheel in enumerate(self.wheels):
-            s = _speed_of(wheel.take_speed())
+            got = wheel.take_speed()
+            s = _speed_of(got)
+            if fd is not None:
+                if got is not None:
+                    fd.heard(self.wheel_names[i], t_s)
+                self._fresh_speeds[i] = s if s is not None and math.isfinite(s) else math.nan
             if s is not None and math.isfinite(s):
                 self._speeds[i] = s
 
-    def _read_tracker(self):
+    def _read_tracker(self, t_s: float):
         if self.tracker is None:
             return None
         sol = self.tracker.take_solution()
         if sol is None:
             return None
+        if self.fdir is not None:
+            self.fdir.heard(self.tracker_name, t_s)
         if not getattr(sol, "valid", True):
             self.counters["tracker_invalid"] += 1
             return None
@@ -380,10 +529,12 @@ class PointingController:
         # q_BN = compose(conjugate(q_TB), q_TN) = q_TN (x) conjugate(q_TB) in Hamilton order
         return positive(qmul(q_TN / np.linalg.norm(q_TN), conj(self.q_TB)))
 
-    def _read_magnetometer(self) -> None:
+    def _read_magnetometer(self, t_s: float) -> None:
         if self.mtq is None:
             return
         s = self.mtq.take_sample()
+        if s is not None and self.fdir is not None:
+            self.fdir.heard(self.mtq_name, t_s)
         if s is not None and s.valid and not s.coil_active:
             self._b_B = self.dcm_BS_mtq @ np.asarray(s.b_T, dtype=float)
 

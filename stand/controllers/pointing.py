@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from stand.adcs import PluginError
-from stand.adcs.metrics import METRICS
+from stand.adcs.metrics import FAULT_METRICS, METRICS
 from stand.adcs.modes import ModeConfig
 from stand.adcs.pointing import OPTIONS, PointingController
 from stand.checks import MISSING, ScenarioError, Table, unusable
@@ -146,6 +146,8 @@ def pointing_options(sc) -> dict:
     opts.setdefault("wheel_axes_B", [list(w.spin_axis_B) for w in wheels])
     opts.setdefault("wheel_inertia_kg_m2", [w.inertia_kg_m2 for w in wheels])
     opts.setdefault("max_wheel_torque_Nm", min(w.max_torque_Nm for w in wheels))
+    if opts.get("fdir", True) is True:
+        opts.setdefault("max_wheel_speed_rad_s", min(w.max_speed_rad_s for w in wheels))  # its wheel check's bound
     if "star_tracker" in opts:
         st = specs[opts["star_tracker"]]
         opts.setdefault("star_tracker_q_TB", st.q_SB.tolist())
@@ -169,10 +171,10 @@ def pointing_options(sc) -> dict:
 class PointingKind(ControllerKind):
     name = "pointing"
     keys = ("rate_hz", "budget_s", "options", "datasheet", "datasheet_margin")
-    row_floats = 24
+    row_floats = 25
     # Read from the controller's telemetry columns by convention (stand.adcs.metrics): a plug-in that records the
     # same columns gets them too. They all take at_s, the settle time.
-    metrics = METRICS
+    metrics = {**METRICS, **FAULT_METRICS}  # the fault metrics name their fault, not a time
     metrics_at = tuple(METRICS)
 
     def parse_params(self, t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:

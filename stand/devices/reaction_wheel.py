@@ -147,6 +147,34 @@ class ReactionWheelKind(DeviceKind):
         return [plot_wheel(tel, out_dir, name)]
 
 
+class WheelFaults:
+    """The wheel's physics faults as one object (``Device.fault_tap("wheel")``): ``friction_scale``, ``seized``,
+    ``torque_scale`` and ``motor_on`` are the motor model's (:class:`sim.actuators.WheelMotor`),
+    ``speed_sensor_failed`` the emulator's (:class:`drivers.reaction_wheel.emulator.ReactionWheelEmulator`)."""
+
+    MOTOR = ("friction_scale", "seized", "torque_scale", "motor_on")
+
+    def __init__(self, motor, emulator):
+        object.__setattr__(self, "_motor", motor)
+        object.__setattr__(self, "_emulator", emulator)
+
+    def __getattr__(self, name):
+        if name in WheelFaults.MOTOR:
+            return getattr(self._motor, name)
+        if name == "speed_sensor_failed":
+            return self._emulator.speed_sensor_failed
+        raise AttributeError(f"a wheel has no fault attribute {name!r}; it has {', '.join(WheelFaults.MOTOR)}, "
+                             "speed_sensor_failed")
+
+    def __setattr__(self, name, value):
+        if name in WheelFaults.MOTOR:
+            setattr(self._motor, name, value)
+        elif name == "speed_sensor_failed":
+            self._emulator.speed_sensor_failed = bool(value)
+        else:
+            self.__getattr__(name)  # the same refusal, naming what a wheel has
+
+
 def motor_of(spec: ReactionWheelSpec):
     from sim.actuators import ReactionWheel, WheelMotor
 
@@ -176,6 +204,13 @@ class _Wheel(Device):
 
     def speed_rad_s(self) -> float:
         return self.truth.wheel_speeds_rad_s[self.wheel_index]
+
+    def fault_tap(self, name: str):
+        """``"wheel"``: the :class:`WheelFaults` of an emulated or served wheel; None for any other tap, or on a real
+        wheel (stand.faults then looks where a kind's taps conventionally are)."""
+        if name == "wheel" and self.emulator is not None and getattr(self, "motor", None) is not None:
+            return WheelFaults(self.motor, self.emulator)
+        return None
 
     def columns(self):
         n = self.name

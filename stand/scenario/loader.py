@@ -5,6 +5,7 @@ against every metric known. Nothing here names a device or controller kind."""
 from __future__ import annotations
 
 import importlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -12,6 +13,7 @@ from sim.time import Epoch
 from stand import controllers
 from stand import devices as kinds
 from stand import faults as fault_specs
+from stand.adcs.metrics import FAULT_METRICS
 from stand.checks import CONTROL, MISSING, NAME_PATTERN, ScenarioError, Table, rate
 from stand.devices import DeviceSpec
 
@@ -167,6 +169,7 @@ def _criterion(t: Table, duration_s: float) -> Criterion:
     )
     if c.max is None and c.min is None:
         raise t.error("max", MISSING, "a max or a min limit for the criterion")
+    c = _fault_fields(t, c)
     if metric in _metrics_at() and c.at_s is None:
         raise t.error("at_s", MISSING, f"a time in [0, {duration_s:g}] s for metric {metric!r}")
     t.check_unknown()
@@ -174,6 +177,20 @@ def _criterion(t: Table, duration_s: float) -> Criterion:
         t.refuse_unused("at_s", f"metric = {metric!r} (it takes no time)", "remove it, or choose a metric that "
                         "takes one (" + ", ".join(sorted(_metrics_at())) + ")")
     return c
+
+
+def _fault_fields(t: Table, c: Criterion) -> Criterion:
+    """``fault`` (required by an FDIR metric, refused elsewhere) and ``within_deg`` (fault_recovery_s only)."""
+    if c.metric not in FAULT_METRICS:
+        t.refuse_unused("fault", f"metric = {c.metric!r} (it is about no fault)", "remove it, or choose a fault "
+                        "metric (" + ", ".join(FAULT_METRICS) + ")")
+        t.refuse_unused("within_deg", f"metric = {c.metric!r}", "remove it (it is fault_recovery_s's limit)")
+        return c
+    fault = t.text("fault")
+    if c.metric != "fault_recovery_s":
+        t.refuse_unused("within_deg", f"metric = {c.metric!r}", "remove it (it is fault_recovery_s's limit)")
+        return replace(c, fault=fault)
+    return replace(c, fault=fault, within_deg=t.number("within_deg", lo=0.0, lo_open=True, hi=180.0))
 
 
 def _metrics_at() -> set[str]:

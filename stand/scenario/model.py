@@ -64,6 +64,10 @@ class Criterion:
     max: float | None
     min: float | None
     at_s: float | None
+    #: The fault an FDIR metric is about (``stand.adcs.metrics.FAULT_METRICS``), by its name in the run's events.
+    fault: str | None = None
+    #: The pointing limit (deg) of ``fault_recovery_s``.
+    within_deg: float | None = None
 
 
 @dataclass(frozen=True)
