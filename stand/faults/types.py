@@ -184,7 +184,7 @@ KIND_PHYSICS = (
         _set("torque_scale", lambda p, old: 1.0 - p["lost_fraction"])),
     _kind("wheel_motor_off", "wheel", "the motor gives no torque; the bearing's friction still acts", (),
           _set("motor_on", lambda p, old: False)),
-    _kind("wheel_speed_sensor_failure", "wheel", "the speed telemetry freezes", (),
+    _kind("wheel_speed_sensor_failure", "wheel", "the speed telemetry reads 0, flagged invalid (a dead tachometer)", (),
           _set("speed_sensor_failed", lambda p, old: True)),
     _kind("tracker_blinded", "tracker", "no valid solution: the Sun or a bright body blinds the tracker", (),
           _set("blinded", lambda p, old: True)),

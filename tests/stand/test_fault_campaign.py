@@ -26,7 +26,7 @@ RUNS = 100
 #: clock and reboot attributes of the emulators). The campaign test runs every type of the shipped file whose tap is
 #: not listed here; test_each_fault_type_of_the_shipped_file_runs_or_waits_for_its_tap fails as soon as a listed
 #: tap works, so this set is emptied as they land and the campaign then covers all the file's types.
-PENDING_TAPS = frozenset({"wheel"})
+PENDING_TAPS = frozenset()
 
 
 def shipped_file() -> dict:
