@@ -353,5 +353,11 @@ class StarTrackerHost(SerialHost):
         """Ask for ``telemetry`` every ``period_s`` (0 = every new solution)."""
         self._command(Subscribe(self._telemetry_id(telemetry), period_s), timeout_s)
 
+    def request_solutions(self, period_s: float = 0.0) -> None:
+        """Subscribe to SOLUTION without waiting for the answer (for flight code in a single-threaded loop, where the
+        wait would block the tick): a tracker that rebooted has lost its subscriptions; the ACK or NACK is counted by
+        the next :meth:`poll`."""
+        self.send_command(Subscribe(self.codec.solution_id, period_s))
+
     def unsubscribe(self, telemetry: str | int = "SOLUTION", timeout_s: float | None = None) -> None:
         self._command(Unsubscribe(self._telemetry_id(telemetry)), timeout_s)

@@ -237,6 +237,7 @@ class PointingController:
         self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
         self._w_RN_prev: tuple | None = None  # (t_s, omega_RN_R) of the last fine-pointing period
         self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0, "gyro_rejected": 0}
+        self._asked_tracker_s = -math.inf  # when the FDIR last asked a silent tracker for solutions again
         self._fresh_speeds = np.full(n, math.nan)  # this period's wheel speeds, NaN where none came (for the FDIR)
         self._keep: list[int] | None = None  # the wheels still used after an isolation (None: all)
 
@@ -442,6 +443,8 @@ class PointingController:
         """The FDIR's checks of this period (after the sensors are read, before the filter and the control)."""
         fd = self.fdir
         fd.check_silence(t_s)
+        if self.tracker_name in fd.lost:
+            self._ask_tracker_again(t_s)
         if self.gyro_name in fd.lost:
             fd.gyro.silent(fd.silent_s(self.gyro_name, t_s))
         if fd.gyro.failed:
@@ -452,6 +455,16 @@ class PointingController:
         for i in fd.wheels.update(self._fresh_speeds):
             if i not in fd.isolated:
                 self._isolate(t_s, i)
+
+    def _ask_tracker_again(self, t_s: float) -> None:
+        """A tracker that stopped sending may have rebooted, and a reboot ends its subscriptions (its ICD): ask for
+        solutions again, without waiting for the answer, once every lost_s while it stays silent."""
+        ask = getattr(self.tracker, "request_solutions", None)
+        if ask is None or t_s - self._asked_tracker_s < self.fdir.lost_s:
+            return
+        self._asked_tracker_s = t_s
+        self.counters["tracker_resubscribed"] = self.counters.get("tracker_resubscribed", 0) + 1
+        ask()
 
     def _isolate(self, t_s: float, i: int) -> None:
         fd = self.fdir
