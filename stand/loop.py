@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 from sim.time import seconds_to_ns
 
-from . import devices
+from . import controllers, devices
 from .compose import Scene, ticks_per
 from .pacing import Pacer
 from .scenario import DEFAULT_BUDGET_S
@@ -102,6 +102,10 @@ def column_meanings(scene: Scene) -> dict[str, str]:
     """Column name -> one-line meaning, for the telemetry's schema: the stand's own and what each device's kind
     declares (a kind not found, or declaring nothing, leaves its columns without one)."""
     out = dict(MEANINGS)
+    try:
+        out.update(controllers.get(scene.scenario.controller.kind).column_meanings)
+    except KeyError:
+        pass
     for spec in scene.scenario.devices:
         try:
             declared = devices.get(spec.kind).column_meanings

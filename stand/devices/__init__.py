@@ -202,13 +202,17 @@ class DeviceKind:
     #: Its telemetry columns (the part after ``NAME.``; widths and units are in ``Device.columns()``) -> a one-line
     #: meaning, written into the telemetry's schema.json and listed by ``stand check``.
     column_meanings: dict[str, str] = {}
+    #: Its bit-field columns (after ``NAME.``) -> the name of each bit, bit 0 (value 1) first; a flags column a
+    #: device's ICD defines holds the ICD's bits unchanged (docs/telemetry_columns.md lists them).
+    column_bits: dict[str, tuple[str, ...]] = {}
     #: The plot files it draws (``{name}``: the device's name) -> what each shows (:meth:`plots`, :meth:`kind_plots`).
     plot_files: dict[str, str] = {}
     #: What the operator view draws for it besides its fields of view (:meth:`view_layers`): layer -> meaning.
     view_layer_meanings: dict[str, str] = {}
     #: How the operator view colours its fields of view and validity strip, from its ``NAME.valid`` (and
     #: ``NAME.flags``) columns: ``{"missing": text without a value, "flags": whether NAME.flags says why it is
-    #: invalid (bits 1 Sun, 2 Moon, 4 Earth, 8 rate), "invalid": [colour key, text] otherwise}``; None: not drawn.
+    #: invalid (the tracker ICD's flags byte: values 2 Sun, 4 Moon, 8 Earth in the field, 16 rate too high), "invalid":
+    #: [colour key, text] otherwise}``; None: not drawn.
     view_state: dict | None = None
     #: Its error columns (after ``NAME.``) the view plots on the pointing and knowledge error plot (arcsec).
     view_error_columns: tuple[str, ...] = ()

@@ -119,3 +119,78 @@ def test_export_errors_are_one_sentence(tmp_path, capsys, monkeypatch):
     with pytest.raises(SystemExit) as exc:
         main(["export", str(tmp_path / "run"), "--format", "xlsx"])
     assert exc.value.code == 2
+
+
+# ------------------------------------------------------------------------- the generated column table
+@pytest.fixture(scope="module")
+def columns_table():
+    from stand import telemetry_doc
+
+    return telemetry_doc.collect()
+
+
+def test_the_column_table_in_docs_is_the_generated_one(columns_table):
+    from pathlib import Path
+
+    from stand import telemetry_doc
+
+    page = Path(__file__).resolve().parents[2] / "docs" / "telemetry_columns.md"
+    assert page.read_text() == telemetry_doc.markdown(columns_table), (
+        "docs/telemetry_columns.md differs from the code: python -m stand.telemetry_doc > docs/telemetry_columns.md")
+
+
+def test_every_column_each_kind_writes_has_a_meaning_and_a_unit(columns_table):
+    from stand import devices
+
+    # every shipped kind and both reference controllers appear, built from the shipped scenarios
+    groups = set(columns_table)
+    assert {f"kind:{k}" for k in devices.KINDS} <= groups
+    assert {"run", "controller:bdot", "controller:pointing"} <= groups
+    missing = [f"{g}: {c}" for g, cols in columns_table.items() for c, e in cols.items() if not e["meaning"]]
+    assert not missing, f"columns written without a meaning: {missing}"
+    # the hardware tracker's and the screen tracker's own columns are in (built on loopback ports)
+    assert {"clock_offset_s", "screen_t_lit_s", "screen_lead_s", "flags"} <= set(columns_table["kind:star_tracker"])
+    assert columns_table["kind:sun_sensor"]["currents"]["widths"] == {6}
+
+
+def test_a_tracker_flags_column_holds_the_icd_flags_byte(columns_table):
+    """`st1.flags` bit i is the ICD's SOLUTION flags bit i (bit 0 valid, 1 Sun in field, ...)."""
+    from drivers.star_tracker.codec import StarTrackerCodec
+    from stand.devices.star_tracker_devices import FLAG_BITS, ICD_FLAG_BITS
+
+    icd = next(f for f in StarTrackerCodec().messages["SOLUTION"].fields if f.name == "flags").bits
+    assert icd[:2] == ("valid", "sun_in_field")  # what the issue names: bit 0 valid, not "Sun in field"
+    assert columns_table["kind:star_tracker"]["flags"]["bits"] == icd
+    assert ICD_FLAG_BITS == {name: 1 << i for i, name in enumerate(icd)}
+    assert FLAG_BITS == {f: ICD_FLAG_BITS[f] for f in ("sun_in_field", "moon_in_field", "earth_in_field",
+                                                       "rate_too_high")}
+
+
+def test_a_recorded_tracker_flags_byte_agrees_with_its_valid_column(tmp_path):
+    """In a run: the flags byte's bit 0 is the valid column, and a tumbling tracker's invalid solutions carry the
+    ICD's rate bit (16), not the old 8."""
+    run = tmp_path / "run"
+    assert main(["run", "detumble_star_tracker", "--duration", "20", "--out", str(run)]) in (0, 1)
+    tel = telemetry.load(run)
+    ok = np.isfinite(tel["st1.t_exposure_s"])
+    flags, valid = tel["st1.flags"][ok].astype(int), tel["st1.valid"][ok]
+    assert len(flags) and np.array_equal(flags & 1, valid.astype(int))
+    assert np.all(flags & 16 == 16) and not np.any(flags & ~0b111111)
+
+
+def test_the_view_and_the_plots_read_the_same_flag_bits():
+    import re
+    from pathlib import Path
+
+    from stand.devices import star_tracker_plots
+    from stand.devices.star_tracker_devices import FLAG_BITS
+    from stand.view import export as view_export
+
+    js = (Path(view_export.__file__).parent / "assets" / "view.js").read_text()
+    table = re.search(r"const FLAG_BITS = \[(.*?)\];", js, re.S).group(1)
+    js_bits = [(int(b), word) for b, word in re.findall(r"\[(\d+), \"(\w+)\"", table)]
+    expected = [(FLAG_BITS[f], w) for f, w in (("sun_in_field", "Sun"), ("moon_in_field", "Moon"),
+                                               ("earth_in_field", "Earth"), ("rate_too_high", "rate"))]
+    assert js_bits == expected
+    assert [(b, w) for b, w, _ in view_export.FLAG_BITS] == expected
+    assert star_tracker_plots.TRACKER_FLAG_BITS == FLAG_BITS
