@@ -23,11 +23,14 @@ from __future__ import annotations
 
 import json
 import queue
+import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .logs import log_event
 
 #: Longest time (wall clock) a recorded row waits before it is on disk.
 FLUSH_S = 0.5
@@ -172,7 +175,9 @@ class Recorder:
 
 
 class EventLog:
-    """``events.jsonl``: one line per event, flushed immediately (it survives a kill)."""
+    """``events.jsonl``: one line per event, flushed immediately (it survives a kill). Each event is also a log
+    record of the logger of the module that logged it (:func:`stand.logs.log_event`: ``stand.log`` and the
+    console)."""
 
     def __init__(self, run_dir: str | Path):
         Path(run_dir).mkdir(parents=True, exist_ok=True)
@@ -181,6 +186,7 @@ class EventLog:
         self.lost = 0
 
     def log(self, kind: str, message: str, **fields) -> None:
+        log_event(sys._getframe(1).f_globals.get("__name__", __name__), kind, message)
         if not self._file.closed:
             try:
                 self._file.write(json.dumps({"kind": kind, "message": message, **fields}, default=str) + "\n")
