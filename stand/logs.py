@@ -93,6 +93,16 @@ class Console:
             logging.getLogger(name).setLevel(level)
 
 
+class _RunFile(logging.FileHandler):
+    """A run's file: a record that cannot be written (a full disk) is counted in ``lost``, never printed as a
+    traceback in the middle of the run (events.jsonl and the summary stay the record)."""
+
+    lost = 0
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        self.lost += 1
+
+
 class RunLog:
     """``RUN/stand.log`` for the length of one run: a handler on the stand's package loggers, removed by
     :meth:`close` (idempotent). A log that cannot be opened (a full disk) is left out; the run goes on."""
@@ -106,7 +116,7 @@ class RunLog:
         self.thread = threading.get_ident()
         self.handler: logging.Handler | None = None
         try:
-            handler = logging.FileHandler(self.path, encoding="utf-8", delay=False)
+            handler = _RunFile(self.path, encoding="utf-8", delay=False)
         except OSError:
             return
         handler.setLevel(logging.INFO)
@@ -140,4 +150,7 @@ class RunLog:
                 for name, level in RunLog._levels.items():
                     logging.getLogger(name).setLevel(level)
                 RunLog._levels.clear()
-        handler.close()
+        try:
+            handler.close()
+        except (OSError, ValueError):  # the last flush on a full disk
+            handler.lost += 1

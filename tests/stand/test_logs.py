@@ -172,3 +172,15 @@ def test_the_verdict_states_the_overrun_share(timing, verdict):
     assert verdict_text(True, "completed", timing) == verdict
     assert verdict_text(False, "completed", timing) == "FAIL"
     assert verdict_text(False, "aborted", timing) == "ABORTED"
+
+
+def test_a_run_log_that_cannot_be_written_costs_nothing_but_its_lines(tmp_path, capsys):
+    """A full disk: the file's write fails; no traceback on the console, the handler still goes away."""
+    before = _stand_handlers()
+    (tmp_path / logs.RUN_LOG).symlink_to("/dev/full")  # every write fails with ENOSPC
+    run_log = logs.RunLog(tmp_path)
+    logs.log_event("stand.loop", "start", "scenario x")
+    assert run_log.handler.lost == 1
+    run_log.close()
+    assert _stand_handlers() == before and "Traceback" not in capsys.readouterr().err
+    logs.RunLog(tmp_path / "missing" / "deeper").close()  # a folder that is not there: no file, no error
