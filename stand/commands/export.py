@@ -21,6 +21,8 @@ import os
 import sys
 from pathlib import Path
 
+from stand import telemetry
+
 FORMATS = ("parquet", "csv")
 #: Rows written per chunk of a CSV (bounded memory for the text of a long run).
 CSV_CHUNK_ROWS = 20_000
@@ -55,8 +57,6 @@ def run(args) -> int:
 def export(run_dir: str | Path, fmt: str, out: str | Path | None = None) -> Path:
     """Write the run's telemetry to ``out`` (default ``RUN/telemetry.FORMAT``) in ``fmt``; returns the path.
     The file appears whole or not at all (written beside it, then renamed)."""
-    from stand import telemetry
-
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt!r} is not known; use one of {', '.join(FORMATS)}")
     try:
