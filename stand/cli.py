@@ -23,7 +23,7 @@ from .errors import ScenarioError, fail
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
                   "stand.commands.shadow", "stand.commands.view", "stand.commands.campaign",
-                  "stand.commands.fault_proxy")
+                  "stand.commands.fault_proxy", "stand.commands.export")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)
@@ -270,7 +270,9 @@ def _report(summary: dict, result, sc, out: Path, case, limit_text) -> int:
               file=sys.stderr)
         status = "aborted"
     passed = summary["pass"] is True and on_disk is not None and on_disk.get("pass") is True
-    verdict = "PASS" if passed else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status, "FAIL")
+    # "PASS, paced with N % overruns" when a paced run's overruns exceed the stated share (stand.report.verdict_text)
+    verdict = summary.get("verdict", "PASS") if passed else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status,
+                                                                                                          "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")
     if case is not None:
@@ -417,14 +419,31 @@ def build_parser() -> argparse.ArgumentParser:
                 raise
             continue
         mod.register(sub)
+    _verbosity_flags(p, 0)
+    for command in sub.choices.values():  # `stand run -v ...` as well as `stand -v run ...`
+        _verbosity_flags(command, argparse.SUPPRESS)
     return p
+
+
+def _verbosity_flags(p: argparse.ArgumentParser, default) -> None:
+    """-v/-q: what the stand's loggers print on the console (stand.logs.console); every run logs to RUN/stand.log."""
+    p.add_argument("-v", "--verbose", action="count", default=default,
+                   help="say more on the console: -v notable events (INFO), -vv debugging (DEBUG)")
+    p.add_argument("-q", "--quiet", action="store_true", default=False if default == 0 else default,
+                   help="print only errors from the stand's loggers (the verdict is still printed)")
 
 
 def main(argv=None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
-        return args.func(args)
+        from .logs import Console
+
+        console = Console(-1 if args.quiet else args.verbose)
+        try:
+            return args.func(args)
+        finally:
+            console.close()
     except KeyboardInterrupt:
         print("stand: interrupted", file=sys.stderr)
         return EXIT_STOPPED

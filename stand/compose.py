@@ -8,6 +8,7 @@ torque needs it, and so on). ``stand check`` prints the plan without opening any
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 import shutil
@@ -29,6 +30,8 @@ from .checks import ticks_per
 from .devices import BuildContext
 from .errors import ScenarioError
 from .scenario import Scenario, earth_models
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Budget", "Choice", "Scene", "budget", "build", "check_budget", "device_needs", "initial_state", "plan",
            "ticks_per", "wheel_cluster"]
@@ -405,6 +408,9 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
     except BaseException:
         scene.close()
         raise
+    log.info("scene %s built: devices %s; controller %s; models %s", sc.name,
+             ", ".join(f"{d.name} ({d.kind}, {d.link})" for d in sc.devices) or "none", sc.controller.kind,
+             ", ".join(c.model for c in choices if c.built))
     return scene
 
 

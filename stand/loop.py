@@ -33,9 +33,10 @@ from dataclasses import dataclass, field
 
 from sim.time import seconds_to_ns
 
-from . import devices
+from . import controllers, devices
 from .compose import Scene, ticks_per
-from .pacing import Pacer
+from .logs import RunLog
+from .pacing import OVERRUN_SHARE_LIMIT, Pacer, overrun_share
 from .scenario import DEFAULT_BUDGET_S
 from .telemetry import EventLog, Recorder
 
@@ -102,6 +103,10 @@ def column_meanings(scene: Scene) -> dict[str, str]:
     """Column name -> one-line meaning, for the telemetry's schema: the stand's own and what each device's kind
     declares (a kind not found, or declaring nothing, leaves its columns without one)."""
     out = dict(MEANINGS)
+    try:
+        out.update(controllers.get(scene.scenario.controller.kind).column_meanings)
+    except KeyError:
+        pass
     for spec in scene.scenario.devices:
         try:
             declared = devices.get(spec.kind).column_meanings
@@ -342,6 +347,7 @@ class _Flight:
         self.watchdog = _Watchdog(budget_s) if self.controller is not None else None
         self.k, self.stage, self.fn = 0, START, None
         self.status, self.error, self.wall0, self.wall_s = "completed", None, clock(), 0.0
+        self.run_log = RunLog(out_dir)  # RUN/stand.log, beside events.jsonl; closed by _finish
         # Who is who when something raises: the object whose method failed -> (event kind, name in the error).
         self.known = {id(d): ("device_exception", d) for d in self.devs}
         self.known.update({id(w): ("device_exception", w.device) for w in self.watches})
@@ -544,8 +550,14 @@ def _finish(f: _Flight) -> dict:
         counters[w.name]["silences"] = w.silences
     if f.error:
         f.events.log(f.status, f.error)
+    share = overrun_share({"ticks": f.k, **f.pacer.stats()})
+    if share is not None and share > OVERRUN_SHARE_LIMIT:
+        f.events.log("overruns", f"{f.pacer.overruns} of {f.k} ticks ({100 * share:.1f} %) started more than a tick "
+                     f"period late (more than {100 * OVERRUN_SHARE_LIMIT:g} %): the wall-time links did not see the "
+                     "timing the scenario asks for", overruns=f.pacer.overruns, ticks=f.k)
     f.events.log("end", f.status, ticks=f.k, wall_time_s=f.wall_s)
     f.events.close()
+    f.run_log.close()
     return counters
 
 

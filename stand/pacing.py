@@ -21,6 +21,19 @@ import time
 from .errors import shown
 
 SPIN_S = 0.0005
+#: A paced run with more overruns than this share of its ticks is not a plain PASS: its verdict says
+#: "PASS, paced with N % overruns" (docs/architecture.md, "Pacing"); a scenario that must fail then gives an
+#: ``overruns`` criterion.
+OVERRUN_SHARE_LIMIT = 0.01
+
+
+def overrun_share(timing: dict) -> float | None:
+    """Overruns over ticks of a paced run's timing (``RunResult.timing``), or None for a run not paced or without
+    ticks."""
+    ticks = timing.get("ticks") or 0
+    if not timing.get("paced") or ticks <= 0:
+        return None
+    return timing.get("overruns", 0) / ticks
 #: Lateness histogram: FINE_BINS bins of FINE_S, then COARSE_BINS bins of COARSE_S; later still goes in the last bin.
 FINE_S, FINE_BINS = 1e-6, 10_000
 COARSE_S, COARSE_BINS = 1e-4, 9_900

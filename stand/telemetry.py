@@ -12,17 +12,25 @@ Layout of ``RUN_DIR/telemetry/``:
 
 The loop hands rows as flat tuples of floats to ``Recorder.record``; batching and the numpy
 conversion happen on the writer thread.
+
+Other tools read a run through :func:`load` (columns as numpy arrays), :func:`load_frame` (a pandas DataFrame,
+the ``export`` extra) or ``stand export RUN --format parquet|csv`` (:func:`flat_columns` names the flat
+columns: a vector column ``NAME`` of width w becomes ``NAME[0]`` ... ``NAME[w-1]``, in the order it is recorded,
+so ``q_BN[0]`` is the scalar part).
 """
 
 from __future__ import annotations
 
 import json
 import queue
+import sys
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .logs import log_event
 
 #: Longest time (wall clock) a recorded row waits before it is on disk.
 FLUSH_S = 0.5
@@ -167,7 +175,9 @@ class Recorder:
 
 
 class EventLog:
-    """``events.jsonl``: one line per event, flushed immediately (it survives a kill)."""
+    """``events.jsonl``: one line per event, flushed immediately (it survives a kill). Each event is also a log
+    record of the logger of the module that logged it (:func:`stand.logs.log_event`: ``stand.log`` and the
+    console)."""
 
     def __init__(self, run_dir: str | Path):
         Path(run_dir).mkdir(parents=True, exist_ok=True)
@@ -176,6 +186,7 @@ class EventLog:
         self.lost = 0
 
     def log(self, kind: str, message: str, **fields) -> None:
+        log_event(sys._getframe(1).f_globals.get("__name__", __name__), kind, message)
         if not self._file.closed:
             try:
                 self._file.write(json.dumps({"kind": kind, "message": message, **fields}, default=str) + "\n")
@@ -190,30 +201,67 @@ class EventLog:
                 self.lost += 1
 
 
-def load(run_dir: str | Path) -> dict[str, np.ndarray]:
-    """A run's telemetry as columns: ``t_s`` (n,), ``q_BN`` (n, 4), ``omega_BN_B`` (n, 3), ...
+def schema(run_dir: str | Path) -> dict:
+    """The run's ``schema.json`` (FileNotFoundError naming the run when it has none)."""
+    d = Path(run_dir) / "telemetry"
+    try:
+        return json.loads((d / SCHEMA).read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{run_dir} holds no telemetry ({d / SCHEMA} is missing).") from None
+
+
+def rows(run_dir: str | Path) -> np.ndarray:
+    """The whole rows on disk as an (n, row_floats) float64 array (a trailing partial row is left out)."""
+    width = int(schema(run_dir)["row_floats"])
+    raw = np.fromfile(Path(run_dir) / "telemetry" / ROWS, dtype="<f8")
+    n = raw.size // width
+    return raw[: n * width].reshape(n, width)
+
+
+def flat_columns(run_dir: str | Path) -> list[dict]:
+    """One entry per float of a row, in row order: ``name`` (``NAME`` for a scalar column, ``NAME[i]`` for element
+    i of a vector column), ``column`` (the recorded column's name), ``unit`` and ``meaning`` (empty when none)."""
+    out = []
+    for c in schema(run_dir)["columns"]:
+        w = int(c["width"])
+        for i in range(w):
+            out.append({"name": c["name"] if w == 1 else f"{c['name']}[{i}]", "column": c["name"],
+                        "unit": c.get("unit", ""), "meaning": c.get("meaning", "")})
+    return out
+
+
+def load_frame(run_dir: str | Path):
+    """A run's telemetry as a pandas DataFrame: one float64 column per float of a row, named as
+    :func:`flat_columns` names them (``t_s``, ``q_BN[0]`` ... ``q_BN[3]``, ``st1.flags``, ...), the values
+    bit for bit those of :func:`load`. Needs pandas (``pip install 'adcs-stand[export]'``)."""
+    try:
+        import pandas as pd
+    except ImportError:
+        raise ImportError("a DataFrame needs pandas: pip install 'adcs-stand[export]' (or pandas itself)") from None
+    data = rows(run_dir)
+    names = [c["name"] for c in flat_columns(run_dir)]
+    return pd.DataFrame({name: data[:, i].copy() for i, name in enumerate(names)})
+
+
+def load(run_dir: str | Path, as_frame: bool = False):
+    """A run's telemetry as columns: ``t_s`` (n,), ``q_BN`` (n, 4), ``omega_BN_B`` (n, 3), ...; with
+    ``as_frame=True`` a pandas DataFrame instead (:func:`load_frame`).
 
     Reads whatever whole rows are on disk, so it works on a run that is still going or was killed.
     """
-    d = Path(run_dir) / "telemetry"
-    try:
-        schema = json.loads((d / SCHEMA).read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{run_dir} holds no telemetry ({d / SCHEMA} is missing).") from None
-    width = int(schema["row_floats"])
-    raw = np.fromfile(d / ROWS, dtype="<f8")
-    n = raw.size // width
-    rows = raw[: n * width].reshape(n, width)
+    if as_frame:
+        return load_frame(run_dir)
+    schema_ = schema(run_dir)
+    rows_ = rows(run_dir)
     out: dict[str, np.ndarray] = {}
     col = 0
-    for c in schema["columns"]:
+    for c in schema_["columns"]:
         w = int(c["width"])
-        out[c["name"]] = rows[:, col] if w == 1 else rows[:, col:col + w]
+        out[c["name"]] = rows_[:, col] if w == 1 else rows_[:, col:col + w]
         col += w
     return out
 
 
 def units(run_dir: str | Path) -> dict[str, str]:
     """Column name -> unit, from the schema."""
-    schema = json.loads((Path(run_dir) / "telemetry" / SCHEMA).read_text())
-    return {c["name"]: c["unit"] for c in schema["columns"]}
+    return {c["name"]: c["unit"] for c in schema(run_dir)["columns"]}

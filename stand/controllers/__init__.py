@@ -63,6 +63,9 @@ class ControllerKind:
     metrics: dict[str, str] = {}
     #: Metrics that need ``at_s``.
     metrics_at: tuple[str, ...] = ()
+    #: Its flight code's telemetry columns -> a one-line meaning, written into the telemetry's schema.json and the
+    #: generated docs/telemetry_columns.md.
+    column_meanings: dict[str, str] = {}
 
     def parse(self, t: Table, step_s: float, devices) -> ControllerSpec:
         """The ``[controller]`` table (``kind`` already read): its rate, its call budget and :meth:`parse_params`."""

@@ -42,6 +42,7 @@ class BDotKind(ControllerKind):
     keys = ("rate_hz", "budget_s", "device", "magnetometer", "gain_A_m2_s_per_T", "max_dipole_A_m2",
             "skip_coil_active", "duty_cycle")
     row_floats = 3  # the commanded dipole
+    column_meanings = {"dipole_cmd_B": "the dipole the B-dot law commanded (held until the next command), body axes"}
 
     def parse_params(self, t: Table, rate_hz: float, step_s: float, devices, params: dict) -> None:
         boards = [d for d in devices if d.kind == "magnetorquer"]

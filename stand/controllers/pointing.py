@@ -172,6 +172,17 @@ class PointingKind(ControllerKind):
     name = "pointing"
     keys = ("rate_hz", "budget_s", "options", "datasheet", "datasheet_margin")
     row_floats = 25
+    column_meanings = {
+        "adcs_q_BN_est": "the attitude estimate, body relative to inertial, scalar first (NaN before the filter)",
+        "adcs_bias_est_B": "the gyro bias estimate, body axes",
+        "adcs_sigma3_B": "the estimate's 3-sigma attitude uncertainty about each body axis",
+        "adcs_mode": "the mode (0 detumble, 1 Sun acquisition, 2 fine pointing)",
+        "adcs_gyro_only": "1 while the estimate propagates on the gyro alone (no valid tracker solution)",
+        "adcs_q_RN": "the commanded (reference) attitude, relative to inertial, scalar first",
+        "adcs_wheel_torque_cmd": "the torque commanded to each wheel, in the order of the scenario's wheels",
+        "adcs_dipole_cmd_B": "the dipole commanded for momentum dumping, body axes",
+        "adcs_fdir": "the FDIR's flags (1 a wheel isolated, 2 the gyro failed: rate from the tracker, 4 a tracker "
+                     "solution rejected, 8 a device lost; docs/faults.md)"}
     # Read from the controller's telemetry columns by convention (stand.adcs.metrics): a plug-in that records the
     # same columns gets them too. They all take at_s, the settle time.
     metrics = {**METRICS, **FAULT_METRICS}  # the fault metrics name their fault, not a time

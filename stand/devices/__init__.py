@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -221,13 +222,17 @@ class DeviceKind:
     #: Its telemetry columns (the part after ``NAME.``; widths and units are in ``Device.columns()``) -> a one-line
     #: meaning, written into the telemetry's schema.json and listed by ``stand check``.
     column_meanings: dict[str, str] = {}
+    #: Its bit-field columns (after ``NAME.``) -> the name of each bit, bit 0 (value 1) first; a flags column a
+    #: device's ICD defines holds the ICD's bits unchanged (docs/telemetry_columns.md lists them).
+    column_bits: dict[str, tuple[str, ...]] = {}
     #: The plot files it draws (``{name}``: the device's name) -> what each shows (:meth:`plots`, :meth:`kind_plots`).
     plot_files: dict[str, str] = {}
     #: What the operator view draws for it besides its fields of view (:meth:`view_layers`): layer -> meaning.
     view_layer_meanings: dict[str, str] = {}
     #: How the operator view colours its fields of view and validity strip, from its ``NAME.valid`` (and
     #: ``NAME.flags``) columns: ``{"missing": text without a value, "flags": whether NAME.flags says why it is
-    #: invalid (bits 1 Sun, 2 Moon, 4 Earth, 8 rate), "invalid": [colour key, text] otherwise}``; None: not drawn.
+    #: invalid (the tracker ICD's flags byte: values 2 Sun, 4 Moon, 8 Earth in the field, 16 rate too high), "invalid":
+    #: [colour key, text] otherwise}``; None: not drawn.
     view_state: dict | None = None
     #: Its error columns (after ``NAME.``) the view plots on the pointing and knowledge error plot (arcsec).
     view_error_columns: tuple[str, ...] = ()
@@ -450,6 +455,10 @@ def check_can(t: Table, link: str, interface: str, channel: str) -> None:
         raise t.error("channel", channel.replace("\x00", "\\0"), "a channel name without NUL bytes")
 
 
+#: Wall-clock seconds a served device may hear nothing from outside before the run says so (:class:`Rejections`).
+UNHEARD_AFTER_S = 5.0
+
+
 class Rejections:
     """What a served device drops of what the flight computer outside sends, for the event log and the summary.
 
@@ -458,21 +467,49 @@ class Rejections:
     device's count, ``reason()`` the latest reason; :meth:`check`, called by the device each tick, logs a
     ``frames_rejected`` event at the first rejected frame and at each tenfold count after it (1, 10, 100...), so
     a flood of garbage cannot flood the log, and once a ``device_conflict`` when ``conflict()`` says another node
-    serves the same device. The whole count goes to the summary (``rejected_frames``)."""
+    serves the same device. The whole count goes to the summary (``rejected_frames``).
 
-    def __init__(self, name: str, count, reason, conflict=None):
+    ``heard()`` (optional) counts what arrived from outside at all, good or bad: when it is still 0 after
+    :data:`UNHEARD_AFTER_S` of wall time from the first tick, a ``device_unheard`` event (a WARNING on the console,
+    once) says that no flight computer talks to the device, and ``device_heard`` when something arrives later."""
+
+    def __init__(self, name: str, count, reason, conflict=None, heard=None, clock=time.monotonic):
         self.name = name
-        self.count, self.reason, self.conflict = count, reason, conflict
+        self.count, self.reason, self.conflict, self.heard = count, reason, conflict, heard
         self.events = None
         self._next = 1
         self._conflict_logged = False
+        self._clock = clock
+        self._since: float | None = None  # wall time of the first check
+        self.unheard = False  # said so, not heard from since
 
     def start(self, events) -> None:
         self.events = events
 
+    def _listen(self, t_s: float) -> None:
+        """The once-only unheard warning (one clock read per tick, and only until it is decided)."""
+        now = self._clock()
+        if self._since is None:
+            self._since = now
+        heard = self.heard()
+        if self.unheard and heard:
+            self.unheard, self.heard = False, None
+            self.events.log("device_heard", f"{self.name}: first frame from outside by t = {t_s:.3f} s", t_s=t_s,
+                            device=self.name)
+        elif heard:
+            self.heard = None  # heard from: nothing more to watch
+        elif not self.unheard and now - self._since >= UNHEARD_AFTER_S:
+            self.unheard = True
+            self.events.log("device_unheard", f"{self.name}: nothing received from outside in the first "
+                            f"{UNHEARD_AFTER_S:g} s of wall time (t = {t_s:.3f} s): no flight computer talks to this "
+                            "served device; check its port or bus, the cable and that the flight program runs (the "
+                            "run goes on)", t_s=t_s, device=self.name)
+
     def check(self, t_s: float) -> None:
         if self.events is None:
             return
+        if self.heard is not None:
+            self._listen(t_s)
         n = self.count()
         if n >= self._next:
             self.events.log("frames_rejected", f"{self.name}: {n} frame{'' if n == 1 else 's'} from outside rejected "
@@ -510,7 +547,8 @@ class SerialDevice(Device):
         flight computer sends goes to the event log (:class:`Rejections`, checked by :meth:`check_rejections`) and
         to the summary (``rejected_frames``)."""
         self.emulator = emulator
-        self.rejections = Rejections(self.name, lambda: emulator.rejected_frames, lambda: emulator.last_rejected)
+        self.rejections = Rejections(self.name, lambda: emulator.rejected_frames, lambda: emulator.last_rejected,
+                                     heard=lambda: emulator.counters.get("bytes_received", 0))
 
     def start(self, events) -> None:
         if self.rejections is not None:

@@ -105,8 +105,10 @@ class ServedCan:
             self.close()
             raise
         self.served = ServedNode(self.emulator, self.link)
+        counters = self.emulator.counters
         self.rejections = Rejections(spec.name, self.served.rejected_frames, self.served.last_rejected,
-                                     self.served.conflict)
+                                     self.served.conflict, heard=lambda: counters.get("received", 0) + counters.get(
+                                         "foreign", 0) + self.served.rejected_frames())
 
     def start(self, events):
         self.rejections.start(events)

@@ -40,6 +40,7 @@ from stand.devices import (
 from stand.devices.star_screen_link import ScreenTracker, describe_screen, parse_screen
 from stand.devices.star_tracker_devices import (
     FLAG_BITS,
+    ICD_FLAG_BITS,
     MODES,
     EmulatedTracker,
     HardwareTracker,
@@ -103,10 +104,14 @@ class StarTrackerKind(DeviceKind):
                        "q_TN": "that solution: tracker frame relative to inertial, scalar first",
                        "valid": "1 when that solution is valid",
                        "mode": "the tracker's mode (0 boot, 1 lost in space, 2 tracking)",
-                       "flags": "why it is not valid: bits 1 Sun, 2 Moon, 4 Earth in the field, 8 rate too high",
+                       "flags": "that solution's flags byte as the ICD sends it (bits below)",
                        "err_cross": "that solution's error across the boresight against the truth",
                        "err_roll": "that solution's error about the boresight against the truth",
-                       "clock_offset_s": "tracker clock minus stand clock, measured at start (hardware link)"}
+                       "clock_offset_s": "tracker clock minus stand clock, measured at start (hardware link)",
+                       "screen_t_lit_s": "time tag of the newest star-screen frame sent: the middle of the tick it "
+                                         "is lit (hardware tracker looking at the screen)",
+                       "screen_lead_s": "that time tag minus the tick's time (hardware tracker looking at the screen)"}
+    column_bits = {"flags": tuple(ICD_FLAG_BITS)}
     plot_files = {"tracker_{name}.png": "solution errors with their limits, validity, mode and flags"}
     view_layer_meanings = {"fovs": "the field of view", "exclusion_deg": "the Sun, Moon and Earth exclusion cones",
                            "rate_limit_deg_s": "the body rate above which it cannot solve"}

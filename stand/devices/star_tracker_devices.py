@@ -31,7 +31,21 @@ from stand.devices import (
 )
 from stand.devices.star_tracker_source import ARCSEC, measure_source
 
-FLAG_BITS = {"sun_in_field": 1, "moon_in_field": 2, "earth_in_field": 4, "rate_too_high": 8}
+
+def _icd_flag_bits() -> dict[str, int]:
+    """The SOLUTION message's flags byte as the tracker's ICD defines it: flag name -> the value of its bit."""
+    from drivers.star_tracker.codec import load_icd
+
+    solution = next(m for m in load_icd()["messages"] if m["name"] == "SOLUTION")
+    flags = next(f for f in solution["fields"] if f["name"] == "flags")
+    return {name: 1 << i for i, name in enumerate(flags["bits"])}
+
+
+#: ``NAME.flags`` records the ICD's SOLUTION flags byte bit for bit (bit 0 valid, 1 Sun, 2 Moon, 3 Earth in the
+#: field, 4 rate too high, 5 time synced), so a value read off the wire and one read off the telemetry agree.
+ICD_FLAG_BITS = _icd_flag_bits()
+#: The flags that say why a solution is not valid: counted in the summary, drawn by the plots and the view.
+FLAG_BITS = {f: ICD_FLAG_BITS[f] for f in ("sun_in_field", "moon_in_field", "earth_in_field", "rate_too_high")}
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
 #: The telemetry fragment before the first solution arrives (widths of the columns).
 NO_SOLUTION = (math.nan,) * 10
@@ -125,7 +139,7 @@ class TrackerDevice(SerialDevice):
         if sol.valid:
             self.valid += 1
             self.errors.append((t_exp, cross, roll))
-        bits = sum(b for f, b in FLAG_BITS.items() if getattr(sol, f))
+        bits = sum(b for f, b in ICD_FLAG_BITS.items() if getattr(sol, f))
         self.last = (t_exp, *sol.q_TN, float(sol.valid), float(MODES.get(sol.mode, -1)), float(bits), cross, roll)
         # Keep the truth log short: exposures older than a few seconds will never be reported.
         if len(self.truth_at) > 256:
@@ -134,8 +148,8 @@ class TrackerDevice(SerialDevice):
 
     def columns(self) -> list[tuple[str, int, str]]:
         """Telemetry of the newest solution the host received (repeated until the next): exposure time in sim
-        time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), flag bits (1 Sun, 2 Moon, 4 Earth,
-        8 rate), and its error against the truth at that exposure."""
+        time, q_TN, valid, mode (0 boot, 1 lost in space, 2 tracking), the ICD's flags byte (:data:`ICD_FLAG_BITS`),
+        and its error against the truth at that exposure."""
         n = self.name
         return [(f"{n}.t_exposure_s", 1, "s"), (f"{n}.q_TN", 4, "1"), (f"{n}.valid", 1, "1"),
                 (f"{n}.mode", 1, "1"), (f"{n}.flags", 1, "1"), (f"{n}.err_cross", 1, "arcsec"),

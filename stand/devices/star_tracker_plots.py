@@ -20,7 +20,8 @@ from stand.plots import (
 
 #: Codes of ``NAME.mode`` and bits of ``NAME.flags`` as a star tracker link records them.
 TRACKER_MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
-TRACKER_FLAG_BITS = {"sun_in_field": 1, "moon_in_field": 2, "earth_in_field": 4, "rate_too_high": 8}
+#: (The ICD's flags byte: bit 0 is "valid", bit 5 "time synced"; these are the bits that say why not valid.)
+TRACKER_FLAG_BITS = {"sun_in_field": 2, "moon_in_field": 4, "earth_in_field": 8, "rate_too_high": 16}
 
 
 def tracker_solutions(tel, name: str) -> dict[str, np.ndarray]:

@@ -27,7 +27,8 @@ _RGB = {"sun": (255, 200, 0), "moon": (190, 196, 210), "valid": (60, 220, 90), "
         "acquiring": (230, 200, 60)}
 COLORS = {k: tuple(c / 255 for c in v) for k, v in _RGB.items()}
 AXIS_COLORS = ("#ff5555", "#55e678", "#5a96ff")
-FLAG_BITS = ((1, "Sun", "sun_flag"), (2, "Moon", "moon_flag"), (4, "Earth", "earth_flag"), (8, "rate", "rate"))
+#: Bits of a tracker's NAME.flags (the ICD's flags byte) that say why a solution is not valid (view.js FLAG_BITS).
+FLAG_BITS = ((2, "Sun", "sun_flag"), (4, "Moon", "moon_flag"), (8, "Earth", "earth_flag"), (16, "rate", "rate"))
 
 
 def _lvlh(r, v):

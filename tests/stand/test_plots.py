@@ -32,7 +32,7 @@ def _tel(n: int = N) -> dict:
     t_exp = np.where(t >= 1.0, np.floor(t / 0.2) * 0.2 - 0.1, np.nan)
     valid = (rate < np.radians(5.0)).astype(float)
     tel.update({"st1.t_exposure_s": t_exp, "st1.q_TN": q, "st1.valid": valid,
-                "st1.mode": np.where(valid == 1.0, 2.0, 1.0), "st1.flags": np.where(valid == 1.0, 0.0, 8.0),
+                "st1.mode": np.where(valid == 1.0, 2.0, 1.0), "st1.flags": np.where(valid == 1.0, 1.0, 16.0),
                 "st1.err_cross": np.abs(rng.normal(0, 2, n)), "st1.err_roll": np.abs(rng.normal(0, 10, n))})
     # sun sensors: the Sun along inertial x, an eclipse from 100 s to 150 s
     frac = np.clip(np.abs(t - 125.0) - 25.0, 0.0, 1.0)

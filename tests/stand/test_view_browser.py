@@ -179,7 +179,7 @@ def test_tracker_field_turns_invalid_when_the_sun_enters_it(browser, replay, run
 
     tel = load(run_dir)
     valid = np.flatnonzero(tel["st1.valid"] == 1.0)
-    sun = np.flatnonzero((np.nan_to_num(tel["st1.flags"]).astype(int) & 1) == 1)
+    sun = np.flatnonzero((np.nan_to_num(tel["st1.flags"]).astype(int) & 2) == 2)  # the ICD's bit 1: Sun in field
     assert len(valid) and len(sun) and tel["t_s"][valid[0]] < tel["t_s"][sun[0]]
     t_valid, t_sun = float(tel["t_s"][valid[len(valid) // 2]]), float(tel["t_s"][sun[len(sun) // 2]])
     _open(browser, replay.url)

@@ -12,8 +12,9 @@
   const COLORS = { sun: "rgb(255,200,0)", moon: "rgb(190,196,210)", valid: "rgb(60,220,90)",
     sunFlag: "rgb(255,60,60)", moonFlag: "rgb(255,150,40)", earthFlag: "rgb(80,160,255)", rate: "rgb(200,110,255)",
     nosol: "rgb(140,140,140)", axes: ["rgb(255,85,85)", "rgb(85,230,120)", "rgb(90,150,255)"] };
-  const FLAG_BITS = [[1, "Sun", COLORS.sunFlag], [2, "Moon", COLORS.moonFlag], [4, "Earth", COLORS.earthFlag],
-    [8, "rate", COLORS.rate]];
+  // Bits of NAME.flags (the tracker ICD's flags byte; bit 0 is "valid") that say why a solution is not valid.
+  const FLAG_BITS = [[2, "Sun", COLORS.sunFlag], [4, "Moon", COLORS.moonFlag], [8, "Earth", COLORS.earthFlag],
+    [16, "rate", COLORS.rate]];
   // Colour keys a kind may name for an invalid sample (stand/view/export.py's COLORS).
   const STATE_COLORS = { acquiring: "rgb(230,200,60)", sun_flag: COLORS.sunFlag, moon_flag: COLORS.moonFlag,
     earth_flag: COLORS.earthFlag, rate: COLORS.rate, none: COLORS.nosol, valid: COLORS.valid };
