@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stand.checks import Table, rate
+from stand.checks import ScenarioError, Table, rate
+from stand.controllers.spacecraft import unwritten, unwritten_text
 from stand.registry import installed_names, load_named
 
 ENTRY_POINT_GROUP = "adcs_stand.controllers"
@@ -87,9 +88,6 @@ class ControllerKind:
         controller's column (``adcs_q_RN``...) this kind never records (it records those of its own ``metrics``)."""
         if self.columns_when_built:
             return
-        from stand.controllers.spacecraft import unwritten, unwritten_text
-        from stand.errors import ScenarioError
-
         problems = [p for p in unwritten(scenario.criteria, ()) if p[1] not in self.metrics]
         if problems:
             k = next(i for i, c in enumerate(scenario.criteria) if c.name == problems[0][0])

@@ -29,7 +29,7 @@ from stand.checks import rate
 from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint, fault_taps
 from stand.devices.magnetometer import FieldSensingKind, measurement_tap, sensor_field
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
-from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, serve_can_in_field
+from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, numbers, serve_can_in_field
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -290,8 +290,6 @@ def _serve(args, fail) -> int:
     Open loop the magnetometer reads ``--field-nT`` plus only the errors asked for (noise, bias, the coils' coupling;
     all off by default), and the banner says which."""
     from drivers.magnetorquer.emulator import EmulatorConfig, MagnetorquerEmulator
-    from stand.devices.serving import numbers
-
     try:
         noise_nT = float(args.noise_nT)
         if not (math.isfinite(noise_nT) and noise_nT >= 0):
