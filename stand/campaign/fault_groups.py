@@ -1,8 +1,8 @@
 """Faults in a campaign: the faults each case runs with, and pass rates grouped by fault type and by device.
 
 A campaign of faults (docs/faults.md, "Campaigns of faults") draws a fault per case (a ``choice`` over whole
-``[[faults]]`` tables, a ``uniform`` time...). Each case records the faults its scenario had, as drawn; ``campaign.json`` groups
-the verdicts by fault type and by device, so "does the flight code survive every single fault" reads off one
+``[[faults]]`` tables, a ``uniform`` time...). Each case records the faults its scenario had, as drawn;
+``campaign.json`` groups the verdicts by fault type and by device, so "does the flight code survive every single fault" reads off one
 table. A case with two faults counts in the group of each.
 """
 
