@@ -2,8 +2,8 @@
 
 A campaign of faults (docs/faults.md, "Campaigns of faults") draws a fault per case (a ``choice`` over whole
 ``[[faults]]`` tables, a ``uniform`` time...). Each case records the faults its scenario had, as drawn;
-``campaign.json`` groups the verdicts by fault type and by device, so "does the flight code survive every single fault" reads off one
-table. A case with two faults counts in the group of each.
+``campaign.json`` groups the verdicts by fault type and by device, so "does the flight code survive every single
+fault" reads off one table. A case with two faults counts in the group of each.
 """
 
 from __future__ import annotations
