@@ -24,7 +24,7 @@ from sim.time import seconds_to_ns
 from sim.truth import CHUNK_S, TruthModel, chunk_points
 from sim.wheels import WheelCluster
 
-from . import controllers, devices, scenario
+from . import controllers, devices, faults, scenario
 from .checks import ticks_per
 from .devices import BuildContext
 from .errors import ScenarioError
@@ -302,6 +302,8 @@ class Scene:
     choices: list[Choice]
     devices: dict = field(default_factory=dict)  # name -> stand.devices.Device
     controller: object | None = None
+    #: The run's fault schedule (``stand.faults.FaultSchedule``), or None: no ``[[faults]]`` and none taken live.
+    faults: object | None = None
     closed: bool = False
 
     @property
@@ -339,13 +341,15 @@ def initial_state(sc: Scenario):
 
 
 def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *, duration_s: float | None = None,
-          out_dir: Path | None = None, allow_remote: tuple[str, ...] | list[str] = ()) -> Scene:
+          out_dir: Path | None = None, allow_remote: tuple[str, ...] | list[str] = (), live_faults: bool = False
+          ) -> Scene:
     """Create the truth model, every device for its link, and the controller. ``speed`` is the pacing factor
     (None: as fast as possible), which wall-time devices need; ``base`` is the folder plug-in paths are
     relative to (the scenario's); ``duration_s`` and ``out_dir``, the run's length (default the scenario's) and
     folder (default ``runs``), are what the estimate before t = 0 is checked for (``plan``); ``allow_remote``, the
     hosts and multicast groups beyond this machine the operator allows devices to reach
-    (:func:`stand.devices.check_network`)."""
+    (:func:`stand.devices.check_network`); ``live_faults``, whether the operator may inject faults during the run
+    (the fault schedule is built then even without ``[[faults]]``)."""
     devices.check_network(sc.devices, allow_remote)  # before anything connects
     choices = plan(sc, duration_s, out_dir)
     built = {c.model for c in choices if c.built}
@@ -392,6 +396,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
         scene.controller = controllers.build_controller(sc, scene.devices, base)
+        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults)
     except BaseException:
         scene.close()
         raise

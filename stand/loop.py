@@ -362,12 +362,13 @@ class _Flight:
     def __init__(self, scene: Scene, out_dir, speed, duration_s, progress: bool, clock, sleep, observer):
         sc = self.sc = scene.scenario
         self.truth, self.controller, self.observer = scene.truth, scene.controller, observer
-        self.faults = getattr(scene, "faults", None)  # the fault schedule (stand.faults), for live commands
+        self.faults = getattr(scene, "faults", None)  # the fault schedule, None in a run that takes no faults
+        self.columns = columns(scene)
         self.clock, self.sleep = clock, sleep
         self.duration_s = sc.duration_s if duration_s is None else duration_s
         self.n_steps = seconds_to_ns(self.duration_s) // self.truth.step_ns
         self.events = EventLog(out_dir)
-        self.recorder = Recorder(out_dir, columns(scene), column_meanings(scene))
+        self.recorder = Recorder(out_dir, self.columns, column_meanings(scene))
         self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
         self.bar = Progress(self.n_steps * sc.step_s, progress)
         self.devs = list(scene.devices.values())
@@ -385,6 +386,7 @@ class _Flight:
         self.known.update({id(obj): (kind, name) for obj, kind, name in (
             (self.controller, "controller_exception", "the controller"),
             (self.truth, "truth_exception", "the truth model (dynamics)"),
+            (self.faults, "fault_exception", "the fault schedule"),
             (self.recorder, "writer_exception", "the telemetry writer"),
             (self.events, "writer_exception", "the event log"),
             (self.pacer, "pacer_exception", "the pacer"),
@@ -407,6 +409,8 @@ class _Flight:
             for effect in d.effects():  # what an actuator does to the truth, read by the truth's step
                 own(effect.read, d)
                 effects.append(effect)
+        if self.faults is not None:  # faults start and clear before the devices publish (none: nothing here)
+            publishers.insert(0, (own(self.faults.tick, self.faults), 1))
         if pacer.factor is not None:
             publishers.insert(0, (pacer.wait, 1))  # first: the tick's wall-clock deadline
         if pacer.factor is not None and sc.wall_time_links:
@@ -426,6 +430,8 @@ class _Flight:
             parts.append(own(ctl_row, self.controller))  # last: the flight code's (the budget covers the row)
         sinks = ([own(self.observer.record, self.observer)] if self.observer is not None else []) + (
             [self.bar.row] if self.bar.enabled else [])
+        if self.faults is not None and self.faults.bind_columns(self.columns):
+            sinks.append(own(self.faults.row, self.faults))  # faults that wait for a mode or a column
         ctl_every = ticks_per(sc.controller.rate_hz, sc.step_s) if ctl_update is not None else 0
         busy = self.watchdog.busy if self.watchdog is not None else [None]
         return (publishers, receivers, step, parts, sinks, ctl_update, ctl_every, busy,
@@ -434,6 +440,8 @@ class _Flight:
 
 def _start(f: _Flight) -> None:
     f.stage = START
+    if f.faults is not None:
+        f.faults.start(f.events)
     for d in f.devs:
         f.fn = d
         d.start(f.events)

@@ -213,6 +213,8 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
         "rate_deg_s_at": checkpoints,
         "device_counters": result.counters,
         "telemetry_rows": int(len(tel["t_s"])),
+        # What was injected and when (docs/faults.md); absent from a run that takes no faults.
+        **({"faults": scene.faults.summary()} if getattr(scene, "faults", None) is not None else {}),
     })
     write_summary_file(out_dir, summary)
     if not plots:

@@ -183,6 +183,24 @@ class Device:
     def close(self) -> None:
         """Release ports and buses (idempotent)."""
 
+    def fault_tap(self, name: str):
+        """Where a fault of tap ``name`` (``stand.faults.taps.TAPS``) acts on this device, or None to let
+        ``stand.faults.taps.find`` follow the conventions (its emulator, the emulator's or host's port or bus).
+        Asked only when a fault first starts on the device, never in a run without faults."""
+        return None
+
+
+def fault_taps(link: str, *own: str, measurement: dict | None = None) -> dict:
+    """The fault taps of a device whose emulator runs in the stand (emulated and served links: ``own`` physics
+    taps, its ``measurement`` (``{"n": axes, "unit": key suffix}``), its line or bus, its clock, its reboot) or
+    that is real (hardware: only its line or bus, through the in-process fault proxy on the host's port)."""
+    if link == "hardware":
+        return {"link": {}}
+    out = {"link": {}, "clock": {}, "reboot": {}, **{t: {} for t in own}}
+    if measurement is not None:
+        out["measurement"] = measurement
+    return out
+
 
 class DeviceKind:
     """A kind of device: its scenario table, its needs, how it is built, its metrics and plots."""
@@ -247,6 +265,12 @@ class DeviceKind:
 
     def build(self, spec: DeviceSpec, ctx: BuildContext) -> Device:
         raise NotImplementedError
+
+    def fault_taps(self, spec: DeviceSpec) -> dict[str, dict]:
+        """Where faults can act on a device of this spec: tap (``stand.faults.taps.TAPS``) -> its details (a
+        measurement's ``{"n": axes, "unit": key suffix}``), for validation before t = 0 and docs/faults.md
+        (:func:`fault_taps` builds the usual answer). Default: none, no fault can name it."""
+        return {}
 
     def cost(self, spec: DeviceSpec) -> DeviceCost:
         """What the device costs a run (the default assumes a publish every tick and a 16-float row)."""

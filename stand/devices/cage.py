@@ -103,6 +103,10 @@ class CageKind(DeviceKind):
         return (f"Helmholtz cage emulated on Modbus TCP 127.0.0.1 (coil L/R, slew and current limits, relays, "
                 f"interlocks), commanded to the simulated body-axes field at {spec.rate_hz:g} Hz{lead}")
 
+    def fault_taps(self, spec: CageSpec) -> dict:
+        # The emulated cage's coil pairs; a real cage is the stand's own equipment, not a device under test.
+        return {"cage": {}} if spec.link != "hardware" else {}
+
     def build(self, spec: CageSpec, ctx: BuildContext) -> Device:
         return Cage(spec, ctx)
 

@@ -36,6 +36,7 @@ from stand.devices import (
     DeviceSpec,
     SerialDevice,
     check_serial_url,
+    fault_taps,
     settle_serial,
 )
 from stand.devices.serving import ServeOption, Serving, numbers, serial_port_fields, serve_serial
@@ -129,6 +130,9 @@ class GyroKind(DeviceKind):
                 "served": f"gyro served on serial {spec.port} for a flight computer outside at "
                           f"{spec.output_rate_hz:g} Hz, {model}"}[spec.link]
 
+    def fault_taps(self, spec: GyroSpec) -> dict:
+        return fault_taps(spec.link, measurement={"n": 3, "unit": "rad_s"})
+
     def build(self, spec: GyroSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedGyro, "hardware": HardwareGyro, "served": ServedGyro}[spec.link](spec, ctx)
 
@@ -207,6 +211,13 @@ class _GyroDevice(SerialDevice):
 
     def summary(self):
         return {"observed_samples": self.observer.count(GyroRate), **self.driver_counters()}
+
+    def fault_tap(self, name: str):
+        if name == "measurement" and self.emulator is not None:  # the measured rate, before quantisation
+            from sim.sensor_faults import VectorTap
+
+            return VectorTap(self.emulator, "source", 3, "rad_s")
+        return None
 
 
 class EmulatedGyro(_GyroDevice):

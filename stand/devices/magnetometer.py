@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 from sim.truth import rotate_to_body
 from stand.checks import rate
-from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices import BuildContext, Device, DeviceCost, DeviceKind, DeviceSpec, can_endpoint, fault_taps
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
 from stand.devices.serving import SEED_OPTION, ServeOption, can_serving, field_option, serve_can_in_field
 
@@ -104,6 +104,9 @@ class MagnetometerKind(FieldSensingKind):
     def cost(self, spec: MagnetometerSpec) -> DeviceCost:
         return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=4)
 
+    def fault_taps(self, spec: MagnetometerSpec) -> dict:
+        return fault_taps(spec.link, measurement={"n": 3, "unit": "T"})
+
     def build(self, spec: MagnetometerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedMagnetometer, "hardware": HardwareMagnetometer,
                 "served": ServedMagnetometer}[spec.link](spec, ctx)
@@ -128,6 +131,9 @@ class _Unit(ObservedCan, Device):
     def activity(self):
         return 0 if self.observer is None else self._observed_samples()
 
+    def fault_tap(self, name: str):
+        return measurement_tap(getattr(self, "emulator", None), "sensor", name)
+
     def close(self) -> None:
         for part in (self.host, getattr(self, "emulator", None), self.observer):
             if part is not None:
@@ -135,6 +141,16 @@ class _Unit(ObservedCan, Device):
         for b in self._buses:
             b.shutdown()
         self._buses = []
+
+
+def measurement_tap(emulator, sensor: str, name: str):
+    """The measured field (sensor axes, T, after the sensor's noise and quantiser) of ``emulator.<sensor>``, for a
+    fault of tap ``name`` = "measurement" (None for any other tap: the conventions find it)."""
+    if name != "measurement" or emulator is None:
+        return None
+    from sim.sensor_faults import VectorTap
+
+    return VectorTap(getattr(emulator, sensor), "measure", 3, "T", first=True)
 
 
 def sensor_field(spec, ctx: BuildContext):

@@ -26,8 +26,8 @@ import numpy as np
 from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
-from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint
-from stand.devices.magnetometer import FieldSensingKind, sensor_field
+from stand.devices import BuildContext, Device, DeviceCost, DeviceSpec, can_endpoint, fault_taps
+from stand.devices.magnetometer import FieldSensingKind, measurement_tap, sensor_field
 from stand.devices.served_can import CanSpec, ObservedCan, ServedCan
 from stand.devices.serving import SEED_OPTION, can_serving, field_option, serve_can_in_field
 
@@ -113,6 +113,9 @@ class MagnetorquerKind(FieldSensingKind):
     def cost(self, spec: MagnetorquerSpec) -> DeviceCost:
         return DeviceCost(rate_hz=spec.sample_rate_hz, row_floats=7)
 
+    def fault_taps(self, spec: MagnetorquerSpec) -> dict:
+        return fault_taps(spec.link, "coils", measurement={"n": 3, "unit": "T"})
+
     def build(self, spec: MagnetorquerSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedBoard, "hardware": HardwareBoard, "served": ServedBoard}[spec.link](spec, ctx)
 
@@ -138,6 +141,9 @@ class _Board(ObservedCan, Device):
 
     def effects(self):
         return (Effect("dipole", self.dipole_B),)
+
+    def fault_tap(self, name: str):
+        return measurement_tap(getattr(self, "emulator", None), "magnetometer", name)
 
     def close(self) -> None:
         if self.observer is not None:

@@ -35,7 +35,7 @@ from drivers.reaction_wheel.codec import WheelSpeed
 from sim.effects import Effect
 from sim.rotations import dcm
 from stand.checks import rate
-from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint
+from stand.devices import BuildContext, Device, DeviceKind, DeviceSpec, can_endpoint, fault_taps
 from stand.devices.served_can import CanSpec, ServedCan
 from stand.devices.serving import ServeOption, can_serving, serve_can
 
@@ -127,6 +127,9 @@ class ReactionWheelKind(DeviceKind):
         return {"emulated": f"reaction wheel emulated on {where}, {what}",
                 "hardware": f"reaction wheel on {where} (hardware: the truth gets the motor torque it reports), {what}",
                 "served": f"reaction wheel served on {where} for a flight computer outside, {what}"}[spec.link]
+
+    def fault_taps(self, spec: ReactionWheelSpec) -> dict:
+        return fault_taps(spec.link, "wheel")
 
     def build(self, spec: ReactionWheelSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedWheel, "hardware": HardwareWheel, "served": ServedWheel}[spec.link](spec, ctx)

@@ -35,6 +35,7 @@ from stand.devices import (
     DeviceKind,
     DeviceSpec,
     check_serial_url,
+    fault_taps,
 )
 from stand.devices.star_screen_link import ScreenTracker, describe_screen, parse_screen
 from stand.devices.star_tracker_devices import (
@@ -211,6 +212,11 @@ class StarTrackerKind(DeviceKind):
         px = spec.optics.width * spec.optics.height
         return DeviceCost(rate_hz=rate_hz, row_floats=10, memory_bytes=IMAGE_BASE_BYTES + 16 * px,
                           publish_s=1.2e-3 + 5e-3 + 70e-9 * px)
+
+    def fault_taps(self, spec: StarTrackerSpec) -> dict:
+        if spec.screen is not None:  # a tracker before the star screen: the screen is its stimulus, see faults.md
+            return {}
+        return fault_taps(spec.link, "tracker")
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:
         if spec.screen is not None:

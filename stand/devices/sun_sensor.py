@@ -51,6 +51,7 @@ from stand.devices import (
     DeviceSpec,
     SerialDevice,
     check_serial_url,
+    fault_taps,
     settle_serial,
 )
 from stand.devices.serving import ServeOption, Serving, numbers, serial_port_fields, serve_serial
@@ -165,6 +166,11 @@ class SunSensorKind(DeviceKind):
         return DeviceCost(rate_hz=None if spec.link in ("hardware", "served") else spec.rate_hz,
                           row_floats=spec.width + 2, publish_s=0.0 if spec.link == "hardware" else 50e-6)
 
+    def fault_taps(self, spec: SunSensorSpec) -> dict:
+        if spec.link == "model":  # no line and no emulator: nothing for a fault to act on
+            return {}
+        return fault_taps(spec.link, measurement={"n": spec.width, "unit": "A" if spec.type == "coarse" else "rad"})
+
     def build(self, spec: SunSensorSpec, ctx: BuildContext) -> Device:
         return {"emulated": EmulatedSunSensor, "hardware": HardwareSunSensor, "served": ServedSunSensor,
                 "model": ModelSunSensor}[spec.link](spec, ctx)
@@ -264,6 +270,14 @@ class _SunSensorDevice(SerialDevice):
         out["observed_samples"] = self.observer.count(FineSunSample, CoarseSunSample)
         out.update(self.driver_counters())
         return out
+
+    def fault_tap(self, name: str):
+        if name == "measurement" and self.emulator is not None:  # head currents (coarse) or angles (fine)
+            from sim.sensor_faults import VectorTap
+
+            return VectorTap(self.emulator, "source", self.spec.width, "A" if self.spec.type == "coarse" else "rad",
+                             first=True)
+        return None
 
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from sim.time import Epoch
 from stand import controllers
 from stand import devices as kinds
+from stand import faults as fault_specs
 from stand.checks import CONTROL, MISSING, NAME_PATTERN, ScenarioError, Table, rate
 from stand.devices import DeviceSpec
 
@@ -113,6 +114,8 @@ def parse(data: dict, source: str | None = None) -> Scenario:
         raise root.error("criteria", crit_raw, "an array of [[criteria]] tables is expected")
     criteria = tuple(_criterion(Table(c, f"criteria[{k}]", source), duration_s) for k, c in enumerate(crit_raw))
 
+    faults = fault_specs.parse(root.raw("faults", None), devices, duration_s, source)
+
     rec = root.table("recording", required=False)
     record_rate_hz = rate(rec, "rate_hz", step_s, default=1.0 / step_s)
     rec.check_unknown()
@@ -121,7 +124,7 @@ def parse(data: dict, source: str | None = None) -> Scenario:
     root.check_unknown()
     sc = Scenario(name, description, source or "<string>", epoch, duration_s, seed, step_s, integrator,
                   tuple(torques), orbit, spacecraft, environment, devices, controller, criteria,
-                  record_rate_hz, sections)
+                  record_rate_hz, sections, faults)
     controllers.get(controller.kind).check_scenario(sc)
     return sc
 

@@ -86,6 +86,8 @@ class Scenario:
     record_rate_hz: float
     #: Optional sections declared in ``stand.scenario.SECTIONS`` that the scenario has: key -> their parsed spec.
     sections: dict[str, Any] = field(default_factory=dict)
+    #: ``[[faults]]``: what goes wrong during the run (``stand.faults.FaultSpec``, in the scenario's order).
+    faults: tuple = ()
 
     def device(self, kind: str) -> DeviceSpec | None:
         return next((d for d in self.devices if d.kind == kind), None)
