@@ -163,7 +163,8 @@ def _prepare(args):
         if case is None:
             base = scenario_mod.find(args.scenario).parent if args.scenario else None
         scene = build(sc, speed, base, duration_s=args.duration, out_dir=out,
-                      allow_remote=getattr(args, "allow_remote", ()))
+                      allow_remote=getattr(args, "allow_remote", ()),
+                      live_faults=getattr(args, "view", None) is not None)  # the page injects faults
     except BaseException:
         _unreserve(out, created)
         raise

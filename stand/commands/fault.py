@@ -1,7 +1,7 @@
 """``stand fault``: inject, clear or list faults in a run that is going on with ``stand run --view``.
 
     stand fault RUN_DIR inject --device rw2 --type wheel_seized [--param K=V ...] [--duration-s X] [--name N]
-    stand fault RUN_DIR inject --link st1 --type drop --param rate=0.5
+    stand fault RUN_DIR inject --device st1 --type drop --param probability=0.5 --param direction=to_host
     stand fault RUN_DIR clear NAME
     stand fault RUN_DIR list [--json]
 
@@ -45,15 +45,14 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="the page's token (default: the one in RUN_DIR/view_url.json, else $STAND_VIEW_TOKEN)")
     sub = p.add_subparsers(dest="action", required=True, metavar="inject|clear|list")
     inj = sub.add_parser("inject", help="inject a fault now")
-    where = inj.add_mutually_exclusive_group(required=True)
-    where.add_argument("--device", help="the device the fault acts on")
-    where.add_argument("--link", metavar="DEVICE", help="the device whose bus or line the (protocol) fault acts on")
+    inj.add_argument("--device", required=True, help="the device the fault acts on (a protocol fault: its line or "
+                     "bus)")
     inj.add_argument("--type", required=True, help="the fault type (`stand fault RUN_DIR list` shows them)")
     inj.add_argument("--param", action="append", default=[], metavar="K=V",
                      help="a parameter of the fault type, e.g. --param bias_deg_s=[0.5,0,0] (repeatable)")
     inj.add_argument("--duration-s", type=float, help="clear the fault after this many simulated seconds "
                      "(default: until cleared or the end)")
-    inj.add_argument("--name", help="the fault's name (default: TYPE@DEVICE)")
+    inj.add_argument("--name", help="the fault's name (default: DEVICE.TYPE)")
     clr = sub.add_parser("clear", help="clear an injected fault")
     clr.add_argument("name", help="the fault's name (as `inject` printed it)")
     lst = sub.add_parser("list", help="the faults injected so far and the fault types")
@@ -72,14 +71,13 @@ def _value(text: str):
 
 def fault_table(args) -> dict:
     """The [[faults]] table that ``inject``'s options describe."""
-    table: dict = {"device": args.device} if args.device is not None else {"link": args.link}
-    table["type"] = args.type
+    table: dict = {"device": args.device, "type": args.type}
     for item in args.param:
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or not key:
             raise FaultCommandError(f"--param {item!r} is not allowed: KEY=VALUE, e.g. --param rate=0.5.")
-        if key in ("device", "link", "type", "name", "duration_s"):
+        if key in ("device", "type", "name", "duration_s"):
             raise FaultCommandError(f"--param {item!r} is not allowed: {key} has its own option "
                                     f"(--{key.replace('_', '-')}).")
         table[key] = _value(text.strip())

@@ -67,6 +67,7 @@ def _device_view(d) -> dict:
     kind = _kind(d.kind)
     out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB]}
     out.update({"fovs": [], **kind.view_layers(d), **_declared(kind)})
+    out["fault_taps"] = {tap: dict(info) for tap, info in kind.fault_taps(d).items()}  # what the fault panel offers
     return out
 
 

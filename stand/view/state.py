@@ -375,18 +375,15 @@ class LiveFeed:
 
 def fault_types() -> list[dict]:
     """The fault types a page or ``stand fault`` may offer (``stand.faults.FAULT_TYPES``): name, layer, the tap a
-    device must offer, parameters and description."""
-    try:
-        from stand.faults import FAULT_TYPES
-    except ImportError:  # a stand without the fault package: the page offers a free-text type
-        return []
-    out = []
-    for name, ft in FAULT_TYPES.items():
-        params = getattr(ft, "params", ())
-        out.append({"name": name, "layer": str(getattr(ft, "layer", "")), "tap": str(getattr(ft, "tap", "")),
-                    "params": {str(k): str(v) for k, v in params.items()} if isinstance(params, dict)
-                    else [str(p) for p in params], "description": str(getattr(ft, "description", ""))})
-    return out
+    device must offer, what it does and its parameters (``key`` may hold ``{unit}``, the device's measurement unit,
+    as ``view.json`` gives it in ``fault_taps``)."""
+    from stand.faults import FAULT_TYPES
+
+    return [{"name": name, "layer": ft.layer, "tap": ft.tap, "text": ft.text, "instant": ft.instant,
+             "params": [{"key": p.key, "shape": p.shape, "default": p.default, "text": p.text, "lo": p.lo,
+                         "hi": p.hi, "options": list(p.options) if isinstance(p.options, tuple | list) else []}
+                        for p in ft.params]}
+            for name, ft in FAULT_TYPES.items()]
 
 
 def fault_list(events: list[dict]) -> list[dict]:

@@ -41,7 +41,7 @@ class FakeSchedule:
         self.threads.add(threading.get_ident())
         if table.get("type") not in TYPES:
             raise ScenarioError("faults[live].type", table.get("type"), "one of " + ", ".join(TYPES))
-        name = table.get("name") or f"{table['type']}@{table.get('device')}"
+        name = table.get("name") or f"{table.get('device')}.{table['type']}"
         self.tables.append(table)
         self.active[name] = table
         return name
@@ -111,15 +111,15 @@ def test_inject_and_clear_reach_the_schedule_from_the_loop_thread(live):
     view, schedule, runner = live
     table = {"device": "rw2", "type": "wheel_seized", "duration_s": 5.0}
     assert _http(view.url + "api/faults", {"action": "inject", "fault": table}) == (
-        200, {"action": "inject", "name": "wheel_seized@rw2"})
+        200, {"action": "inject", "name": "rw2.wheel_seized"})
     assert schedule.tables == [table]
     assert schedule.threads == {runner.thread.ident}  # handed over by the loop, not by the server's threads
     named = {"device": "imu", "type": "bias_step", "bias_deg_s": [0.5, 0.0, 0.0], "name": "imu_jump"}
     assert _http(view.url + "api/faults", {"action": "inject", "fault": named}) == (
         200, {"action": "inject", "name": "imu_jump"})
-    assert _http(view.url + "api/faults", {"action": "clear", "name": "wheel_seized@rw2"}) == (
-        200, {"action": "clear", "name": "wheel_seized@rw2"})
-    assert schedule.cleared == ["wheel_seized@rw2"] and list(schedule.active) == ["imu_jump"]
+    assert _http(view.url + "api/faults", {"action": "clear", "name": "rw2.wheel_seized"}) == (
+        200, {"action": "clear", "name": "rw2.wheel_seized"})
+    assert schedule.cleared == ["rw2.wheel_seized"] and list(schedule.active) == ["imu_jump"]
 
 
 def test_the_schedules_refusal_comes_back_as_one_sentence(live):
@@ -127,8 +127,8 @@ def test_the_schedules_refusal_comes_back_as_one_sentence(live):
     status, body = _http(view.url + "api/faults", {"action": "inject", "fault": {"device": "rw2", "type": "melt"}})
     assert status == 400
     assert body == {"error": "faults[live].type = 'melt' is not allowed: one of wheel_seized, bias_step."}
-    status, body = _http(view.url + "api/faults", {"action": "clear", "name": "nothing@rw9"})
-    assert (status, body) == (404, {"error": "no fault named 'nothing@rw9' was injected in this run"})
+    status, body = _http(view.url + "api/faults", {"action": "clear", "name": "rw9.nothing"})
+    assert (status, body) == (404, {"error": "no fault named 'rw9.nothing' was injected in this run"})
     assert schedule.tables == [] and schedule.cleared == []
 
 
@@ -220,7 +220,9 @@ def test_get_lists_the_faults_from_the_event_log(run_dir, tmp_path):
         with server.ViewServer(source) as view:
             status, body = _http(view.url + "api/faults", headers={})
         assert status == 200 and body["faults"] == expected and body["live"] == (source.mode == "live")
-        assert isinstance(body["types"], list)
+        types = {t["name"]: t for t in body["types"]}
+        assert types["bias_step"]["tap"] == "measurement" and types["bias_step"]["params"][0]["key"] == "bias_{unit}"
+        assert len(types) >= 20
 
 
 # ------------------------------------------------------------------------------------------------ stand fault
@@ -242,15 +244,15 @@ def test_stand_fault_injects_clears_and_lists(live, tmp_path, capsys):
     server.write_view_url(tmp_path, view.url, view.host, None)
     assert main(["fault", str(tmp_path), "inject", "--device", "imu", "--type", "bias_step", "--param",
                  "bias_deg_s=[0.5, 0, 0]", "--param", "axis=x", "--param", "on=true", "--duration-s", "2.5"]) == 0
-    assert capsys.readouterr().out == "injected bias_step@imu\n"
+    assert capsys.readouterr().out == "injected imu.bias_step\n"
     assert schedule.tables == [{"device": "imu", "type": "bias_step", "bias_deg_s": [0.5, 0, 0], "axis": "x",
                                 "on": True, "duration_s": 2.5}]
-    assert main(["fault", str(tmp_path), "inject", "--link", "st1", "--type", "wheel_seized", "--name", "n1"]) == 0
-    assert schedule.tables[-1] == {"link": "st1", "type": "wheel_seized", "name": "n1"}
-    assert main(["fault", str(tmp_path), "clear", "bias_step@imu"]) == 0
-    assert capsys.readouterr().out == "injected n1\ncleared bias_step@imu\n"
-    assert main(["fault", str(tmp_path), "clear", "bias_step@imu"]) == 2
-    assert capsys.readouterr().err == ("stand: error: the run refused: no fault named 'bias_step@imu' was injected "
+    assert main(["fault", str(tmp_path), "inject", "--device", "st1", "--type", "wheel_seized", "--name", "n1"]) == 0
+    assert schedule.tables[-1] == {"device": "st1", "type": "wheel_seized", "name": "n1"}
+    assert main(["fault", str(tmp_path), "clear", "imu.bias_step"]) == 0
+    assert capsys.readouterr().out == "injected n1\ncleared imu.bias_step\n"
+    assert main(["fault", str(tmp_path), "clear", "imu.bias_step"]) == 2
+    assert capsys.readouterr().err == ("stand: error: the run refused: no fault named 'imu.bias_step' was injected "
                                        "in this run (HTTP 404).\n")
     assert main(["fault", str(tmp_path), "inject", "--device", "imu", "--type", "melt"]) == 2
     assert "faults[live].type = 'melt' is not allowed: one of wheel_seized, bias_step." in capsys.readouterr().err
@@ -290,9 +292,9 @@ def test_stand_fault_without_a_live_page(tmp_path, capsys):
 # ------------------------------------------------------------------------------------------------ the real loop
 
 def test_a_paced_run_takes_faults_through_the_view_process(tmp_path, capsys):
-    """``stand run --view``'s two processes and the real loop: a fault injected over HTTP and by ``stand fault``
-    reaches the scene's schedule in the loop's thread; view_url.json is there while the run goes, 0600, and
-    removed at the end."""
+    """``stand run --view``'s two processes, the real loop and the real fault schedule: a fault injected over HTTP
+    starts at the next tick and ``stand fault ... clear`` ends it, both logged; a bad table is refused with the
+    schedule's sentence; view_url.json is there while the run goes, 0600, and removed at the end."""
     from stand.compose import build
     from stand.scenario import load as load_scenario
 
@@ -300,26 +302,37 @@ def test_a_paced_run_takes_faults_through_the_view_process(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     live = server.LiveSession("127.0.0.1", 0, None)
-    schedule = FakeSchedule()
-    results, threads = [], []
-    with build(sc) as scene:
-        scene.faults = schedule  # what stand.compose builds when live injection is on
+    results = []
+    with build(sc, live_faults=True) as scene:
         url = live.start(sc, out)
         try:
             assert stat.S_IMODE(os.stat(out / "view_url.json").st_mode) == 0o600
-            runner = threading.Thread(target=lambda: (threads.append(threading.get_ident()), results.append(
-                loop.run(scene, out, speed=20.0, observer=live.observer))), daemon=True)
+            runner = threading.Thread(target=lambda: results.append(
+                loop.run(scene, out, speed=20.0, observer=live.observer)), daemon=True)
             runner.start()
+            blind = {"action": "inject", "fault": {"device": "fss", "type": "bias_step", "bias_rad": [0.05, 0.0]}}
+            assert _http(url + "api/faults", blind) == (200, {"action": "inject", "name": "fss.bias_step"})
             status, body = _http(url + "api/faults", {"action": "inject", "fault": {"device": "st1",
-                                                                                     "type": "bias_step"}})
-            assert (status, body) == (200, {"action": "inject", "name": "bias_step@st1"})
-            assert main(["fault", str(out), "clear", "bias_step@st1"]) == 0
-            assert capsys.readouterr().out == "cleared bias_step@st1\n"
+                                                                                     "type": "wheel_seized"}})
+            assert status == 400 and body["error"].startswith("faults[1].type = 'wheel_seized' in live is not "
+                                                              "allowed: a fault type device 'st1'"), body
+            assert main(["fault", str(out), "clear", "fss.bias_step"]) == 0
+            assert capsys.readouterr().out == "cleared fss.bias_step\n"
+            for _ in range(200):  # the clearing is logged at the next tick
+                if "fault_cleared" in (out / "events.jsonl").read_text():
+                    break
+                threading.Event().wait(0.05)
+            assert main(["fault", str(out), "list"]) == 0
+            listed = capsys.readouterr().out.splitlines()
+            assert listed[0].startswith("fss.bias_step: bias_step on fss from t = ")
+            assert ", cleared at t = " in listed[0]
             assert _http(url + "api/control", {"command": "stop"})[0] == 200
             runner.join(timeout=60.0)
             assert not runner.is_alive()
         finally:
             live.close(results[0].status if results else "aborted")
     assert results[0].status == "stopped"
-    assert schedule.threads == set(threads) and schedule.cleared == ["bias_step@st1"]
+    events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
+    faults = [(e["kind"], e["fault"]) for e in events if e["kind"].startswith("fault_")]
+    assert faults == [("fault_injected", "fss.bias_step"), ("fault_cleared", "fss.bias_step")]
     assert not (out / "view_url.json").exists()
