@@ -961,21 +961,25 @@
   function fillFaultTypes() {
     const dev = S.meta.devices.find((d) => d.name === $("fault-device").value), taps = dev && dev.fault_taps;
     const sel = $("fault-type"), was = sel.value;
-    const types = S.faultTypes.filter((t) => !Array.isArray(taps) || taps.includes(t.tap));
+    const types = S.faultTypes.filter((t) => !taps || t.tap in taps);  // a view.json without taps: every type
     sel.textContent = "";
     for (const t of types) {
       const o = document.createElement("option");
-      o.value = o.textContent = t.name; o.title = t.description;
+      o.value = o.textContent = t.name; o.title = t.text;
       sel.appendChild(o);
     }
     if (types.some((t) => t.name === was)) sel.value = was;
     showFaultParams();
   }
   function showFaultParams() {
+    // A parameter's key may hold {unit}: the device's measurement unit (gyro rad_s: bias_rad_s).
     const t = S.faultTypes.find((x) => x.name === $("fault-type").value);
-    const names = t ? (Array.isArray(t.params) ? t.params : Object.keys(t.params)) : [];
-    $("fault-params").placeholder = names.length ? names.map((n) => `${n}=…`).join(", ") : "name=value, ...";
-    $("fault-type").title = t ? t.description : "";
+    const dev = S.meta.devices.find((d) => d.name === $("fault-device").value);
+    const unit = dev && dev.fault_taps && dev.fault_taps.measurement ? dev.fault_taps.measurement.unit : "{unit}";
+    const params = t ? t.params.filter((p) => p.default === null) : [];  // the ones without a default first
+    $("fault-params").placeholder = params.length ? params.map((p) => `${p.key.replace("{unit}", unit)}=…`).join(", ") : "name=value, ...";
+    $("fault-params").title = t ? t.params.map((p) => `${p.key.replace("{unit}", unit)}: ${p.text}` + (p.default !== null ? ` (default ${JSON.stringify(p.default)})` : "")).join("\n") : "";
+    $("fault-type").title = t ? t.text : "";
   }
   async function setupFaults() {
     $("fault-form").hidden = !S.live;
