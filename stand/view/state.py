@@ -430,6 +430,7 @@ class LiveSource:
         self._held = 0  # samples in _history
         self._events: list[dict] = []
         self._events_pos = 0
+        self._events_sent = 0  # how many of _events the pages were pushed (a snapshot gives no more than these)
         self.listeners: list = []  # callables(message dict)
         self.pushes = 0
         self._lock = threading.Lock()
@@ -494,7 +495,8 @@ class LiveSource:
             self._notify({"type": "status", "status": self.status})
 
     def finished(self, run_status: str = "completed") -> None:
-        events = self._new_events()
+        with self._lock:
+            events = self._unsent_events()
         with self._answered:  # a fault command still waiting is told the run ended
             self.status = "finished"
             self._answered.notify_all()
@@ -520,7 +522,7 @@ class LiveSource:
             if self._held > self.max_samples:
                 self._thin()
             self.pushes += 1
-            events = self._new_events()
+            events = self._unsent_events()
         self._notify({"type": "samples", "samples": encode(derived), "status": self.status,
                       **({"events": events} if events else {})})
 
@@ -557,17 +559,25 @@ class LiveSource:
         self._events += out
         return out
 
+    def _unsent_events(self) -> list[dict]:
+        """The events no push has carried yet (read from the log now), marked as pushed."""
+        self._new_events()
+        out, self._events_sent = self._events[self._events_sent:], len(self._events)
+        return out
+
     def _notify(self, message: dict) -> None:
         for listener in list(self.listeners):
             listener(message)
 
     def snapshot(self) -> tuple[dict, list[dict]]:
-        """Every sample so far (one table) and every event, for a page that opens mid-run."""
+        """Every sample and every event pushed so far, for a page that opens mid-run: what the next push carries,
+        it gets then, as the pages already open do (a snapshot that took events from the log would leave them out
+        of that push, and the open pages would never see them)."""
         with self._lock:
-            self._new_events()
+            events = self._events[:self._events_sent]
             if not self._history:
-                return {}, list(self._events)
-            return self._merged(), list(self._events)
+                return {}, events
+            return self._merged(), events
 
 
 class LocalLink:

@@ -336,3 +336,35 @@ def test_a_paced_run_takes_faults_through_the_view_process(tmp_path, capsys):
     faults = [(e["kind"], e["fault"]) for e in events if e["kind"].startswith("fault_")]
     assert faults == [("fault_injected", "fss.bias_step"), ("fault_cleared", "fss.bias_step")]
     assert not (out / "view_url.json").exists()
+
+
+def test_a_page_opening_mid_run_takes_no_event_from_the_pages_already_open(run_dir, tmp_path):
+    """A snapshot (``/api/samples`` of a page that opens) must not take events from the log before the next push:
+    the open pages would never get them (a fault injected then would be missing from their timeline)."""
+    import shutil
+
+    import numpy as np
+
+    from stand.telemetry import load
+
+    out = tmp_path / "run"
+    shutil.copytree(run_dir, out)
+    (out / "events.jsonl").write_text(json.dumps({"kind": "start", "message": "", "t_s": 0.0}) + "\n")
+    tel = load(out)
+    schema = json.loads((out / "telemetry" / "schema.json").read_text())["columns"]
+    flat = np.column_stack([np.asarray(tel[c["name"]]).reshape(len(tel["t_s"]), -1) for c in schema])
+    source = state.LiveSource(out, state.load_meta(out))
+    pushed = []
+    source.listeners.append(pushed.append)
+    source.ingest(flat[:10])
+    with open(out / "events.jsonl", "a") as f:
+        f.write(json.dumps({"kind": "fault_injected", "message": "", "fault": "imu.bias_step", "t_s": 1.0}) + "\n")
+    samples, events = source.snapshot()  # a second page opens
+    assert [e["kind"] for e in events] == ["start"] and len(samples["t_s"]) == 10
+    source.ingest(flat[10:20])
+    assert [[e["kind"] for e in m.get("events", [])] for m in pushed] == [["start"], ["fault_injected"]]
+    assert [e["kind"] for e in source.snapshot()[1]] == ["start", "fault_injected"]
+    with open(out / "events.jsonl", "a") as f:
+        f.write(json.dumps({"kind": "end", "message": "completed"}) + "\n")
+    source.finished("completed")
+    assert pushed[-1]["events"] == [{"kind": "end", "message": "completed"}]
