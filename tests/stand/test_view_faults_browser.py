@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from stand.telemetry import load
+from stand.view import server
 
 from .test_view_browser import ROOT, _open, _severe, _wait, browser  # noqa: F401 - browser is a fixture
 from .view_scenario import write as write_scenario
@@ -151,3 +152,15 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
     assert np.abs(err[before]).max() < RATE_TOL
     assert np.abs(err[during] - BIAS_RAD_S).max() < RATE_TOL
     assert np.abs(err[after]).max() < RATE_TOL
+    # A replay of the run draws the same from its event log: the list (no form) and the marks.
+    with server.ViewServer(server.ReplaySource(out)) as view:
+        _open(browser, view.url)
+        assert not browser.find_element("id", "faults-panel").get_attribute("hidden")
+        assert browser.find_element("id", "fault-form").get_attribute("hidden")
+        assert browser.find_element("id", "fault-list").text.replace("\n", " ") == (
+            f"imu.bias_step bias_step on imu, t = {t_in:.1f}–{t_out:.1f} s (bias_rad_s=[0.02,0,0])")
+        assert browser.find_elements("css selector", "#fault-list button") == []
+        timeline = _png(browser, "return document.getElementById('timeline').toDataURL('image/png')")
+        x_in, x_out = browser.execute_script(f"const x = window.standView.timeline.x; return [x({t_in}), x({t_out})]")
+        assert _column_has(timeline, x_in, FAULT_RGB) >= 20 and _column_has(timeline, x_out, CLEARED_RGB) >= 20
+        assert _severe(browser) == []
