@@ -96,6 +96,13 @@ class CanNode(BusEndpoint):
         self.last_rejected: str | None = None
         self.counters: dict[str, int] = dict.fromkeys((*NODE_COUNTERS, *extra_counters), 0)
 
+    def use_bus(self, bus: can.BusABC) -> None:
+        """Talk through ``bus`` from now on: the same bus wrapped (a fault-injecting proxy, ``drivers.link_faults``);
+        the fast paths are taken from the wrapper, which hands them over only while it has nothing to do."""
+        self.bus = bus
+        self._send_data = getattr(bus, "send_data", None)
+        self._has_rx_ready = hasattr(bus, "rx_ready")
+
     def _check_open(self) -> None:
         if self._closed:
             raise DriverError(f"{self.name}: {self._closed_text}")

@@ -164,7 +164,7 @@ def _prepare(args):
             base = scenario_mod.find(args.scenario).parent if args.scenario else None
         scene = build(sc, speed, base, duration_s=args.duration, out_dir=out,
                       allow_remote=getattr(args, "allow_remote", ()),
-                      live_faults=getattr(args, "view", None) is not None)  # the page injects faults
+                      live_faults=getattr(args, "view", None) is not None)  # the page can inject faults
     except BaseException:
         _unreserve(out, created)
         raise

@@ -103,6 +103,11 @@ def plan(sc: Scenario, duration_s: float | None = None, out_dir: Path | None = N
     for key, spec in sc.sections.items():
         section = scenario.section(key)
         choices.append(Choice(section.model, True, section.describe(spec)))
+    for f in sc.faults:
+        choices.append(Choice(f"fault.{f.name}", True, f.describe()))
+    if not sc.faults:
+        choices.append(Choice("faults", False, "no [[faults]] in the scenario: no fault schedule, nothing per tick "
+                              "(stand run --view builds one for faults injected live)"))
     ctl = controllers.get(sc.controller.kind)
     choices.append(Choice(f"controller.{sc.controller.kind}", ctl.in_stand, ctl.describe(sc)))
     choices.append(Choice("estimate", True, check_budget(sc, duration_s, out_dir).text()))
@@ -396,7 +401,7 @@ def build(sc: Scenario, speed: float | None = None, base: Path | None = None, *,
             if devices.get(d.kind).provides:
                 stimuli[d.name] = built
         scene.controller = controllers.build_controller(sc, scene.devices, base)
-        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults)
+        scene.faults = faults.build(sc, scene.devices, scene.controller, live_faults, duration_s)
     except BaseException:
         scene.close()
         raise

@@ -541,6 +541,21 @@ class SerialDevice(Device):
             self._close_line = None
 
 
+def line_faulted(emulator) -> bool:
+    """Whether a protocol fault has been put on ``emulator``'s line (``stand.faults``): frames may then be lost, held
+    or added on purpose, and the counts of the two ends can no longer match."""
+    return getattr(emulator.port, "wrapped", None) is not None
+
+
+def take_in_arrived(host) -> None:
+    """The host takes in whatever has arrived on an in-process line (a pipe hands bytes over at once), without
+    waiting for frames a fault may have lost; bounded."""
+    for _ in range(8):
+        if not host.port.in_waiting:
+            break
+        host.poll()
+
+
 def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SETTLE_TIMEOUT_S) -> None:
     """Wait (bounded) until ``host`` has taken in every datagram ``emulator`` sent on their in-process serial line
     (:func:`serial_line`).
@@ -549,6 +564,9 @@ def settle_serial(emulator, host, name: str, awaited: str, timeout_s: float = SE
     code in the tick it was sent, the same in every run. Raises :class:`drivers.errors.DeviceTimeoutError` after
     ``timeout_s`` of wall time."""
     if emulator.counters["sent"] <= frames_in(host.counters):
+        return
+    if line_faulted(emulator):
+        take_in_arrived(host)
         return
     import time
 

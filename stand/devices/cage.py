@@ -105,7 +105,8 @@ class CageKind(DeviceKind):
 
     def fault_taps(self, spec: CageSpec) -> dict:
         # The emulated cage's coil pairs; a real cage is the stand's own equipment, not a device under test.
-        return {"cage": {}} if spec.link != "hardware" else {}
+        # A field step is what the cage shows the magnetometer in it, on every link.
+        return {"cage": {}, "stimulus": {}} if spec.link != "hardware" else {"stimulus": {}}
 
     def build(self, spec: CageSpec, ctx: BuildContext) -> Device:
         return Cage(spec, ctx)
@@ -130,6 +131,9 @@ def _error_nT(tel, name: str):
 
 
 class Cage(Device):
+    #: A field added to what the cage reproduces (body axes, T), set by a ``cage_field_step`` fault: the real
+    #: magnetometer in the cage sees a bias the flight code must cope with.
+    field_step_B_T: tuple | None = None
     def __init__(self, spec: CageSpec, ctx: BuildContext):
         from drivers.cage.calibration import CageCalibration
         from drivers.cage.host import CageHost
@@ -245,6 +249,8 @@ class Cage(Device):
                 target = tuple(b + (b - p) * self.spec.lead_s / dt for b, p in zip(target, self._prev_target,
                                                                                   strict=True))
             self._prev_target = self.truth.b_B()
+            if self.field_step_B_T is not None:  # a stimulus fault: the cage shows a field the truth does not have
+                target = tuple(b + s for b, s in zip(target, self.field_step_B_T, strict=True))
             with self._io:
                 self.host.command_field(target)
                 self._last_command_s = time.monotonic()

@@ -276,6 +276,15 @@ class _LocalWindow:
         self.window.close()
 
 
+def _rotation_q(v) -> tuple:
+    """The unit quaternion (scalar first) of rotation vector ``v`` (rad)."""
+    angle = math.sqrt(sum(x * x for x in v))
+    if angle == 0.0:
+        return (1.0, 0.0, 0.0, 0.0)
+    s = math.sin(0.5 * angle) / angle
+    return (math.cos(0.5 * angle), v[0] * s, v[1] * s, v[2] * s)
+
+
 def _percentiles(values, scale: float = 1.0, digits: int = 4) -> dict:
     v = np.asarray(values, float) * scale
     if not len(v):
@@ -286,6 +295,10 @@ def _percentiles(values, scale: float = 1.0, digits: int = 4) -> dict:
 
 class ScreenTracker(HardwareTracker):
     """A hardware tracker whose screen the stand drives every tick (see the module docstring)."""
+
+    #: A rotation (rad, tracker axes) applied to the sky the screen shows, set by a ``screen_wrong_attitude``
+    #: fault: the real tracker sees a consistent sky of the wrong attitude and reports it as valid.
+    screen_misid_rad: tuple | None = None
 
     def __init__(self, spec, ctx):
         super().__init__(spec, ctx)
@@ -345,6 +358,8 @@ class ScreenTracker(HardwareTracker):
         # ahead of the truth as behind it.
         t_show = t_lit + 0.5 * self._step_s
         q_show = extrapolate(q_TN, w_T, t_show - t_s)
+        if self.screen_misid_rad is not None:
+            q_show = compose_floats(_rotation_q(self.screen_misid_rad), q_show)
         self._lateness.append(late)
         if late > self._step_s / speed:
             self.frames_late += 1

@@ -214,8 +214,8 @@ class StarTrackerKind(DeviceKind):
                           publish_s=1.2e-3 + 5e-3 + 70e-9 * px)
 
     def fault_taps(self, spec: StarTrackerSpec) -> dict:
-        if spec.screen is not None:  # a tracker before the star screen: the screen is its stimulus, see faults.md
-            return {}
+        if spec.screen is not None:  # a real tracker before the star screen: its line, and the sky the screen shows
+            return {"link": {}, "stimulus": {}}
         return fault_taps(spec.link, "tracker")
 
     def build(self, spec: StarTrackerSpec, ctx: BuildContext) -> Device:

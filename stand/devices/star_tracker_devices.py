@@ -26,6 +26,8 @@ from stand.devices import (
     DeviceSpec,
     SerialDevice,
     frames_in,
+    line_faulted,
+    take_in_arrived,
 )
 from stand.devices.star_tracker_source import ARCSEC, measure_source
 
@@ -210,11 +212,15 @@ class EmulatedTracker(TrackerDevice):
 
     def publish(self, t_s: float) -> None:
         emu, host = self.emulator, self.host
-        if host.counters["sent"] > frames_in(emu.counters):
+        faulted = line_faulted(emu)  # frames lost or held on purpose: take what arrived, wait for nothing
+        if host.counters["sent"] > frames_in(emu.counters) and not faulted:
             self._settle(lambda: emu.port.in_waiting > 0, emu.port)
         emu.service(t_s)
         if emu.counters["sent"] > frames_in(host.counters):
-            self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
+            if faulted:
+                take_in_arrived(host)
+            else:
+                self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
         sol = self._new_solution()
         if sol is not None:
             self._score(sol, self.emulator.sim_time_s(sol.time_us))

@@ -166,7 +166,8 @@ class FaultSchedule:
         if ftype.instant:
             self._followers("cleared", f.name, t_s)
         else:
-            occ.end_s = max(occ.end_s, t_s)
+            # Started at this tick (a fault seen on a row starts at the next one): it lasts its whole duration.
+            occ.end_s = math.inf if f.duration_s is None else t_s + f.duration_s
             self.active.append(occ)
         self._followers("fault", f.name, t_s)
 
@@ -250,10 +251,12 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def build(scenario, devices: dict, controller=None, live: bool = False) -> FaultSchedule | None:
-    """The schedule of a run, or None when it has no faults and takes none live (it then costs nothing)."""
+def build(scenario, devices: dict, controller=None, live: bool = False, duration_s: float | None = None
+          ) -> FaultSchedule | None:
+    """The schedule of a run of ``duration_s`` (default the scenario's), or None when it has no faults and takes
+    none live (it then costs nothing)."""
     faults = getattr(scenario, "faults", ())
     if not faults and not live:
         return None
-    return FaultSchedule(faults, devices, {d.name: d for d in scenario.devices}, scenario.seed, scenario.duration_s,
-                         controller, scenario.source)
+    return FaultSchedule(faults, devices, {d.name: d for d in scenario.devices}, scenario.seed,
+                         scenario.duration_s if duration_s is None else duration_s, controller, scenario.source)

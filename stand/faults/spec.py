@@ -161,6 +161,12 @@ def one(t: Table, index: int, by_name: dict, duration_s: float) -> FaultSpec:
 def _param(t: Table, p: Param, info: dict):
     key = p.key.replace("{unit}", info.get("unit", "si"))
     n = int(info.get("n", 3))
+    if "{unit}" in p.key and key not in t.data:
+        stem = p.key.split("{unit}")[0]
+        other = [k for k in t.data if isinstance(k, str) and k.startswith(stem)]
+        if other:  # the unit of another kind's measurement (bias_T on a gyro)
+            raise t.error(other[0], t.data[other[0]], f"this device measures in {info.get('unit')}: the key is "
+                          f"{key!r}")
     if p.shape == "choice":
         return t.choice(key, p.options, p.default)
     if p.shape == "axis":

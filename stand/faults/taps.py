@@ -26,6 +26,7 @@ TAPS = {
     "tracker": "a star tracker's solution (blinding, loss, misidentification, latency)",
     "coils": "a magnetorquer's coils (the dipole it produces)",
     "cage": "a Helmholtz cage's coil pairs (the field it produces)",
+    "stimulus": "what a stimulator shows a real sensor (the star screen's sky, the Helmholtz cage's field)",
 }
 
 
@@ -51,25 +52,34 @@ def find(device, name: str):
 def _conventional(device, name: str):
     emulator, host = getattr(device, "emulator", None), getattr(device, "host", None)
     if name == "link":
-        return link_tap(emulator if emulator is not None else host)
+        return link_tap(emulator, "device") if emulator is not None else link_tap(host, "host")
     if name in ("clock", "reboot", "wheel", "tracker", "coils", "cage"):
         return emulator
+    if name == "stimulus":
+        return device
     return None
 
 
-def link_tap(endpoint):
-    """Put a fault-injecting wrapper over ``endpoint``'s serial port or CAN bus (once) and return it."""
+def link_tap(endpoint, side: str):
+    """Put a fault-injecting wrapper (``drivers.link_faults``) over ``endpoint``'s serial port or CAN bus (once) and
+    return it. ``side``: ``"device"`` for an emulator's end, ``"host"`` for a host driver's (a hardware link: the
+    in-process proxy between the host and the real port)."""
     if endpoint is None:
         return None
     from drivers.link_faults import FaultyBus, FaultyPort
 
-    for attr, wrapper in (("port", FaultyPort), ("bus", FaultyBus)):
-        inner = getattr(endpoint, attr, None)
-        if inner is None or isinstance(inner, str):
-            continue
-        if isinstance(inner, wrapper):
-            return inner
-        wrapped = wrapper(inner)
-        setattr(endpoint, attr, wrapped)
-        return wrapped
+    port, bus = getattr(endpoint, "port", None), getattr(endpoint, "bus", None)
+    if port is not None and not isinstance(port, str):
+        if not isinstance(port, FaultyPort):
+            codec = getattr(endpoint, "codec", None)
+            # Bytes read are cut into frames the way the endpoint's own framing does: fixed-length datagrams by
+            # identifier, or SLIP.
+            datagrams = hasattr(codec, "by_id") and hasattr(codec, "byte_order")
+            port = endpoint.port = FaultyPort(port, side=side, framing=codec if datagrams else "slip")
+        return port
+    if bus is not None:
+        if not isinstance(bus, FaultyBus):
+            bus = FaultyBus(bus, side=side)
+            endpoint.use_bus(bus)  # the node re-reads its fast paths from the wrapper
+        return bus
     return None

@@ -146,6 +146,12 @@ def _axis_item(attr, value):
     return start, stop
 
 
+def _rotvec(p) -> tuple:
+    """The rotation vector (rad) of a fault's ``angle_deg`` (SI by now) about its ``axis_S``."""
+    axis = np.asarray(p["axis_S"], dtype=float)
+    return tuple(float(x) for x in axis / np.linalg.norm(axis) * p["angle_deg"])
+
+
 def _kind(name, tap, text, params, start_stop, instant=False):
     return FaultType(name, "physics", tap, text, params, *start_stop, instant=instant)
 
@@ -173,8 +179,7 @@ KIND_PHYSICS = (
           "and still flagged valid", (
               Param("angle_deg", "number", 1.0, "the error angle", 0.0, 180.0, scale=DEG),
               Param("axis_S", "vector3", [1.0, 0.0, 0.0], "the error's rotation axis, sensor frame")),
-          _set("misid_rad", lambda p, old: tuple(
-              float(x) for x in np.asarray(p["axis_S"]) / np.linalg.norm(p["axis_S"]) * p["angle_deg"]))),
+          _set("misid_rad", lambda p, old: _rotvec(p))),
     _kind("tracker_slow", "tracker", "solutions come late", (
         Param("delay_s", "number", 0.5, "the extra latency of each solution", 0.0, 60.0),),
         _set("solution_delay_s", lambda p, old: p["delay_s"])),
@@ -184,6 +189,16 @@ KIND_PHYSICS = (
           _axis_item("stuck_on_axes", True)),
     _kind("cage_coil_failure", "cage", "one coil pair of the cage produces no field", (AXIS,),
           _axis_item("coil_failed", True)),
+    # Stimulators: physics faults a real sensor sees (docs/faults.md, "Every link").
+    _kind("screen_wrong_attitude", "stimulus", "the star screen shows the sky of an attitude off by an angle about "
+          "an axis: a real tracker reports it, valid", (
+              Param("angle_deg", "number", 1.0, "the error angle", 0.0, 180.0, scale=DEG),
+              Param("axis_S", "vector3", [1.0, 0.0, 0.0], "the error's rotation axis, tracker frame")),
+          _set("screen_misid_rad", lambda p, old: _rotvec(p))),
+    _kind("cage_field_step", "stimulus", "the Helmholtz cage adds a field step to what it reproduces: the "
+          "magnetometer in it reads a bias", (
+              Param("step_T", "vector3", None, "the step, body axes"),),
+          _set("field_step_B_T", lambda p, old: tuple(p["step_T"]))),
 )
 
 
@@ -193,7 +208,7 @@ DIRECTION = Param("direction", "choice", "both", "which way frames are hit", opt
 PROBABILITY = Param("probability", "number", 0.5, "the chance per frame", 0.0, 1.0)
 #: Scenario key -> the link's parameter name (drivers.link_faults).
 LINK_KEYS = {"probability": "rate", "frames": "frames", "bits": "bits", "keep_fraction": "keep_fraction",
-             "delay_s": "delay_s", "jitter_max_s": "max_s", "frames_per_s": "frames_per_s", "direction": "direction"}
+             "latency_s": "delay_s", "jitter_max_s": "max_s", "frames_per_s": "frames_per_s", "direction": "direction"}
 
 
 def _link(kind):
@@ -218,13 +233,13 @@ PROTOCOL = (
     _protocol("frame_truncated", "truncate", "frames are cut short", (
         PROBABILITY, Param("keep_fraction", "number", 0.5, "the part of a frame kept", 0.0, 1.0))),
     _protocol("frame_delay", "delay", "every frame arrives late", (
-        Param("delay_s", "number", 0.1, "the delay", 0.0, 60.0),)),
+        Param("latency_s", "number", 0.1, "the added latency of every frame", 0.0, 60.0),)),
     _protocol("frame_jitter", "jitter", "frames arrive late by a random extra delay", (
         Param("jitter_max_s", "number", 0.05, "the largest extra delay (uniform)", 0.0, 60.0),)),
     _protocol("frame_reorder", "reorder", "frames swap places with the next one", (PROBABILITY,)),
     _protocol("frame_duplicate", "duplicate", "frames arrive twice", (PROBABILITY,)),
     _protocol("babble", "babble", "a babbling node floods the line or bus with frames", (
-        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 0.0, 1e6, True),)),
+        Param("frames_per_s", "number", 1000.0, "frames of the flood per second", 0.0, 1e6),)),
     _protocol("silence", "silence", "nothing gets through", ()),
     _protocol("can_error_frame", "error_frame", "CAN error frames on the bus, where the interface carries them",
               (PROBABILITY,)),
