@@ -533,11 +533,15 @@ def write_view_url(run_dir, url: str, host: str, token: str | None) -> Path:
     tmp = path.with_name(f".{VIEW_URL_FILE}.{os.getpid()}")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0), 0o600)
     try:
-        os.fchmod(fd, 0o600)  # a file left by an earlier run may have had other bits
-        os.write(fd, json.dumps({"url": url, "connect": connect, "token": token, "pid": os.getpid()}).encode())
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
+        try:
+            os.fchmod(fd, 0o600)  # a file left by an earlier run may have had other bits
+            os.write(fd, json.dumps({"url": url, "connect": connect, "token": token, "pid": os.getpid()}).encode())
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -584,7 +588,12 @@ class LiveSession:
             self._end()
             raise ViewError(reply.split(" ", 1)[1])
         self.url = reply.split(" ", 1)[1]
-        self.url_file = write_view_url(run_dir, self.url, self.host, self.token)
+        try:
+            self.url_file = write_view_url(run_dir, self.url, self.host, self.token)
+        except OSError as exc:  # the run has not started: end the server, say why in one sentence
+            self._end()
+            raise ViewError(f"the live page's address cannot be written into {Path(run_dir) / VIEW_URL_FILE} "
+                            f"for `stand fault`: {exc.strerror or exc}.") from None
         self.feed = state.LiveFeed(PipeLink(self.conn), meta, events_path=Path(run_dir) / "events.jsonl")
         self.feed.start()
         return self.url

@@ -368,3 +368,18 @@ def test_a_page_opening_mid_run_takes_no_event_from_the_pages_already_open(run_d
         f.write(json.dumps({"kind": "end", "message": "completed"}) + "\n")
     source.finished("completed")
     assert pushed[-1]["events"] == [{"kind": "end", "message": "completed"}]
+
+
+def test_a_page_whose_address_cannot_be_written_does_not_start(tmp_path):
+    """view_url.json cannot be written (here a folder holds its name): one sentence, the server process ended."""
+    from stand.scenario import load as load_scenario
+
+    sc = load_scenario(write_scenario(tmp_path / "s.toml", duration_s=5.0))
+    out = tmp_path / "out"
+    (out / "view_url.json" / "x").mkdir(parents=True)
+    live = server.LiveSession("127.0.0.1", 0, None)
+    with pytest.raises(server.ViewError, match=r"the live page's address cannot be written into .*view_url.json "
+                       r"for `stand fault`: "):
+        live.start(sc, out)
+    assert not live.process.is_alive()
+    assert sorted(p.name for p in out.iterdir()) == ["view.json", "view_url.json"]  # no temporary file left
