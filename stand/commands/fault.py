@@ -140,6 +140,8 @@ def _print_list(answer: dict) -> None:
         params = ", ".join(f"{k}={v}" for k, v in (f.get("params") or {}).items())
         print(f"{f.get('name')}: {f.get('type')} on {f.get('device')} {when}, {until}" + (f" ({params})" if params
                                                                                           else ""))
+    for f in answer.get("scheduled", []):
+        print(f"scheduled by the scenario: {f.get('when')}")
     types = answer.get("types", [])
     if types:
         print("fault types: " + ", ".join(t["name"] for t in types))

@@ -86,6 +86,9 @@ def describe(sc) -> dict:
         "devices": [_device_view(d) for d in sc.devices],
         "criteria": [{"name": c.name, "metric": c.metric, "max": c.max, "min": c.min, "at_s": c.at_s}
                      for c in sc.criteria],
+        # The scenario's own [[faults]], for the fault panel and `stand fault list` (what happens is in the events).
+        "faults": [{"name": f.name, "type": f.type, "device": f.device, "when": f.describe()}
+                   for f in getattr(sc, "faults", ())],
     }
 
 

@@ -4,7 +4,7 @@ Routes: ``/`` the page; ``/assets/...`` its script and style (shipped in the whe
 ``/api/meta`` the run's devices and epoch; ``/api/samples`` every sample so far (the decimated replay, or what a
 live run has pushed); ``/api/stars`` the catalog; ``/api/events`` the event log; ``/ws`` a websocket on which a
 live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run;
-``GET /api/faults`` the faults injected so far (from the event log) and the fault types a page may offer;
+``GET /api/faults`` the faults injected so far (from the event log), the scenario's own and the fault types;
 ``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`).
 
 Every request that names a host (browsers always do) must name one the server listens on: the address the
@@ -395,7 +395,7 @@ class ViewServer:
         else:
             faults = state.fault_list(await loop.run_in_executor(None, state.read_events, src.run_dir))
         return _json({"live": src.mode == "live", "status": src.status, "faults": faults,
-                      "types": state.fault_types()})
+                      "scheduled": src.meta.get("faults", []), "types": state.fault_types()})
 
     async def _faults_post(self, request):
         """``{"action": "inject", "fault": {a [[faults]] table}}`` or ``{"action": "clear", "name": NAME}``: 200

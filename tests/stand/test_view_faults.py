@@ -383,3 +383,22 @@ def test_a_page_whose_address_cannot_be_written_does_not_start(tmp_path):
         live.start(sc, out)
     assert not live.process.is_alive()
     assert sorted(p.name for p in out.iterdir()) == ["view.json", "view_url.json"]  # no temporary file left
+
+
+def test_a_scenarios_own_faults_are_listed_with_what_happened(tmp_path, capsys):
+    """A replay of a run with [[faults]]: GET /api/faults gives the scenario's faults and, from the events the real
+    schedule logged, when each started and ended."""
+    path = tmp_path / "s.toml"
+    write_scenario(path, duration_s=5.0)
+    path.write_text(path.read_text() + '\n[[faults]]\ndevice = "fss"\ntype = "bias_step"\nbias_rad = [0.05, 0.0]\n'
+                    'at_s = 2.0\nduration_s = 1.0\n')
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 0
+    with server.ViewServer(server.ReplaySource(out)) as view:
+        status, body = _http(view.url + "api/faults", headers={})
+    assert status == 200 and body["live"] is False
+    assert body["scheduled"] == [{"name": "fss.bias_step", "type": "bias_step", "device": "fss",
+                                  "when": "fss.bias_step: bias_step on fss, at 2 s for 1 s"}]
+    assert body["faults"] == [{"name": "fss.bias_step", "type": "bias_step", "device": "fss",
+                               "params": {"bias_rad": [0.05, 0.0]}, "injected_s": 2.0, "cleared_s": 3.0,
+                               "active": False}]

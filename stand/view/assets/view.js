@@ -906,6 +906,12 @@
       if (f.injected_s !== null) div.addEventListener("click", () => seek(f.injected_s));
       box.appendChild(div);
     }
+    for (const f of S.meta.faults || []) {  // the scenario's own, until they happen
+      if (S.faults.some((x) => x.name === f.name)) continue;
+      const div = document.createElement("div"), when = document.createElement("span");
+      div.className = "scheduled"; when.className = "when"; when.textContent = `scheduled: ${f.when}`;
+      div.appendChild(when); box.appendChild(div);
+    }
     $("faults-panel").hidden = !S.live && !S.faults.length;
     document.querySelector("main").classList.toggle("with-faults", !$("faults-panel").hidden);
   }
