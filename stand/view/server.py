@@ -591,6 +591,10 @@ class LiveSession:
         try:
             self.url_file = write_view_url(run_dir, self.url, self.host, self.token)
         except OSError as exc:  # the run has not started: end the server, say why in one sentence
+            try:
+                self.conn.send_bytes(b"C")
+            except OSError:
+                pass  # it went away already
             self._end()
             raise ViewError(f"the live page's address cannot be written into {Path(run_dir) / VIEW_URL_FILE} "
                             f"for `stand fault`: {exc.strerror or exc}.") from None

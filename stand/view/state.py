@@ -452,10 +452,11 @@ class LiveSource:
         with self._answered:
             while ident not in self._answers:
                 left = deadline - time.monotonic()
-                if self.status == "finished" or left <= 0:
-                    why = "ended" if self.status == "finished" else f"did not answer within {timeout_s:g} s"
-                    return {"ok": False, "status": 504, "error": f"the run {why}; the fault command may not have "
-                            "been applied (see the event log)"}
+                if self.status == "finished":  # its last answers came before the end: this one was not taken
+                    return {"ok": False, "status": 409, "error": "the run ended before it took the fault command"}
+                if left <= 0:
+                    return {"ok": False, "status": 504, "error": f"the run did not answer within {timeout_s:g} s; "
+                            "the fault command may still apply (see the event log)"}
                 self._answered.wait(left)
             return self._answers.pop(ident)
 

@@ -192,7 +192,14 @@ def test_a_run_without_a_schedule_or_that_does_not_answer(run_dir):
     answer = quiet.fault(inject, timeout_s=0.2)
     assert answer["status"] == 504 and "did not answer within 0.2 s" in answer["error"]
     quiet.finished("completed")
-    assert quiet.fault(inject)["status"] == 409  # an ended run takes no more
+    assert quiet.fault(inject) == {"ok": False, "status": 409, "error": "the run is finished: it takes no more faults"}
+    # a command waiting when the run ends is told so at once
+    ending = state.LiveSource(run_dir, meta)
+    timer = threading.Timer(0.3, ending.finished, ("stopped",))
+    timer.start()
+    answer = ending.fault(inject, timeout_s=30.0)
+    timer.join()
+    assert answer == {"ok": False, "status": 409, "error": "the run ended before it took the fault command"}
 
 
 def test_get_lists_the_faults_from_the_event_log(run_dir, tmp_path):
