@@ -23,7 +23,7 @@ from .errors import ScenarioError, fail
 #: Subcommands contributed by other modules of the stand: ``module`` exposes ``register(subparsers)``.
 EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.commands.emulate", "stand.commands.solve",
                   "stand.commands.shadow", "stand.commands.view", "stand.commands.campaign",
-                  "stand.commands.fault_proxy", "stand.commands.export")
+                  "stand.commands.fault_proxy", "stand.commands.export", "stand.commands.fault")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
   0    the run passed its criteria (other commands: success)

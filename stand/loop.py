@@ -178,21 +178,59 @@ class Progress:
 POLL_S = 0.25
 
 
-def _obey(command: str, observer, events: EventLog, pacer: Pacer, t: float, clock, sleep) -> None:
+def _obey(command, observer, events: EventLog, pacer: Pacer, t: float, clock, sleep, faults=None) -> None:
     """Act on the observer's ``"pause"`` or ``"stop"``: a pause holds the loop (polling, bounded sleeps) until the
-    observer says otherwise, then moves the pacer's start by the pause so a paced run does not race to catch up."""
+    observer says otherwise, then moves the pacer's start by the pause so a paced run does not race to catch up.
+    Fault commands (``("fault", payload)``) go to the run's fault schedule first, also while paused."""
+    command = _live_faults(command, observer, faults)
     if command == "pause":
         events.log("paused", f"paused from the operator page at t = {t:.3f} s", t_s=t)
         t0 = clock()
         while command == "pause":
             sleep(0.05)
-            command = observer.poll_control()
+            command = _live_faults(observer.poll_control(), observer, faults)
         if pacer.start is not None:
             pacer.start += clock() - t0
         if command != "stop":
             events.log("resumed", f"resumed after {clock() - t0:.1f} s of wall time", t_s=t)
     if command == "stop":
         raise Stopped("stop from the operator page")
+
+
+def _live_faults(command, observer, faults):
+    """Hand each ``("fault", payload)`` from the observer to the fault schedule (``scene.faults``; it applies them
+    at its next tick), give the answer back (``observer.answer_fault``), and return the next other command.
+    ``payload``: ``{"id", "action": "inject", "fault": table}`` or ``{"id", "action": "clear", "name"}``."""
+    while type(command) is tuple:
+        payload = command[1]
+        answer = {"id": payload.get("id"), "ok": False, "status": 409}
+        if faults is None:
+            answer["error"] = "this run has no fault schedule: it was started without live injection"
+        else:
+            try:
+                if payload["action"] == "inject":
+                    answer.update(ok=True, name=faults.inject(payload["fault"]))
+                else:
+                    _clear(faults, payload["name"])
+                    answer.update(ok=True, name=payload["name"])
+            except _UnknownFault as exc:
+                answer.update(status=404, error=str(exc))
+            except ValueError as exc:  # a ScenarioError: the table, in one sentence
+                answer.update(status=400, error=str(exc))
+        observer.answer_fault(answer)
+        command = observer.poll_control()
+    return command
+
+
+class _UnknownFault(LookupError):
+    """A live ``clear`` of a fault the schedule does not know (its KeyError, as one sentence)."""
+
+
+def _clear(faults, name: str) -> None:
+    try:
+        faults.clear(name)
+    except KeyError:
+        raise _UnknownFault(f"no fault named {name!r} was injected in this run") from None
 
 
 class _ExitGuard:
@@ -476,7 +514,7 @@ def _chores(f: _Flight, k: int, t: float) -> int:
             f.next_poll = f.clock() + POLL_S
             command = observer.poll_control()
             if command is not None:
-                _obey(command, observer, f.events, f.pacer, t, f.clock, f.sleep)
+                _obey(command, observer, f.events, f.pacer, t, f.clock, f.sleep, f.faults)
         nxt = min(nxt, (k // f.poll_every + 1) * f.poll_every)
     if f.watches:
         if k % f.watch_every == 0:
@@ -572,7 +610,8 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
 
     ``observer`` (the operator page's live feed, optional): ``observer.record(t_s, row)`` is called with every
     telemetry row and must only keep it (no I/O, no waiting); ``observer.poll_control()`` is called at most every
-    ``POLL_S`` of wall time and returns None, ``"pause"`` or ``"stop"``.
+    ``POLL_S`` of wall time and returns None, ``"pause"``, ``"stop"`` or ``("fault", payload)``, a command for the
+    scene's fault schedule whose answer goes back through ``observer.answer_fault(answer)`` (``_live_faults``).
     """
     f = _Flight(scene, out_dir, speed, duration_s, progress, clock, sleep, observer)
     f.events.log("start", f"scenario {f.sc.name} for {f.duration_s:g} s", speed=speed)

@@ -86,6 +86,7 @@ class GyroKind(DeviceKind):
     column_meanings = {"omega_S": "the newest rate sample the host decoded, sensor axes",
                        "valid": "1 when that sample is valid"}
     plot_files = {"gyro_{name}.png": "the rates in sensor axes, valid samples only"}
+    view_plots = ({"title": "gyro rate", "unit": "rad/s", "column": "omega_S"},)  # the operator page's panel
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> GyroSpec:
         ideal = t.flag("ideal", False)

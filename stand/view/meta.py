@@ -67,6 +67,7 @@ def _device_view(d) -> dict:
     kind = _kind(d.kind)
     out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB]}
     out.update({"fovs": [], **kind.view_layers(d), **_declared(kind)})
+    out["fault_taps"] = {tap: dict(info) for tap, info in kind.fault_taps(d).items()}  # what the fault panel offers
     return out
 
 
@@ -85,6 +86,9 @@ def describe(sc) -> dict:
         "devices": [_device_view(d) for d in sc.devices],
         "criteria": [{"name": c.name, "metric": c.metric, "max": c.max, "min": c.min, "at_s": c.at_s}
                      for c in sc.criteria],
+        # The scenario's own [[faults]], for the fault panel and `stand fault list` (what happens is in the events).
+        "faults": [{"name": f.name, "type": f.type, "device": f.device, "when": f.describe()}
+                   for f in getattr(sc, "faults", ())],
     }
 
 

@@ -3,7 +3,9 @@
 Routes: ``/`` the page; ``/assets/...`` its script and style (shipped in the wheel, nothing from the network);
 ``/api/meta`` the run's devices and epoch; ``/api/samples`` every sample so far (the decimated replay, or what a
 live run has pushed); ``/api/stars`` the catalog; ``/api/events`` the event log; ``/ws`` a websocket on which a
-live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run.
+live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run;
+``GET /api/faults`` the faults injected so far (from the event log), the scenario's own and the fault types;
+``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`).
 
 Every request that names a host (browsers always do) must name one the server listens on: the address the
 connection reached, ``localhost`` when that is a loopback address, the bound host as given, and the machine's
@@ -11,8 +13,9 @@ own name when bound to every interface; anything else is refused (403), so a pag
 re-pointed at this machine (DNS rebinding) reads nothing and controls nothing. Control is accepted only from the
 address the server is bound to, unless a token is configured; then only with the token (header
 ``X-Stand-Token``), from anywhere that can reach the server. Binding anywhere but 127.0.0.1 requires a token. A
-control request must name the host, be JSON and, when the browser sends an Origin, come from the page itself
-(``http://`` and the same host), so another site open in the operator's browser cannot pause the run.
+control request (``/api/control`` and ``POST /api/faults``) must name the host, be JSON and, when the browser sends
+an Origin, come from the page itself (``http://`` and the same host), so another site open in the operator's
+browser cannot pause the run or inject a fault into it.
 
 Every JSON the server sends is strict JSON (:func:`state.dumps`: NaN and infinities become null).
 """
@@ -48,6 +51,9 @@ STAR_CACHE_TABLES = 4
 #: The server process of ``stand run --view`` tells the run it is alive (and how many pages are open) this often.
 HEARTBEAT_S = 1.0
 WILDCARD_HOSTS = ("0.0.0.0", "::", "")
+#: In a run folder while ``stand run --view`` serves: the page's address and token, for ``stand fault`` (mode 0600,
+#: removed when the run ends).
+VIEW_URL_FILE = "view_url.json"
 
 
 def _json(data, status: int = 200) -> web.Response:
@@ -243,6 +249,8 @@ class ViewServer:
         app.router.add_get("/api/events", self._events)
         app.router.add_get("/ws", self._ws)
         app.router.add_post("/api/control", self._control)
+        app.router.add_get("/api/faults", self._faults_get)
+        app.router.add_post("/api/faults", self._faults_post)
         return app
 
     def host_refusal(self, request) -> str | None:
@@ -356,7 +364,7 @@ class ViewServer:
         if self.token:
             given = request.headers.get("X-Stand-Token", "")
             if not hmac.compare_digest(given.encode(), self.token.encode()):
-                return "this view needs its token (X-Stand-Token) to pause, resume or stop the run"
+                return "this view needs its token (X-Stand-Token) to control the run (pause, resume, stop, faults)"
         elif request.remote != self.host:
             return f"control is accepted only from {self.host}, the address the view is bound to"
         origin = request.headers.get("Origin")
@@ -379,6 +387,58 @@ class ViewServer:
             return _json({"error": str(exc)}, status=400)
         return _json({"status": status})
 
+    async def _faults_get(self, request):
+        src = self.source
+        loop = asyncio.get_running_loop()
+        if src.mode == "live":
+            faults = await loop.run_in_executor(None, src.faults)
+        else:
+            faults = state.fault_list(await loop.run_in_executor(None, state.read_events, src.run_dir))
+        return _json({"live": src.mode == "live", "status": src.status, "faults": faults,
+                      "scheduled": src.meta.get("faults", []), "types": state.fault_types()})
+
+    async def _faults_post(self, request):
+        """``{"action": "inject", "fault": {a [[faults]] table}}`` or ``{"action": "clear", "name": NAME}``: 200
+        ``{"action", "name"}`` once the run's fault schedule took it (it acts from the next tick); 400 a table the
+        schedule refuses or a malformed request, 404 a clear of a fault it does not know, 409 a replay or a run
+        that takes no (more) faults, 403 as for /api/control, 504 no answer from the run in time (one sentence in
+        ``error`` each)."""
+        if self.source.mode != "live":
+            return _json({"error": "a replay has no run to inject faults into"}, status=409)
+        why = self.control_refusal(request)
+        if why is not None:
+            return _json({"error": why}, status=403)
+        try:
+            command = fault_command(await request.json())
+        except ValueError as exc:  # invalid JSON too (json.JSONDecodeError is a ValueError)
+            return _json({"error": str(exc)}, status=400)
+        loop = asyncio.get_running_loop()
+        answer = await loop.run_in_executor(None, self.source.fault, command)
+        if not answer.get("ok"):
+            return _json({"error": answer.get("error", "the run refused the fault command")},
+                         status=int(answer.get("status", 400)))
+        return _json({"action": command["action"], "name": answer["name"]})
+
+
+def fault_command(body) -> dict:
+    """A ``POST /api/faults`` body checked for shape (the fault table itself is the run's schedule's to judge)."""
+    if not isinstance(body, dict):
+        raise ValueError(f"a fault command is a JSON object, not {type(body).__name__}")
+    action = body.get("action")
+    if action == "inject":
+        table = body.get("fault")
+        if not isinstance(table, dict) or not table:
+            raise ValueError(f"fault = {state.dumps(table)[:200]} is not allowed: inject needs \"fault\", a "
+                             "non-empty object as a [[faults]] table (device, type, parameters, duration_s)")
+        return {"action": "inject", "fault": table}
+    if action == "clear":
+        name = body.get("name")
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"name = {state.dumps(name)[:200]} is not allowed: clear needs \"name\", the name "
+                             "of an injected fault")
+        return {"action": "clear", "name": name}
+    raise ValueError(f"action = {state.dumps(action)[:200]} is not allowed: \"inject\" or \"clear\"")
+
 
 class PipeLink:
     """The feed's end of the pipe to the server process (used from the feed's sender thread only)."""
@@ -390,6 +450,8 @@ class PipeLink:
         kind, data = message
         if kind == "status":
             self.conn.send_bytes(b"S" + data.encode())
+        elif kind == "fault":
+            self.conn.send_bytes(b"A" + state.dumps(data).encode())
         else:
             self.conn.send_bytes(b"R" + np.ascontiguousarray(data, dtype="<f8").tobytes())
 
@@ -402,9 +464,10 @@ class PipeLink:
 
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
-    status the run's side set by itself (a pause it released), ``F`` + the run's status when it ended, ``C`` to end
-    the process; back go control commands and, every ``HEARTBEAT_S``, ``{"pages": n}`` (the run's side releases a
-    pause when these stop)."""
+    status the run's side set by itself (a pause it released), ``A`` + the run's answer to a fault command (JSON),
+    ``F`` + the run's status when it ended, ``C`` to end the process; back go control commands (``"pause"``,
+    ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S``, ``{"pages": n}`` (the run's side releases
+    a pause when these stop)."""
     # Under contention the run's loop comes first; the page can wait a few milliseconds.
     os.nice(5)
     lock = threading.Lock()
@@ -447,6 +510,8 @@ def _relay(conn, source, heartbeat) -> None:
             source.finished(data.decode())
         elif tag == b"S":
             source.released(data.decode())
+        elif tag == b"A":
+            source.answered(json.loads(data))
         elif tag == b"C":
             return
         else:
@@ -455,6 +520,29 @@ def _relay(conn, source, heartbeat) -> None:
                 width = sum(int(c["width"]) for c in cols) if cols else None
             if width:
                 source.ingest(np.frombuffer(data, dtype="<f8").reshape(-1, width))
+
+
+def write_view_url(run_dir, url: str, host: str, token: str | None) -> Path:
+    """``RUN_DIR/view_url.json``: where ``stand fault RUN_DIR`` finds the live page, ``{"url", "connect", "token",
+    "pid"}`` (``connect``: the URL to reach it from this machine, 127.0.0.1 or ::1 when bound to every interface).
+    Readable by the user only (it may hold the token): created 0600, written whole and renamed into place."""
+    connect = url
+    if host in WILDCARD_HOSTS:
+        connect = url.replace(f"//{host}:", "//127.0.0.1:") if host != "::" else url.replace("//[::]:", "//[::1]:")
+    path = Path(run_dir) / VIEW_URL_FILE
+    tmp = path.with_name(f".{VIEW_URL_FILE}.{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    try:
+        try:
+            os.fchmod(fd, 0o600)  # a file left by an earlier run may have had other bits
+            os.write(fd, json.dumps({"url": url, "connect": connect, "token": token, "pid": os.getpid()}).encode())
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
 
 
 class LiveSession:
@@ -471,6 +559,7 @@ class LiveSession:
         self.process = None
         self.conn = None
         self.url: str | None = None
+        self.url_file: Path | None = None
 
     @classmethod
     def from_args(cls, bind: str, token: str | None) -> LiveSession:
@@ -499,6 +588,16 @@ class LiveSession:
             self._end()
             raise ViewError(reply.split(" ", 1)[1])
         self.url = reply.split(" ", 1)[1]
+        try:
+            self.url_file = write_view_url(run_dir, self.url, self.host, self.token)
+        except OSError as exc:  # the run has not started: end the server, say why in one sentence
+            try:
+                self.conn.send_bytes(b"C")
+            except OSError:
+                pass  # it went away already
+            self._end()
+            raise ViewError(f"the live page's address cannot be written into {Path(run_dir) / VIEW_URL_FILE} "
+                            f"for `stand fault`: {exc.strerror or exc}.") from None
         self.feed = state.LiveFeed(PipeLink(self.conn), meta, events_path=Path(run_dir) / "events.jsonl")
         self.feed.start()
         return self.url
@@ -519,6 +618,8 @@ class LiveSession:
         self._end()
 
     def _end(self) -> None:
+        if self.url_file is not None:
+            self.url_file.unlink(missing_ok=True)
         if self.process is not None:
             self.process.join(timeout=10.0)
             if self.process.is_alive():

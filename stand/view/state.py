@@ -53,6 +53,10 @@ LIVE_MAX_PENDING_ROWS = 100_000
 SERVER_SILENT_S = 15.0
 #: ... or when no page has been open for this long during the pause.
 UNATTENDED_PAUSE_S = 600.0
+#: Longest wait of a fault command from the page (``POST /api/faults``) for the run's answer: the run takes it at
+#: its next control poll (every 0.25 s of wall time, every 0.05 s while paused) and the feed sends the answer at
+#: its next push (ten a second), so a run that is alive answers within about half a second.
+FAULT_ANSWER_S = 10.0
 
 
 # --------------------------------------------------------------------------------------------------- geometry
@@ -210,6 +214,11 @@ class LiveFeed:
     ``view_lost`` or ``pause_unattended`` event says why in ``events_path``) when the server is gone (its pipe
     broke, or it has been silent for ``server_silent_s``) or when no page has been open for
     ``unattended_pause_s`` of the pause.
+
+    Fault commands from the page (``("fault", {"id", "action", ...})``, :meth:`LiveSource.fault`) queue here;
+    :meth:`poll_control` hands them to the loop one at a time, before any pause or stop, as ``("fault", payload)``;
+    the loop hands each to the run's fault schedule and gives the answer back with :meth:`answer_fault`, which the
+    sender thread sends at its next push as ``("fault", answer)``.
     """
 
     def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES, *,
@@ -223,6 +232,8 @@ class LiveFeed:
         self.clock = clock
         self.server_silent_s, self.unattended_pause_s = server_silent_s, unattended_pause_s
         self._control: str | None = None
+        self._faults: collections.deque = collections.deque()  # fault commands for the loop (sender -> loop)
+        self._answers: collections.deque = collections.deque()  # the loop's answers (loop -> sender)
         self._next_t = -math.inf
         now = clock()
         self._heard_s = now  # when the server last said it is alive
@@ -241,11 +252,17 @@ class LiveFeed:
     def record(self, t_s: float, row: tuple) -> None:
         self.rows.append(row)
 
-    def poll_control(self) -> str | None:
+    def poll_control(self) -> str | tuple | None:
+        if self._faults:
+            return "fault", self._faults.popleft()
         command = self._control
         if command != "pause" and self.error is None:
             return command
         return self._check(command)
+
+    def answer_fault(self, answer: dict) -> None:
+        """The run's answer to a fault command (from the loop's thread); sent at the next push."""
+        self._answers.append(answer)
 
     def _check(self, command: str | None) -> str | None:
         """The page's command, unless the page that paused the run is gone (then the run resumes, logged)."""
@@ -323,6 +340,9 @@ class LiveFeed:
                 self._page_seen_s = now
             return
         self._heard_s = now
+        if isinstance(message, tuple):  # ("fault", payload): for the loop, in order
+            self._faults.append(message[1])
+            return
         if message == "pause" and self._control != "pause":
             self._paused_s = now
         self._control = message
@@ -333,6 +353,8 @@ class LiveFeed:
         if self._tell is not None:
             status, self._tell = self._tell, None
             self.link.send(("status", status))
+        while self._answers:
+            self.link.send(("fault", self._answers.popleft()))
         rows = self.rows
         new = [rows.popleft() for _ in range(len(rows))]  # the loop appends on the right meanwhile
         if not new:
@@ -351,10 +373,43 @@ class LiveFeed:
         self.pushes += 1
 
 
+def fault_types() -> list[dict]:
+    """The fault types a page or ``stand fault`` may offer (``stand.faults.FAULT_TYPES``): name, layer, the tap a
+    device must offer, what it does and its parameters (``key`` may hold ``{unit}``, the device's measurement unit,
+    as ``view.json`` gives it in ``fault_taps``)."""
+    from stand.faults import FAULT_TYPES
+
+    return [{"name": name, "layer": ft.layer, "tap": ft.tap, "text": ft.text, "instant": ft.instant,
+             "params": [{"key": p.key, "shape": p.shape, "default": p.default, "text": p.text, "lo": p.lo,
+                         "hi": p.hi, "options": list(p.options) if isinstance(p.options, tuple | list) else []}
+                        for p in ft.params]}
+            for name, ft in FAULT_TYPES.items()]
+
+
+def fault_list(events: list[dict]) -> list[dict]:
+    """Every fault the event log shows, in the order injected: ``name``, ``type``, ``device``, ``params``,
+    ``injected_s``, ``cleared_s`` (None while active) and ``active``. A clearing closes the newest open injection
+    of that name (a recurring fault is injected again under its name)."""
+    out: list[dict] = []
+    for ev in events:
+        kind, name = ev.get("kind"), ev.get("fault")
+        if kind == "fault_injected":
+            out.append({"name": name, "type": ev.get("type"), "device": ev.get("device"),
+                        "params": ev.get("params") or {}, "injected_s": ev.get("t_s"), "cleared_s": None,
+                        "active": True})
+        elif kind == "fault_cleared":
+            for f in reversed(out):
+                if f["name"] == name and f["active"]:
+                    f["cleared_s"], f["active"] = ev.get("t_s"), False
+                    break
+    return out
+
+
 class LiveSource:
     """The page's side of a live run: derives what the page draws from the rows the feed sends, keeps the history
     for pages that open mid-run, tails the event log, and turns the page's pause, resume and stop into control
-    commands (``control(command)``, sent back to the feed)."""
+    commands (``control(command)``, sent back to the feed). A fault command (:meth:`fault`) goes the same way as
+    ``("fault", payload)`` and waits, bounded, for the run's answer (:meth:`answered`)."""
 
     mode = "live"
 
@@ -375,9 +430,46 @@ class LiveSource:
         self._held = 0  # samples in _history
         self._events: list[dict] = []
         self._events_pos = 0
+        self._events_sent = 0  # how many of _events the pages were pushed (a snapshot gives no more than these)
         self.listeners: list = []  # callables(message dict)
         self.pushes = 0
         self._lock = threading.Lock()
+        self._answered = threading.Condition()
+        self._answers: dict[int, dict] = {}
+        self._fault_ids = 0
+
+    def fault(self, command: dict, timeout_s: float = FAULT_ANSWER_S) -> dict:
+        """Send a fault command (``{"action": "inject", "fault": {...}}`` or ``{"action": "clear", "name": ...}``)
+        to the run and wait at most ``timeout_s`` for its answer: ``{"ok": True, "name": ...}`` or ``{"ok": False,
+        "status": HTTP status, "error": one sentence}``. Called from a worker thread of the server, never its loop."""
+        with self._answered:
+            if self.status in ("finished", "stopping"):
+                return {"ok": False, "status": 409, "error": f"the run is {self.status}: it takes no more faults"}
+            self._fault_ids += 1
+            ident = self._fault_ids
+        self.control(("fault", {**command, "id": ident}))
+        deadline = time.monotonic() + timeout_s
+        with self._answered:
+            while ident not in self._answers:
+                left = deadline - time.monotonic()
+                if self.status == "finished":  # its last answers came before the end: this one was not taken
+                    return {"ok": False, "status": 409, "error": "the run ended before it took the fault command"}
+                if left <= 0:
+                    return {"ok": False, "status": 504, "error": f"the run did not answer within {timeout_s:g} s; "
+                            "the fault command may still apply (see the event log)"}
+                self._answered.wait(left)
+            return self._answers.pop(ident)
+
+    def answered(self, answer: dict) -> None:
+        """The run's answer to the fault command ``answer["id"]`` (from the pipe's reader)."""
+        with self._answered:
+            self._answers[answer.get("id")] = answer
+            self._answered.notify_all()
+
+    def faults(self) -> list[dict]:
+        """Every fault injected so far, from the event log (:func:`fault_list`); read afresh, so the events the
+        next push sends to the pages are not taken from them."""
+        return fault_list(read_events(self.run_dir))
 
     def request(self, command: str) -> str:
         """``pause``, ``resume`` or ``stop`` from the page; returns the new status."""
@@ -404,8 +496,11 @@ class LiveSource:
             self._notify({"type": "status", "status": self.status})
 
     def finished(self, run_status: str = "completed") -> None:
-        events = self._new_events()
-        self.status = "finished"
+        with self._lock:
+            events = self._unsent_events()
+        with self._answered:  # a fault command still waiting is told the run ended
+            self.status = "finished"
+            self._answered.notify_all()
         self._notify({"type": "status", "status": "finished", "run_status": run_status,
                       **({"events": events} if events else {})})
 
@@ -428,7 +523,7 @@ class LiveSource:
             if self._held > self.max_samples:
                 self._thin()
             self.pushes += 1
-            events = self._new_events()
+            events = self._unsent_events()
         self._notify({"type": "samples", "samples": encode(derived), "status": self.status,
                       **({"events": events} if events else {})})
 
@@ -465,17 +560,25 @@ class LiveSource:
         self._events += out
         return out
 
+    def _unsent_events(self) -> list[dict]:
+        """The events no push has carried yet (read from the log now), marked as pushed."""
+        self._new_events()
+        out, self._events_sent = self._events[self._events_sent:], len(self._events)
+        return out
+
     def _notify(self, message: dict) -> None:
         for listener in list(self.listeners):
             listener(message)
 
     def snapshot(self) -> tuple[dict, list[dict]]:
-        """Every sample so far (one table) and every event, for a page that opens mid-run."""
+        """Every sample and every event pushed so far, for a page that opens mid-run: what the next push carries,
+        it gets then, as the pages already open do (a snapshot that took events from the log would leave them out
+        of that push, and the open pages would never see them)."""
         with self._lock:
-            self._new_events()
+            events = self._events[:self._events_sent]
             if not self._history:
-                return {}, list(self._events)
-            return self._merged(), list(self._events)
+                return {}, events
+            return self._merged(), events
 
 
 class LocalLink:
@@ -491,6 +594,8 @@ class LocalLink:
         kind, data = message
         if kind == "status":
             self.source.released(data)
+        elif kind == "fault":
+            self.source.answered(data)
         else:
             self.source.ingest(data)
 

@@ -185,7 +185,7 @@
   const S = {
     meta: null, store: new Store(), events: [], stars: null, land: null, t: 0, i: -1, playing: false, follow: true,
     live: false, status: "", stats: { draws: 0, firstDrawMs: null, lastDrawMs: null, pushes: 0, pushTimes: [] },
-    starCache: null, overlay: [],
+    starCache: null, overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
   };
   window.standView = S;
 
@@ -623,7 +623,7 @@
     }
     draw() {
       // The data layer is drawn again only when samples arrived; moving in time only moves the cursor.
-      const st = S.store, key = `${st.n}`;
+      const st = S.store, key = `${st.n}/${S.faultMarks.length}`;
       if (!this.layer || this.key !== key) {
         this.layer = this.layer || document.createElement("canvas");
         this.layer.width = this.canvas.width; this.layer.height = this.canvas.height;
@@ -668,6 +668,7 @@
         }
         ctx.stroke();
       }
+      drawFaultMarks(ctx, X, t0, t1, T, ph);
       if (this.opts.limits) for (const [v, text] of this.opts.limits) {
         const yv = this.opts.log ? Math.log10(v) : v; if (yv < lo || yv > hi) continue;
         ctx.strokeStyle = "rgba(255,90,90,0.7)"; ctx.setLineDash([5, 4]); ctx.beginPath(); ctx.moveTo(L, Y(yv)); ctx.lineTo(W - Rm, Y(yv)); ctx.stroke(); ctx.setLineDash([]);
@@ -822,6 +823,188 @@
     for (const div of box.children) div.className = div.dataset.t === "" || +div.dataset.t <= S.t + 1e-6 ? "past" : "future";
   }
 
+  // ------------------------------------------------------------------------------------------ faults
+  // Fault events (fault_injected, fault_cleared in the event log) as bars on the timeline under the header, as
+  // vertical markers on every time plot and in the fault panel, from which a live run takes new faults
+  // (POST /api/faults, under the same token rules as Pause and Stop).
+  const FAULT_RGB = "rgb(255,120,0)", CLEARED_RGB = "rgb(0,200,200)";
+  const finite = (v) => (typeof v === "number" && Number.isFinite(v) ? v : null);
+  function faultList(events) {  // stand.view.state.fault_list
+    const out = [];
+    for (const ev of events) {
+      if (ev.kind === "fault_injected") {
+        out.push({ name: ev.fault, type: ev.type, device: ev.device, params: ev.params || {}, injected_s: finite(ev.t_s), cleared_s: null, active: true });
+      } else if (ev.kind === "fault_cleared") {
+        const f = out.slice().reverse().find((x) => x.name === ev.fault && x.active);
+        if (f) { f.cleared_s = finite(ev.t_s); f.active = false; }
+      }
+    }
+    return out;
+  }
+  function eventsChanged() {
+    S.eventsSeen = S.events.length; S.statusSeen = S.status;
+    S.faults = faultList(S.events);
+    S.faultMarks = S.events.filter((e) => (e.kind === "fault_injected" || e.kind === "fault_cleared") && finite(e.t_s) !== null)
+      .map((e) => ({ t: e.t_s, kind: e.kind, name: e.fault }));
+    drawFaultList();
+  }
+  function drawFaultMarks(ctx, X, t0, t1, top, height) {  // on a plot's data layer
+    ctx.save();
+    ctx.font = "10px system-ui"; ctx.lineWidth = 2; ctx.setLineDash([6, 3]);
+    for (const m of S.faultMarks) {
+      if (m.t < t0 || m.t > t1) continue;
+      const x = Math.round(X(m.t)), colour = m.kind === "fault_injected" ? FAULT_RGB : CLEARED_RGB;
+      ctx.strokeStyle = colour; ctx.beginPath(); ctx.moveTo(x, top); ctx.lineTo(x, top + height); ctx.stroke();
+      if (m.kind === "fault_injected") { ctx.fillStyle = colour; ctx.fillText(m.name, x + 4, top + height - 4); }
+    }
+    ctx.restore();
+  }
+  function timelineRange() {
+    const st = S.store;
+    if (!st.n) return null;
+    const t0 = st.t(0), t1 = S.live ? Math.max(S.meta.duration_s, st.t(st.n - 1)) : st.t(st.n - 1);
+    return [t0, Math.max(t1, t0 + 1e-6)];
+  }
+  function drawTimeline() {
+    const cv = $("timeline"), ctx = cv.getContext("2d"), W = cv.width, H = cv.height, range = timelineRange();
+    ctx.fillStyle = "#0b0f14"; ctx.fillRect(0, 0, W, H);
+    S.timeline = null;
+    if (!range) return;
+    const [t0, t1] = range, L = 4, X = (t) => L + (t - t0) / (t1 - t0) * (W - 2 * L), now = S.store.t(S.store.n - 1);
+    ctx.fillStyle = "#1b222c"; ctx.fillRect(L, 3, X(now) - L, H - 6);  // what has been recorded so far
+    const rows = 3, rh = (H - 6) / rows;
+    ctx.font = "10px system-ui";
+    S.faults.forEach((f, k) => {  // a bar from injection to clearing (or now)
+      if (f.injected_s === null) return;
+      const end = f.active || f.cleared_s === null ? now : f.cleared_s, y = 3 + (k % rows) * rh;
+      const x0 = X(f.injected_s), w = Math.max(2, X(end) - x0);
+      ctx.fillStyle = f.active ? "rgba(255,120,0,0.5)" : "rgba(0,200,200,0.35)";
+      ctx.fillRect(x0, y + 1, w, rh - 2);
+      if (w > 60) { ctx.fillStyle = "#e6edf3"; ctx.fillText(f.name, x0 + 5, y + rh - 2); }
+    });
+    for (const m of S.faultMarks) { ctx.fillStyle = m.kind === "fault_injected" ? FAULT_RGB : CLEARED_RGB; ctx.fillRect(Math.round(X(m.t)) - 1, 0, 2, H); }
+    ctx.fillStyle = "#f0f6fc"; ctx.fillRect(Math.round(X(S.t)), 0, 1, H);  // the time shown
+    S.timeline = { t0, t1, x: X };
+  }
+  function drawFaultList() {
+    const box = $("fault-list"), canAct = S.live && (S.status === "running" || S.status === "paused");
+    box.textContent = "";
+    for (const f of S.faults.slice().reverse()) {
+      const div = document.createElement("div"), name = document.createElement("span"), when = document.createElement("span");
+      div.className = f.active ? "on" : "off";
+      name.className = "name"; name.textContent = f.name;
+      const span = (f.injected_s !== null ? `t = ${f.injected_s.toFixed(1)}` : "t = ?") + (f.active ? " s, active" : f.cleared_s !== null ? `–${f.cleared_s.toFixed(1)} s` : " s, cleared");
+      const params = Object.entries(f.params).map(([k, v]) => `${k}=${JSON.stringify(v)}`).join(", ");
+      when.className = "when"; when.textContent = `${f.type} on ${f.device}, ${span}${params ? " (" + params + ")" : ""}`;
+      div.title = when.textContent;
+      div.append(name, when);
+      if (f.active && canAct) {
+        const btn = document.createElement("button");
+        btn.textContent = "Clear"; btn.dataset.fault = f.name;
+        btn.addEventListener("click", (ev) => { ev.stopPropagation(); faultRequest({ action: "clear", name: f.name }); });
+        div.appendChild(btn);
+      }
+      if (f.injected_s !== null) div.addEventListener("click", () => seek(f.injected_s));
+      box.appendChild(div);
+    }
+    for (const f of S.meta.faults || []) {  // the scenario's own, until they happen
+      if (S.faults.some((x) => x.name === f.name)) continue;
+      const div = document.createElement("div"), when = document.createElement("span");
+      div.className = "scheduled"; when.className = "when"; when.textContent = `scheduled: ${f.when}`;
+      div.appendChild(when); box.appendChild(div);
+    }
+    $("faults-panel").hidden = !S.live && !S.faults.length;
+    document.querySelector("main").classList.toggle("with-faults", !$("faults-panel").hidden);
+  }
+  // "k=v, k=[1, 2, 3]; k=text": a value is read as JSON, else taken as text; commas inside brackets stay with it.
+  function parseParams(text) {
+    const parts = [];
+    let depth = 0, quoted = false, cur = "";
+    for (const ch of text) {
+      if (ch === '"') quoted = !quoted;
+      else if (!quoted && (ch === "[" || ch === "{")) depth++;
+      else if (!quoted && (ch === "]" || ch === "}")) depth--;
+      if (!quoted && depth === 0 && (ch === "," || ch === ";")) { parts.push(cur); cur = ""; continue; }
+      cur += ch;
+    }
+    parts.push(cur);
+    const out = {};
+    for (const p of parts.map((x) => x.trim()).filter(Boolean)) {
+      const i = p.indexOf("=");
+      if (i <= 0) throw new Error(`parameter "${p}" is not allowed: name=value, e.g. rate=0.5`);
+      const v = p.slice(i + 1).trim();
+      let value;
+      try { value = JSON.parse(v); } catch (e) { value = v; }
+      out[p.slice(0, i).trim()] = value;
+    }
+    return out;
+  }
+  function faultTable() {  // the [[faults]] table the form describes
+    const type = $("fault-type").value, known = S.faultTypes.find((t) => t.name === type);
+    const table = { [known && known.tap === "link" ? "link" : "device"]: $("fault-device").value, type };
+    Object.assign(table, parseParams($("fault-params").value));
+    const dur = $("fault-duration").value.trim(), name = $("fault-name").value.trim();
+    if (dur !== "") table.duration_s = +dur;
+    if (name) table.name = name;
+    return table;
+  }
+  async function faultRequest(body) {
+    const headers = { "Content-Type": "application/json" };
+    if (S.meta.token_required) headers["X-Stand-Token"] = $("token").value;
+    const msg = $("fault-msg");
+    msg.className = ""; msg.textContent = body.action === "inject" ? "injecting…" : "clearing…";
+    let status = 0, answer = {};
+    try {
+      const r = await fetch("/api/faults", { method: "POST", headers, body: JSON.stringify(body) });
+      status = r.status;
+      answer = await r.json();
+    } catch (err) { answer = { error: String(err) }; }
+    const ok = status === 200;
+    msg.className = ok ? "ok" : "error";
+    msg.textContent = ok ? `${body.action === "inject" ? "injected" : "cleared"} ${answer.name} (from the run's next tick)` : (answer.error || `HTTP ${status}`);
+    S.faultAnswers.push({ status, ...answer });
+    return { status, body: answer };
+  }
+  function fillFaultTypes() {
+    const dev = S.meta.devices.find((d) => d.name === $("fault-device").value), taps = dev && dev.fault_taps;
+    const sel = $("fault-type"), was = sel.value;
+    const types = S.faultTypes.filter((t) => !taps || t.tap in taps);  // a view.json without taps: every type
+    sel.textContent = "";
+    for (const t of types) {
+      const o = document.createElement("option");
+      o.value = o.textContent = t.name; o.title = t.text;
+      sel.appendChild(o);
+    }
+    if (types.some((t) => t.name === was)) sel.value = was;
+    showFaultParams();
+  }
+  function showFaultParams() {
+    // A parameter's key may hold {unit}: the device's measurement unit (gyro rad_s: bias_rad_s).
+    const t = S.faultTypes.find((x) => x.name === $("fault-type").value);
+    const dev = S.meta.devices.find((d) => d.name === $("fault-device").value);
+    const unit = dev && dev.fault_taps && dev.fault_taps.measurement ? dev.fault_taps.measurement.unit : "{unit}";
+    const params = t ? t.params.filter((p) => p.default === null) : [];  // the ones without a default first
+    $("fault-params").placeholder = params.length ? params.map((p) => `${p.key.replace("{unit}", unit)}=…`).join(", ") : "name=value, ...";
+    $("fault-params").title = t ? t.params.map((p) => `${p.key.replace("{unit}", unit)}: ${p.text}` + (p.default !== null ? ` (default ${JSON.stringify(p.default)})` : "")).join("\n") : "";
+    $("fault-type").title = t ? t.text : "";
+  }
+  async function setupFaults() {
+    $("fault-form").hidden = !S.live;
+    if (!S.live) return;
+    try { S.faultTypes = (await getJSON("/api/faults")).types || []; } catch (err) { S.faultTypes = []; }
+    const dev = $("fault-device");
+    for (const d of S.meta.devices) { const o = document.createElement("option"); o.value = o.textContent = d.name; dev.appendChild(o); }
+    dev.addEventListener("change", fillFaultTypes);
+    $("fault-type").addEventListener("change", showFaultParams);
+    fillFaultTypes();
+    $("fault-form").addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      let table;
+      try { table = faultTable(); } catch (err) { $("fault-msg").className = "error"; $("fault-msg").textContent = err.message; return; }
+      faultRequest({ action: "inject", fault: table });
+    });
+  }
+
   // ------------------------------------------------------------------------------------------ time and drawing
   let pending = false;
   function redraw() {
@@ -833,11 +1016,13 @@
     const t0 = performance.now();
     S.i = S.store.index(S.t);
     if (S.i >= 0) S.t = Math.max(S.t, S.store.t(S.i));
+    if (S.events.length !== S.eventsSeen || S.status !== S.statusSeen) eventsChanged();
     const parts = S.stats.parts = {};
     const timed = (name, fn) => { const a = performance.now(); fn(); parts[name] = +(performance.now() - a).toFixed(1); };
     timed("panorama", drawPanorama); timed("attitude", drawAttitude); timed("ground", drawGround);
     timed("plots", () => { for (const p of S.plots || []) p.draw(); if (S.strip) S.strip.draw(); });
     timed("events", () => drawEvents(false));
+    timed("timeline", drawTimeline);
     header();
     const now = performance.now();
     S.stats.draws++; S.stats.lastDrawMs = now - t0;
@@ -858,6 +1043,7 @@
     $("pause").disabled = !S.live || S.status !== "running";
     $("resume").disabled = !S.live || S.status !== "paused";
     $("stop").disabled = !S.live || !(S.status === "running" || S.status === "paused");
+    $("fault-inject").disabled = $("stop").disabled;
   }
   function seek(t) {
     if (!S.store.n) return;
@@ -921,7 +1107,7 @@
       const msg = JSON.parse(ev.data);
       if (msg.type === "samples") onSamples(msg);
       else if (msg.type === "events") { S.events.push(...msg.events); redraw(); }
-      else if (msg.type === "status") { S.status = msg.status; redraw(); }
+      else if (msg.type === "status") { S.status = msg.status; if (msg.events) S.events.push(...msg.events); redraw(); }
       else if (msg.type === "error") console.warn(msg.message);
     };
     ws.onclose = () => { if (S.live && S.status !== "finished") { S.status = "disconnected"; redraw(); } };
@@ -965,6 +1151,12 @@
     note.textContent = "filled square: + body axis, hollow: − axis; circled crosses: velocity, nadir, magnetic field B";
     $("pano-legend").appendChild(note);
     setupLook();
+    await setupFaults();
+    $("timeline").addEventListener("click", (ev) => {
+      if (!S.timeline) return;
+      const cv = $("timeline"), rect = cv.getBoundingClientRect(), x = (ev.clientX - rect.left) / rect.width * cv.width;
+      seek(S.timeline.t0 + (x - 4) / (cv.width - 8) * (S.timeline.t1 - S.timeline.t0));
+    });
     for (const id of ["pano-frame", "pano-proj", "true-size", "show-exclusion", "show-heads", "att-frame", "euler-seq"]) $(id).addEventListener("change", redraw);
     $("mag").addEventListener("input", () => { $("mag-value").textContent = $("mag").value; redraw(); });
     $("slider").addEventListener("input", () => {
@@ -1005,5 +1197,6 @@
   }
   S.seek = seek; S.project = (u, kind, W, H) => proj[kind].fwd(u, W, H); S.eulerFromDcm = eulerFromDcm; S.quatFromDcm = quatFromDcm;
   S.control = control;
+  S.faultRequest = faultRequest; S.parseParams = parseParams;
   S.ready = main().then(() => { S.loaded = true; }).catch((err) => { console.error(err); S.loadError = String(err); });
 })();
