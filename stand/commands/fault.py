@@ -52,7 +52,7 @@ def register(subparsers) -> argparse.ArgumentParser:
                      help="a parameter of the fault type, e.g. --param bias_deg_s=[0.5,0,0] (repeatable)")
     inj.add_argument("--duration-s", type=float, help="clear the fault after this many simulated seconds "
                      "(default: until cleared or the end)")
-    inj.add_argument("--name", help="the fault's name (default: DEVICE.TYPE)")
+    inj.add_argument("--name", help="the fault's name (default: DEVICE_TYPE)")
     clr = sub.add_parser("clear", help="clear an injected fault")
     clr.add_argument("name", help="the fault's name (as `inject` printed it)")
     lst = sub.add_parser("list", help="the faults injected so far and the fault types")

@@ -41,7 +41,7 @@ class FakeSchedule:
         self.threads.add(threading.get_ident())
         if table.get("type") not in TYPES:
             raise ScenarioError("faults[live].type", table.get("type"), "one of " + ", ".join(TYPES))
-        name = table.get("name") or f"{table.get('device')}.{table['type']}"
+        name = table.get("name") or f"{table.get('device')}_{table['type']}"
         self.tables.append(table)
         self.active[name] = table
         return name
@@ -251,15 +251,15 @@ def test_stand_fault_injects_clears_and_lists(live, tmp_path, capsys):
     server.write_view_url(tmp_path, view.url, view.host, None)
     assert main(["fault", str(tmp_path), "inject", "--device", "imu", "--type", "bias_step", "--param",
                  "bias_deg_s=[0.5, 0, 0]", "--param", "axis=x", "--param", "on=true", "--duration-s", "2.5"]) == 0
-    assert capsys.readouterr().out == "injected imu.bias_step\n"
+    assert capsys.readouterr().out == "injected imu_bias_step\n"
     assert schedule.tables == [{"device": "imu", "type": "bias_step", "bias_deg_s": [0.5, 0, 0], "axis": "x",
                                 "on": True, "duration_s": 2.5}]
     assert main(["fault", str(tmp_path), "inject", "--device", "st1", "--type", "wheel_seized", "--name", "n1"]) == 0
     assert schedule.tables[-1] == {"device": "st1", "type": "wheel_seized", "name": "n1"}
-    assert main(["fault", str(tmp_path), "clear", "imu.bias_step"]) == 0
-    assert capsys.readouterr().out == "injected n1\ncleared imu.bias_step\n"
-    assert main(["fault", str(tmp_path), "clear", "imu.bias_step"]) == 2
-    assert capsys.readouterr().err == ("stand: error: the run refused: no fault named 'imu.bias_step' was injected "
+    assert main(["fault", str(tmp_path), "clear", "imu_bias_step"]) == 0
+    assert capsys.readouterr().out == "injected n1\ncleared imu_bias_step\n"
+    assert main(["fault", str(tmp_path), "clear", "imu_bias_step"]) == 2
+    assert capsys.readouterr().err == ("stand: error: the run refused: no fault named 'imu_bias_step' was injected "
                                        "in this run (HTTP 404).\n")
     assert main(["fault", str(tmp_path), "inject", "--device", "imu", "--type", "melt"]) == 2
     assert "faults[live].type = 'melt' is not allowed: one of wheel_seized, bias_step." in capsys.readouterr().err
@@ -318,20 +318,20 @@ def test_a_paced_run_takes_faults_through_the_view_process(tmp_path, capsys):
                 loop.run(scene, out, speed=20.0, observer=live.observer)), daemon=True)
             runner.start()
             blind = {"action": "inject", "fault": {"device": "fss", "type": "bias_step", "bias_rad": [0.05, 0.0]}}
-            assert _http(url + "api/faults", blind) == (200, {"action": "inject", "name": "fss.bias_step"})
+            assert _http(url + "api/faults", blind) == (200, {"action": "inject", "name": "fss_bias_step"})
             status, body = _http(url + "api/faults", {"action": "inject", "fault": {"device": "st1",
                                                                                      "type": "wheel_seized"}})
             assert status == 400 and body["error"].startswith("faults[1].type = 'wheel_seized' in live is not "
                                                               "allowed: a fault type device 'st1'"), body
-            assert main(["fault", str(out), "clear", "fss.bias_step"]) == 0
-            assert capsys.readouterr().out == "cleared fss.bias_step\n"
+            assert main(["fault", str(out), "clear", "fss_bias_step"]) == 0
+            assert capsys.readouterr().out == "cleared fss_bias_step\n"
             for _ in range(200):  # the clearing is logged at the next tick
                 if "fault_cleared" in (out / "events.jsonl").read_text():
                     break
                 threading.Event().wait(0.05)
             assert main(["fault", str(out), "list"]) == 0
             listed = capsys.readouterr().out.splitlines()
-            assert listed[0].startswith("fss.bias_step: bias_step on fss from t = ")
+            assert listed[0].startswith("fss_bias_step: bias_step on fss from t = ")
             assert ", cleared at t = " in listed[0]
             assert _http(url + "api/control", {"command": "stop"})[0] == 200
             runner.join(timeout=60.0)
@@ -341,7 +341,7 @@ def test_a_paced_run_takes_faults_through_the_view_process(tmp_path, capsys):
     assert results[0].status == "stopped"
     events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
     faults = [(e["kind"], e["fault"]) for e in events if e["kind"].startswith("fault_")]
-    assert faults == [("fault_injected", "fss.bias_step"), ("fault_cleared", "fss.bias_step")]
+    assert faults == [("fault_injected", "fss_bias_step"), ("fault_cleared", "fss_bias_step")]
     assert not (out / "view_url.json").exists()
 
 
@@ -365,7 +365,7 @@ def test_a_page_opening_mid_run_takes_no_event_from_the_pages_already_open(run_d
     source.listeners.append(pushed.append)
     source.ingest(flat[:10])
     with open(out / "events.jsonl", "a") as f:
-        f.write(json.dumps({"kind": "fault_injected", "message": "", "fault": "imu.bias_step", "t_s": 1.0}) + "\n")
+        f.write(json.dumps({"kind": "fault_injected", "message": "", "fault": "imu_bias_step", "t_s": 1.0}) + "\n")
     samples, events = source.snapshot()  # a second page opens
     assert [e["kind"] for e in events] == ["start"] and len(samples["t_s"]) == 10
     source.ingest(flat[10:20])
@@ -404,8 +404,8 @@ def test_a_scenarios_own_faults_are_listed_with_what_happened(tmp_path, capsys):
     with server.ViewServer(server.ReplaySource(out)) as view:
         status, body = _http(view.url + "api/faults", headers={})
     assert status == 200 and body["live"] is False
-    assert body["scheduled"] == [{"name": "fss.bias_step", "type": "bias_step", "device": "fss",
-                                  "when": "fss.bias_step: bias_step on fss, at 2 s for 1 s"}]
-    assert body["faults"] == [{"name": "fss.bias_step", "type": "bias_step", "device": "fss",
+    assert body["scheduled"] == [{"name": "fss_bias_step", "type": "bias_step", "device": "fss",
+                                  "when": "fss_bias_step: bias_step on fss, at 2 s for 1 s"}]
+    assert body["faults"] == [{"name": "fss_bias_step", "type": "bias_step", "device": "fss",
                                "params": {"bias_rad": [0.05, 0.0]}, "injected_s": 2.0, "cleared_s": 3.0,
                                "active": False}]

@@ -85,8 +85,8 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         browser.find_element("id", "fault-inject").click()
         _wait(browser, "return window.standView.faultAnswers.length > 0")
         answer = browser.execute_script("return window.standView.faultAnswers[0]")
-        assert answer == {"status": 200, "action": "inject", "name": "imu.bias_step"}, answer
-        assert browser.find_element("id", "fault-msg").text == "injected imu.bias_step (from the run's next tick)"
+        assert answer == {"status": 200, "action": "inject", "name": "imu_bias_step"}, answer
+        assert browser.find_element("id", "fault-msg").text == "injected imu_bias_step (from the run's next tick)"
         # The event reaches the page; the fault is drawn once samples after it arrived.
         _wait(browser, "return window.standView.faults.length === 1 && window.standView.faults[0].active")
         t_in = browser.execute_script("return window.standView.faults[0].injected_s")
@@ -100,7 +100,7 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         assert bad["status"] == 400 and "bias_rad_s" in bad["error"], bad
         assert browser.find_element("id", "fault-msg").text == bad["error"]
         # Clear it from the panel's list.
-        browser.find_element("css selector", "#fault-list button[data-fault='imu.bias_step']").click()
+        browser.find_element("css selector", "#fault-list button[data-fault='imu_bias_step']").click()
         _wait(browser, "return window.standView.faults.length === 1 && !window.standView.faults[0].active")
         t_out = browser.execute_script("return window.standView.faults[0].cleared_s")
         _wait(browser, f"return window.standView.store.t(window.standView.store.n - 1) > {t_out} + 1")
@@ -120,7 +120,7 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
                                                f"p.X({t_out})]")
         assert _column_has(plot, px_in, FAULT_RGB) >= 40 and _column_has(plot, px_out, CLEARED_RGB) >= 40
         events_text = browser.find_element("id", "events").text
-        assert "fault_injected imu.bias_step: bias_step on imu" in events_text and "fault_cleared" in events_text
+        assert "fault_injected imu_bias_step: bias_step on imu" in events_text and "fault_cleared" in events_text
         # The refused table's 400 is the one network error the browser logs.
         severe = _severe(browser)
         assert len(severe) == 1 and "/api/faults - " in severe[0]["message"] and "of 400" in severe[0]["message"]
@@ -139,8 +139,8 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
     assert not (out / "view_url.json").exists()
     events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     faults = [e for e in events if e["kind"].startswith("fault_")]
-    assert [(e["kind"], e["fault"], e["t_s"]) for e in faults] == [("fault_injected", "imu.bias_step", t_in),
-                                                                    ("fault_cleared", "imu.bias_step", t_out)]
+    assert [(e["kind"], e["fault"], e["t_s"]) for e in faults] == [("fault_injected", "imu_bias_step", t_in),
+                                                                    ("fault_cleared", "imu_bias_step", t_out)]
     assert faults[0]["params"] == {"bias_rad_s": [BIAS_RAD_S, 0, 0]}
     # In the telemetry: the gyro's x rate is the truth's until the injection, the truth's plus the bias while the
     # fault lasts (from the first sample taken after it), and the truth's again once cleared.
@@ -158,7 +158,7 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         assert not browser.find_element("id", "faults-panel").get_attribute("hidden")
         assert browser.find_element("id", "fault-form").get_attribute("hidden")
         assert browser.find_element("id", "fault-list").text.replace("\n", " ") == (
-            f"imu.bias_step bias_step on imu, t = {t_in:.1f}–{t_out:.1f} s (bias_rad_s=[0.02,0,0])")
+            f"imu_bias_step bias_step on imu, t = {t_in:.1f}–{t_out:.1f} s (bias_rad_s=[0.02,0,0])")
         assert browser.find_elements("css selector", "#fault-list button") == []
         timeline = _png(browser, "return document.getElementById('timeline').toDataURL('image/png')")
         x_in, x_out = browser.execute_script(f"const x = window.standView.timeline.x; return [x({t_in}), x({t_out})]")
