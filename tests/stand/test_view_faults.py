@@ -111,15 +111,15 @@ def test_inject_and_clear_reach_the_schedule_from_the_loop_thread(live):
     view, schedule, runner = live
     table = {"device": "rw2", "type": "wheel_seized", "duration_s": 5.0}
     assert _http(view.url + "api/faults", {"action": "inject", "fault": table}) == (
-        200, {"action": "inject", "name": "rw2.wheel_seized"})
+        200, {"action": "inject", "name": "rw2_wheel_seized"})
     assert schedule.tables == [table]
     assert schedule.threads == {runner.thread.ident}  # handed over by the loop, not by the server's threads
     named = {"device": "imu", "type": "bias_step", "bias_deg_s": [0.5, 0.0, 0.0], "name": "imu_jump"}
     assert _http(view.url + "api/faults", {"action": "inject", "fault": named}) == (
         200, {"action": "inject", "name": "imu_jump"})
-    assert _http(view.url + "api/faults", {"action": "clear", "name": "rw2.wheel_seized"}) == (
-        200, {"action": "clear", "name": "rw2.wheel_seized"})
-    assert schedule.cleared == ["rw2.wheel_seized"] and list(schedule.active) == ["imu_jump"]
+    assert _http(view.url + "api/faults", {"action": "clear", "name": "rw2_wheel_seized"}) == (
+        200, {"action": "clear", "name": "rw2_wheel_seized"})
+    assert schedule.cleared == ["rw2_wheel_seized"] and list(schedule.active) == ["imu_jump"]
 
 
 def test_the_schedules_refusal_comes_back_as_one_sentence(live):
