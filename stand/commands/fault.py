@@ -1,7 +1,7 @@
 """``stand fault``: inject, clear or list faults in a run that is going on with ``stand run --view``.
 
     stand fault RUN_DIR inject --device rw2 --type wheel_seized [--param K=V ...] [--duration-s X] [--name N]
-    stand fault RUN_DIR inject --device st1 --type drop --param probability=0.5 --param direction=to_host
+    stand fault RUN_DIR inject --device st1 --type frame_drop --param probability=0.5 --param direction=to_host
     stand fault RUN_DIR clear NAME
     stand fault RUN_DIR list [--json]
 
