@@ -32,6 +32,7 @@ from sim.ephemeris import EphemerisTrack
 from sim.frames import EarthRotation
 from sim.rotations import quat_from_dcm
 from sim.time import Epoch
+from stand.faults import FAULT_TYPES
 from stand.telemetry import load
 
 # The run's view description lives in .meta; the page's modules and benches take it from here as before.
@@ -377,8 +378,6 @@ def fault_types() -> list[dict]:
     """The fault types a page or ``stand fault`` may offer (``stand.faults.FAULT_TYPES``): name, layer, the tap a
     device must offer, what it does and its parameters (``key`` may hold ``{unit}``, the device's measurement unit,
     as ``view.json`` gives it in ``fault_taps``)."""
-    from stand.faults import FAULT_TYPES
-
     return [{"name": name, "layer": ft.layer, "tap": ft.tap, "text": ft.text, "instant": ft.instant,
              "params": [{"key": p.key, "shape": p.shape, "default": p.default, "text": p.text, "lo": p.lo,
                          "hi": p.hi, "options": list(p.options) if isinstance(p.options, tuple | list) else []}

@@ -979,7 +979,7 @@
     showFaultParams();
   }
   function showFaultParams() {
-    // A parameter's key may hold {unit}: the device's measurement unit (gyro rad_s: bias_rad_s).
+    // A parameter's key may hold {unit}: the device's measurement unit (rad_s gives bias_rad_s).
     const t = S.faultTypes.find((x) => x.name === $("fault-type").value);
     const dev = S.meta.devices.find((d) => d.name === $("fault-device").value);
     const unit = dev && dev.fault_taps && dev.fault_taps.measurement ? dev.fault_taps.measurement.unit : "{unit}";
