@@ -507,14 +507,7 @@ class DatagramEmulator(DeviceFaults, SerialServer):
         """A device that is off takes nothing from the line: what waits there is read and lost, counted in
         ``bytes_lost_in_boot`` and, whole datagrams, in ``rejected_while_off`` (so every frame the host sent is
         accounted for)."""
-        port = self.port
-        try:
-            n = port.in_waiting
-            data = port.read(n) if n else b""
-        except Exception as exc:
-            if is_port_error(exc):
-                raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
-            raise
+        data = self._read_waiting()
         self._lost_in_boot("bytes_lost_in_boot", len(data))
         self._lost_in_boot("rejected_while_off", len(self._decoder.feed(data)) if data else 0)
 
@@ -524,15 +517,19 @@ class DatagramEmulator(DeviceFaults, SerialServer):
         if self._closed:
             raise DriverError(f"{self.name}: closed; create a new one.")
 
-    def _receive(self, t_s: float) -> int:
+    def _read_waiting(self) -> bytes:
+        """Whatever waits on the line, without waiting (DriverError naming the port if it failed)."""
         port = self.port
         try:
             n = port.in_waiting
-            data = port.read(n) if n else b""
+            return port.read(n) if n else b""
         except Exception as exc:
             if is_port_error(exc):
                 raise DriverError(f"{self.name}: cannot read from {port_name(port)}: {exc}") from exc
             raise
+
+    def _receive(self, t_s: float) -> int:
+        data = self._read_waiting()
         if not data:
             return 0
         c = self.counters

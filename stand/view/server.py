@@ -374,12 +374,17 @@ class ViewServer:
             return "control requests are JSON"
         return None
 
-    async def _control(self, request):
+    def _refused(self, request, what: str):
+        """The answer refusing a control request (409 on a replay, 403 as ``control_refusal`` says), or None."""
         if self.source.mode != "live":
-            return _json({"error": "a replay has no run to control"}, status=409)
+            return _json({"error": f"a replay has no run to {what}"}, status=409)
         why = self.control_refusal(request)
-        if why is not None:
-            return _json({"error": why}, status=403)
+        return None if why is None else _json({"error": why}, status=403)
+
+    async def _control(self, request):
+        refused = self._refused(request, "control")
+        if refused is not None:
+            return refused
         try:
             command = (await request.json()).get("command")
             status = self.source.request(command)
@@ -403,11 +408,9 @@ class ViewServer:
         schedule refuses or a malformed request, 404 a clear of a fault it does not know, 409 a replay or a run
         that takes no (more) faults, 403 as for /api/control, 504 no answer from the run in time (one sentence in
         ``error`` each)."""
-        if self.source.mode != "live":
-            return _json({"error": "a replay has no run to inject faults into"}, status=409)
-        why = self.control_refusal(request)
-        if why is not None:
-            return _json({"error": why}, status=403)
+        refused = self._refused(request, "inject faults into")
+        if refused is not None:
+            return refused
         try:
             command = fault_command(await request.json())
         except ValueError as exc:  # invalid JSON too (json.JSONDecodeError is a ValueError)
