@@ -38,6 +38,17 @@ def _finite(name: str, value: Any, lo: float = -math.inf, hi: float = math.inf) 
     return float(value)
 
 
+def axis_indices(what: str, axes) -> tuple[int, ...]:
+    """A set of axis indices (0 x, 1 y, 2 z) a fault names, sorted; ValueError naming ``what`` otherwise."""
+    try:
+        out = tuple(sorted({int(a) for a in axes}))
+    except (TypeError, ValueError):
+        out = (-1,)
+    if not all(0 <= a <= 2 for a in out):
+        raise ValueError(f"{what} = {axes!r} is not allowed; give axis indices 0 (x), 1 (y), 2 (z).")
+    return out
+
+
 class ClockFault:
     """The active clock faults of one device: ``offset_s(t) = sum(jump + drift * (t - t0))``."""
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from drivers.cage.registers import RegisterMap, load_map
+from drivers.device_faults import axis_indices
 
 __all__ = ["EXC_ILLEGAL_ADDRESS", "EXC_ILLEGAL_FUNCTION", "EXC_ILLEGAL_VALUE", "CageConfig", "CageModel"]
 
@@ -228,13 +229,7 @@ class CageModel:
 
     @failed_coil_axes.setter
     def failed_coil_axes(self, axes) -> None:
-        try:
-            failed = tuple(sorted({int(a) for a in axes}))
-        except (TypeError, ValueError):
-            failed = (-1,)
-        if not all(0 <= a <= 2 for a in failed):
-            raise ValueError(f"failed_coil_axes = {axes!r} is not allowed; give axis indices 0 (x), 1 (y), 2 (z).")
-        self._failed_axes = failed
+        self._failed_axes = axis_indices("failed_coil_axes", axes)
 
     # -- time ------------------------------------------------------------------------------------
 

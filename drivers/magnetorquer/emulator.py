@@ -50,6 +50,7 @@ import can
 import numpy as np
 
 from drivers.can_node import EPS_S, CanDevice, check_positive
+from drivers.device_faults import axis_indices
 from drivers.magnetometer.sensor import FieldSource, MagnetometerModel
 from drivers.magnetorquer.codec import (
     MODES,
@@ -300,13 +301,7 @@ class MagnetorquerEmulator(CanDevice):
 
     @stuck_on_axes.setter
     def stuck_on_axes(self, axes) -> None:
-        try:
-            stuck = tuple(sorted({int(a) for a in axes}))
-        except (TypeError, ValueError):
-            stuck = (-1,)
-        if not all(0 <= a <= 2 for a in stuck):
-            raise ValueError(f"{self.name}: stuck_on_axes = {axes!r} is not allowed; give axis indices 0 (x), "
-                             "1 (y), 2 (z).")
+        stuck = axis_indices(f"{self.name}: stuck_on_axes", axes)
         # A coil sticks with the sign it was last driven with (kept for a coil already stuck).
         sign = list(self._stuck_sign)
         for a in stuck:
