@@ -103,6 +103,35 @@ def test_hardware_gyro_reads_an_emulator_in_another_process(pty_pair, tmp_path):
 
 
 
+def test_a_hardware_gyro_takes_protocol_faults_between_the_real_port_and_its_host(pty_pair, tmp_path):
+    """On a hardware link the stand puts the faults on the host's own port (the in-process proxy): bit errors the
+    host's CRC check catches, frames lost before the host sees them."""
+    stand_end, device_end = pty_pair
+    data = small_scenario([{"name": "imu", "kind": "gyro", "link": "hardware", "port": stand_end,
+                            "output_rate_hz": 10.0}], 12.0)
+    data["faults"] = [{"name": "bits", "device": "imu", "type": "bit_error", "probability": 0.5, "at_s": 3.0,
+                       "duration_s": 3.0},
+                      {"name": "loss", "device": "imu", "type": "frame_drop", "probability": 0.5, "at_s": 7.0,
+                       "duration_s": 3.0}]
+    path = tmp_path / "hw_faults.toml"
+    path.write_text(to_toml(data))
+    out = tmp_path / "hw_faults"
+    code, emu_out = run_beside_device(GYRO_EMULATOR, device_end, path, out, tmp_path)
+    assert code == 0, emu_out
+    summary = json.loads((out / "summary.json").read_text())
+    host = summary["device_counters"]["imu"]["host_counters"]
+    link = summary["faults"]["loss"]["link_counters"]  # one link, both faults: its counters are the line's
+    assert link == summary["faults"]["bits"]["link_counters"]
+    assert link["corrupted"] > 0 and link["dropped"] > 0
+    # Every corrupted datagram (24 bytes) is dropped whole by the host, most by its CRC check.
+    assert host["bytes_dropped"] == 24 * link["corrupted"] and 0 < host["rejected_crc"] <= link["corrupted"]
+    tel = telemetry.load(out)
+    t, got = tel["t_s"], np.isfinite(tel["imu.omega_S"][:, 0])
+    assert got[(t > 1.0)].all()  # the telemetry holds the newest sample the host took: never a garbled one
+    expected = np.round(np.array([0.01, -0.02, 0.03]) / RATE_LSB_RAD_S) * RATE_LSB_RAD_S
+    assert np.allclose(tel["imu.omega_S"][got], expected, rtol=0, atol=1e-12)
+
+
 def _in_private_namespace(tmp_path: Path, peer: str, peer_args: str, stand_args: list[str]) -> tuple[str, str]:
     """Run ``peer`` (a Python script) and ``stand run`` side by side inside ``unshare --net`` with loopback multicast
     routing; returns the stand's output and the peer's log. Skips where a private namespace is not permitted."""
