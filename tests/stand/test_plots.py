@@ -257,3 +257,9 @@ def test_attitude_of_a_tumble_keeps_the_full_angle_range(tel):
     yaw = fig.axes[0]
     lo, hi = yaw.get_ylim()
     assert lo < -170 and hi > 170 and -180 in list(yaw.get_yticks())
+
+
+def test_sun_sensor_plot_says_when_the_whole_run_is_in_shadow(tel):
+    dark = {**tel, "css.sun_fraction": np.zeros(len(tel["t_s"])), "css.valid": np.zeros(len(tel["t_s"]))}
+    assert "whole run" in sun_sensor_plots.sun_sensor_figure(dark, "css").axes[0].get_title()
+    assert "whole run" not in sun_sensor_plots.sun_sensor_figure(tel, "css").axes[0].get_title()
