@@ -329,7 +329,7 @@ def _degree_ticks(ax, kind: str, W: int, H: int) -> None:
     ax.set_ylabel("elevation from the X-Y plane (deg)", color="#c9d1d9", fontsize=9)
 
 
-def _legend_handles(meta: dict) -> list:
+def _legend_handles(meta: dict, field: bool = True) -> list:
     """What each mark and colour means, for what this run draws (a kind's states only when it has that device)."""
     from matplotlib.lines import Line2D
 
@@ -343,8 +343,9 @@ def _legend_handles(meta: dict) -> list:
     h = [mark("Sun", "o", COLORS["sun"]), mark("Sun behind the Earth", "o", COLORS["sun"], False),
          mark("Moon (hollow: behind the Earth)", "o", COLORS["moon"], ms=7),
          *(mark(f"body +{a} (hollow: -{a})", "s", c, ms=6) for a, c in zip("XYZ", AXIS_COLORS, strict=True)),
-         mark("velocity +v", "+", "white", ms=9, mew=1.2), mark("nadir", "+", "#78c8ff", ms=9, mew=1.2),
-         mark("magnetic field B", "+", "#e678ff", ms=9, mew=1.2)]
+         mark("velocity +v", "+", "white", ms=9, mew=1.2), mark("nadir", "+", "#78c8ff", ms=9, mew=1.2)]
+    if field:
+        h.append(mark("magnetic field B", "+", "#e678ff", ms=9, mew=1.2))
     devs = meta.get("devices", [])
     keys = {"valid"}
     flags = False
@@ -380,7 +381,8 @@ def panorama_figure(samples: dict, meta: dict, i: int, *, frame: str = "body", k
     epoch = Epoch.from_iso(meta["epoch"])
     fig.text(0.01, 0.975, f"{meta['scenario']}: panorama in the {frame} frame ({kind}), t = {t:.1f} s, "
              f"{(epoch + t).iso[:19]} UTC, stars to Hp {mag_limit:g}", color="#d8dee6", fontsize=10, va="top")
-    fig.legend(handles=_legend_handles(meta), loc="lower center", bbox_to_anchor=(0.5, 0.005), ncol=5, fontsize=8,
+    handles = _legend_handles(meta, "b_true_B" in samples)
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.005), ncol=5, fontsize=8,
                frameon=False, labelcolor="#d8dee6", handlelength=2.2, columnspacing=1.5)
     return fig
 
