@@ -167,21 +167,118 @@ def _angle_labels(seq: str) -> list[str]:
     return [f"angle {i + 1} (about {'xyz'[int(seq[i]) - 1]}, {order[i]} rotation)" for i in range(3)]
 
 
+#: Pitch (the middle Tait-Bryan angle) this close to +-90 deg makes yaw and roll ill-defined (gimbal lock).
+GIMBAL_LOCK_MARGIN_DEG = 10.0
+
+
+def angle_limits(y: np.ndarray, lo: float, hi: float, min_span: float = 0.2) -> tuple[float, float]:
+    """y limits around the finite data in ``y`` (deg) with a 8 % margin, never wider than the angle's own
+    range ``lo``..``hi`` (plus a little) and never narrower than ``min_span``, so a pointing run's nearly
+    constant angle shows its wander instead of a flat line on a +-180 deg axis."""
+    y = np.asarray(y, dtype=float)
+    y = y[np.isfinite(y)]
+    if not len(y):
+        return lo - 8.0, hi + 8.0
+    a, b = float(y.min()), float(y.max())
+    if b - a < min_span:
+        mid = 0.5 * (a + b)
+        a, b = mid - 0.5 * min_span, mid + 0.5 * min_span
+    pad = 0.08 * (b - a)
+    return max(a - pad, lo - 8.0), min(b + pad, hi + 8.0)
+
+
+def _angle_axis(ax, y, lo: float, hi: float) -> None:
+    """Autoscaled around the data; ticks every 90 (or 45) deg only when the data span most of the range."""
+    from matplotlib.ticker import MaxNLocator
+
+    y0, y1 = angle_limits(y, lo, hi)
+    ax.set_ylim(y0, y1)
+    if y1 - y0 > 0.75 * (hi - lo):
+        ax.set_yticks(np.arange(lo, hi + 1, 90 if hi - lo > 180 else 45))
+    else:
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=5, steps=(1, 2, 2.5, 5, 10)))
+
+
+def attitude_error_deg(tel) -> np.ndarray | None:
+    """Per body axis rotation (n, 3) in deg from the controller's reference ``adcs_q_RN`` to the true attitude
+    (``-error_angles_B(q_BN, q_RN)``), NaN where there is no reference; None without any reference."""
+    if "adcs_q_RN" not in tel:
+        return None
+    q, ref = _column(tel, "q_BN"), _column(tel, "adcs_q_RN")
+    ok = np.all(np.isfinite(ref), axis=1)
+    if not ok.any():
+        return None
+    err = np.full((len(q), 3), np.nan)
+    err[ok] = -np.degrees(error_angles_B(q[ok], ref[ok]))
+    return err
+
+
+def _error_panel(ax, t, err) -> None:
+    # arcsec when the whole error is below 0.05 deg after the start, so the axis reads 10, 20 not 0.0025
+    settled = np.abs(err[int(0.2 * len(err)):])
+    small = np.isfinite(settled).any() and float(np.nanmax(settled)) < 0.05
+    unit, err = ("arcsec", err * 3600.0) if small else ("deg", err)
+    for k in range(3):
+        ax.plot(t, err[:, k], lw=0.7, color=AXIS_COLOURS[k], label=f"about body {'xyz'[k]}")
+    mag = np.linalg.norm(err, axis=1)
+    ax.plot(t, mag, "k", lw=0.8, label="angle of the error")
+    big = np.nanmax(mag)
+    # the last 80 % of the run sets the scale when the start (the slew to the reference) is far larger, so the
+    # settled error stays readable; the clipped start is said in the title
+    tail = mag[int(0.2 * len(mag)):]
+    tail_max = float(np.nanmax(tail)) if np.isfinite(tail).any() else big
+    lim = max(1.2 * (tail_max if big > 5.0 * tail_max else big), 1e-3)
+    ax.set_ylim(-lim, lim)
+    clipped = " (the start is off the axes)" if big > lim else ""
+    ax.set_title(f"attitude error: rotation from the controller's reference (adcs_q_RN) to the true attitude, "
+                 f"per body axis{clipped}", fontsize=9, loc="left")
+    ax.set_ylabel(f"error ({unit})")
+    ax.axhline(0.0, color="0.5", lw=0.5)
+    ax.grid(alpha=0.3)
+    _legend_outside(ax)
+
+
+def _gimbal_lock_spans(ax, t_raw, pitch_raw) -> bool:
+    near = np.abs(np.asarray(pitch_raw)) > 90.0 - GIMBAL_LOCK_MARGIN_DEG
+    for j, (a, w) in enumerate(_spans(t_raw, near)):
+        ax.axvspan(a, a + w, color="tab:red", alpha=0.12, lw=0,
+                   label=f"pitch within {GIMBAL_LOCK_MARGIN_DEG:g} deg of +-90:\nyaw and roll ill-defined"
+                   if j == 0 else None)
+    return bool(near.any())
+
+
 def attitude_figure(tel, seq: str = "321") -> Figure:
-    t, ang = euler_series(_time(tel), _column(tel, "q_BN"), seq)
+    """Euler angles of ``q_BN`` (one panel per angle, axes around the data, wraps broken, gimbal lock shaded),
+    and above them, when the run has a controller reference, the attitude error relative to it: for a pointing
+    run the angles themselves barely move and near gimbal lock say little, the error is what is judged."""
+    t_raw = _time(tel)
+    q = _column(tel, "q_BN")
+    t, ang = euler_series(t_raw, q, seq)
     tait_bryan = len(set(seq)) == 3
-    fig = Figure(figsize=(WIDTH_IN, 6.5), layout="constrained")
-    axes = fig.subplots(3, 1, sharex=True)
+    err = attitude_error_deg(tel)
+    fig = Figure(figsize=(WIDTH_IN, 6.5 if err is None else 8.5), layout="constrained")
+    axes = list(fig.subplots(3 + (err is not None), 1, sharex=True,
+                             height_ratios=(1.3, 1, 1, 1) if err is not None else None))
+    if err is not None:
+        _error_panel(axes.pop(0), t_raw, err)
+    locked = False
     for i, (ax, label) in enumerate(zip(axes, _angle_labels(seq), strict=True)):
         ax.plot(t, ang[:, i], lw=0.6, color=AXIS_COLOURS[i])
         middle = i == 1
         lo, hi = ((-90, 90) if tait_bryan else (0, 180)) if middle else (-180, 180)
-        ax.set_ylim(lo - 8, hi + 8)
-        ax.set_yticks(np.arange(lo, hi + 1, 90 if hi - lo > 180 else 45))
+        _angle_axis(ax, ang[:, i], lo, hi)
         ax.set_ylabel(f"{label.split(' (')[0]} (deg)")
         ax.set_title(label, fontsize=9, loc="left")
         ax.grid(alpha=0.3)
-    axes[0].set_xlim(t[0], t[-1])
+    if tait_bryan:
+        from sim.rotations import euler_from_quat
+
+        raw_mid = np.degrees(euler_from_quat(q, seq))[:, 1]
+        for ax in (axes[0], axes[2]):
+            locked = _gimbal_lock_spans(ax, t_raw, raw_mid) or locked
+        if locked:
+            _legend_outside(axes[0])
+    fig.axes[0].set_xlim(t_raw[0], t_raw[-1])
     axes[-1].set_xlabel(TIME_LABEL)
     fig.suptitle(f"Attitude of the body relative to the inertial frame (q_BN) as {'-'.join(seq)} Euler angles; "
                  "gaps mark wraps through +-180 deg", fontsize=10)

@@ -80,6 +80,8 @@ def _plot_pass_rates(result: dict, out: Path) -> str | None:
     ax.set_yticks(y, names)
     ax.set_xlim(0, 100)
     ax.set_xlabel("pass rate (%), 95 % Clopper-Pearson interval")
+    ax.set_title(f"Pass rate of each criterion over {result['finished']} runs (bar: rate; whisker: 95 % interval)",
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "pass_rates.png", dpi=100)
     return "pass_rates.png"
@@ -104,38 +106,74 @@ def _plot_metrics(result: dict, records: list[dict], out: Path) -> str | None:
         unit = result["criteria"].get(name, {}).get("unit") or ("deg/s" if name.startswith("rate_deg_s") else "")
         ax.set_title(f"{name} ({unit})" if unit else name, fontsize=9)
         ax.set_ylabel("runs")
+    fig.suptitle(f"Distribution of each metric over {len(records)} runs (dashed: the pass limit)", fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "metrics.png", dpi=100)
     return "metrics.png"
 
 
-def _plot_scatter(result: dict, records: list[dict], out: Path) -> list[str]:
-    """One figure per criterion metric: every dispersed input against it, passes and failures coloured."""
+#: Pass and fail colours of the scatter plots (told apart by marker too, for readers who cannot tell red from green).
+PASS_STYLE = {"color": "tab:green", "marker": "o"}
+FAIL_STYLE = {"color": "tab:red", "marker": "x"}
+
+
+def scatter_figure(result: dict, records: list[dict], name: str, info: dict):
+    """Every dispersed input against criterion ``name``'s metric, one panel each: a title that says what is
+    plotted, a legend for the pass and fail colours and the limit, and at most four ticks per axis."""
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import MaxNLocator
 
     inputs = _inputs(records)
-    if not inputs:
+    y = np.asarray([np.nan if v is None else v for v in metric_table(records).get(name, [])], dtype=float)
+    ok = np.asarray([any(c["name"] == name and c["pass"] for c in r.get("criteria", [])) for r in records])
+    cols = min(4, len(inputs))
+    rows = math.ceil(len(inputs) / cols)
+    fig = Figure(figsize=(3.4 * cols, 2.7 * rows + 0.9), layout="constrained")
+    unit = f" ({info['unit']})" if info.get("unit") else ""
+    axes = fig.subplots(rows, cols, sharey=True, squeeze=False).ravel()
+    for i, (label, xs) in enumerate(inputs.items()):
+        ax = axes[i]
+        x = np.asarray([np.nan if v is None else v for v in xs], dtype=float)
+        ax.scatter(x[ok], y[ok], s=14, **PASS_STYLE, linewidths=1.0)
+        ax.scatter(x[~ok], y[~ok], s=14, **FAIL_STYLE, linewidths=1.0)
+        for v in info["limit"].values():
+            ax.axhline(v, color="black", linestyle="--", linewidth=0.8)
+        ax.set_xlabel(label, fontsize=8)
+        if i % cols == 0:
+            ax.set_ylabel(f"{name}{unit}", fontsize=8)
+        # few ticks, no offset text: long values (0.0195 kg m^2) stay apart and readable
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=4))
+        ax.ticklabel_format(axis="x", useOffset=False, style="sci", scilimits=(-3, 4))
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    for ax in axes[len(inputs):]:
+        ax.set_visible(False)
+    finite = y[np.isfinite(y)]
+    if len(finite) and np.ptp(finite) == 0:
+        # one value in every run (0 rejected frames): a unit-wide axis around it, not a 1e-16 scale
+        half = max(1.0, 0.5 * abs(float(finite[0])))
+        axes[0].set_ylim(finite[0] - half, finite[0] + half)
+    n_pass = int(ok.sum())
+    fig.suptitle(f"{Path(result['spec']['scenario_name']).stem}: criterion '{name}' (metric "
+                 f"{info.get('metric', name)}{', ' + info['unit'] if info.get('unit') else ''}) against each "
+                 f"dispersed input, {len(records)} runs ({n_pass} passed, "
+                 f"{len(records) - n_pass} failed)", fontsize=10)
+    lim = " and ".join(f"{k} {v:g}" for k, v in info["limit"].items())
+    handles = [Line2D([], [], ls="none", ms=6, label=f"pass ({n_pass})", **PASS_STYLE),
+               Line2D([], [], ls="none", ms=6, label=f"fail ({len(records) - n_pass})", **FAIL_STYLE),
+               Line2D([], [], color="black", ls="--", lw=0.8, label=f"pass limit: {lim}{unit}")]
+    fig.legend(handles=handles, loc="outside lower center", ncol=3, fontsize=8, frameon=False)
+    return fig
+
+
+def _plot_scatter(result: dict, records: list[dict], out: Path) -> list[str]:
+    """One figure per criterion metric: every dispersed input against it, passes and failures coloured."""
+    if not _inputs(records):
         return []
     made = []
-    metrics = metric_table(records)
     for k, (name, info) in enumerate(result["criteria"].items()):
-        y = np.asarray([np.nan if v is None else v for v in metrics.get(name, [])], dtype=float)
-        ok = np.asarray([any(c["name"] == name and c["pass"] for c in r.get("criteria", [])) for r in records])
-        cols = min(4, len(inputs))
-        rows = math.ceil(len(inputs) / cols)
-        fig = Figure(figsize=(3.2 * cols, 2.6 * rows))
-        for i, (label, xs) in enumerate(inputs.items()):
-            ax = fig.add_subplot(rows, cols, i + 1)
-            x = np.asarray([np.nan if v is None else v for v in xs], dtype=float)
-            ax.scatter(x[ok], y[ok], s=8, color="tab:green", label="pass")
-            ax.scatter(x[~ok], y[~ok], s=8, color="tab:red", label="fail")
-            for v in info["limit"].values():
-                ax.axhline(v, color="black", linestyle="--", linewidth=0.8)
-            ax.set_xlabel(label, fontsize=8)
-            ax.set_ylabel(f"{name} ({info['unit']})" if info.get("unit") else name, fontsize=8)
-            ax.tick_params(labelsize=7)
-        fig.tight_layout()
         fname = f"scatter_{k}.png"
-        fig.savefig(out / fname, dpi=90)
+        scatter_figure(result, records, name, info).savefig(out / fname, dpi=90)
         made.append(fname)
     return made

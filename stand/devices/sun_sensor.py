@@ -112,7 +112,9 @@ class SunSensorKind(DeviceKind):
                        "sun_fraction": "the visible fraction of the Sun's disc (Earth shadow) at that sample"}
     plot_files = {"sun_{name}.png": "head currents or angles with the Earth shadow, the Sun fraction and validity"}
     view_layer_meanings = {"fovs": "the field of view, one cone per head of a coarse sensor, lit by its current"}
-    view_state = {"missing": "no sample", "flags": False, "invalid": ["sun_flag", "invalid"]}
+    # invalid means no usable Sun (outside the field or in shadow): the grey "no solution" colour, never the red
+    # the view's legend calls "Sun in field" (a tracker's Sun exclusion)
+    view_state = {"missing": "no sample", "flags": False, "invalid": ["none", "no Sun (outside the field or shadow)"]}
 
     def view_layers(self, spec) -> dict:
         half = float(getattr(spec, "fov_half_deg", 90.0))

@@ -42,6 +42,10 @@ def sun_sensor_figure(tel, name: str, head_labels=None) -> Figure:
                      f"({100.0 * valid.mean():.0f} % of samples valid)")
         if not valid.any():
             ax.text(0.5, 0.5, "no valid sample in this run", transform=ax.transAxes, ha="center", va="center")
+    if np.all(np.nan_to_num(frac, nan=1.0) <= 0.0):
+        # a run wholly in the Earth's shadow: say why the panel is grey
+        ax.set_title(ax.get_title() + "\nthe Sun is behind the Earth for the whole run (no direct sunlight)",
+                     fontsize=10)
     _shade_shadow(ax, t, frac, label=True)
     ax.grid(alpha=0.3)
     _legend_outside(ax)

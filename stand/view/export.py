@@ -27,6 +27,11 @@ _RGB = {"sun": (255, 200, 0), "moon": (190, 196, 210), "valid": (60, 220, 90), "
         "acquiring": (230, 200, 60)}
 COLORS = {k: tuple(c / 255 for c in v) for k, v in _RGB.items()}
 AXIS_COLORS = ("#ff5555", "#55e678", "#5a96ff")
+#: The map's outline and the margin (pixels of the panorama) left around it.
+OUTLINE = (0.6, 0.66, 0.75)
+MARGIN_PX = 14
+#: A coarse sun sensor head's field: lit (a current flows) or dark.
+HEAD_LIT, HEAD_DARK = (1.0, 0.82, 0.3), (0.5, 0.5, 0.5)
 #: Bits of a tracker's NAME.flags (the ICD's flags byte) that say why a solution is not valid (view.js FLAG_BITS).
 FLAG_BITS = ((2, "Sun", "sun_flag"), (4, "Moon", "moon_flag"), (8, "Earth", "earth_flag"), (16, "rate", "rate"))
 
@@ -80,7 +85,11 @@ def device_state(samples: dict, dev: dict, i: int) -> tuple[str, str]:
     hit = [(name, key) for bit, name, key in FLAG_BITS if flags is not None and int(flags[i]) & bit]
     if hit:
         return hit[0][1], "invalid: " + ", ".join(h[0] for h in hit)
-    key, text = (dev.get("state") or {}).get("invalid") or ("sun_flag", "invalid")
+    # a kind that does not say why is drawn "no solution", never in a colour the legend gives a meaning
+    key, text = (dev.get("state") or {}).get("invalid") or ("none", "invalid")
+    if dev.get("kind") == "sun_sensor" and key == "sun_flag":
+        # a run recorded before the sun sensor said so (its view.json): invalid is no Sun, not "Sun in field"
+        key, text = "none", "no Sun (outside the field or shadow)"
     return key, text
 
 
@@ -145,6 +154,38 @@ def _earth_lines(ax, samples, i, M, r, kind, W, H) -> None:
 
 
 
+#: Points to panorama pixels at the export's scale (100 dpi, the 1200-pixel map drawn about 1130 pixels wide).
+_PT = 100 / 72 * 1200 / 1130
+
+
+class _Labels:
+    """Places the panorama's point labels so that none covers another or runs off the map: each tries the
+    offsets right of its point, then above and below, then left, and takes the first free one."""
+
+    def __init__(self, ax, width: float, height: float):
+        self.ax, self.W, self.H, self.boxes = ax, width, height, []
+
+    def _box(self, p, w, h, dx, dy, left: bool):
+        x0 = p[0] - dx * _PT - w if left else p[0] + dx * _PT
+        yc = p[1] - dy * _PT
+        return (x0, yc - h / 2, x0 + w, yc + h / 2)
+
+    def _free(self, b) -> bool:
+        inside = b[0] >= 0 and b[2] <= self.W and b[1] >= 0 and b[3] <= self.H
+        return inside and not any(b[0] < o[2] and o[0] < b[2] and b[1] < o[3] and o[1] < b[3] for o in self.boxes)
+
+    def add(self, text: str, p, colour, fontsize: float, dx: float, dy: float) -> None:
+        if not np.all(np.isfinite(p)):
+            return
+        w, h = 0.6 * fontsize * len(text) * _PT, 1.25 * fontsize * _PT
+        tries = [(dx, dy + k * 1.2 * fontsize, left) for left in (False, True) for k in (0, -1, 1, -2, 2, -3, 3)]
+        pick = next((c for c in tries if self._free(self._box(p, w, h, *c))), tries[0])
+        self.boxes.append(self._box(p, w, h, *pick))
+        off_x = -pick[0] if pick[2] else pick[0]
+        self.ax.annotate(text, p, xytext=(off_x, pick[1]), textcoords="offset points", color=colour,
+                         fontsize=fontsize, ha="right" if pick[2] else "left", va="center", zorder=6)
+
+
 def _draw_graticule(ax, kind: str, W: int, H: int) -> None:
     """Lines of the panorama's own latitude every 30 deg (to +-60) and longitude every 30 deg."""
     for lat in range(-60, 61, 30):
@@ -166,14 +207,20 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
     where (name -> pixel) for tests."""
     M = frame_dcm(samples, i, frame)
     W, H = width, height
-    ax.set_xlim(0, W)
-    ax.set_ylim(H, 0)
+    # a margin around the map, so the Hammer outline's top and bottom and a marker on the edge are not cut
+    pad = MARGIN_PX
+    ax.set_xlim(-pad, W + pad)
+    ax.set_ylim(H + pad, -pad)
     ax.set_aspect("equal")
     ax.axis("off")
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Ellipse, Rectangle
 
-    ax.add_patch(Rectangle((0, 0), W, H, color="#03050a", zorder=0))
+    if kind == "hammer":
+        ax.add_patch(Ellipse((W / 2, H / 2), W, H, facecolor="#03050a", edgecolor=OUTLINE, lw=1.0, zorder=0))
+    else:
+        ax.add_patch(Rectangle((0, 0), W, H, facecolor="#03050a", edgecolor=OUTLINE, lw=1.0, zorder=0))
     where = {}
+    labels = _Labels(ax, W, H)
 
     def at(u_N):
         return state.project(np.asarray(u_N, dtype=float) @ M.T, kind, W, H)
@@ -215,8 +262,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
         hidden = math.acos(float(np.clip(u_b @ (-r / rn), -1, 1))) < earth_half
         ax.plot(*pb, "o", ms=14 if body == "sun" else 11, mfc="none" if hidden else COLORS[body], mec=COLORS[body],
                 zorder=5)
-        ax.annotate("Sun" if body == "sun" else "Moon", pb, xytext=(9, -6), textcoords="offset points",
-                    color=COLORS[body], fontsize=8, zorder=6)
+        labels.add("Sun" if body == "sun" else "Moon", pb, COLORS[body], 8, 9, -6)
         where[body] = pb
     C_BN = dcm(samples["q_BN"][i])
     for a in range(3):
@@ -224,7 +270,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
             pa = at(sgn * C_BN[a])
             name = ("+" if sgn > 0 else "-") + "XYZ"[a]
             ax.plot(*pa, "s", ms=6, mfc=AXIS_COLORS[a] if sgn > 0 else "none", mec=AXIS_COLORS[a], zorder=5)
-            ax.annotate(name, pa, xytext=(6, 5), textcoords="offset points", color=AXIS_COLORS[a], fontsize=7, zorder=6)
+            labels.add(name, pa, AXIS_COLORS[a], 7, 6, 5)
             where[name] = pa
     v = np.asarray(samples["v_BN_N"][i], dtype=float)
     marks = [("+v", v / np.linalg.norm(v), "white"), ("nadir", -r / rn, "#78c8ff")]
@@ -234,7 +280,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
     for name, u_m, col in marks:
         pm = at(u_m)
         ax.plot(*pm, "+", ms=10, color=col, mew=1.2, zorder=5)
-        ax.annotate(name, pm, xytext=(6, -9), textcoords="offset points", color=col, fontsize=7, zorder=6)
+        labels.add(name, pm, col, 7, 6, -9)
         where[name] = pm
     for dev in meta["devices"]:
         key, text = device_state(samples, dev, i)
@@ -243,7 +289,7 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
             col = COLORS[key]
             if fov.get("head"):
                 cur = samples.get(f"{dev['name']}.currents")
-                col = (1.0, 0.82, 0.3) if cur is not None and cur[i][k] > 1e-6 else (0.5, 0.5, 0.5)
+                col = HEAD_LIT if cur is not None and cur[i][k] > 1e-6 else HEAD_DARK
             bound = _boundary(fov) @ C_SB @ C_BN  # sensor -> body -> N, as row vectors
             _polyline(ax, at(bound), W, color=col, lw=0.8 if fov.get("head") else 1.8,
                       ls="--" if fov.get("head") else "-", zorder=4)
@@ -255,10 +301,90 @@ def draw_panorama(ax, samples: dict, meta: dict, i: int, *, frame: str = "B", ki
                               zorder=4)
             if not fov.get("head"):
                 pb = at(np.asarray(fov["axis_S"], dtype=float) @ C_SB @ C_BN)
-                ax.annotate(f"{dev['name']}: {text}", pb, xytext=(6, 6), textcoords="offset points", color=col,
-                            fontsize=8, zorder=6)
+                labels.add(f"{dev['name']}: {text}", pb, col, 8, 6, 6)
                 where[fov["label"]] = pb
     return where
+
+
+def _degree_ticks(ax, kind: str, W: int, H: int) -> None:
+    """Azimuth (the frame's longitude, about +Z from +X, increasing to the left) on x every 30 deg, where each
+    meridian crosses the equator, and elevation (latitude from the X-Y plane) on y every 30 deg, where each
+    parallel meets the map's left edge: the map's own degree labels on both axes."""
+    lons = np.arange(180, -181, -30)
+    px = state.project(np.column_stack((np.cos(np.radians(lons)), np.sin(np.radians(lons)), np.zeros(len(lons)))),
+                       kind, W, H)[:, 0]
+    px[0], px[-1] = 0.0, float(W)  # +-180 deg: the left and right edge (the projection's wrap)
+    lats = np.arange(-90, 91, 30)
+    la = np.radians(lats)
+    edge = np.column_stack((-np.cos(la), np.full(len(la), 1e-9), np.sin(la)))  # azimuth just under 180 deg
+    py = state.project(edge, kind, W, H)[:, 1]
+    ax.axis("on")
+    for side in ax.spines.values():
+        side.set_visible(False)
+    ax.set_xticks(px, [f"{v:d}°" for v in lons])
+    ax.set_yticks(py, [f"{v:+d}°" if v else "0°" for v in lats])
+    ax.tick_params(colors="#c9d1d9", labelsize=8, length=3, pad=2)
+    ax.set_xlabel("azimuth in the frame: about +Z from +X, increasing to the left (deg)", color="#c9d1d9",
+                  fontsize=9)
+    ax.set_ylabel("elevation from the X-Y plane (deg)", color="#c9d1d9", fontsize=9)
+
+
+def _legend_handles(meta: dict, field: bool = True) -> list:
+    """What each mark and colour means, for what this run draws (a kind's states only when it has that device)."""
+    from matplotlib.lines import Line2D
+
+    def mark(label, marker, colour, filled=True, ms=8, mew=1.0):
+        return Line2D([], [], ls="none", marker=marker, ms=ms, mec=colour, mew=mew, mfc=colour if filled else "none",
+                      label=label)
+
+    def line(label, colour, ls="-", lw=1.8):
+        return Line2D([], [], color=colour, ls=ls, lw=lw, label=label)
+
+    h = [mark("Sun", "o", COLORS["sun"]), mark("Sun behind the Earth", "o", COLORS["sun"], False),
+         mark("Moon (hollow: behind the Earth)", "o", COLORS["moon"], ms=7),
+         *(mark(f"body +{a} (hollow: -{a})", "s", c, ms=6) for a, c in zip("XYZ", AXIS_COLORS, strict=True)),
+         mark("velocity +v", "+", "white", ms=9, mew=1.2), mark("nadir", "+", "#78c8ff", ms=9, mew=1.2)]
+    if field:
+        h.append(mark("magnetic field B", "+", "#e678ff", ms=9, mew=1.2))
+    devs = meta.get("devices", [])
+    keys = {"valid"}
+    flags = False
+    for d in devs:
+        st = d.get("state")
+        if st:
+            keys |= {device_state({}, d, 0)[0]}
+            keys.add(st["invalid"][0] if d.get("kind") != "sun_sensor" else "none")
+            flags = flags or bool(st.get("flags"))
+    if flags:
+        keys |= {"sun_flag", "moon_flag", "earth_flag", "rate"}
+    words = {"valid": "field of view: valid", "sun_flag": "field: Sun in field", "moon_flag": "field: Moon in field",
+             "earth_flag": "field: Earth in field", "rate": "field: rate too high", "acquiring": "field: acquiring",
+             "none": "field: no solution / no Sun"}
+    h += [line(words[k], COLORS[k]) for k in words if k in keys]
+    if any(f.get("head") for d in devs for f in d.get("fovs", [])):
+        h += [line("sun sensor head: lit", HEAD_LIT, "--", 1.0), line("sun sensor head: dark", HEAD_DARK, "--", 1.0)]
+    if any(d.get("exclusion_deg") for d in devs):
+        h.append(line("exclusion cone (Sun, Moon, Earth colour)", (0.8, 0.8, 0.8), ":", 1.0))
+    return h
+
+
+def panorama_figure(samples: dict, meta: dict, i: int, *, frame: str = "body", kind: str = "equirectangular",
+                    mag_limit: float = 6.0, stars=None):
+    """The export's figure of sample ``i``: title, the map with degree labels on both axes, and a legend below."""
+    from matplotlib.figure import Figure
+
+    t = float(samples["t_s"][i])
+    fig = Figure(figsize=(12, 7.8), dpi=100, facecolor="#0d1117")
+    ax = fig.add_axes((0.06, 0.2, 0.92, 0.74), facecolor=fig.get_facecolor())
+    draw_panorama(ax, samples, meta, i, frame=FRAMES[frame], kind=kind, stars=stars, mag_limit=mag_limit)
+    _degree_ticks(ax, kind, 1200, 600)
+    epoch = Epoch.from_iso(meta["epoch"])
+    fig.text(0.01, 0.975, f"{meta['scenario']}: panorama in the {frame} frame ({kind}), t = {t:.1f} s, "
+             f"{(epoch + t).iso[:19]} UTC, stars to Hp {mag_limit:g}", color="#d8dee6", fontsize=10, va="top")
+    handles = _legend_handles(meta, "b_true_B" in samples)
+    fig.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 0.005), ncol=5, fontsize=8,
+               frameon=False, labelcolor="#d8dee6", handlelength=2.2, columnspacing=1.5)
+    return fig
 
 
 def star_places(meta: dict, mag_limit: float):
@@ -280,11 +406,6 @@ def _check_times(times_s, t) -> None:
 def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "equirectangular",
            mag_limit: float = 6.0, samples: dict | None = None, meta: dict | None = None) -> list[Path]:
     """Write ``panorama_<t>s.png`` for each time (default: start, middle and end of the run)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     if frame not in FRAMES:
         raise ValueError(f"--frame {frame!r} is not allowed: one of {', '.join(FRAMES)}.")
     if kind not in state.PROJECTIONS:
@@ -313,17 +434,11 @@ def export(run_dir, out_dir, times_s=None, *, frame: str = "body", kind: str = "
     out_dir.mkdir(parents=True, exist_ok=True)
     stars = star_places(meta, mag_limit)
     written = []
-    epoch = Epoch.from_iso(meta["epoch"])
     for ts in times_s:
         i = int(np.argmin(np.where(t <= ts + 1e-9, ts - t, np.inf)))  # the sample at or before ts
-        fig = plt.figure(figsize=(12, 6.4), dpi=100, facecolor="#0d1117")
-        ax = fig.add_axes((0, 0, 1, 0.94))
-        draw_panorama(ax, samples, meta, i, frame=FRAMES[frame], kind=kind, stars=stars, mag_limit=mag_limit)
-        fig.text(0.01, 0.965, f"{meta['scenario']}: panorama in the {frame} frame ({kind}), t = {t[i]:.1f} s, "
-                 f"{(epoch + float(t[i])).iso[:19]} UTC, stars to Hp {mag_limit:g}", color="#d8dee6", fontsize=10)
+        fig = panorama_figure(samples, meta, i, frame=frame, kind=kind, mag_limit=mag_limit, stars=stars)
         path = out_dir / f"panorama_{t[i]:g}s.png"
         fig.savefig(path, facecolor=fig.get_facecolor())
-        plt.close(fig)
         written.append(path)
     return written
 

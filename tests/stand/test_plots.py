@@ -217,3 +217,49 @@ def test_write_plots_keeps_its_files(tel, tmp_path):
     for name in made:
         _png(tmp_path / name)
     assert write_plots({"t_s": np.zeros(1)}, tmp_path / "empty") == []
+
+
+def _pointing_tel(n: int = 3000) -> dict:
+    """A pointing run: the body holds yaw 30, pitch 85 deg (near gimbal lock) within 0.01 deg, and the
+    controller's reference is that attitude, with a 2 deg slew error that decays over the first 30 s."""
+    from sim.rotations import compose, quat_from_euler
+
+    t = np.arange(n) * 0.1
+    rng = np.random.default_rng(1)
+    ref = np.tile(quat_from_euler(np.radians([30.0, 85.0, 0.0]), "321"), (n, 1))
+    wobble = np.radians(0.01) * rng.standard_normal((n, 3)) + np.radians(2.0) * np.exp(-t / 10.0)[:, None]
+    q = compose(quat_from_axis_angle(wobble, np.linalg.norm(wobble, axis=1)), ref)
+    return {"t_s": t, "q_BN": q, "adcs_q_RN": ref}
+
+
+def test_attitude_axes_follow_the_data_and_a_pointing_run_shows_its_error(tmp_path):
+    tel = _pointing_tel()
+    assert plots.plot_attitude(tel, tmp_path) == "attitude.png"
+    _png(tmp_path / "attitude.png")
+    fig = plots.attitude_figure(tel, "321")
+    err_ax, yaw, pitch, roll = fig.axes[:4]
+    assert "error" in err_ax.get_ylabel() and "adcs_q_RN" in err_ax.get_title(loc="left")
+    raw = np.degrees(euler_from_quat(tel["q_BN"], "321"))
+    # pitch sits near 85 deg: its axis spans the data, not the fixed -98..98 deg it had
+    lo, hi = pitch.get_ylim()
+    assert lo <= raw[:, 1].min() and hi >= raw[:, 1].max()
+    assert hi - lo < 20.0
+    # the error panel's scale follows the settled error (0.01 deg = 36 arcsec noise), not the 2 deg start
+    lo, hi = err_ax.get_ylim()
+    assert hi < 0.5 * 3600.0
+    # near gimbal lock: shaded and said in the legend
+    labels = [t.get_text() for t in yaw.get_legend().get_texts()]
+    assert any("ill-defined" in lab for lab in labels)
+
+
+def test_attitude_of_a_tumble_keeps_the_full_angle_range(tel):
+    fig = plots.attitude_figure(tel, "321")
+    yaw = fig.axes[0]
+    lo, hi = yaw.get_ylim()
+    assert lo < -170 and hi > 170 and -180 in list(yaw.get_yticks())
+
+
+def test_sun_sensor_plot_says_when_the_whole_run_is_in_shadow(tel):
+    dark = {**tel, "css.sun_fraction": np.zeros(len(tel["t_s"])), "css.valid": np.zeros(len(tel["t_s"]))}
+    assert "whole run" in sun_sensor_plots.sun_sensor_figure(dark, "css").axes[0].get_title()
+    assert "whole run" not in sun_sensor_plots.sun_sensor_figure(tel, "css").axes[0].get_title()

@@ -244,7 +244,7 @@ def test_export_draws_the_sun_where_the_truth_puts_it(run_dir, tmp_path):
     paths = export.export(run_dir, tmp_path / "png", (10.0, 45.0), frame="gcrs", kind="hammer")
     assert [p.name for p in paths] == ["panorama_10s.png", "panorama_45s.png"]
     img = plt.imread(paths[0])
-    assert img.shape[:2] == (640, 1200) and img[..., :3].std() > 0.05  # drawn, not blank
+    assert img.shape[:2] == (780, 1200) and img[..., :3].std() > 0.05  # drawn, not blank
     with pytest.raises(ValueError, match="--times 99 is not allowed"):
         export.export(run_dir, tmp_path / "png", (99.0,))
 
