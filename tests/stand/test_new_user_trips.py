@@ -34,3 +34,28 @@ def test_an_out_folder_that_cannot_be_made_is_one_sentence_naming_out(argv, caps
     err = capsys.readouterr().err
     assert err == ("stand: error: --out = '/proc/nope' is not allowed: a folder the stand can create and write in "
                    "(No such file or directory).\n")
+
+
+def _fault_scenario(tmp_path, extra: str):
+    from tests.stand.processes import REPO
+
+    text = (REPO / "fixtures/scenarios/fault_wheel_seizure.toml").read_text()
+    assert "\nat_s = 30.0 " in text
+    path = tmp_path / "s.toml"
+    path.write_text(text.replace("\nat_s = 30.0 ", f"\nat_s = 30.0\n{extra}\n# ", 1))
+    return path
+
+
+@pytest.mark.parametrize("extra", ["duration = 2.0", "duration = 2.0\ncolour = 1", "colour = 1\nduration = 2.0"])
+def test_an_optional_key_missing_its_unit_suffix_is_named_with_the_key_it_meant(tmp_path, extra):
+    # duration_s of a fault is optional (read only when given): the error must still name `duration` and offer
+    # `duration_s`, even beside another unknown key, not "a typo?" with a list of keys that lacks duration_s.
+    from stand import scenario
+    from stand.errors import ScenarioError
+
+    with pytest.raises(ScenarioError) as err:
+        scenario.load(_fault_scenario(tmp_path, extra))
+    text = str(err.value)
+    assert text.startswith("faults[0].duration = 2.0 in ") and "did you mean 'duration_s'?" in text, text
+    assert ("also unknown: colour;" in text) == ("colour" in extra)
+    assert "duration_s" in text.split("known keys: ", 1)[1]
