@@ -59,3 +59,51 @@ def test_an_optional_key_missing_its_unit_suffix_is_named_with_the_key_it_meant(
     assert text.startswith("faults[0].duration = 2.0 in ") and "did you mean 'duration_s'?" in text, text
     assert ("also unknown: colour;" in text) == ("colour" in extra)
     assert "duration_s" in text.split("known keys: ", 1)[1]
+
+
+def _speed_bench(quick: bool = False) -> list[dict]:
+    # A speed measured over a sub-second --quick run misses its full-run limit; a correctness check does not.
+    return [{"name": "fake.realtime_factor", "value": 55.0, "unit": "x", "limit": ">= 150", "pass": False,
+             "full_only": True},
+            {"name": "fake.rate", "value": 0.1, "unit": "deg/s", "limit": "<= 0.5", "pass": True}]
+
+
+def _wrong_bench(quick: bool = False) -> list[dict]:
+    return [{"name": "fake.rate", "value": 0.9, "unit": "deg/s", "limit": "<= 0.5", "pass": False}]
+
+
+def test_bench_quick_does_not_judge_full_run_limits_but_still_fails_a_wrong_result(monkeypatch, capsys):
+    from stand import benches
+
+    monkeypatch.setitem(benches.BENCHES, "fake-speed", f"{__name__}:_speed_bench")
+    monkeypatch.setitem(benches.BENCHES, "fake-wrong", f"{__name__}:_wrong_bench")
+    assert main(["bench", "fake-speed", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "limit >= 150 (judged on the full run only)" in out and "FAIL" not in out
+    assert main(["bench", "fake-speed"]) == 1  # the full run is judged
+    assert "limit >= 150; FAIL" in capsys.readouterr().out
+    assert main(["bench", "fake-wrong", "--quick"]) == 1
+
+
+def test_the_real_benches_mark_their_speed_limits_full_run_only():
+    # The rows that made `stand bench loop --quick` and `stand bench view --quick` exit 1 on this machine.
+    import inspect
+
+    from stand.benches import _image_tracker_rows
+    from stand.benches import view as view_bench
+
+    assert '"full_only": True' in inspect.getsource(_image_tracker_rows)
+    source = inspect.getsource(view_bench)
+    for limit in ('"pass": slow <= LIMIT_PERCENT, "full_only": True', '"pass": cpu_slow <= LIMIT_PERCENT, '
+                  '"full_only": True', '"pass": share <= LIMIT_PERCENT, "full_only": True'):
+        assert limit in source, limit
+
+
+def test_bench_view_names_selenium_when_selenium_is_missing(monkeypatch):
+    import sys
+
+    from stand.benches.view import Browser
+
+    monkeypatch.setitem(sys.modules, "selenium", None)  # import selenium raises ImportError
+    assert Browser.missing().startswith("no selenium") and "Chromium" not in Browser.missing()
+    assert Browser.open() is None
