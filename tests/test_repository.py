@@ -178,3 +178,11 @@ def test_the_readme_does_not_offer_scenario_to_the_cage_emulator(capsys):
     assert "not `cage`, which serves open loop only" in emulate
     assert main(["emulate", "cage", "--port", "tcp://127.0.0.1:0", "--scenario", "detumble_cage"]) == 2
     assert "open loop only" in capsys.readouterr().err
+
+
+def test_benchmarks_md_lists_every_bench_stand_bench_runs():
+    from stand.benches import BENCHES
+
+    text = (DOCS / "benchmarks.md").read_text()
+    listed = set(re.findall(r"^\| `stand bench ([a-z-]+)` \|", text, flags=re.M))
+    assert listed == set(BENCHES), f"docs/benchmarks.md lists {sorted(listed)}, stand bench runs {sorted(BENCHES)}"
