@@ -44,6 +44,9 @@ class Table:
         self.path = path
         self.source = source
         self.used: set[str] = set()
+        # Keys only asked about (``has``): optional keys absent here are known all the same, so a key missing its
+        # unit suffix (``duration`` for an optional ``duration_s``) is named with the key it meant.
+        self.asked: set[str] = set()
 
     def _name(self, key: str) -> str:
         # A key is any string in TOML: one with a line break or a megabyte of text is quoted and cut, so the
@@ -67,6 +70,7 @@ class Table:
         return self.data.get(key, default)
 
     def has(self, key: str) -> bool:
+        self.asked.add(key)
         return key in self.data
 
     def number(self, key: str, default=MISSING, *, lo=None, hi=None, lo_open=False, hi_open=False,
@@ -135,11 +139,15 @@ class Table:
     def check_unknown(self, allowed_extra: tuple[str, ...] = ()) -> None:
         unknown = sorted(set(self.data) - self.used - set(allowed_extra))
         if unknown:
-            key = unknown[0]
-            known = sorted(self.used | set(allowed_extra))
+            known = sorted(self.used | self.asked | set(allowed_extra))
+            # Name first a key that probably meant a known one (``duration`` beside a typo'd ``colour``): that
+            # mistake is the one a reader cannot find alone; the others are listed after it.
+            key = next((k for k in unknown if _likely_meant(k, known)), unknown[0])
             meant = _likely_meant(key, known)
             hint = f"did you mean {' or '.join(repr(m) for m in meant)}?" if meant else "a typo?"
-            raise self.error(key, self.data[key], f"this key is not known here ({hint}); known keys: "
+            others = [KEY_PATTERN.fullmatch(k) and k or shown(k) for k in unknown if k != key]
+            also = f"; also unknown: {', '.join(others[:5])}{', ...' if len(others) > 5 else ''}" if others else ""
+            raise self.error(key, self.data[key], f"this key is not known here ({hint}){also}; known keys: "
                              + ", ".join(known))
 
     def refuse_unused(self, key: str, setting: str, what_to_do: str) -> None:

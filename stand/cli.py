@@ -271,8 +271,8 @@ def _report(summary: dict, result, sc, out: Path, case, limit_text) -> int:
         status = "aborted"
     passed = summary["pass"] is True and on_disk is not None and on_disk.get("pass") is True
     # "PASS, paced with N % overruns" when a paced run's overruns exceed the stated share (stand.report.verdict_text)
-    verdict = summary.get("verdict", "PASS") if passed else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status,
-                                                                                                          "FAIL")
+    verdict = summary.get("verdict", "PASS") if passed or status == "completed" and not summary["criteria"] \
+        else {"aborted": "ABORTED", "stopped": "STOPPED"}.get(status, "FAIL")
     print(f"{verdict}: {sc.name}, {result.sim_duration_s:g} s simulated in {result.wall_time_s:.2f} s "
           f"(x{summary['realtime_factor']} real time); results in {out}")
     if case is not None:

@@ -45,3 +45,18 @@ class _Missing:
 
 _MISSING = _Missing()
 MISSING = _MISSING
+
+
+def make_out_dir(path, option: str = "--out") -> None:
+    """Make an output folder (and its parents; an existing one is fine), or raise a ScenarioError naming
+    ``option``: the folder cannot be created, not some later figure (free disk, recording rate) measured on it."""
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ScenarioError(option, str(p), "a directory (a file of that name is in the way)") from None
+    except OSError as exc:
+        raise ScenarioError(option, str(p), f"a folder the stand can create and write in "
+                            f"({exc.strerror or exc})") from None

@@ -207,6 +207,10 @@ def _json_safe(x):
     return x
 
 
+#: The verdict of a completed run whose scenario names no criteria (exit 1: nothing held, so nothing passed).
+NOT_JUDGED = "NOT JUDGED (the scenario has no [[criteria]])"
+
+
 def verdict_text(passed: bool, status: str, timing: dict) -> str:
     """The run's verdict in words: PASS, FAIL, ABORTED or STOPPED; a pass of a paced run whose overruns exceed
     ``OVERRUN_SHARE_LIMIT`` of its ticks is "PASS, paced with N % overruns" (still a pass, exit 0: the criteria
@@ -231,7 +235,8 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
     tel = load(out_dir)
     criteria = evaluate(sc.criteria, tel, result, sc.devices, run_faults(out_dir))
     problems = unvouched(scene, result, tel, out_dir, duration_s)
-    passed = not problems and all(c["pass"] for c in criteria)
+    # A run with nothing to judge is not a success the stand can vouch for: no criteria, no PASS.
+    passed = not problems and bool(criteria) and all(c["pass"] for c in criteria)
     status, error = result.status, result.error
     if status == "completed" and problems:
         status, error = "aborted", "the record is not whole: " + "; ".join(problems)
@@ -251,7 +256,8 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
         "realtime_factor": round(result.sim_duration_s / result.wall_time_s, 2) if result.wall_time_s > 0 else None,
         "criteria": criteria,
         "pass": passed,
-        "verdict": verdict_text(passed, status, result.timing),
+        "verdict": NOT_JUDGED if status == "completed" and not problems and not criteria
+        else verdict_text(passed, status, result.timing),
         "not_vouched": problems,
         "models": {
             "built": [{"model": c.model, "reason": c.reason} for c in scene.choices if c.built],

@@ -156,3 +156,33 @@ def test_ci_runs_the_readme_test_command_character_for_character():
     commands = [line[4:] for line in readme.splitlines() if line.startswith("    ") and "pytest" in line]
     assert commands, "the README has no indented test command"
     assert commands[0] in ci.read_text().splitlines()
+
+
+def test_the_readme_lists_every_shipped_scenario_and_its_set_up_names_socat():
+    from stand.scenario.files import shipped
+
+    readme = (ROOT / "README.md").read_text()
+    table = set(re.findall(r"^\| `([a-z0-9_]+)`(?: \(default\))? \|", readme, flags=re.M))
+    assert set(shipped()) <= table, f"missing from the README's scenario table: {sorted(set(shipped()) - table)}"
+    setup = readme.split("## What the default scenario does", 1)[0]
+    assert "apt-get install socat" in setup
+
+
+def test_the_readme_does_not_offer_scenario_to_the_cage_emulator(capsys):
+    # `stand emulate cage --scenario S` is refused (the cage serves open loop only): the README must say so where it
+    # offers --scenario to the emulators.
+    from stand.cli import main
+
+    readme = (ROOT / "README.md").read_text()
+    emulate = readme.split("- `stand emulate KIND --port PORT`", 1)[1].split("\n- ", 1)[0]
+    assert "not `cage`, which serves open loop only" in emulate
+    assert main(["emulate", "cage", "--port", "tcp://127.0.0.1:0", "--scenario", "detumble_cage"]) == 2
+    assert "open loop only" in capsys.readouterr().err
+
+
+def test_benchmarks_md_lists_every_bench_stand_bench_runs():
+    from stand.benches import BENCHES
+
+    text = (DOCS / "benchmarks.md").read_text()
+    listed = set(re.findall(r"^\| `stand bench ([a-z-]+)` \|", text, flags=re.M))
+    assert listed == set(BENCHES), f"docs/benchmarks.md lists {sorted(listed)}, stand bench runs {sorted(BENCHES)}"

@@ -552,6 +552,8 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
             self._dev["rejected_other"] += 1
             if kind in ("unknown_id", "direction", "length", "value") and len(body) >= 4:
                 error = {"length": "BAD_LENGTH", "value": "VALUE_OUT_OF_RANGE"}.get(kind, "UNKNOWN_MESSAGE")
+                if kind == "value" and self._unknown_action(body):
+                    error = "UNKNOWN_ACTION"  # the ICD's own error for an action not in its table
                 self._nack(body[1], error)
             return
         self.counters["frames_received"] += 1
@@ -559,6 +561,10 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         reply = self._apply(msg, t_s)
         if reply is not None:
             self._send(reply)
+
+    def _unknown_action(self, body: bytes) -> bool:
+        """An ACTION frame whose action byte is past the ICD's action table (decoding refuses it as a value)."""
+        return body[1] == self.codec.messages["ACTION"].id and body[2] >= len(self.codec.enums["action"])
 
     @property
     def rejected_frames(self) -> int:

@@ -45,6 +45,7 @@ def render(codec: StarTrackerCodec | None = None) -> str:
         crc16_doc(crc),
         f"- At most {p['max_body_bytes']} body bytes; longer frames are dropped as oversize.",
         f"- Byte order: {p['byte_order']}-endian. Field value in SI = wire value x scale.",
+        f"- Quaternion convention: {p['quaternion']}",
         "- Every frame the device cannot accept (bad CRC, bad escape, oversize, short) is counted and dropped; "
         "a command with an unknown id, a wrong length or a value outside its table gets a NACK. The host "
         "drops a reply with a value outside its range (below) and counts it per reason.",
@@ -76,7 +77,8 @@ def render(codec: StarTrackerCodec | None = None) -> str:
             "solution) until UNSUBSCRIBE or a reboot.",
             "- ACTION BOOT starts (or restarts) the application: mode BOOT, then LOST_IN_SPACE after the boot "
             "time; SET_TIME sets the device clock (us, e.g. Unix time) and the time-synced flag; "
-            "RESET_COUNTERS zeroes the STATUS counters.",
+            "RESET_COUNTERS zeroes the STATUS counters; any other action (NONE, or a value past the table) gets "
+            "NACK UNKNOWN_ACTION.",
             "- Modes: LOST_IN_SPACE turns to TRACKING after `stable_count` consecutive good solutions; TRACKING "
             "falls back after `track_loss_count` bad ones. The valid flag is set only in TRACKING on a good "
             "solution: no Sun, Moon or Earth disk (plus its exclusion half-angle) touching the field, rate "

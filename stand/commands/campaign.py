@@ -47,7 +47,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from stand.campaign import CASE_TIMEOUT_S, CampaignError, fault_lines, make_spec, run_campaign
-    from stand.errors import ScenarioError, fail
+    from stand.errors import ScenarioError, fail, make_out_dir
 
     workers = 1 if args.workers is None else args.workers
     try:
@@ -56,6 +56,7 @@ def run(args) -> int:
         if not 0.0 <= args.min_pass_rate <= 1.0:
             raise ScenarioError("--min-pass-rate", args.min_pass_rate, "a fraction from 0 to 1")
         spec = make_spec(args.scenario, args.dispersions, args.seed, args.set, args.duration)
+        make_out_dir(args.out)
         progress = args.progress if args.progress is not None else sys.stderr.isatty()
         timeout = CASE_TIMEOUT_S if args.case_timeout is None else args.case_timeout
         result = run_campaign(spec, args.out, args.runs, workers=workers, scheduler=args.scheduler,

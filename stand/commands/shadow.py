@@ -50,7 +50,7 @@ def _times(text: str | None, duration_s: float):
 
 
 def run(args) -> int:
-    from stand.errors import ScenarioError
+    from stand.errors import ScenarioError, make_out_dir
     from stand.rendezvous import run_shadow
     from stand.scenario import load
 
@@ -65,6 +65,7 @@ def run(args) -> int:
         out = Path(args.out) if args.out else Path("runs") / f"{sc.name}-shadow-{time.strftime('%Y%m%d-%H%M%S')}"
         if out.exists() and any(out.iterdir()):
             raise ScenarioError("--out", str(out), "an empty or new directory (a run never overwrites another)")
+        make_out_dir(out)
     except (ScenarioError, ValueError) as exc:
         return _fail(str(exc))
     refine = None if args.refine is None else args.refine == "on"

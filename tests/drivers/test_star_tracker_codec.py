@@ -48,6 +48,27 @@ def test_icd_document_is_the_rendering_of_the_toml():
     assert doc == icd.render(CODEC), "regenerate: python -m drivers.star_tracker.icd > docs/star_tracker_icd.md"
 
 
+def test_icd_states_the_quaternion_convention_the_code_uses():
+    # A flight-software engineer reads the convention from the ICD alone: Hamilton, scalar first, frame rotation
+    # of T relative to GCRS. The matrix it writes out must be sim.rotations.dcm, and composition its product.
+    from sim.rotations import compose, dcm
+
+    doc = (REPO / "docs" / "star_tracker_icd.md").read_text()
+    line = next((x for x in doc.splitlines() if x.startswith("- Quaternion convention:")), None)
+    assert line is not None, "the ICD does not state its quaternion convention"
+    for words in ("Hamilton", "scalar first", "GCRS", "frame rotation", "`v_T = R(q_TN) v_N`",
+                  "`q_TB (x) q_BN = q_TN`", "third row of `R(q_TN)`"):
+        assert words in line, words
+    rng = np.random.default_rng(25)
+    for _ in range(20):
+        q_TB, q_BN = (q / np.linalg.norm(q) for q in rng.normal(size=(2, 4)))
+        w, e = q_BN[0], q_BN[1:]
+        cross = np.array([[0.0, -e[2], e[1]], [e[2], 0.0, -e[0]], [-e[1], e[0], 0.0]])
+        stated = (w * w - e @ e) * np.eye(3) + 2 * np.outer(e, e) - 2 * w * cross  # R(q) as the ICD writes it
+        np.testing.assert_allclose(stated, dcm(q_BN), atol=1e-12)
+        np.testing.assert_allclose(dcm(compose(q_TB, q_BN)), dcm(q_TB) @ dcm(q_BN), atol=1e-12)
+
+
 def test_icd_document_tables_list_every_field_message_and_parameter_of_the_toml():
     doc = (REPO / "docs" / "star_tracker_icd.md").read_text()
     rows = [line for line in doc.splitlines() if line.startswith("|")]

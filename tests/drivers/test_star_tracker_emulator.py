@@ -323,7 +323,9 @@ def test_each_kind_of_bad_frame_is_counted_and_the_next_good_frame_served():
         (escape(_body(ADDR, 0x7E, b"")), "rejected_unknown_id", Nack(0x7E, "UNKNOWN_MESSAGE")),
         (escape(_body(ADDR, 0x90, bytes(44))), "rejected_unknown_id", Nack(0x90, "UNKNOWN_MESSAGE")),
         (escape(_body(ADDR, 0x03, b"\x90\x00")), "rejected_length", Nack(0x03, "BAD_LENGTH")),
-        (escape(_body(ADDR, 0x04, bytes([7]) + bytes(8))), "rejected_other", Nack(0x04, "VALUE_OUT_OF_RANGE")),
+        (escape(_body(ADDR, 0x04, bytes([7]) + bytes(8))), "rejected_other", Nack(0x04, "UNKNOWN_ACTION")),
+        (escape(_body(ADDR, 0x05, bytes([SOL]) + (60001).to_bytes(2, "little"))), "rejected_other",
+         Nack(0x05, "VALUE_OUT_OF_RANGE")),
         (b"\xc0" + bytes(range(1, 180)) * 2 + b"\xc0", "rejected_other", None),
         (b"\xc0\x21\xdb\x01\xc0", "rejected_other", None),
         (b"\xc0\x21\xc0", "rejected_other", None),
@@ -337,6 +339,19 @@ def test_each_kind_of_bad_frame_is_counted_and_the_next_good_frame_served():
         assert emu.counters[counter] == before[counter] + 1, (frame.hex(), counter)
         assert isinstance(out[-1], Solution), frame.hex()
         assert out[:-1] == ([reply] if reply else []), frame.hex()
+
+
+@pytest.mark.parametrize("action", [0, 4, 7, 255])
+def test_an_action_outside_the_icd_table_is_nacked_unknown_action(action):
+    # The ICD's action table is NONE, BOOT, SET_TIME, RESET_COUNTERS: anything else (NONE included) is
+    # UNKNOWN_ACTION, not VALUE_OUT_OF_RANGE (that one is for a parameter or field value out of its range).
+    from drivers.star_tracker.slip import escape
+
+    rig = _tracking_rig()
+    rig.run_until(0.1)
+    rig.raw(escape(_body(ADDR, 0x04, bytes([action]) + bytes(8))))
+    rig.emu.service(rig.t)
+    assert rig.replies() == [Nack(0x04, "UNKNOWN_ACTION")]
 
 
 @settings(max_examples=150, deadline=None)
