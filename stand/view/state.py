@@ -503,6 +503,10 @@ class LiveSource:
         self._notify({"type": "status", "status": "finished", "run_status": run_status,
                       **({"events": events} if events else {})})
 
+    def summary_ready(self) -> None:
+        """The finished run's ``summary.json`` is written: the pages fetch the verdict (``/api/meta``)."""
+        self._notify({"type": "summary"})
+
     def _schema(self) -> list[dict] | None:
         if self._columns is None:
             path = self.run_dir / "telemetry" / "schema.json"

@@ -1108,10 +1108,15 @@
       if (msg.type === "samples") onSamples(msg);
       else if (msg.type === "events") { S.events.push(...msg.events); redraw(); }
       else if (msg.type === "status") { S.status = msg.status; if (msg.events) S.events.push(...msg.events); redraw(); }
+      else if (msg.type === "summary") refreshVerdict();
       else if (msg.type === "error") console.warn(msg.message);
     };
     ws.onclose = () => { if (S.live && S.status !== "finished") { S.status = "disconnected"; redraw(); } };
     S.ws = ws;
+  }
+  async function refreshVerdict() {  // the finished run's summary is written: its verdict, as a replay shows it
+    try { S.meta.summary = (await getJSON("/api/meta")).summary; } catch (err) { return; }
+    drawVerdict();
   }
   async function control(command) {
     const headers = { "Content-Type": "application/json" };
