@@ -472,9 +472,9 @@ def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str 
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
     status the run's side set by itself (a pause it released), ``A`` + the run's answer to a fault command (JSON),
     ``F`` + the run's status when it ended, ``V`` once its ``summary.json`` is written (the pages fetch the verdict),
-    ``C`` to end the process (after the run's linger, :meth:`LiveSession.linger`); back go control commands (``"pause"``,
-    ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S``, ``{"pages": n}`` (the run's side releases
-    a pause when these stop)."""
+    ``C`` to end the process (after the run's linger, :meth:`LiveSession.linger`); back go control commands
+    (``"pause"``, ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S`` until the run's end,
+    ``{"pages": n}`` (the run's side releases a pause when these stop)."""
     # Under contention the run's loop comes first; the page can wait a few milliseconds.
     os.nice(5)
     lock = threading.Lock()
