@@ -307,6 +307,7 @@ class ViewServer:
                 summary = None
         return _json({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
                       "run_dir": str(src.run_dir), "token_required": bool(self.token),
+                      "mode_meaning": state.column_meaning(src.run_dir, "adcs_mode"),
                       "control_from": None if self.token else self.host})
 
     async def _samples(self, request):

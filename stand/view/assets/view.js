@@ -185,7 +185,7 @@
   const S = {
     meta: null, store: new Store(), events: [], stars: null, land: null, t: 0, i: -1, playing: false, follow: true,
     live: false, status: "", stats: { draws: 0, firstDrawMs: null, lastDrawMs: null, pushes: 0, pushTimes: [] },
-    starCache: null, overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
+    starCache: null, modeNames: new Map(), overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
   };
   window.standView = S;
 
@@ -646,6 +646,7 @@
       let lo = Infinity, hi = -Infinity;
       for (const s of series) for (let k = 0; k < st.n; k++) { let v = this.value(s, k); if (this.opts.log) v = v > 0 ? Math.log10(v) : NaN; if (Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
       if (this.opts.yRange) [lo, hi] = this.opts.yRange;
+      for (const v of this.opts.yInclude || []) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
       if (!Number.isFinite(lo)) { lo = 0; hi = 1; }
       if (hi - lo < 1e-12) { hi += 0.5; lo -= 0.5; }
       const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
@@ -747,14 +748,20 @@
       fn: (k) => { const d = st.cols.omega_BN_B.data; return Math.hypot(d[3 * k], d[3 * k + 1], d[3 * k + 2]) * R2D; } }], { log: true, limits: rateLimits })];
     const comp = ["x", "y", "z"], ccol = ["#ff6b6b", "#51cf66", "#4dabf7"];
     plots.push(new Plot("body rate ω_BN_B (deg/s)", comp.map((c, j) => ({ col: "omega_BN_B", idx: j, label: c, color: ccol[j], scale: R2D }))));
-    const knowledge = [];
+    // The controller's pointing error (true attitude against adcs_q_RN) and knowledge error (against
+    // adcs_q_BN_est), derived by the server as the verdict scores them; a sensor's declared error columns only
+    // where its solution is valid (NAME.COLUMN.valid_only); any other recorded error column as it is.
+    const knowledge = [{ col: "pointing_error_arcsec", label: "pointing (controller)", color: "#ff6b6b" },
+      { col: "knowledge_error_arcsec", label: "knowledge (estimate)", color: "#63e6be" }];
     const errColors = ["#ffa94d", "#da77f2", "#ffd43b", "#74c0fc"];
     for (const d of devs) {  // the error columns each kind declares (view.json: error_columns)
-      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c, label: d.name + " " + c.replace(/^err_/, ""), color: errColors[j % errColors.length] }));
+      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c + ".valid_only", label: d.name + " " + c.replace(/^err_/, "") + " (valid)", color: errColors[j % errColors.length] }));
     }
-    const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c));
-    for (const c of pointing) knowledge.push({ col: c, label: c, color: "#63e6be" });
-    plots.push(new Plot("pointing and knowledge error (arcsec)", knowledge, { log: true }));
+    const derived = new Set(knowledge.map((k) => k.col));
+    const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c) && !derived.has(c));
+    for (const c of pointing) knowledge.push({ col: c, label: c, color: "#dee2e6" });
+    const errLimits = crit.filter((c) => /(pointing|knowledge)_error_arcsec/.test(c.metric) && c.max !== null).map((c) => [c.max, c.name]);
+    plots.push(new Plot("pointing and knowledge error (arcsec, log)", knowledge, { log: true, limits: errLimits, id: "pointing" }));
     // The vector plots the kinds declare (view.json: plots), one panel per title for all their devices; a panel
     // draws its fallback column (what the controller commanded) when no device records one.
     const panels = new Map();
@@ -769,8 +776,18 @@
       const shown = panel.cols.length ? panel.cols : cols.filter((c) => c === panel.fallback);
       plots.push(new Plot(`${title} ${shown.join(", ")} (${panel.unit})`, shown.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
     }
+    // Wheel speeds in one unit, rpm, against each wheel's rated limit (its datasheet's max_speed_rad_s).
+    const RPM = 60 / (2 * Math.PI), wcol = ["#ff6b6b", "#51cf66", "#4dabf7", "#ffd43b", "#da77f2", "#ffa94d"];
     const wheels = cols.filter((c) => /(wheel|rw).*(speed|omega)|\.speed/.test(c));
-    plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
+    const wheelLimits = new Map();
+    for (const d of devs) { const m = d.datasheet && d.datasheet.max_speed_rad_s; if (m) wheelLimits.set(Math.round(m * RPM), d.name); }
+    const limits = [...wheelLimits.keys()].flatMap((v) => [[v, `+${v} rpm limit`], [-v, `−${v} rpm limit`]]);
+    plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c.split(".")[0], color: wcol[n % wcol.length], scale: /_rpm$/.test(c) ? 1 : RPM, unit: "rpm" })),
+      { limits, yInclude: limits.map((l) => l[0]), id: "wheels" }));
+    if (cols.includes("adcs_mode")) {
+      plots.push(new Plot("controller mode (adcs_mode)" + (S.modeNames.size ? ": " + [...S.modeNames].map(([k, v]) => `${k} ${v}`).join(", ") : ""),
+        [{ col: "adcs_mode", label: "mode", color: "#ffd43b" }], { id: "mode" }));
+    }
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
     S.plots = plots;
     S.plotsHaveData = st.n > 0;
@@ -1038,6 +1055,9 @@
     const t0 = st.t(0), t1 = S.live ? S.meta.duration_s : st.t(st.n - 1);
     const slider = $("slider");
     if (!slider.matches(":active")) slider.value = String(Math.round((t - t0) / Math.max(t1 - t0, 1e-9) * 1000));
+    const mode = st.has("adcs_mode") ? st.get("adcs_mode", S.i) : null;
+    $("adcs-mode").hidden = mode === null;
+    if (mode !== null) $("adcs-mode").textContent = Number.isFinite(mode) ? `ADCS mode ${mode}${S.modeNames.has(mode) ? " " + S.modeNames.get(mode) : ""}` : "ADCS mode –";
     $("status").textContent = S.status;
     $("status").className = "badge " + S.status;
     $("pause").disabled = !S.live || S.status !== "running";
@@ -1132,6 +1152,8 @@
     $("euler-seq").innerHTML = EULER_SEQS.map((s) => `<option ${s === "321" ? "selected" : ""}>${s}</option>`).join("");
     S.meta = await getJSON("/api/meta");
     S.live = S.meta.mode === "live"; S.status = S.meta.status;
+    // "the mode (0 detumble, 1 Sun acquisition, 2 fine pointing)": the names of the controller's modes
+    S.modeNames = new Map([...(S.meta.mode_meaning || "").matchAll(/(?:\(|, )(\d+) ([^,)]+)/g)].map((m) => [+m[1], m[2]]));
     $("scenario").textContent = S.meta.scenario;
     $("mode").textContent = S.live ? "LIVE" : "REPLAY"; $("mode").className = "badge " + (S.live ? "live" : "");
     $("status").hidden = !S.live;
