@@ -607,7 +607,7 @@
   // torque vectors recorded or derived (drawn at a fixed length, their size written beside), the fields of view
   // as cones (rectangles as pyramids) in the device's state colour. The spacecraft and its vectors are not to
   // scale (a spacecraft is metres in a 6378 km Earth).
-  const view3 = { az: -60 * D2R, el: 25 * D2R, dist: { earth: 5.0, sc: 1.6 }, fov: 40 * D2R };
+  const view3 = { az: -60 * D2R, el: 25 * D2R, dist: { earth: 5.0, sc: 0.45 }, fov: 40 * D2R };
   function camera3(W, H) {
     const center = $("v3-center").value, i = S.i, r = scale(S.store.get("r_BN_N", i), 1 / R_EARTH);
     const c = center === "sc" ? r : [0, 0, 0], D = view3.dist[center], az = view3.az, el = view3.el;
@@ -756,7 +756,7 @@
     cv.addEventListener("pointerup", () => { drag = null; });
     cv.addEventListener("wheel", (ev) => {
       ev.preventDefault();
-      const c = $("v3-center").value, lo = c === "sc" ? 0.3 : 1.6;
+      const c = $("v3-center").value, lo = c === "sc" ? 0.15 : 1.6;
       view3.dist[c] = Math.max(lo, Math.min(30, view3.dist[c] * Math.exp(ev.deltaY * 0.001)));
       redraw();
     }, { passive: false });
@@ -817,11 +817,11 @@
       const X = (t) => L + (t - t0) / (t1 - t0) * pw, Y = (v) => T + (hi - v) / (hi - lo) * ph;
       this.X = X;
       ctx.strokeStyle = "#222a33"; ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui"; ctx.lineWidth = 1;
-      const yt = this.opts.log ? logTicks(lo, hi) : ticks(lo, hi, 4);
+      const yt = this.opts.log ? logTicks(lo, hi) : ticks(lo, hi, 4).filter((v) => !this.opts.integer || Number.isInteger(v));
       for (const v of yt) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
       for (const t of ticks(t0, t1, 6)) { ctx.beginPath(); ctx.moveTo(X(t), T); ctx.lineTo(X(t), T + ph); ctx.stroke(); ctx.fillText(fmt(t) + " s", X(t) - 10, H - 5); }
       for (const s of series) {
-        ctx.strokeStyle = s.color; ctx.lineWidth = 1.3; ctx.beginPath();
+        ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.3; ctx.globalAlpha = s.alpha || 1; ctx.beginPath();
         let pen = false, lastX = -1, mn = 0, mx = 0;
         for (let k = 0; k < st.n; k++) {
           let v = this.value(s, k); if (this.opts.log) v = v > 0 ? Math.log10(v) : NaN;
@@ -831,7 +831,7 @@
           if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y);
           pen = true; lastX = x; mn = mx = y;
         }
-        ctx.stroke();
+        ctx.stroke(); ctx.globalAlpha = 1;
       }
       drawFaultMarks(ctx, X, t0, t1, T, ph);
       if (this.opts.limits) for (const [v, text] of this.opts.limits) {
@@ -915,11 +915,11 @@
     // The controller's pointing error (true attitude against adcs_q_RN) and knowledge error (against
     // adcs_q_BN_est), derived by the server as the verdict scores them; a sensor's declared error columns only
     // where its solution is valid (NAME.COLUMN.valid_only); any other recorded error column as it is.
-    const knowledge = [{ col: "pointing_error_arcsec", label: "pointing (controller)", color: "#ff6b6b" },
-      { col: "knowledge_error_arcsec", label: "knowledge (estimate)", color: "#63e6be" }];
+    const knowledge = [{ col: "pointing_error_arcsec", label: "pointing (controller)", color: "#ff6b6b", width: 2.2 },
+      { col: "knowledge_error_arcsec", label: "knowledge (estimate)", color: "#63e6be", width: 1.8 }];
     const errColors = ["#ffa94d", "#da77f2", "#ffd43b", "#74c0fc"];
     for (const d of devs) {  // the error columns each kind declares (view.json: error_columns)
-      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c + ".valid_only", label: d.name + " " + c.replace(/^err_/, "") + " (valid)", color: errColors[j % errColors.length] }));
+      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c + ".valid_only", label: d.name + " " + c.replace(/^err_/, "") + " (valid)", color: errColors[j % errColors.length], width: 1, alpha: 0.5 }));
     }
     knowledge.push(knowledge.shift(), knowledge.shift());  // the controller's errors drawn last, on top
     const derived = new Set(knowledge.map((k) => k.col));
@@ -951,7 +951,7 @@
       { limits, yInclude: limits.map((l) => l[0]), id: "wheels" }));
     if (cols.includes("adcs_mode")) {
       plots.push(new Plot("controller mode (adcs_mode)" + (S.modeNames.size ? ": " + [...S.modeNames].map(([k, v]) => `${k} ${v}`).join(", ") : ""),
-        [{ col: "adcs_mode", label: "mode", color: "#ffd43b" }], { id: "mode" }));
+        [{ col: "adcs_mode", label: "mode", color: "#ffd43b" }], { id: "mode", integer: true }));
     }
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
     S.plots = plots;
