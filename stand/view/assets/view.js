@@ -710,16 +710,20 @@
     const sc = 3, W = cam.W, H = cam.H, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
     if (!view3.layer || view3.layer.width !== w) { view3.layer = document.createElement("canvas"); view3.layer.width = w; view3.layer.height = h; }
     const lctx = view3.layer.getContext("2d"), img = lctx.createImageData(w, h), px = img.data, eye = cam.eye, ee = dot(eye, eye) - 1;
-    for (let yy = 0; yy < h; yy++) {
+    const [rx, ry, rz] = cam.right, [ux, uy, uz] = cam.up, [bx, by, bz] = cam.back, [ex, ey, ez] = eye, [sx, sy, sz] = sunN;
+    for (let yy = 0; yy < h; yy++) {  // scalars only in this loop: it runs for every pixel of the raster
+      const Y = (H / 2 - (yy + 0.5) * sc) / cam.f;
       for (let xx = 0; xx < w; xx++) {
-        const X = ((xx + 0.5) * sc - W / 2) / cam.f, Y = (H / 2 - (yy + 0.5) * sc) / cam.f;
-        const d = unit([0, 1, 2].map((j) => X * cam.right[j] + Y * cam.up[j] - cam.back[j]));
-        const b = dot(eye, d), disc = b * b - ee;
+        const X = ((xx + 0.5) * sc - W / 2) / cam.f;
+        let dx = X * rx + Y * ux - bx, dy = X * ry + Y * uy - by, dz = X * rz + Y * uz - bz;
+        const dn = Math.sqrt(dx * dx + dy * dy + dz * dz); dx /= dn; dy /= dn; dz /= dn;
+        const b = ex * dx + ey * dy + ez * dz, disc = b * b - ee;
         if (disc < 0) continue;
         const t = -b - Math.sqrt(disc);
         if (t <= 0) continue;
-        const p = [eye[0] + t * d[0], eye[1] + t * d[1], eye[2] + t * d[2]];
-        const day = Math.max(0, Math.min(1, (dot(p, sunN) + 0.05) / 0.1)), shade = 0.55 - 0.45 * dot(p, d);
+        const px0 = ex + t * dx, py0 = ey + t * dy, pz0 = ez + t * dz;
+        const day = Math.max(0, Math.min(1, (px0 * sx + py0 * sy + pz0 * sz + 0.05) / 0.1));
+        const shade = 0.55 - 0.45 * (px0 * dx + py0 * dy + pz0 * dz);
         const o = 4 * (yy * w + xx);
         px[o] = (12 + day * 40) * shade; px[o + 1] = (22 + day * 95) * shade; px[o + 2] = (45 + day * 170) * shade; px[o + 3] = 255;
       }
@@ -729,14 +733,24 @@
     ctx.drawImage(view3.layer, 0, 0, W, H);
     if (!S.land || !S.store.has("q_EN")) return;
     const CNE = mT(dcm(S.store.get("q_EN", i)));  // ITRS -> GCRS
+    if (!view3.landUnits) {  // the coastlines' points as unit vectors in ITRS, once
+      view3.landUnits = S.land.map((ring) => {
+        const u = new Float64Array(ring.length / 2 * 3);
+        for (let k = 0; k < ring.length; k += 2) {
+          const lat = ring[k + 1] * D2R, lon = ring[k] * D2R, o = k / 2 * 3;
+          u[o] = Math.cos(lat) * Math.cos(lon); u[o + 1] = Math.cos(lat) * Math.sin(lon); u[o + 2] = Math.sin(lat);
+        }
+        return u;
+      });
+    }
     ctx.strokeStyle = "rgba(140,220,150,0.75)"; ctx.lineWidth = 1;
-    for (const ring of S.land) {
+    for (const ring of view3.landUnits) {
       ctx.beginPath();
       let pen = false;
-      for (let k = 0; k < ring.length; k += 2) {
-        const lat = ring[k + 1] * D2R, lon = ring[k] * D2R;
-        const p = mv(CNE, [Math.cos(lat) * Math.cos(lon), Math.cos(lat) * Math.sin(lon), Math.sin(lat)]);
-        const q = dot(p, [eye[0] - p[0], eye[1] - p[1], eye[2] - p[2]]) > 0 ? cam.px(p) : null;
+      for (let o = 0; o < ring.length; o += 3) {
+        const x = ring[o], y = ring[o + 1], z = ring[o + 2];
+        const p = [CNE[0][0] * x + CNE[0][1] * y + CNE[0][2] * z, CNE[1][0] * x + CNE[1][1] * y + CNE[1][2] * z, CNE[2][0] * x + CNE[2][1] * y + CNE[2][2] * z];
+        const q = p[0] * eye[0] + p[1] * eye[1] + p[2] * eye[2] > 1 ? cam.px(p) : null;  // the side facing the eye
         if (!q) { pen = false; continue; }
         if (pen) ctx.lineTo(q[0], q[1]); else ctx.moveTo(q[0], q[1]);
         pen = true;
