@@ -143,3 +143,27 @@ def test_a_bad_linger_is_refused(value, capsys):
         main(["run", "--view", "--view-linger-s", value, "--duration", "1"])
     assert exc.value.code == 2
     assert f"--view-linger-s {value!r} is not allowed: seconds from 0" in capsys.readouterr().err
+
+
+def test_the_3d_views_momentum_and_torques_follow_the_scenario(tmp_path):
+    """h_wheels_B, h_total_B and torque_wheels_B of the page's samples, against the wheels' axes and rotor inertia
+    and the spacecraft's inertia as the scenario file states them."""
+    import numpy as np
+
+    from stand.telemetry import load
+    from stand.view import state
+
+    out = tmp_path / "run"
+    assert main(["run", "pointing_star_tracker", "--duration", "20", "--out", str(out), "--no-progress"]) in (0, 1)
+    s = state.replay_samples(out, state.load_meta(out))
+    tel = load(out)
+    axes = {"rw0": [0.81649658, 0.0, 0.57735027], "rw1": [0.0, 0.81649658, 0.57735027],
+            "rw2": [-0.81649658, 0.0, 0.57735027], "rw3": [0.0, -0.81649658, 0.57735027]}  # the scenario's
+    h = sum(2.0e-3 * np.outer(tel[f"{w}.speed_rad_s"], a) for w, a in axes.items())
+    tau = -sum(np.outer(tel[f"{w}.net_torque_Nm"], a) for w, a in axes.items())
+    inertia = np.array([[1.2, 0.02, -0.01], [0.02, 1.5, 0.015], [-0.01, 0.015, 1.0]])
+    assert np.allclose(s["h_wheels_B"], h, rtol=1e-6, atol=1e-12)
+    assert np.allclose(s["torque_wheels_B"], tau, rtol=1e-6, atol=1e-15)
+    assert np.allclose(s["h_total_B"], tel["omega_BN_B"] @ inertia + h, rtol=1e-6, atol=1e-12)
+    # each wheel holds about 0.1 N m s (500 rpm); in the pyramid they nearly cancel, to a few mN m s: not zero
+    assert 2.0e-3 * np.abs(tel["rw0.speed_rad_s"]).max() > 0.05 and np.abs(s["h_wheels_B"]).max() > 1e-3
