@@ -12,6 +12,7 @@ import argparse
 import dataclasses
 import importlib
 import json
+import math
 import os
 import signal
 import sys
@@ -73,6 +74,17 @@ class _Signals:
     def __exit__(self, *exc):
         for sig, handler in self.old.items():
             signal.signal(sig, handler)
+
+
+def _linger_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value >= 0:  # NaN too
+        raise argparse.ArgumentTypeError(f"--view-linger-s {text!r} is not allowed: seconds from 0, or inf (until "
+                                          "Ctrl-C or SIGTERM)")
+    return value
 
 
 def _speed(args, sc) -> float | None:
@@ -202,6 +214,29 @@ def _summary_on_disk(out: Path) -> dict | None:
 
 
 def cmd_run(args) -> int:
+    held: dict = {}  # the live page's session, when --view: it outlives the run (_linger)
+    try:
+        code = _cmd_run(args, held)
+        if held.get("live") is not None and held.get("status") not in (None, "stopped"):
+            _linger(args, held["live"])
+        return code
+    finally:
+        if held.get("live") is not None:
+            held["live"].close()
+
+
+def _linger(args, live) -> None:
+    """A finished run's page stays served (a run at the default speed ends before a browser opens it): for
+    --view-linger-s, by default until Ctrl-C or SIGTERM when the stand runs in a terminal, else not at all."""
+    seconds = args.view_linger_s
+    if seconds is None and not sys.stdin.isatty():
+        print(f"stand: the run has ended and its page's server stops (not run from a terminal): pass --view-linger-s "
+              f"SECONDS to keep serving, or replay it with `stand view {live.run_dir}`", flush=True)
+        return
+    live.linger(seconds)
+
+
+def _cmd_run(args, held: dict) -> int:
     from drivers.errors import DriverError
 
     from .adcs import PluginError
@@ -215,7 +250,7 @@ def cmd_run(args) -> int:
                 if getattr(args, "view", None) is not None:
                     from .view.server import LiveSession
 
-                    live = LiveSession.from_args(args.view, args.view_token)
+                    live = held["live"] = LiveSession.from_args(args.view, args.view_token)
                 sc, speed, case, out, created, scene = _prepare(args)
             except (ScenarioError, PluginError, DriverError, ValueError) as exc:
                 return fail(str(exc))
@@ -243,10 +278,13 @@ def cmd_run(args) -> int:
                 except BaseException as exc:  # noqa: BLE001 - a plug-in's sys.exit(): the run still ends with a summary
                     result = _escaped(exc, out, stopped=isinstance(exc, KeyboardInterrupt | Stopped))
                 finally:
+                    held["status"] = result.status if result is not None else "aborted"
                     if live is not None:
-                        live.close(result.status if result is not None else "aborted")
+                        live.finish(held["status"])
                 signals.defer()
             summary = write_summary(scene, result, out, duration_s=args.duration)
+            if live is not None:
+                live.summary_ready()
     except OSError as exc:
         print(f"stand: error: the run's results could not be written in {out}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_ABORTED
@@ -387,6 +425,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "printed); another address needs --view-token")
     r.add_argument("--view-token", default=os.environ.get("STAND_VIEW_TOKEN"),
                    help="token the page must give to pause, resume or stop the run (default: $STAND_VIEW_TOKEN)")
+    r.add_argument("--view-linger-s", type=_linger_seconds, default=None, metavar="SECONDS",
+                   help="with --view: keep serving the finished run's page this long (default: until Ctrl-C when "
+                   "run from a terminal, else not at all; inf: until Ctrl-C or SIGTERM)")
     r.add_argument("--allow-remote", action="append", default=[], metavar="HOST",
                    help="let devices reach this host or multicast group beyond this machine (repeatable; default: "
                         "loopback and link-local multicast only)")

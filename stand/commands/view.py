@@ -64,7 +64,7 @@ def run(args) -> int:
             return 0
         host, port = server.parse_bind(args.bind)
         src = server.ReplaySource(args.run_dir)
-        view = server.ViewServer(src, host, port, args.token)
+        view = server.ViewServer(src, host, port, args.token, token_flag="--token")
         url = view.start()
     except ValueError as exc:  # a bad option, or a view.json / summary.json the page cannot use (named)
         return _fail(str(exc))

@@ -12,6 +12,8 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from sim.time import Epoch
 from stand import scenario
 from stand.devices import DeviceKind
@@ -68,7 +70,21 @@ def _device_view(d) -> dict:
     out = {"name": d.name, "kind": d.kind, "link": d.link, "q_SB": [float(x) for x in d.q_SB]}
     out.update({"fovs": [], **kind.view_layers(d), **_declared(kind)})
     out["fault_taps"] = {tap: dict(info) for tap, info in kind.fault_taps(d).items()}  # what the fault panel offers
+    # Its datasheet (ratings: a wheel's spin axis, rotor inertia and speed limit, for the wheel panel and momentum)
+    out["datasheet"] = _plain(kind.datasheet(d))
     return out
+
+
+def _plain(obj):
+    """Numbers, tuples and arrays of a datasheet as JSON values (an array's items as floats)."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple) or hasattr(obj, "tolist"):
+        obj = obj.tolist() if hasattr(obj, "tolist") else obj
+        return [_plain(v) for v in obj] if isinstance(obj, list | tuple) else _plain(obj)
+    if isinstance(obj, bool | str | int | float) or obj is None:
+        return obj
+    return str(obj)
 
 
 def describe(sc) -> dict:
@@ -83,6 +99,7 @@ def describe(sc) -> dict:
         "step_s": float(sc.step_s),
         "record_rate_hz": float(sc.record_rate_hz),
         "earth_rotation": {"model": env.earth_rotation, "era0_rad": float(env.era0_rad)},
+        "spacecraft": {"inertia_kg_m2": _plain(np.asarray(sc.spacecraft.inertia_kg_m2, dtype=float))},
         "devices": [_device_view(d) for d in sc.devices],
         "criteria": [{"name": c.name, "metric": c.metric, "max": c.max, "min": c.min, "at_s": c.at_s}
                      for c in sc.criteria],

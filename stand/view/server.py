@@ -138,9 +138,12 @@ class ReplaySource:
 class ViewServer:
     """Serve ``source`` (a :class:`ReplaySource` or a :class:`state.LiveFeed`) on ``host:port``."""
 
-    def __init__(self, source, host: str = LOCAL, port: int = 0, token: str | None = None):
+    def __init__(self, source, host: str = LOCAL, port: int = 0, token: str | None = None,
+                 token_flag: str = "--view-token"):
+        # token_flag: the option that gives the token in the command serving (stand run --view-token, stand view
+        # --token), so the refusal names the flag the user can pass.
         if host != LOCAL and not token:
-            raise ViewError(f"binding the view to {host!r} is not allowed without a token: pass --view-token or set "
+            raise ViewError(f"binding the view to {host!r} is not allowed without a token: pass {token_flag} or set "
                             "STAND_VIEW_TOKEN (anyone who can reach the page could otherwise stop the run); "
                             "127.0.0.1 needs none.")
         self.source, self.host, self.port, self.token = source, host, port, token
@@ -296,7 +299,7 @@ class ViewServer:
         src = self.source
         summary = None
         path = src.run_dir / "summary.json"
-        if src.mode == "replay" and path.is_file():
+        if (src.mode == "replay" or src.status == "finished") and path.is_file():
             try:
                 summary = {k: v for k, v in json.loads(path.read_text()).items()
                            if k in ("pass", "status", "error", "criteria")}
@@ -304,6 +307,7 @@ class ViewServer:
                 summary = None
         return _json({**src.meta, "mode": src.mode, "status": src.status, "summary": summary,
                       "run_dir": str(src.run_dir), "token_required": bool(self.token),
+                      "mode_meaning": state.column_meaning(src.run_dir, "adcs_mode"),
                       "control_from": None if self.token else self.host})
 
     async def _samples(self, request):
@@ -468,9 +472,10 @@ class PipeLink:
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
     status the run's side set by itself (a pause it released), ``A`` + the run's answer to a fault command (JSON),
-    ``F`` + the run's status when it ended, ``C`` to end the process; back go control commands (``"pause"``,
-    ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S``, ``{"pages": n}`` (the run's side releases
-    a pause when these stop)."""
+    ``F`` + the run's status when it ended, ``V`` once its ``summary.json`` is written (the pages fetch the verdict),
+    ``C`` to end the process (after the run's linger, :meth:`LiveSession.linger`); back go control commands
+    (``"pause"``, ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S`` until the run's end,
+    ``{"pages": n}`` (the run's side releases a pause when these stop)."""
     # Under contention the run's loop comes first; the page can wait a few milliseconds.
     os.nice(5)
     lock = threading.Lock()
@@ -500,7 +505,8 @@ def _relay(conn, source, heartbeat) -> None:
     width = None
     beat = 0.0
     while True:
-        if time.monotonic() - beat >= HEARTBEAT_S:
+        # After the run's end nobody reads the heartbeats (the run only lingers): none are sent.
+        if source.status != "finished" and time.monotonic() - beat >= HEARTBEAT_S:
             beat = time.monotonic()
             heartbeat()
         if not conn.poll(HEARTBEAT_S):
@@ -515,6 +521,8 @@ def _relay(conn, source, heartbeat) -> None:
             source.released(data.decode())
         elif tag == b"A":
             source.answered(json.loads(data))
+        elif tag == b"V":
+            source.summary_ready()
         elif tag == b"C":
             return
         else:
@@ -563,6 +571,8 @@ class LiveSession:
         self.conn = None
         self.url: str | None = None
         self.url_file: Path | None = None
+        self._finished = self._closed = False
+        self.run_dir: Path | None = None
 
     @classmethod
     def from_args(cls, bind: str, token: str | None) -> LiveSession:
@@ -573,6 +583,7 @@ class LiveSession:
         """Write ``view.json``, start the server process and the feed; returns the page's URL."""
         import multiprocessing
 
+        self.run_dir = Path(run_dir)
         meta = json.loads(state.write_view_json(sc, run_dir, duration_s).read_text())
         ctx = multiprocessing.get_context("spawn")  # no fork of a process whose buses have threads
         self.conn, child = ctx.Pipe(duplex=True)
@@ -609,15 +620,76 @@ class LiveSession:
     def observer(self):
         return self.feed
 
-    def close(self, run_status: str = "completed") -> None:
-        """Send what is left, tell the pages the run ended, and stop the server process (bounded waits)."""
+    def finish(self, run_status: str = "completed") -> None:
+        """The run ended: send what is left and tell the pages (the server goes on serving until :meth:`close`);
+        ``stand fault`` is told there is no live run any more (``view_url.json`` goes). Idempotent."""
+        if self._finished:
+            return
+        self._finished = True
+        if self.url_file is not None:
+            self.url_file.unlink(missing_ok=True)
+            self.url_file = None
         try:
             if self.feed is not None:
                 self.feed.finish()
                 self.conn.send_bytes(b"F" + run_status.encode())
+        except (OSError, EOFError, ValueError):
+            pass  # the server process already went away
+
+    def summary_ready(self) -> None:
+        """``summary.json`` is written: the pages may show the verdict."""
+        try:
+            if self.feed is not None:
+                self.conn.send_bytes(b"V")
+        except (OSError, EOFError, ValueError):
+            pass
+
+    def linger(self, seconds: float | None, say=print) -> str:
+        """Keep serving the finished run's page for ``seconds`` (None or infinity: until SIGINT or SIGTERM), saying
+        on the console how to stop it; returns why serving ended (``"time"``, a signal's name, ``"server"`` when its
+        process went away). Called from the main thread (it sets the two signals' handlers for the wait)."""
+        import signal as signals
+
+        if self.process is None or not self.process.is_alive():
+            return "server"
+        forever = seconds is None or math.isinf(seconds)
+        if not forever and seconds <= 0:
+            return "time"
+        stop = threading.Event()
+        why = ["time"]
+
+        def on_signal(signum, frame):
+            why[0] = signals.Signals(signum).name
+            stop.set()
+
+        old = {sig: signals.signal(sig, on_signal) for sig in (signals.SIGINT, signals.SIGTERM)}
+        try:
+            say(f"stand: the run has ended; its page stays at {self.url} "
+                + ("until you press Ctrl-C (or send SIGTERM)" if forever else
+                   f"for {seconds:g} s (--view-linger-s; Ctrl-C stops serving sooner)"), flush=True)
+            deadline = math.inf if forever else time.monotonic() + seconds
+            while not stop.is_set() and time.monotonic() < deadline:
+                try:  # the server's heartbeats: read and dropped, so its pipe never fills
+                    while self.conn.poll(min(0.25, max(0.0, deadline - time.monotonic()))):
+                        self.conn.recv()
+                except (EOFError, OSError):
+                    return "server"
+                if not self.process.is_alive():
+                    return "server"
+            return why[0]
+        finally:
+            for sig, handler in old.items():
+                signals.signal(sig, handler)
+
+    def close(self, run_status: str = "completed") -> None:
+        """Send what is left, tell the pages the run ended, and stop the server process (bounded waits)."""
+        self.finish(run_status)
+        try:
+            if self.feed is not None and not self._closed:
                 self.conn.send_bytes(b"C")
         except (OSError, EOFError, ValueError):
             pass  # the server process already went away
+        self._closed = True
         self._end()
 
     def _end(self) -> None:

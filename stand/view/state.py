@@ -73,6 +73,7 @@ class Sky:
         self.sun = EphemerisTrack(self.epoch, "sun")
         self.moon = EphemerisTrack(self.epoch, "moon")
         self._lock = threading.Lock()  # the tracks cache nodes; the live sender and the server share them
+        self.adcs = AdcsView(meta)
 
     def derive(self, cols: dict) -> dict:
         """Telemetry columns (``t_s`` (n,), ``r_BN_N`` (n, 3), ...) plus what the page draws from them."""
@@ -99,7 +100,73 @@ class Sky:
         r_E = np.einsum("nij,nj->ni", C, r)
         out["lat_deg"] = np.degrees(np.arcsin(r_E[:, 2] / rn)) if len(t) else np.zeros(0)
         out["lon_deg"] = np.degrees(np.arctan2(r_E[:, 1], r_E[:, 0])) if len(t) else np.zeros(0)
+        out.update(self.adcs.derive(out))
         return out
+
+
+class AdcsView:
+    """What the page draws of the controller and the momentum, from the telemetry and ``view.json``:
+
+    - ``pointing_error_arcsec``: the angle from the true attitude to the controller's commanded one
+      (``adcs_q_RN``), ``knowledge_error_arcsec``: to its estimate (``adcs_q_BN_est``), as the verdict scores them
+      (:mod:`stand.adcs.metrics`);
+    - a device's declared error columns (a tracker's ``err_cross``, ``err_roll``) as ``NAME.COLUMN.valid_only``:
+      NaN where its ``NAME.valid`` says the solution is not valid (a tracker's error during a tumble means nothing);
+    - ``h_wheels_B`` (N m s): the wheels' momentum from their recorded speeds and their datasheets' spin axes and
+      rotor inertias; ``h_total_B``: the body's ``I omega`` plus that; ``torque_wheels_B`` (N m): the torque the
+      wheels put on the body (minus their net motor torques along their axes); ``torque_mtq_B``: a magnetorquer's
+      ``m x B`` from its dipole and the true field.
+    """
+
+    def __init__(self, meta: dict):
+        devices = meta.get("devices", [])
+        self.errors = [(d["name"], c) for d in devices for c in d.get("error_columns", ())]
+        self.wheels = []
+        for d in devices:
+            sheet = d.get("datasheet") or {}
+            axis, inertia = sheet.get("spin_axis_B"), sheet.get("inertia_kg_m2")
+            if axis is not None and isinstance(inertia, int | float):
+                a = np.asarray(axis, dtype=float)
+                self.wheels.append((d["name"], a / np.linalg.norm(a), float(inertia)))
+        I_B = (meta.get("spacecraft") or {}).get("inertia_kg_m2")
+        self.inertia = np.asarray(I_B, dtype=float).reshape(3, 3) if I_B is not None else None
+        self.dipoles = [f"{d['name']}.{p['column']}" for d in devices for p in d.get("plots", ())
+                        if p.get("unit") == "A m²"]
+
+    def derive(self, cols: dict) -> dict:
+        from stand.adcs import metrics
+
+        out = {}
+        n = len(np.asarray(cols["t_s"]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            for name, col in (("pointing_error_arcsec", metrics.REFERENCE),
+                              ("knowledge_error_arcsec", metrics.ESTIMATE)):
+                if col in cols:
+                    e = metrics.error_angles_B(np.asarray(cols["q_BN"], float), np.asarray(cols[col], float))
+                    out[name] = np.linalg.norm(e, axis=1) / metrics.ARCSEC
+        for dev, c in self.errors:
+            if f"{dev}.{c}" in cols and f"{dev}.valid" in cols:
+                ok = np.asarray(cols[f"{dev}.valid"], float) >= 0.5
+                out[f"{dev}.{c}.valid_only"] = np.where(ok, np.asarray(cols[f"{dev}.{c}"], float), np.nan)
+        self._momentum(cols, out, n)
+        return out
+
+    def _momentum(self, cols: dict, out: dict, n: int) -> None:
+        wheels = [w for w in self.wheels if f"{w[0]}.speed_rad_s" in cols]
+        if wheels:
+            h = sum(np.outer(np.asarray(cols[f"{w}.speed_rad_s"], float) * J, a) for w, a, J in wheels)
+            out["h_wheels_B"] = h
+            torque = [np.outer(np.asarray(cols[f"{w}.net_torque_Nm"], float), a) for w, a, _ in wheels
+                      if f"{w}.net_torque_Nm" in cols]
+            if torque:
+                out["torque_wheels_B"] = -sum(torque)
+        if self.inertia is not None and "omega_BN_B" in cols:
+            out["h_total_B"] = np.asarray(cols["omega_BN_B"], float).reshape(n, 3) @ self.inertia.T \
+                + out.get("h_wheels_B", 0.0)
+        dipole = next((c for c in self.dipoles if c in cols), None)
+        if dipole is not None and "b_true_B" in cols:
+            out["torque_mtq_B"] = np.cross(np.asarray(cols[dipole], float).reshape(n, 3),
+                                           np.asarray(cols["b_true_B"], float).reshape(n, 3))
 
 
 def decimate(t: np.ndarray, max_samples: int = MAX_SAMPLES) -> np.ndarray:
@@ -145,6 +212,16 @@ def read_events(run_dir) -> list[dict]:
             except json.JSONDecodeError:
                 continue  # a line cut by a crash
     return out
+
+
+def column_meaning(run_dir, name: str) -> str | None:
+    """A telemetry column's meaning as the run's ``telemetry/schema.json`` gives it (the controller's mode names), or
+    None."""
+    try:
+        columns = json.loads((Path(run_dir) / "telemetry" / "schema.json").read_text())["columns"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return next((c.get("meaning") for c in columns if isinstance(c, dict) and c.get("name") == name), None)
 
 
 def star_table(meta: dict, mag_limit: float | None = None) -> dict:
@@ -502,6 +579,10 @@ class LiveSource:
             self._answered.notify_all()
         self._notify({"type": "status", "status": "finished", "run_status": run_status,
                       **({"events": events} if events else {})})
+
+    def summary_ready(self) -> None:
+        """The finished run's ``summary.json`` is written: the pages fetch the verdict (``/api/meta``)."""
+        self._notify({"type": "summary"})
 
     def _schema(self) -> list[dict] | None:
         if self._columns is None:

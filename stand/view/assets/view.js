@@ -185,7 +185,7 @@
   const S = {
     meta: null, store: new Store(), events: [], stars: null, land: null, t: 0, i: -1, playing: false, follow: true,
     live: false, status: "", stats: { draws: 0, firstDrawMs: null, lastDrawMs: null, pushes: 0, pushTimes: [] },
-    starCache: null, overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
+    starCache: null, modeNames: new Map(), overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
   };
   window.standView = S;
 
@@ -600,6 +600,184 @@
     ctx.fillStyle = COLORS.sun; ctx.beginPath(); ctx.arc(X(subsolar[1]), Y(subsolar[0]), 5, 0, 2 * Math.PI); ctx.fill();
   }
 
+  // ------------------------------------------------------------------------------------------ 3-D view
+  // The spacecraft in its orbit around the Earth, in GCRS, lengths in Earth radii, seen by a perspective camera
+  // that turns about the Earth's centre or the spacecraft (drag to turn, wheel to zoom): the Earth lit by the Sun
+  // with its coastlines, the orbit (the run's track, hidden behind the Earth), the body axes, the momentum and
+  // torque vectors recorded or derived (drawn at a fixed length, their size written beside), the fields of view
+  // as cones (rectangles as pyramids) in the device's state colour. The spacecraft and its vectors are not to
+  // scale (a spacecraft is metres in a 6378 km Earth).
+  const view3 = { az: -60 * D2R, el: 25 * D2R, dist: { earth: 5.0, sc: 0.45 }, fov: 40 * D2R };
+  function camera3(W, H) {
+    const center = $("v3-center").value, i = S.i, r = scale(S.store.get("r_BN_N", i), 1 / R_EARTH);
+    const c = center === "sc" ? r : [0, 0, 0], D = view3.dist[center], az = view3.az, el = view3.el;
+    const back = [Math.cos(el) * Math.cos(az), Math.cos(el) * Math.sin(az), Math.sin(el)];
+    const right = [-Math.sin(az), Math.cos(az), 0], up = cross(back, right);
+    const eye = [0, 1, 2].map((j) => c[j] + D * back[j]), f = H / 2 / Math.tan(view3.fov / 2);
+    const cam = { c, D, back, right, up, eye, f, W, H };
+    cam.px = (p) => {  // world (Earth radii) -> [x, y, depth]; null behind the camera
+      const d = [p[0] - eye[0], p[1] - eye[1], p[2] - eye[2]], z = -dot(d, back);
+      if (z < 1e-3) return null;
+      return [W / 2 + f * dot(d, right) / z, H / 2 - f * dot(d, up) / z, z];
+    };
+    cam.hidden = (p) => {  // behind the Earth as the camera sees it
+      const d = [p[0] - eye[0], p[1] - eye[1], p[2] - eye[2]], L = norm(d), u = scale(d, 1 / L);
+      const b = dot(eye, u), disc = b * b - (dot(eye, eye) - 1);
+      if (disc < 0) return false;
+      const t = -b - Math.sqrt(disc);
+      return t > 0 && t < L - 1e-6;
+    };
+    return cam;
+  }
+  function draw3d() {
+    const cv = $("orbit3d"), ctx = cv.getContext("2d"), W = cv.width, H = cv.height, st = S.store, i = S.i;
+    ctx.fillStyle = "#03050a"; ctx.fillRect(0, 0, W, H);
+    if (i < 0) return;
+    const cam = camera3(W, H), sunN = st.get("sun_N", i), C_BN = dcm(st.get("q_BN", i));
+    const r = scale(st.get("r_BN_N", i), 1 / R_EARTH);
+    drawEarth3d(ctx, cam, sunN, i);
+    // the orbit: the run's track, solid where it was flown, faint ahead; hidden behind the Earth
+    const n = st.n, step = Math.max(1, Math.floor(n / 1500));
+    for (const [past, col] of [[false, "rgba(200,210,230,0.25)"], [true, "rgba(255,220,120,0.85)"]]) {
+      ctx.strokeStyle = col; ctx.lineWidth = 1.5; ctx.beginPath();
+      let pen = false;
+      for (let k = 0; k < n; k += step) {
+        if ((k <= i) !== past) { pen = false; continue; }
+        const p = scale(st.get("r_BN_N", k), 1 / R_EARTH), q = cam.px(p);
+        if (!q || cam.hidden(p)) { pen = false; continue; }
+        if (pen) ctx.lineTo(q[0], q[1]); else ctx.moveTo(q[0], q[1]);
+        pen = true;
+      }
+      ctx.stroke();
+    }
+    // the Sun's direction, from the Earth's centre to the edge of the view
+    const sp = cam.px(scale(sunN, 3.0)), o = cam.px([0, 0, 0]);
+    if (sp && o) { ctx.strokeStyle = "rgba(255,200,0,0.5)"; ctx.setLineDash([3, 5]); ctx.beginPath(); ctx.moveTo(o[0], o[1]); ctx.lineTo(sp[0], sp[1]); ctx.stroke(); ctx.setLineDash([]); label(ctx, "Sun", sp[0] + 4, sp[1], COLORS.sun); }
+    const sc = cam.px(r), L = $("v3-center").value === "sc" ? 0.12 : 0.45;  // the drawn length of a vector
+    const info = { sc: sc ? [sc[0], sc[1]] : null, hidden: cam.hidden(r), axes: [], vectors: [], cones: 0, cam: { az: view3.az, el: view3.el, dist: cam.D, fov: view3.fov, center: $("v3-center").value } };
+    S.view3d = info;
+    if (!sc) return;
+    ctx.globalAlpha = info.hidden ? 0.35 : 1;
+    // fields of view as cones (a rectangle as a pyramid), in the device's state colour
+    for (const dev of S.meta.devices) {
+      if (!dev.fovs.length) continue;
+      const ds = deviceState(dev, i), C_SB = dcm(dev.q_SB), toN = (uS) => mtv(C_BN, mtv(C_SB, uS));
+      for (const fov of dev.fovs) {
+        if (fov.head) continue;
+        const bound = fov.shape === "rect" ? rectBoundary(fov.fov_deg, 1) : coneBoundary(fov.axis_S, fov.half_deg * D2R, 32);
+        const len = L * 0.8, ends = bound.map((u) => cam.px([0, 1, 2].map((j) => r[j] + len * toN(u)[j])));
+        ctx.strokeStyle = ds.color; ctx.fillStyle = ds.color.replace("rgb", "rgba").replace(")", ",0.12)"); ctx.lineWidth = 1.2;
+        ctx.beginPath(); ends.forEach((e, k) => { if (e) { if (k) ctx.lineTo(e[0], e[1]); else ctx.moveTo(e[0], e[1]); } }); ctx.closePath(); ctx.fill(); ctx.stroke();
+        ctx.beginPath();
+        for (let k = 0; k < ends.length - 1; k += Math.max(1, Math.floor((ends.length - 1) / 4))) if (ends[k]) { ctx.moveTo(sc[0], sc[1]); ctx.lineTo(ends[k][0], ends[k][1]); }
+        ctx.stroke();
+        info.cones++;
+      }
+    }
+    const arrow = (vN, col, text, width, dash = []) => {
+      const e = cam.px([0, 1, 2].map((j) => r[j] + vN[j])); if (!e) return null;
+      ctx.strokeStyle = col; ctx.fillStyle = col; ctx.lineWidth = width; ctx.setLineDash(dash);
+      ctx.beginPath(); ctx.moveTo(sc[0], sc[1]); ctx.lineTo(e[0], e[1]); ctx.stroke(); ctx.setLineDash([]);
+      const a = Math.atan2(e[1] - sc[1], e[0] - sc[0]);
+      ctx.beginPath(); ctx.moveTo(e[0], e[1]); ctx.lineTo(e[0] - 9 * Math.cos(a - 0.4), e[1] - 9 * Math.sin(a - 0.4)); ctx.lineTo(e[0] - 9 * Math.cos(a + 0.4), e[1] - 9 * Math.sin(a + 0.4)); ctx.fill();
+      if (text) label(ctx, text, e[0] + 5, e[1] - 4, col);
+      return [e[0], e[1]];
+    };
+    // the spacecraft: a small cube along its body axes, then the axes
+    const half = L * 0.12, corners = [];
+    for (const a of [-1, 1]) for (const b of [-1, 1]) for (const c of [-1, 1]) corners.push(cam.px([0, 1, 2].map((j) => r[j] + half * (a * C_BN[0][j] + b * C_BN[1][j] + c * C_BN[2][j]))));
+    ctx.strokeStyle = "#c9d1d9"; ctx.fillStyle = "rgba(170,180,195,0.85)"; ctx.lineWidth = 1;
+    if (corners.every(Boolean)) {
+      for (const [p, q] of [[0, 1], [1, 3], [3, 2], [2, 0], [4, 5], [5, 7], [7, 6], [6, 4], [0, 4], [1, 5], [2, 6], [3, 7]]) { ctx.beginPath(); ctx.moveTo(corners[p][0], corners[p][1]); ctx.lineTo(corners[q][0], corners[q][1]); ctx.stroke(); }
+    }
+    ctx.beginPath(); ctx.arc(sc[0], sc[1], 3, 0, 2 * Math.PI); ctx.fill();
+    for (let a = 0; a < 3; a++) info.axes.push(arrow(scale(C_BN[a], L), COLORS.axes[a], "+" + "XYZ"[a], 2));
+    // momentum and torques (body components rotated into GCRS), each at a fixed drawn length
+    const vecs = [["h_total_B", "H", "rgb(255,255,255)", "N m s"], ["h_wheels_B", "h wheels", "rgb(150,200,255)", "N m s"],
+      ["torque_wheels_B", "τ wheels", "rgb(255,150,60)", "N m"], ["torque_mtq_B", "τ coils", "rgb(230,120,255)", "N m"]];
+    for (const [col, name, colour, unitText] of vecs) {
+      if (!st.has(col)) continue;
+      const vB = st.get(col, i), m = norm(vB);
+      if (!(m > 0)) continue;
+      const end = arrow(scale(mtv(C_BN, vB), 0.8 * L / m), colour, `${name} ${fmt(m)} ${unitText}`, 2.5, col.startsWith("torque") ? [5, 3] : []);
+      info.vectors.push({ col, end, magnitude: m });
+    }
+    ctx.globalAlpha = 1;
+    info.drawn = (info.drawn || 0) + 1;
+  }
+  function drawEarth3d(ctx, cam, sunN, i) {
+    // per pixel of a third-size raster: the ray from the eye meets the unit sphere; lit by the Sun
+    const sc = 3, W = cam.W, H = cam.H, w = Math.ceil(W / sc), h = Math.ceil(H / sc);
+    if (!view3.layer || view3.layer.width !== w) { view3.layer = document.createElement("canvas"); view3.layer.width = w; view3.layer.height = h; }
+    const lctx = view3.layer.getContext("2d"), img = lctx.createImageData(w, h), px = img.data, eye = cam.eye, ee = dot(eye, eye) - 1;
+    const [rx, ry, rz] = cam.right, [ux, uy, uz] = cam.up, [bx, by, bz] = cam.back, [ex, ey, ez] = eye, [sx, sy, sz] = sunN;
+    for (let yy = 0; yy < h; yy++) {  // scalars only in this loop: it runs for every pixel of the raster
+      const Y = (H / 2 - (yy + 0.5) * sc) / cam.f;
+      for (let xx = 0; xx < w; xx++) {
+        const X = ((xx + 0.5) * sc - W / 2) / cam.f;
+        let dx = X * rx + Y * ux - bx, dy = X * ry + Y * uy - by, dz = X * rz + Y * uz - bz;
+        const dn = Math.sqrt(dx * dx + dy * dy + dz * dz); dx /= dn; dy /= dn; dz /= dn;
+        const b = ex * dx + ey * dy + ez * dz, disc = b * b - ee;
+        if (disc < 0) continue;
+        const t = -b - Math.sqrt(disc);
+        if (t <= 0) continue;
+        const px0 = ex + t * dx, py0 = ey + t * dy, pz0 = ez + t * dz;
+        const day = Math.max(0, Math.min(1, (px0 * sx + py0 * sy + pz0 * sz + 0.05) / 0.1));
+        const shade = 0.55 - 0.45 * (px0 * dx + py0 * dy + pz0 * dz);
+        const o = 4 * (yy * w + xx);
+        px[o] = (12 + day * 40) * shade; px[o + 1] = (22 + day * 95) * shade; px[o + 2] = (45 + day * 170) * shade; px[o + 3] = 255;
+      }
+    }
+    lctx.putImageData(img, 0, 0);
+    ctx.imageSmoothingEnabled = true;
+    ctx.drawImage(view3.layer, 0, 0, W, H);
+    if (!S.land || !S.store.has("q_EN")) return;
+    const CNE = mT(dcm(S.store.get("q_EN", i)));  // ITRS -> GCRS
+    if (!view3.landUnits) {  // the coastlines' points as unit vectors in ITRS, once
+      view3.landUnits = S.land.map((ring) => {
+        const u = new Float64Array(ring.length / 2 * 3);
+        for (let k = 0; k < ring.length; k += 2) {
+          const lat = ring[k + 1] * D2R, lon = ring[k] * D2R, o = k / 2 * 3;
+          u[o] = Math.cos(lat) * Math.cos(lon); u[o + 1] = Math.cos(lat) * Math.sin(lon); u[o + 2] = Math.sin(lat);
+        }
+        return u;
+      });
+    }
+    ctx.strokeStyle = "rgba(140,220,150,0.75)"; ctx.lineWidth = 1;
+    for (const ring of view3.landUnits) {
+      ctx.beginPath();
+      let pen = false;
+      for (let o = 0; o < ring.length; o += 3) {
+        const x = ring[o], y = ring[o + 1], z = ring[o + 2];
+        const p = [CNE[0][0] * x + CNE[0][1] * y + CNE[0][2] * z, CNE[1][0] * x + CNE[1][1] * y + CNE[1][2] * z, CNE[2][0] * x + CNE[2][1] * y + CNE[2][2] * z];
+        const q = p[0] * eye[0] + p[1] * eye[1] + p[2] * eye[2] > 1 ? cam.px(p) : null;  // the side facing the eye
+        if (!q) { pen = false; continue; }
+        if (pen) ctx.lineTo(q[0], q[1]); else ctx.moveTo(q[0], q[1]);
+        pen = true;
+      }
+      ctx.stroke();
+    }
+  }
+  function setup3d() {
+    const cv = $("orbit3d");
+    let drag = null;
+    cv.addEventListener("pointerdown", (ev) => { drag = [ev.clientX, ev.clientY, view3.az, view3.el]; cv.setPointerCapture(ev.pointerId); });
+    cv.addEventListener("pointermove", (ev) => {
+      if (!drag) return;
+      view3.az = drag[2] - (ev.clientX - drag[0]) * 0.01; view3.el = Math.max(-1.5, Math.min(1.5, drag[3] + (ev.clientY - drag[1]) * 0.01));
+      redraw();
+    });
+    cv.addEventListener("pointerup", () => { drag = null; });
+    cv.addEventListener("wheel", (ev) => {
+      ev.preventDefault();
+      const c = $("v3-center").value, lo = c === "sc" ? 0.15 : 1.6;
+      view3.dist[c] = Math.max(lo, Math.min(30, view3.dist[c] * Math.exp(ev.deltaY * 0.001)));
+      redraw();
+    }, { passive: false });
+    $("v3-center").addEventListener("change", redraw);
+  }
+  S.view3 = view3; S.camera3 = camera3;
+
   // ------------------------------------------------------------------------------------------ time plots
   class Plot {
     constructor(title, series, opts = {}) {
@@ -646,17 +824,18 @@
       let lo = Infinity, hi = -Infinity;
       for (const s of series) for (let k = 0; k < st.n; k++) { let v = this.value(s, k); if (this.opts.log) v = v > 0 ? Math.log10(v) : NaN; if (Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); } }
       if (this.opts.yRange) [lo, hi] = this.opts.yRange;
+      for (const v of this.opts.yInclude || []) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
       if (!Number.isFinite(lo)) { lo = 0; hi = 1; }
       if (hi - lo < 1e-12) { hi += 0.5; lo -= 0.5; }
       const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
       const X = (t) => L + (t - t0) / (t1 - t0) * pw, Y = (v) => T + (hi - v) / (hi - lo) * ph;
       this.X = X;
       ctx.strokeStyle = "#222a33"; ctx.fillStyle = "#7d8590"; ctx.font = "10px system-ui"; ctx.lineWidth = 1;
-      const yt = this.opts.log ? logTicks(lo, hi) : ticks(lo, hi, 4);
+      const yt = this.opts.log ? logTicks(lo, hi) : ticks(lo, hi, 4).filter((v) => !this.opts.integer || Number.isInteger(v));
       for (const v of yt) { ctx.beginPath(); ctx.moveTo(L, Y(v)); ctx.lineTo(W - Rm, Y(v)); ctx.stroke(); ctx.fillText(fmt(this.opts.log ? Math.pow(10, v) : v), 2, Y(v) + 3); }
       for (const t of ticks(t0, t1, 6)) { ctx.beginPath(); ctx.moveTo(X(t), T); ctx.lineTo(X(t), T + ph); ctx.stroke(); ctx.fillText(fmt(t) + " s", X(t) - 10, H - 5); }
       for (const s of series) {
-        ctx.strokeStyle = s.color; ctx.lineWidth = 1.3; ctx.beginPath();
+        ctx.strokeStyle = s.color; ctx.lineWidth = s.width || 1.3; ctx.globalAlpha = s.alpha || 1; ctx.beginPath();
         let pen = false, lastX = -1, mn = 0, mx = 0;
         for (let k = 0; k < st.n; k++) {
           let v = this.value(s, k); if (this.opts.log) v = v > 0 ? Math.log10(v) : NaN;
@@ -666,7 +845,7 @@
           if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y);
           pen = true; lastX = x; mn = mx = y;
         }
-        ctx.stroke();
+        ctx.stroke(); ctx.globalAlpha = 1;
       }
       drawFaultMarks(ctx, X, t0, t1, T, ph);
       if (this.opts.limits) for (const [v, text] of this.opts.limits) {
@@ -747,14 +926,21 @@
       fn: (k) => { const d = st.cols.omega_BN_B.data; return Math.hypot(d[3 * k], d[3 * k + 1], d[3 * k + 2]) * R2D; } }], { log: true, limits: rateLimits })];
     const comp = ["x", "y", "z"], ccol = ["#ff6b6b", "#51cf66", "#4dabf7"];
     plots.push(new Plot("body rate ω_BN_B (deg/s)", comp.map((c, j) => ({ col: "omega_BN_B", idx: j, label: c, color: ccol[j], scale: R2D }))));
-    const knowledge = [];
+    // The controller's pointing error (true attitude against adcs_q_RN) and knowledge error (against
+    // adcs_q_BN_est), derived by the server as the verdict scores them; a sensor's declared error columns only
+    // where its solution is valid (NAME.COLUMN.valid_only); any other recorded error column as it is.
+    const knowledge = [{ col: "pointing_error_arcsec", label: "pointing (controller)", color: "#ff6b6b", width: 2.2 },
+      { col: "knowledge_error_arcsec", label: "knowledge (estimate)", color: "#63e6be", width: 1.8 }];
     const errColors = ["#ffa94d", "#da77f2", "#ffd43b", "#74c0fc"];
     for (const d of devs) {  // the error columns each kind declares (view.json: error_columns)
-      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c, label: d.name + " " + c.replace(/^err_/, ""), color: errColors[j % errColors.length] }));
+      (d.error_columns || []).forEach((c, j) => knowledge.push({ col: d.name + "." + c + ".valid_only", label: d.name + " " + c.replace(/^err_/, "") + " (valid)", color: errColors[j % errColors.length], width: 1, alpha: 0.5 }));
     }
-    const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c));
-    for (const c of pointing) knowledge.push({ col: c, label: c, color: "#63e6be" });
-    plots.push(new Plot("pointing and knowledge error (arcsec)", knowledge, { log: true }));
+    knowledge.push(knowledge.shift(), knowledge.shift());  // the controller's errors drawn last, on top
+    const derived = new Set(knowledge.map((k) => k.col));
+    const pointing = cols.filter((c) => /pointing_err|att_err|knowledge_err/.test(c) && !derived.has(c));
+    for (const c of pointing) knowledge.push({ col: c, label: c, color: "#dee2e6" });
+    const errLimits = crit.filter((c) => /(pointing|knowledge)_error_arcsec/.test(c.metric) && c.max !== null).map((c) => [c.max, c.name]);
+    plots.push(new Plot("pointing and knowledge error (arcsec, log)", knowledge, { log: true, limits: errLimits, id: "pointing" }));
     // The vector plots the kinds declare (view.json: plots), one panel per title for all their devices; a panel
     // draws its fallback column (what the controller commanded) when no device records one.
     const panels = new Map();
@@ -769,8 +955,18 @@
       const shown = panel.cols.length ? panel.cols : cols.filter((c) => c === panel.fallback);
       plots.push(new Plot(`${title} ${shown.join(", ")} (${panel.unit})`, shown.flatMap((c) => comp.map((a, j) => ({ col: c, idx: j, label: a, color: ccol[j] })))));
     }
+    // Wheel speeds in one unit, rpm, against each wheel's rated limit (its datasheet's max_speed_rad_s).
+    const RPM = 60 / (2 * Math.PI), wcol = ["#ff6b6b", "#51cf66", "#4dabf7", "#ffd43b", "#da77f2", "#ffa94d"];
     const wheels = cols.filter((c) => /(wheel|rw).*(speed|omega)|\.speed/.test(c));
-    plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c, color: ccol[n % 3], scale: 60 / (2 * Math.PI) }))));
+    const wheelLimits = new Map();
+    for (const d of devs) { const m = d.datasheet && d.datasheet.max_speed_rad_s; if (m) wheelLimits.set(Math.round(m * RPM), d.name); }
+    const limits = [...wheelLimits.keys()].flatMap((v) => [[v, `+${v} rpm limit`], [-v, `−${v} rpm limit`]]);
+    plots.push(new Plot("wheel speeds (rpm)", wheels.map((c, n) => ({ col: c, label: c.split(".")[0], color: wcol[n % wcol.length], scale: /_rpm$/.test(c) ? 1 : RPM, unit: "rpm" })),
+      { limits, yInclude: limits.map((l) => l[0]), id: "wheels" }));
+    if (cols.includes("adcs_mode")) {
+      plots.push(new Plot("controller mode (adcs_mode)" + (S.modeNames.size ? ": " + [...S.modeNames].map(([k, v]) => `${k} ${v}`).join(", ") : ""),
+        [{ col: "adcs_mode", label: "mode", color: "#ffd43b" }], { id: "mode", integer: true }));
+    }
     plots.push(new Plot("Sun visible fraction (Earth shadow)", [{ col: "sun_fraction", label: "ν", color: "#ffcc33" }], { yRange: [0, 1] }));
     S.plots = plots;
     S.plotsHaveData = st.n > 0;
@@ -1019,7 +1215,7 @@
     if (S.events.length !== S.eventsSeen || S.status !== S.statusSeen) eventsChanged();
     const parts = S.stats.parts = {};
     const timed = (name, fn) => { const a = performance.now(); fn(); parts[name] = +(performance.now() - a).toFixed(1); };
-    timed("panorama", drawPanorama); timed("attitude", drawAttitude); timed("ground", drawGround);
+    timed("panorama", drawPanorama); timed("view3d", draw3d); timed("attitude", drawAttitude); timed("ground", drawGround);
     timed("plots", () => { for (const p of S.plots || []) p.draw(); if (S.strip) S.strip.draw(); });
     timed("events", () => drawEvents(false));
     timed("timeline", drawTimeline);
@@ -1038,6 +1234,9 @@
     const t0 = st.t(0), t1 = S.live ? S.meta.duration_s : st.t(st.n - 1);
     const slider = $("slider");
     if (!slider.matches(":active")) slider.value = String(Math.round((t - t0) / Math.max(t1 - t0, 1e-9) * 1000));
+    const mode = st.has("adcs_mode") ? st.get("adcs_mode", S.i) : null;
+    $("adcs-mode").hidden = mode === null;
+    if (mode !== null) $("adcs-mode").textContent = Number.isFinite(mode) ? `ADCS mode ${mode}${S.modeNames.has(mode) ? " " + S.modeNames.get(mode) : ""}` : "ADCS mode –";
     $("status").textContent = S.status;
     $("status").className = "badge " + S.status;
     $("pause").disabled = !S.live || S.status !== "running";
@@ -1108,10 +1307,15 @@
       if (msg.type === "samples") onSamples(msg);
       else if (msg.type === "events") { S.events.push(...msg.events); redraw(); }
       else if (msg.type === "status") { S.status = msg.status; if (msg.events) S.events.push(...msg.events); redraw(); }
+      else if (msg.type === "summary") refreshVerdict();
       else if (msg.type === "error") console.warn(msg.message);
     };
     ws.onclose = () => { if (S.live && S.status !== "finished") { S.status = "disconnected"; redraw(); } };
     S.ws = ws;
+  }
+  async function refreshVerdict() {  // the finished run's summary is written: its verdict, as a replay shows it
+    try { S.meta.summary = (await getJSON("/api/meta")).summary; } catch (err) { return; }
+    drawVerdict();
   }
   async function control(command) {
     const headers = { "Content-Type": "application/json" };
@@ -1127,6 +1331,8 @@
     $("euler-seq").innerHTML = EULER_SEQS.map((s) => `<option ${s === "321" ? "selected" : ""}>${s}</option>`).join("");
     S.meta = await getJSON("/api/meta");
     S.live = S.meta.mode === "live"; S.status = S.meta.status;
+    // "the mode (0 detumble, 1 Sun acquisition, 2 fine pointing)": the names of the controller's modes
+    S.modeNames = new Map([...(S.meta.mode_meaning || "").matchAll(/(?:\(|, )(\d+) ([^,)]+)/g)].map((m) => [+m[1], m[2]]));
     $("scenario").textContent = S.meta.scenario;
     $("mode").textContent = S.live ? "LIVE" : "REPLAY"; $("mode").className = "badge " + (S.live ? "live" : "");
     $("status").hidden = !S.live;
@@ -1151,6 +1357,7 @@
     note.textContent = "filled square: + body axis, hollow: − axis; circled crosses: velocity, nadir, magnetic field B";
     $("pano-legend").appendChild(note);
     setupLook();
+    setup3d();
     await setupFaults();
     $("timeline").addEventListener("click", (ev) => {
       if (!S.timeline) return;
