@@ -36,6 +36,7 @@ EVENT_LEVELS = {
     "device_exception": logging.ERROR, "controller_exception": logging.ERROR, "controller_over_budget": logging.ERROR,
     "truth_exception": logging.ERROR, "writer_exception": logging.ERROR, "pacer_exception": logging.ERROR,
     "observer_exception": logging.ERROR, "loop_exception": logging.ERROR, "aborted": logging.ERROR,
+    "fault_exception": logging.ERROR,
 }
 #: Event kinds whose message the command line prints when the run ends (``stand: run aborted: ...``).
 REPORTED_AT_END = frozenset(k for k, level in EVENT_LEVELS.items() if level >= logging.ERROR) | {"stopped", "end"}

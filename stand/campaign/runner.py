@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import sys
 import time
@@ -16,6 +17,8 @@ from .results import aggregate
 from .spec import MAX_RUNS, Spec, validate
 from .store import _prepare, _write_case, finished
 from .summary_report import write_report
+
+log = logging.getLogger(__name__)
 
 #: Default wall-clock limit of one case (``--case-timeout``): the backstop for a case that hangs. A full-orbit
 #: detumble takes 5 to 20 s on a loaded 2-core machine; an hour leaves room for long scenarios on slow workers.
@@ -93,6 +96,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
                  "resumed": resumed, "validate_s": round(t_ready - t0, 3), "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
+    log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
     bar.show()
     try:
         _collect(executor, todo, out, done, bar, execution["lost"])
@@ -116,8 +120,10 @@ def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignPro
     for index, result, reason in executor.results(todo):
         if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
             lost.append(f"case {index}: {reason}")
+            log.warning("case %d lost (%s): the next invocation runs it again", index, reason)
             continue
         if result is None:
+            log.info("case %d recorded as an error: %s", index, reason)
             result = {"record": _error_record(meta[index], reason), "files": {}}
         rec = _write_case(out, result, time.time())
         done[index] = rec

@@ -27,6 +27,7 @@ import collections
 import hmac
 import ipaddress
 import json
+import logging
 import math
 import os
 import socket
@@ -38,6 +39,8 @@ import numpy as np
 from aiohttp import WSMsgType, web
 
 from . import state
+
+log = logging.getLogger(__name__)
 
 ASSETS = Path(__file__).with_name("assets")
 LOCAL = "127.0.0.1"
@@ -169,6 +172,7 @@ class ViewServer:
             raise ViewError(f"the view server cannot listen on {self.host}:{self.port}: "
                             f"{getattr(err, 'strerror', None) or err}.")
         self.source.listeners.append(self._push)
+        log.info("operator page on %s (%s)", self.url, self.source.mode)
         return self.url
 
     @property
@@ -383,7 +387,10 @@ class ViewServer:
         if self.source.mode != "live":
             return _json({"error": f"a replay has no run to {what}"}, status=409)
         why = self.control_refusal(request)
-        return None if why is None else _json({"error": why}, status=403)
+        if why is None:
+            return None
+        log.info("a request to %s refused: %s", what, why)  # an operator's typo, or someone else knocking
+        return _json({"error": why}, status=403)
 
     async def _control(self, request):
         refused = self._refused(request, "control")
