@@ -27,7 +27,7 @@ EXTRA_COMMANDS = ("stand.commands.screen", "stand.commands.display", "stand.comm
                   "stand.commands.fault_proxy", "stand.commands.export", "stand.commands.fault")
 EXIT_PASS, EXIT_FAIL, EXIT_USAGE, EXIT_ABORTED, EXIT_STOPPED = 0, 1, 2, 3, 130
 EXIT_CODES = """exit codes:
-  0    the run passed its criteria (other commands: success)
+  0    the run passed its criteria, or completed with none to judge (NOT JUDGED) (other commands: success)
   1    a criterion failed
   2    a usage or scenario error (one sentence names the field, the value and what is allowed)
   3    the run was aborted: a device fault, a plug-in exception, a full disk, a record that is not whole
@@ -322,7 +322,10 @@ def _report(summary: dict, result, sc, out: Path, case, limit_text) -> int:
         return EXIT_ABORTED
     if status == "stopped":
         return EXIT_STOPPED
-    return EXIT_PASS if passed else EXIT_FAIL
+    # A scenario with no criteria (a study such as rendezvous_shadow) completed: nothing failed, nothing was judged;
+    # the verdict and summary say NOT JUDGED (pass false), the exit code does not fail a script that ran it.
+    not_judged = status == "completed" and not summary["criteria"]
+    return EXIT_PASS if passed or not_judged else EXIT_FAIL
 
 
 def _campaign_case(args):

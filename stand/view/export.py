@@ -87,9 +87,6 @@ def device_state(samples: dict, dev: dict, i: int) -> tuple[str, str]:
         return hit[0][1], "invalid: " + ", ".join(h[0] for h in hit)
     # a kind that does not say why is drawn "no solution", never in a colour the legend gives a meaning
     key, text = (dev.get("state") or {}).get("invalid") or ("none", "invalid")
-    if dev.get("kind") == "sun_sensor" and key == "sun_flag":
-        # a run recorded before the sun sensor said so (its view.json): invalid is no Sun, not "Sun in field"
-        key, text = "none", "no Sun (outside the field or shadow)"
     return key, text
 
 
@@ -353,7 +350,7 @@ def _legend_handles(meta: dict, field: bool = True) -> list:
         st = d.get("state")
         if st:
             keys |= {device_state({}, d, 0)[0]}
-            keys.add(st["invalid"][0] if d.get("kind") != "sun_sensor" else "none")
+            keys.add(st["invalid"][0])
             flags = flags or bool(st.get("flags"))
     if flags:
         keys |= {"sun_flag", "moon_flag", "earth_flag", "rate"}

@@ -32,6 +32,7 @@ from sim.ephemeris import EphemerisTrack
 from sim.frames import EarthRotation
 from sim.rotations import quat_from_dcm
 from sim.time import Epoch
+from stand.adcs import metrics
 from stand.faults import FAULT_TYPES
 from stand.telemetry import load
 
@@ -114,8 +115,8 @@ class AdcsView:
       NaN where its ``NAME.valid`` says the solution is not valid (a tracker's error during a tumble means nothing);
     - ``h_wheels_B`` (N m s): the wheels' momentum from their recorded speeds and their datasheets' spin axes and
       rotor inertias; ``h_total_B``: the body's ``I omega`` plus that; ``torque_wheels_B`` (N m): the torque the
-      wheels put on the body (minus their net motor torques along their axes); ``torque_mtq_B``: a magnetorquer's
-      ``m x B`` from its dipole and the true field.
+      wheels put on the body (minus their net motor torques along their axes); ``torque_mtq_B``: the coils'
+      ``m x B`` from their recorded dipole and the true field.
     """
 
     def __init__(self, meta: dict):
@@ -134,8 +135,6 @@ class AdcsView:
                         if p.get("unit") == "A m²"]
 
     def derive(self, cols: dict) -> dict:
-        from stand.adcs import metrics
-
         out = {}
         n = len(np.asarray(cols["t_s"]))
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -37,10 +37,6 @@ def test_sun_sensor_without_the_sun_is_never_drawn_in_the_sun_in_field_colour(ru
     keys = {float(v): export.device_state(s, fss, i)[0] for i, v in enumerate(valid)}
     assert keys == {1.0: "valid", 0.0: "none"}
     assert SunSensorKind.view_state["invalid"][0] != "sun_flag"  # the page reads the same declaration
-    # a run recorded before (its view.json still says "sun_flag") is drawn the same way
-    old = {**fss, "state": {"missing": "no sample", "flags": False, "invalid": ["sun_flag", "invalid"]}}
-    i = int(np.flatnonzero(valid == 0)[0])
-    assert export.device_state(s, old, i)[0] == "none"
 
 
 @pytest.mark.parametrize("kind", ["hammer", "equirectangular"])
