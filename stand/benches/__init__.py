@@ -22,7 +22,7 @@ BENCHES = {
     "render": "stand.benches.render:bench_render",
     "env": "stand.benches.env:bench_env",
     "accuracy": "stand.benches.accuracy:bench_accuracy",
-    "pacing": "stand.benches:bench_pacing",
+    "pacing": "stand.benches.pacing:bench_pacing",
     "tracker": "stand.benches.tracker:bench_tracker",
     "tracker-link": "stand.benches.tracker_link:bench_tracker_link",
     "shadow": "stand.benches.shadow:bench_shadow",
@@ -262,35 +262,3 @@ def _pointing_rows(out: Path, quick: bool) -> list[dict]:
                          "value": round(metrics.value(metric, settle, tel), 2), "unit": "arcsec",
                          "note": f"after {settle:g} s"})
     return rows
-
-
-def bench_pacing(quick: bool = False) -> list[dict]:
-    """The default scenario paced to the wall clock at 10 Hz: how punctual are the ticks?
-
-    Anchors (docs/benchmarks.md): Basilisk's ClockSynch holds the period to 0.2-0.6 ms standard
-    deviation with a worst period 6 ms late; NASA 42's REAL mode runs 2.3 % slow at 0.1 s steps.
-    """
-    import dataclasses
-
-    from stand.compose import build
-    from stand.loop import run
-    from stand.scenario import DEFAULT_SCENARIO, load
-
-    duration = 5.0 if quick else 30.0
-    sc = dataclasses.replace(load(DEFAULT_SCENARIO), duration_s=duration)
-    with tempfile.TemporaryDirectory() as tmp, build(sc) as scene:
-        result = run(scene, Path(tmp) / "paced", speed=1.0)
-    t = result.timing
-    slow_pct = (result.wall_time_s / result.sim_duration_s - 1.0) * 100.0
-    return [
-        {"name": "pacing.10Hz.period_std", "value": t["period_ms_std"], "unit": "ms",
-         "anchor": "0.2-0.6 (Basilisk ClockSynch)", "note": f"{t['ticks']} ticks over {duration:g} s"},
-        {"name": "pacing.10Hz.worst_period_late", "value": t["period_ms_worst_late"], "unit": "ms",
-         "anchor": "+6 (Basilisk ClockSynch)"},
-        {"name": "pacing.10Hz.lateness_p50", "value": t["lateness_ms_p50"], "unit": "ms"},
-        {"name": "pacing.10Hz.lateness_p99", "value": t["lateness_ms_p99"], "unit": "ms"},
-        {"name": "pacing.10Hz.overruns", "value": t["overruns"], "unit": "ticks", "limit": 0,
-         "pass": t["overruns"] == 0},
-        {"name": "pacing.10Hz.run_slower_than_real_time", "value": round(slow_pct, 3), "unit": "%",
-         "anchor": "2.3 (NASA 42 REAL mode at 0.1 s)"},
-    ]
