@@ -300,16 +300,41 @@ def cull_cos(optics: TrackerOptics) -> float:
     return math.cos(optics.half_diagonal_rad() + math.radians(0.1))
 
 
-_COMBO_CACHE: dict[int, np.ndarray] = {}
+_TRIPLES: dict[int, np.ndarray] = {}
 
 
-def _combos_brightest_first(n: int) -> np.ndarray:
-    """All 4-subsets of range(n), ordered so that combinations of brighter stars come first."""
-    if n not in _COMBO_CACHE:
-        c = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
-        o = np.lexsort((c[:, 2], c[:, 1], c[:, 0], c[:, 3]))  # by the faintest member, then the rest
-        _COMBO_CACHE[n] = c[o]
-    return _COMBO_CACHE[n]
+def _triples(f: int) -> np.ndarray:
+    """All 3-subsets of range(f) in lexicographic order, (C(f, 3), 3) (cached per f)."""
+    t = _TRIPLES.get(f)
+    if t is None:
+        t = _TRIPLES[f] = np.array(list(itertools.combinations(range(f), 3)), dtype=np.int64).reshape(-1, 3)
+    return t
+
+
+def _image_patterns(u: np.ndarray, max_edge_cos: float):
+    """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
+
+    Yields one chunk per faintest member ``f`` (3, 4, ...): the 4-subsets ``{a, b, c, f}`` with
+    ``a < b < c < f``, in lexicographic order of ``(a, b, c)``, whose six separations all pass
+    ``max_edge_cos``, as (stars (k, 4) in canonical order, their directions (k, 4, 3), keys (k, 5),
+    largest separation (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them)
+    never builds the keys of the hundreds of fainter combinations."""
+    G = (u @ u.T) >= max_edge_cos
+    for f in range(3, len(u)):
+        t = _triples(f)
+        ok = G[t[:, 0], t[:, 1]] & G[t[:, 0], t[:, 2]] & G[t[:, 1], t[:, 2]] & G[t, f].all(axis=1)
+        if not ok.any():
+            continue
+        t = t[ok]
+        combos = np.empty((len(t), 4), np.int64)
+        combos[:, :3] = t
+        combos[:, 3] = f
+        uc = u[combos]
+        perm = _canonical(uc)
+        combos = np.take_along_axis(combos, perm, axis=1)
+        uc = np.take_along_axis(uc, perm[:, :, None], axis=1)
+        keys, largest = _keys(uc)
+        yield combos, uc, keys, largest
 
 
 def identify_lis(
@@ -339,64 +364,41 @@ def identify_lis(
     edge ratios (max-norm), ``edge_tolerance`` relative on the largest edge (plate scale).
     """
     n = min(pattern_stars, len(img_xy))
-    if n < 4:
+    if n < 4 or len(db) == 0:
         return _NO_MATCH
-    u = b_S[:n]
-    combos = _combos_brightest_first(n)
-    cos_d = math.cos(db.max_edge_rad * (1.0 + edge_tolerance))
-    G = (u @ u.T) >= cos_d
-    ok = (
-        G[combos[:, 0], combos[:, 1]]
-        & G[combos[:, 0], combos[:, 2]]
-        & G[combos[:, 0], combos[:, 3]]
-        & G[combos[:, 1], combos[:, 2]]
-        & G[combos[:, 1], combos[:, 3]]
-        & G[combos[:, 2], combos[:, 3]]
-    )
-    combos = combos[ok]
-    if len(combos) == 0 or len(db) == 0:
-        return _NO_MATCH
-    uc = u[combos]
-    perm = _canonical(uc)
-    combos = np.take_along_axis(combos, perm, axis=1)
-    uc = np.take_along_axis(uc, perm[:, :, None], axis=1)
-    keys, largest = _keys(uc)
     cos_cull = cull_cos(optics)
+    n_ver = min(n_verify, len(img_xy))
     hyp = 0
-    hits: list = []
-    for q in range(len(combos)):
-        if q == len(hits):
-            # Query the tree in growing batches: the brightest combinations usually solve it.
-            hits.extend(db.tree.query_ball_point(keys[q : q + max(16, q)], key_tolerance, p=np.inf))
-        cand = hits[q]
-        if not cand:
-            continue
-        cand = np.asarray(cand)
-        cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
-        for p in cand:
-            hyp += 1
-            if hyp > max_hypotheses:
-                return _NO_MATCH
-            r_N = db.u_N[db.patterns[p]]
-            b4 = uc[q]
-            C4 = wahba_dcm(b4, r_N, np.ones(4))
-            if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
-                continue  # mirror image or wrong correspondence
-            ii, ci, field_rows, pf = verify(
-                C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp
-            )
-            if len(ii) < min_matches or pf > max_false_prob:
+    for combos, uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
+        hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
+        for q, cand in enumerate(hits):
+            if not cand:
                 continue
-            n_ver = min(n_verify, len(img_xy))
-            # Re-estimate from the verified pairs before matching all stars at the tight radius.
-            C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
-            est2, ii2, ci2 = _refine(
-                C1, img_xy, b_S, sigma_rad, places, optics, field_rows, refine_radius_px
-            )
-            if est2 is None or len(ii2) < min_matches:
-                continue
-            return Match(est2, ii2, ci2, n_ver, pf, hyp)
-    return Match(None, np.empty(0, np.int64), np.empty(0, np.int64), min(n_verify, len(img_xy)), 1.0, hyp)
+            cand = np.asarray(cand)
+            cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
+            for p in cand:
+                hyp += 1
+                if hyp > max_hypotheses:
+                    return _NO_MATCH
+                r_N = db.u_N[db.patterns[p]]
+                b4 = uc[q]
+                C4 = wahba_dcm(b4, r_N, np.ones(4))
+                if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
+                    continue  # mirror image or wrong correspondence
+                ii, ci, field_rows, pf = verify(
+                    C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp
+                )
+                if len(ii) < min_matches or pf > max_false_prob:
+                    continue
+                # Re-estimate from the verified pairs before matching all stars at the tight radius.
+                C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
+                est2, ii2, ci2 = _refine(
+                    C1, img_xy, b_S, sigma_rad, places, optics, field_rows, refine_radius_px
+                )
+                if est2 is None or len(ii2) < min_matches:
+                    continue
+                return Match(est2, ii2, ci2, n_ver, pf, hyp)
+    return Match(None, np.empty(0, np.int64), np.empty(0, np.int64), n_ver, 1.0, hyp)
 
 
 class _Field:
