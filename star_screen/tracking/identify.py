@@ -215,28 +215,6 @@ def _sky_index(places: StarPlaces) -> _SkyIndex:
     return entry
 
 
-def _cone(C: np.ndarray, places: StarPlaces, cos_cull: float) -> np.ndarray:
-    """Rows of the places within the cull cone around the boresight of ``C``, sorted (brightest first).
-
-    A k-d tree over the places (built once per places table) answers in a fraction of the cost
-    of a product with every catalog star."""
-    return _sky_index(places).cone(C[2], cos_cull)[0]
-
-
-def _project_field(C: np.ndarray, places: StarPlaces, optics: TrackerOptics, rows: np.ndarray, margin: float = 0.0):
-    """Catalog rows (from ``rows``, a cone wide enough for ``C``) landing on the detector, and their pixels."""
-    d = places.u_N[rows] @ C.T
-    px, front = optics.project(d)
-    ok = (
-        front
-        & (px[:, 0] >= -margin)
-        & (px[:, 0] < optics.width + margin)
-        & (px[:, 1] >= -margin)
-        & (px[:, 1] < optics.height + margin)
-    )
-    return rows[ok], px[ok]
-
-
 def verify(
     C: np.ndarray,
     img_xy: np.ndarray,
@@ -249,16 +227,20 @@ def verify(
 ):
     """Matches of the ``n_verify`` brightest image stars with the catalog predicted by ``C``.
 
-    Returns (image indices, catalog rows, rows of all catalog stars predicted, false-match bound).
+    Returns (image indices, catalog rows, the catalog stars predicted on the detector as (rows,
+    unit vectors), false-match bound). The cone and the projection are the tracking path's (one
+    k-d tree query, one product with the camera matrix times ``C``), so both modes see the same field.
     """
     n = min(n_verify, len(img_xy))
-    rows, px = _project_field(C, places, optics, _cone(C, places, cos_cull))
-    if n == 0 or len(rows) == 0:
-        return np.empty(0, np.int64), np.empty(0, np.int64), len(rows), 1.0
-    ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], px[:, 0], px[:, 1], radius_px)
-    p = len(rows) * math.pi * radius_px**2 / (optics.width * optics.height)
+    cone, U = _sky_index(places).cone(C[2], cos_cull)
+    k, x, y = _field(optics).project(U, C, 0.0)
+    field = (cone[k], U[k])
+    if n == 0 or len(k) == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64), field, 1.0
+    ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], x, y, radius_px)
+    p = len(k) * math.pi * radius_px**2 / (optics.width * optics.height)
     pf = min(1.0, false_match_probability(len(ii), n, p) * max(hypotheses, 1))
-    return ii, rows[ci], rows, pf
+    return ii, field[0][ci], field, pf
 
 
 #: Pairs whose residual exceeds this many robust sigmas (from the median residual) are left out of
@@ -274,23 +256,23 @@ def _estimate_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.ndarray):
     return estimate_attitude_robust(b_S, r_N, sigma_rad, OUTLIER_GATE)
 
 
-def _refine(C, img_xy, b_S, sigma_rad, places, optics, cone_rows, radius_px, passes: int = 1):
-    """Re-match all image stars to the catalog predicted by ``C`` and re-estimate (``passes`` times).
+def _refine(C, img_xy, b_S, sigma_rad, optics, field, radius_px):
+    """Match all image stars to the catalog predicted by ``C`` at the tight radius and estimate:
+    (estimate or ``None``, image indices, catalog rows).
 
-    ``cone_rows``: catalog rows near the field (the predicted stars of the verification pass, which
-    still cover the field: a verified attitude moves by far less than the cull margin)."""
-    est = None
-    ii = ci = np.empty(0, np.int64)
-    for _ in range(passes):
-        rows, px = _project_field(C, places, optics, cone_rows, margin=radius_px)
-        ii, cj, _ = _match_radius(img_xy[:, 0], img_xy[:, 1], px[:, 0], px[:, 1], radius_px, True)
-        if len(ii) < 3:
-            return None, ii, np.empty(0, np.int64)
-        ci = rows[cj]
-        est, keep = _estimate_robust(b_S[ii], places.u_N[ci], sigma_rad[ii])
-        if keep is not None:
-            ii, ci = ii[keep], ci[keep]
-        C = est.dcm_SN
+    ``field``: (rows, unit vectors) of the catalog stars near the field (those predicted by the
+    verification pass, which still cover it: a verified attitude moves by far less than the cull
+    margin)."""
+    rows, U = field
+    k, x, y = _field(optics).project(U, C, radius_px)
+    ii, cj, _ = _match_radius(img_xy[:, 0], img_xy[:, 1], x, y, radius_px, True)
+    if len(ii) < 3:
+        return None, ii, np.empty(0, np.int64)
+    kj = k[cj]
+    est, keep = _estimate_robust(b_S[ii], U[kj], sigma_rad[ii])
+    ci = rows[kj]
+    if keep is not None:
+        ii, ci = ii[keep], ci[keep]
     return est, ii, ci
 
 
@@ -316,8 +298,8 @@ def _image_patterns(u: np.ndarray, max_edge_cos: float):
 
     Yields one chunk per faintest member ``f`` (3, 4, ...): the 4-subsets ``{a, b, c, f}`` with
     ``a < b < c < f``, in lexicographic order of ``(a, b, c)``, whose six separations all pass
-    ``max_edge_cos``, as (stars (k, 4) in canonical order, their directions (k, 4, 3), keys (k, 5),
-    largest separation (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them)
+    ``max_edge_cos``, as (directions (k, 4, 3) in canonical order, keys (k, 5), largest separation
+    (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them)
     never builds the keys of the hundreds of fainter combinations."""
     G = (u @ u.T) >= max_edge_cos
     for f in range(3, len(u)):
@@ -325,16 +307,13 @@ def _image_patterns(u: np.ndarray, max_edge_cos: float):
         ok = G[t[:, 0], t[:, 1]] & G[t[:, 0], t[:, 2]] & G[t[:, 1], t[:, 2]] & G[t, f].all(axis=1)
         if not ok.any():
             continue
-        t = t[ok]
-        combos = np.empty((len(t), 4), np.int64)
-        combos[:, :3] = t
+        combos = np.empty((np.count_nonzero(ok), 4), np.int64)
+        combos[:, :3] = t[ok]
         combos[:, 3] = f
         uc = u[combos]
-        perm = _canonical(uc)
-        combos = np.take_along_axis(combos, perm, axis=1)
-        uc = np.take_along_axis(uc, perm[:, :, None], axis=1)
+        uc = np.take_along_axis(uc, _canonical(uc)[:, :, None], axis=1)
         keys, largest = _keys(uc)
-        yield combos, uc, keys, largest
+        yield uc, keys, largest
 
 
 def identify_lis(
@@ -369,7 +348,7 @@ def identify_lis(
     cos_cull = cull_cos(optics)
     n_ver = min(n_verify, len(img_xy))
     hyp = 0
-    for combos, uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
+    for uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
         hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
         for q, cand in enumerate(hits):
             if not cand:
@@ -385,16 +364,12 @@ def identify_lis(
                 C4 = wahba_dcm(b4, r_N, np.ones(4))
                 if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
                     continue  # mirror image or wrong correspondence
-                ii, ci, field_rows, pf = verify(
-                    C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp
-                )
+                ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)
                 if len(ii) < min_matches or pf > max_false_prob:
                     continue
                 # Re-estimate from the verified pairs before matching all stars at the tight radius.
                 C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
-                est2, ii2, ci2 = _refine(
-                    C1, img_xy, b_S, sigma_rad, places, optics, field_rows, refine_radius_px
-                )
+                est2, ii2, ci2 = _refine(C1, img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
                 if est2 is None or len(ii2) < min_matches:
                     continue
                 return Match(est2, ii2, ci2, n_ver, pf, hyp)
