@@ -71,12 +71,19 @@ def false_match_probability(m: int, n: int, p: float) -> float:
     return float(betainc(m, n - m + 1, p))
 
 
+#: The six pairs of a 4-star pattern, in the order of its edges.
+_PAIR_I = np.array([0, 0, 0, 1, 1, 2])
+_PAIR_J = np.array([1, 2, 3, 2, 3, 3])
+
+
+def _angle_of_chord(d: np.ndarray) -> np.ndarray:
+    return 2.0 * np.arcsin(np.clip(0.5 * d, 0.0, 1.0))
+
+
 def _edges(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Separations (rad) of 4-star sets ``u (P, 4, 3)``: (P, 6) unsorted, in pair order (01 02 03 12 13 23)."""
-    ii = np.array([0, 0, 0, 1, 1, 2])
-    jj = np.array([1, 2, 3, 2, 3, 3])
-    d = np.linalg.norm(u[:, ii] - u[:, jj], axis=-1)
-    return 2.0 * np.arcsin(np.clip(0.5 * d, 0.0, 1.0)), d
+    d = np.linalg.norm(u[:, _PAIR_I] - u[:, _PAIR_J], axis=-1)
+    return _angle_of_chord(d), d
 
 
 def _canonical(u: np.ndarray) -> np.ndarray:
@@ -87,7 +94,12 @@ def _canonical(u: np.ndarray) -> np.ndarray:
 
 
 def _keys(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    e, _ = _edges(u)
+    """Keys (P, 5) and largest separation (P,) of 4-star sets ``u (P, 4, 3)`` in canonical order."""
+    return _keys_of_edges(_edges(u)[0])
+
+
+def _keys_of_edges(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keys (P, 5): the six separations ``e (P, 6)`` sorted, over the largest; and the largest (P,)."""
     e.sort(axis=1)
     return e[:, :5] / e[:, 5:], e[:, 5]
 
@@ -282,15 +294,18 @@ def cull_cos(optics: TrackerOptics) -> float:
     return math.cos(optics.half_diagonal_rad() + math.radians(0.1))
 
 
-_TRIPLES: dict[int, np.ndarray] = {}
+_QUADS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
 
-def _triples(f: int) -> np.ndarray:
-    """All 3-subsets of range(f) in lexicographic order, (C(f, 3), 3) (cached per f)."""
-    t = _TRIPLES.get(f)
-    if t is None:
-        t = _TRIPLES[f] = np.array(list(itertools.combinations(range(f), 3)), dtype=np.int64).reshape(-1, 3)
-    return t
+def _quads(f: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The 4-subsets ``{a, b, c, f}`` (``a < b < c < f``) in lexicographic order, (k, 4), and the flat
+    indices (k, 6) of their six pairs in an ``n x n`` matrix (cached per ``f, n``)."""
+    entry = _QUADS.get((f, n))
+    if entry is None:
+        t = np.array(list(itertools.combinations(range(f), 3)), dtype=np.int64).reshape(-1, 3)
+        q = np.column_stack((t, np.full(len(t), f, np.int64)))
+        entry = _QUADS[(f, n)] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
+    return entry
 
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
@@ -299,21 +314,23 @@ def _image_patterns(u: np.ndarray, max_edge_cos: float):
     Yields one chunk per faintest member ``f`` (3, 4, ...): the 4-subsets ``{a, b, c, f}`` with
     ``a < b < c < f``, in lexicographic order of ``(a, b, c)``, whose six separations all pass
     ``max_edge_cos``, as (directions (k, 4, 3) in canonical order, keys (k, 5), largest separation
-    (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them)
-    never builds the keys of the hundreds of fainter combinations."""
-    G = (u @ u.T) >= max_edge_cos
-    for f in range(3, len(u)):
-        t = _triples(f)
-        ok = G[t[:, 0], t[:, 1]] & G[t[:, 0], t[:, 2]] & G[t[:, 1], t[:, 2]] & G[t, f].all(axis=1)
+    (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them) never builds the
+    keys of the hundreds of fainter combinations; the separations of all pairs are computed once
+    per frame (the same arithmetic as :func:`_edges`, so the keys are those the database uses)."""
+    n = len(u)
+    near = ((u @ u.T) >= max_edge_cos).ravel()
+    sep = None
+    for f in range(3, n):
+        q, pairs = _quads(f, n)
+        ok = near[pairs].all(axis=1)
         if not ok.any():
             continue
-        combos = np.empty((np.count_nonzero(ok), 4), np.int64)
-        combos[:, :3] = t[ok]
-        combos[:, 3] = f
-        uc = u[combos]
-        uc = np.take_along_axis(uc, _canonical(uc)[:, :, None], axis=1)
-        keys, largest = _keys(uc)
-        yield uc, keys, largest
+        if sep is None:
+            sep = _angle_of_chord(np.linalg.norm(u[:, None, :] - u[None, :, :], axis=-1)).ravel()
+        q = q[ok]
+        q = np.take_along_axis(q, _canonical(u[q]), axis=1)
+        keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
+        yield u[q], keys, largest
 
 
 def identify_lis(
