@@ -294,43 +294,48 @@ def cull_cos(optics: TrackerOptics) -> float:
     return math.cos(optics.half_diagonal_rad() + math.radians(0.1))
 
 
-_QUADS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+_QUADS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
 
-def _quads(f: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The 4-subsets ``{a, b, c, f}`` (``a < b < c < f``) in lexicographic order, (k, 4), and the flat
-    indices (k, 6) of their six pairs in an ``n x n`` matrix (cached per ``f, n``)."""
-    entry = _QUADS.get((f, n))
+def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """All 4-subsets of range(n), those of brighter stars first (by the faintest member, then
+    lexicographic), (C(n, 4), 4); and the flat indices (C(n, 4), 6) of their six pairs in an
+    ``n x n`` matrix (cached per n)."""
+    entry = _QUADS.get(n)
     if entry is None:
-        t = np.array(list(itertools.combinations(range(f), 3)), dtype=np.int64).reshape(-1, 3)
-        q = np.column_stack((t, np.full(len(t), f, np.int64)))
-        entry = _QUADS[(f, n)] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
+        q = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
+        q = q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))]
+        entry = _QUADS[n] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
     return entry
+
+
+#: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
+#: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
+FIRST_BATCH = 2
 
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
     """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
 
-    Yields one chunk per faintest member ``f`` (3, 4, ...): the 4-subsets ``{a, b, c, f}`` with
-    ``a < b < c < f``, in lexicographic order of ``(a, b, c)``, whose six separations all pass
-    ``max_edge_cos``, as (directions (k, 4, 3) in canonical order, keys (k, 5), largest separation
-    (k,)). Chunk by chunk, so a frame solved by its first patterns (most of them) never builds the
-    keys of the hundreds of fainter combinations; the separations of all pairs are computed once
-    per frame (the same arithmetic as :func:`_edges`, so the keys are those the database uses)."""
+    Every 4-subset whose six separations all pass ``max_edge_cos``, ordered by its faintest member,
+    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (directions (k, 4, 3)
+    in canonical order, keys (k, 5), largest separation (k,)). The separations of all pairs are
+    computed once per frame, with the arithmetic of :func:`_edges`, so the keys are those the
+    database uses."""
     n = len(u)
-    near = ((u @ u.T) >= max_edge_cos).ravel()
-    sep = None
-    for f in range(3, n):
-        q, pairs = _quads(f, n)
-        ok = near[pairs].all(axis=1)
-        if not ok.any():
-            continue
-        if sep is None:
-            sep = _angle_of_chord(np.linalg.norm(u[:, None, :] - u[None, :, :], axis=-1)).ravel()
-        q = q[ok]
+    quads, pairs = _quads_brightest_first(n)
+    fits = np.flatnonzero(((u @ u.T) >= max_edge_cos).ravel()[pairs].all(axis=1))
+    if len(fits) == 0:
+        return
+    sep = _angle_of_chord(np.linalg.norm(u[:, None, :] - u[None, :, :], axis=-1)).ravel()
+    start, size = 0, FIRST_BATCH
+    while start < len(fits):
+        q = quads[fits[start : start + size]]
         q = np.take_along_axis(q, _canonical(u[q]), axis=1)
         keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
         yield u[q], keys, largest
+        start += size
+        size = start
 
 
 def identify_lis(

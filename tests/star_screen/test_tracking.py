@@ -216,9 +216,9 @@ def _angle(a, b) -> float:
 
 
 def test_image_patterns_are_every_4_subset_brightest_first_with_the_database_keys():
-    """The lost-in-space patterns come chunk by chunk (by faintest member) but are exactly the
+    """The lost-in-space patterns come in batches (built and looked up only as far as needed) but are exactly the
     brightest-first enumeration of every 4-subset whose six separations fit, each in canonical order
-    with the key the database's own function gives it (so a chunk finds the catalog's pattern)."""
+    with the key the database's own function gives it (so a lookup finds the catalog's pattern)."""
     from star_screen.tracking.identify import _image_patterns, _keys
 
     rng = np.random.default_rng(26)
