@@ -15,8 +15,10 @@ Pattern database (built once per field size from the catalog, in memory, determi
   rule on both sides, so a key hit gives the star correspondence.
 
 Lost in space: 4-star combinations of the brightest image stars, brightest combinations first,
-looked up in one vectorised tree query; each catalog hit whose largest separation also agrees
-gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
+keyed and looked up in small doubling batches (one tree query per batch): most frames are solved
+by their first pattern, and the first verified hypothesis ends the search, so the keys of the
+hundreds of fainter combinations are never built. Each catalog hit whose largest separation also
+agrees gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
 in the field must match enough image stars that a chance alignment is improbable. With ``k``
 catalog stars predicted on the image, a match radius ``r`` px and an ``W x H`` image, a random
 image star lands near one with probability ``p = k pi r^2 / (W H)``; the chance that ``m`` of ``n``
