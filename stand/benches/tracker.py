@@ -48,6 +48,9 @@ from star_screen.tracking.noise import camera_noise
 EPOCH = "2026-01-01T00:00:00Z"
 ARCSEC = math.pi / (180.0 * 3600.0)
 FALSE_LIMIT_ARCSEC = 60.0
+#: Goal for the lost-in-space median (issue 26): tetra3rs's median on the same field and catalogue depth
+#: (docs/benchmarks.md, "Star tracker"), not a figure of ours.
+LIS_MEDIAN_GOAL_MS = 0.29
 
 
 def _row(name, value, unit, limit=None, ok=None, anchor=None, note=None) -> dict:
@@ -156,8 +159,9 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         _row("tracker.covariance.cross_rms_over_sigma", round(ratio_c, 3), "x", None, None, None,
              "RMS cross-boresight error / RMS predicted sigma (1 = honest covariance)"),
         _row("tracker.covariance.roll_rms_over_sigma", round(ratio_r, 3), "x"),
-        _row("tracker.lis.time_median", round(ms(t_lis, 50), 3), "ms", None, None,
-             "tetra3rs 0.29, cedar-solve 2.4", "CPU time, identification + estimate, extraction excluded"),
+        _row("tracker.lis.time_median", round(ms(t_lis, 50), 3), "ms", f"<= {LIS_MEDIAN_GOAL_MS}",
+             ms(t_lis, 50) <= LIS_MEDIAN_GOAL_MS, "tetra3rs 0.29, cedar-solve 2.4",
+             f"CPU time, identification + estimate, extraction excluded; wall median {ms(wall_lis, 50):.3f} ms"),
         _row("tracker.lis.time_p95", round(ms(t_lis, 95), 3), "ms", "<= 5", ms(t_lis, 95) <= 5.0,
              "tetra3rs 0.44, cedar-solve 3.3", f"wall p95 {ms(wall_lis, 95):.2f} ms (shared machine)"),
         _row("tracker.tracking.success_rate", round(100.0 * trk_ok.mean(), 2), "%", None, None, None,

@@ -15,8 +15,10 @@ Pattern database (built once per field size from the catalog, in memory, determi
   rule on both sides, so a key hit gives the star correspondence.
 
 Lost in space: 4-star combinations of the brightest image stars, brightest combinations first,
-looked up in one vectorised tree query; each catalog hit whose largest separation also agrees
-gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
+keyed and looked up in small doubling batches (one tree query per batch): most frames are solved
+by their first pattern, and the first verified hypothesis ends the search, so the keys of the
+hundreds of fainter combinations are never built. Each catalog hit whose largest separation also
+agrees gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
 in the field must match enough image stars that a chance alignment is improbable. With ``k``
 catalog stars predicted on the image, a match radius ``r`` px and an ``W x H`` image, a random
 image star lands near one with probability ``p = k pi r^2 / (W H)``; the chance that ``m`` of ``n``
@@ -71,12 +73,19 @@ def false_match_probability(m: int, n: int, p: float) -> float:
     return float(betainc(m, n - m + 1, p))
 
 
+#: The six pairs of a 4-star pattern, in the order of its edges.
+_PAIR_I = np.array([0, 0, 0, 1, 1, 2])
+_PAIR_J = np.array([1, 2, 3, 2, 3, 3])
+
+
+def _angle_of_chord(d: np.ndarray) -> np.ndarray:
+    return 2.0 * np.arcsin(np.clip(0.5 * d, 0.0, 1.0))
+
+
 def _edges(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Separations (rad) of 4-star sets ``u (P, 4, 3)``: (P, 6) unsorted, in pair order (01 02 03 12 13 23)."""
-    ii = np.array([0, 0, 0, 1, 1, 2])
-    jj = np.array([1, 2, 3, 2, 3, 3])
-    d = np.linalg.norm(u[:, ii] - u[:, jj], axis=-1)
-    return 2.0 * np.arcsin(np.clip(0.5 * d, 0.0, 1.0)), d
+    d = np.linalg.norm(u[:, _PAIR_I] - u[:, _PAIR_J], axis=-1)
+    return _angle_of_chord(d), d
 
 
 def _canonical(u: np.ndarray) -> np.ndarray:
@@ -87,7 +96,12 @@ def _canonical(u: np.ndarray) -> np.ndarray:
 
 
 def _keys(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    e, _ = _edges(u)
+    """Keys (P, 5) and largest separation (P,) of 4-star sets ``u (P, 4, 3)`` in canonical order."""
+    return _keys_of_edges(_edges(u)[0])
+
+
+def _keys_of_edges(e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Keys (P, 5): the six separations ``e (P, 6)`` sorted, over the largest; and the largest (P,)."""
     e.sort(axis=1)
     return e[:, :5] / e[:, 5:], e[:, 5]
 
@@ -215,28 +229,6 @@ def _sky_index(places: StarPlaces) -> _SkyIndex:
     return entry
 
 
-def _cone(C: np.ndarray, places: StarPlaces, cos_cull: float) -> np.ndarray:
-    """Rows of the places within the cull cone around the boresight of ``C``, sorted (brightest first).
-
-    A k-d tree over the places (built once per places table) answers in a fraction of the cost
-    of a product with every catalog star."""
-    return _sky_index(places).cone(C[2], cos_cull)[0]
-
-
-def _project_field(C: np.ndarray, places: StarPlaces, optics: TrackerOptics, rows: np.ndarray, margin: float = 0.0):
-    """Catalog rows (from ``rows``, a cone wide enough for ``C``) landing on the detector, and their pixels."""
-    d = places.u_N[rows] @ C.T
-    px, front = optics.project(d)
-    ok = (
-        front
-        & (px[:, 0] >= -margin)
-        & (px[:, 0] < optics.width + margin)
-        & (px[:, 1] >= -margin)
-        & (px[:, 1] < optics.height + margin)
-    )
-    return rows[ok], px[ok]
-
-
 def verify(
     C: np.ndarray,
     img_xy: np.ndarray,
@@ -249,16 +241,20 @@ def verify(
 ):
     """Matches of the ``n_verify`` brightest image stars with the catalog predicted by ``C``.
 
-    Returns (image indices, catalog rows, rows of all catalog stars predicted, false-match bound).
+    Returns (image indices, catalog rows, the catalog stars predicted on the detector as (rows,
+    unit vectors), false-match bound). The cone and the projection are the tracking path's (one
+    k-d tree query, one product with the camera matrix times ``C``), so both modes see the same field.
     """
     n = min(n_verify, len(img_xy))
-    rows, px = _project_field(C, places, optics, _cone(C, places, cos_cull))
-    if n == 0 or len(rows) == 0:
-        return np.empty(0, np.int64), np.empty(0, np.int64), len(rows), 1.0
-    ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], px[:, 0], px[:, 1], radius_px)
-    p = len(rows) * math.pi * radius_px**2 / (optics.width * optics.height)
+    cone, U = _sky_index(places).cone(C[2], cos_cull)
+    k, x, y = _field(optics).project(U, C, 0.0)
+    field = (cone[k], U[k])
+    if n == 0 or len(k) == 0:
+        return np.empty(0, np.int64), np.empty(0, np.int64), field, 1.0
+    ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], x, y, radius_px)
+    p = len(k) * math.pi * radius_px**2 / (optics.width * optics.height)
     pf = min(1.0, false_match_probability(len(ii), n, p) * max(hypotheses, 1))
-    return ii, rows[ci], rows, pf
+    return ii, field[0][ci], field, pf
 
 
 #: Pairs whose residual exceeds this many robust sigmas (from the median residual) are left out of
@@ -274,23 +270,23 @@ def _estimate_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.ndarray):
     return estimate_attitude_robust(b_S, r_N, sigma_rad, OUTLIER_GATE)
 
 
-def _refine(C, img_xy, b_S, sigma_rad, places, optics, cone_rows, radius_px, passes: int = 1):
-    """Re-match all image stars to the catalog predicted by ``C`` and re-estimate (``passes`` times).
+def _refine(C, img_xy, b_S, sigma_rad, optics, field, radius_px):
+    """Match all image stars to the catalog predicted by ``C`` at the tight radius and estimate:
+    (estimate or ``None``, image indices, catalog rows).
 
-    ``cone_rows``: catalog rows near the field (the predicted stars of the verification pass, which
-    still cover the field: a verified attitude moves by far less than the cull margin)."""
-    est = None
-    ii = ci = np.empty(0, np.int64)
-    for _ in range(passes):
-        rows, px = _project_field(C, places, optics, cone_rows, margin=radius_px)
-        ii, cj, _ = _match_radius(img_xy[:, 0], img_xy[:, 1], px[:, 0], px[:, 1], radius_px, True)
-        if len(ii) < 3:
-            return None, ii, np.empty(0, np.int64)
-        ci = rows[cj]
-        est, keep = _estimate_robust(b_S[ii], places.u_N[ci], sigma_rad[ii])
-        if keep is not None:
-            ii, ci = ii[keep], ci[keep]
-        C = est.dcm_SN
+    ``field``: (rows, unit vectors) of the catalog stars near the field (those predicted by the
+    verification pass, which still cover it: a verified attitude moves by far less than the cull
+    margin)."""
+    rows, U = field
+    k, x, y = _field(optics).project(U, C, radius_px)
+    ii, cj, _ = _match_radius(img_xy[:, 0], img_xy[:, 1], x, y, radius_px, True)
+    if len(ii) < 3:
+        return None, ii, np.empty(0, np.int64)
+    kj = k[cj]
+    est, keep = _estimate_robust(b_S[ii], U[kj], sigma_rad[ii])
+    ci = rows[kj]
+    if keep is not None:
+        ii, ci = ii[keep], ci[keep]
     return est, ii, ci
 
 
@@ -300,16 +296,48 @@ def cull_cos(optics: TrackerOptics) -> float:
     return math.cos(optics.half_diagonal_rad() + math.radians(0.1))
 
 
-_COMBO_CACHE: dict[int, np.ndarray] = {}
+_QUADS: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
 
-def _combos_brightest_first(n: int) -> np.ndarray:
-    """All 4-subsets of range(n), ordered so that combinations of brighter stars come first."""
-    if n not in _COMBO_CACHE:
-        c = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
-        o = np.lexsort((c[:, 2], c[:, 1], c[:, 0], c[:, 3]))  # by the faintest member, then the rest
-        _COMBO_CACHE[n] = c[o]
-    return _COMBO_CACHE[n]
+def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """All 4-subsets of range(n), those of brighter stars first (by the faintest member, then
+    lexicographic), (C(n, 4), 4); and the flat indices (C(n, 4), 6) of their six pairs in an
+    ``n x n`` matrix (cached per n)."""
+    entry = _QUADS.get(n)
+    if entry is None:
+        q = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
+        q = q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))]
+        entry = _QUADS[n] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
+    return entry
+
+
+#: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
+#: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
+FIRST_BATCH = 2
+
+
+def _image_patterns(u: np.ndarray, max_edge_cos: float):
+    """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
+
+    Every 4-subset whose six separations all pass ``max_edge_cos``, ordered by its faintest member,
+    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (directions (k, 4, 3)
+    in canonical order, keys (k, 5), largest separation (k,)). The separations of all pairs are
+    computed once per frame, with the arithmetic of :func:`_edges`, so the keys are those the
+    database uses."""
+    n = len(u)
+    quads, pairs = _quads_brightest_first(n)
+    fits = np.flatnonzero(((u @ u.T) >= max_edge_cos).ravel()[pairs].all(axis=1))
+    if len(fits) == 0:
+        return
+    sep = _angle_of_chord(np.linalg.norm(u[:, None, :] - u[None, :, :], axis=-1)).ravel()
+    start, size = 0, FIRST_BATCH
+    while start < len(fits):
+        q = quads[fits[start : start + size]]
+        q = np.take_along_axis(q, _canonical(u[q]), axis=1)
+        keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
+        yield u[q], keys, largest
+        start += size
+        size = start
 
 
 def identify_lis(
@@ -339,64 +367,37 @@ def identify_lis(
     edge ratios (max-norm), ``edge_tolerance`` relative on the largest edge (plate scale).
     """
     n = min(pattern_stars, len(img_xy))
-    if n < 4:
+    if n < 4 or len(db) == 0:
         return _NO_MATCH
-    u = b_S[:n]
-    combos = _combos_brightest_first(n)
-    cos_d = math.cos(db.max_edge_rad * (1.0 + edge_tolerance))
-    G = (u @ u.T) >= cos_d
-    ok = (
-        G[combos[:, 0], combos[:, 1]]
-        & G[combos[:, 0], combos[:, 2]]
-        & G[combos[:, 0], combos[:, 3]]
-        & G[combos[:, 1], combos[:, 2]]
-        & G[combos[:, 1], combos[:, 3]]
-        & G[combos[:, 2], combos[:, 3]]
-    )
-    combos = combos[ok]
-    if len(combos) == 0 or len(db) == 0:
-        return _NO_MATCH
-    uc = u[combos]
-    perm = _canonical(uc)
-    combos = np.take_along_axis(combos, perm, axis=1)
-    uc = np.take_along_axis(uc, perm[:, :, None], axis=1)
-    keys, largest = _keys(uc)
     cos_cull = cull_cos(optics)
+    n_ver = min(n_verify, len(img_xy))
     hyp = 0
-    hits: list = []
-    for q in range(len(combos)):
-        if q == len(hits):
-            # Query the tree in growing batches: the brightest combinations usually solve it.
-            hits.extend(db.tree.query_ball_point(keys[q : q + max(16, q)], key_tolerance, p=np.inf))
-        cand = hits[q]
-        if not cand:
-            continue
-        cand = np.asarray(cand)
-        cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
-        for p in cand:
-            hyp += 1
-            if hyp > max_hypotheses:
-                return _NO_MATCH
-            r_N = db.u_N[db.patterns[p]]
-            b4 = uc[q]
-            C4 = wahba_dcm(b4, r_N, np.ones(4))
-            if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
-                continue  # mirror image or wrong correspondence
-            ii, ci, field_rows, pf = verify(
-                C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp
-            )
-            if len(ii) < min_matches or pf > max_false_prob:
+    for uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
+        hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
+        for q, cand in enumerate(hits):
+            if not cand:
                 continue
-            n_ver = min(n_verify, len(img_xy))
-            # Re-estimate from the verified pairs before matching all stars at the tight radius.
-            C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
-            est2, ii2, ci2 = _refine(
-                C1, img_xy, b_S, sigma_rad, places, optics, field_rows, refine_radius_px
-            )
-            if est2 is None or len(ii2) < min_matches:
-                continue
-            return Match(est2, ii2, ci2, n_ver, pf, hyp)
-    return Match(None, np.empty(0, np.int64), np.empty(0, np.int64), min(n_verify, len(img_xy)), 1.0, hyp)
+            cand = np.asarray(cand)
+            cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
+            for p in cand:
+                hyp += 1
+                if hyp > max_hypotheses:
+                    return _NO_MATCH
+                r_N = db.u_N[db.patterns[p]]
+                b4 = uc[q]
+                C4 = wahba_dcm(b4, r_N, np.ones(4))
+                if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
+                    continue  # mirror image or wrong correspondence
+                ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)
+                if len(ii) < min_matches or pf > max_false_prob:
+                    continue
+                # Re-estimate from the verified pairs before matching all stars at the tight radius.
+                C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
+                est2, ii2, ci2 = _refine(C1, img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
+                if est2 is None or len(ii2) < min_matches:
+                    continue
+                return Match(est2, ii2, ci2, n_ver, pf, hyp)
+    return Match(None, np.empty(0, np.int64), np.empty(0, np.int64), n_ver, 1.0, hyp)
 
 
 class _Field:
