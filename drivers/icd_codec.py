@@ -156,8 +156,12 @@ def wire_value(f: FieldSpec, msg: Any, message: str, byte_order: str = "little")
     if f.bits is not None:
         return _flags(f, msg, f"{message}.{f.name}")
     value = getattr(msg, f.attr)
-    if f.index is not None:
-        value = _element(f, value, message)
+    index = f.index
+    if index is not None:
+        try:
+            value = value[index]
+        except (TypeError, IndexError):
+            raise _not_a_sequence(f, value, message) from None
     if f.enum is not None:
         return _enum_index(f, value, f"{message}.{f.name}")
     kind = type(value)
@@ -168,7 +172,10 @@ def wire_value(f: FieldSpec, msg: Any, message: str, byte_order: str = "little")
         if type(wire) is float and f.lo <= wire <= f.hi and math.isfinite(wire):
             return wire
         return _float_wire(f, wire, value, f"{message}.{f.name}")
-    n = round(wire) if type(wire) is int or type(wire) is float and math.isfinite(wire) else None
+    if type(wire) is int:
+        n = wire
+    else:
+        n = round(wire) if math.isfinite(wire) else None
     if n is None or not f.lo <= n <= f.hi:
         n = _int_wire(f, wire, value, f"{message}.{f.name}")  # says why (it does not return here)
     if f.type == "i24":
@@ -180,19 +187,15 @@ def _flags(f: FieldSpec, msg: Any, where: str) -> int:
     v = 0
     for i, bit in enumerate(f.bits or ()):
         flag = getattr(msg, bit)
-        if not isinstance(flag, bool | int) and type(flag).__name__ != "bool_":
+        if type(flag) is not bool and not isinstance(flag, int) and type(flag).__name__ != "bool_":
             raise EncodeError(f"{where}: {bit} = {flag!r} is not a flag; allowed: True or False.")
         if flag:
             v |= 1 << i
     return v
 
 
-def _element(f: FieldSpec, value: Any, message: str) -> Any:
-    try:
-        return value[f.index]
-    except (TypeError, IndexError):
-        raise EncodeError(f"{message}.{f.name}: {f.attr} must be a sequence with an element {f.index}; "
-                          f"got {value!r}.") from None
+def _not_a_sequence(f: FieldSpec, value: Any, message: str) -> EncodeError:
+    return EncodeError(f"{message}.{f.name}: {f.attr} must be a sequence with an element {f.index}; got {value!r}.")
 
 
 def _enum_index(f: FieldSpec, value: Any, where: str) -> int:
@@ -299,7 +302,7 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
     for f, v in zip(spec.fields, raw, strict=True):
         bits = f.bits
         if bits is not None:
-            if v >> len(bits):
+            if v < 0 or v > f.hi:  # a bit past the ICD's flags (hi: every defined bit set)
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
                                f"<= 0x{f.hi:X}", f"0x{v:X}")
             for i, bit in enumerate(bits):
@@ -307,7 +310,7 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
             continue
         enum = f.enum
         if enum is not None:
-            if v >= len(enum):
+            if v > f.hi:  # hi: the last entry of the table
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = {v} is not in its table",
                                f"0..{len(enum) - 1}", v)
             val: Any = enum[v]
