@@ -47,7 +47,7 @@ from drivers.icd_codec import (
     message_heading,
     messages_doc,
     range_text,
-    wire_value,
+    wire_values,
 )
 from drivers.serial_port import SerialHost, SerialServer, is_port_error, open_port, port_name, write_available
 
@@ -108,7 +108,7 @@ class DatagramCodec:
         self.ids_to_host = frozenset(s.id for s in self.messages.values() if s.direction == DEVICE_TO_HOST)
         self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
         self.max_length = max(s.length for s in self.messages.values())
-        self._struct = {s.id: struct.Struct(s.fmt) for s in self.messages.values()}
+        self._prefix_text = f"{device} "  # how a refused value's sentence starts
         self._i24 = {s.id: tuple(i for i, f in enumerate(s.fields) if f.type == "i24") for s in self.messages.values()}
 
     def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
@@ -141,9 +141,8 @@ class DatagramCodec:
     def encode(self, msg: Any) -> bytes:
         """The whole datagram of ``msg``: identifier, payload, CRC."""
         spec = self.spec_of(msg)
-        order = self.byte_order
-        values = [wire_value(f, msg, f"{self.device} {spec.name}.{f.name}", order) for f in spec.fields]
-        head = bytes((spec.id,)) + self._struct[spec.id].pack(*values)
+        values = wire_values(spec, msg, f"{self.device} {spec.name}", self.byte_order)
+        head = bytes((spec.id,)) + spec.packer.pack(*values)
         return head + crc16(head).to_bytes(2, self.byte_order)
 
     # -- decode ---------------------------------------------------------------------------------
@@ -176,15 +175,16 @@ class DatagramCodec:
                                    expected=f"0x{got:04X} (received)", computed=f"0x{calc:04X}")
         return self.decode_payload(spec, data[1:-2], hx)
 
-    def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Any:
-        """The message of one datagram's payload; DatagramRejected for a value outside its table."""
-        raw: Any = self._struct[spec.id].unpack(payload)
+    def decode_payload(self, spec: MessageSpec, payload: bytes, frame: str | bytes = b"") -> Any:
+        """The message of one datagram's payload; DatagramRejected for a value outside its table, naming ``frame``
+        (the whole datagram, in hex or as bytes; the payload when not given)."""
+        raw: Any = spec.packer.unpack(payload)
         i24 = self._i24[spec.id]
         if i24:  # the few 24-bit fields travel as 3 raw bytes; no per-field type test on the other messages
             raw = list(raw)
             for i in i24:
                 raw[i] = int.from_bytes(raw[i], self.byte_order, signed=True)
-        return decode_fields(spec, raw, DatagramRejected, hx or payload, f"{self.device} ")
+        return decode_fields(spec, raw, DatagramRejected, frame or payload, self._prefix_text)
 
     def lsb(self, message: str, field: str) -> float:
         """One wire step of a field, in SI."""
@@ -283,7 +283,7 @@ class DatagramDecoder:
                 self._dropping = False
                 spec = self.codec.by_id[datagram[0]]
                 try:
-                    out.append(self.codec.decode_payload(spec, datagram[1:-2], datagram.hex().upper()))
+                    out.append(self.codec.decode_payload(spec, datagram[1:-2], datagram))
                     c["datagrams"] += 1
                 except DatagramRejected as exc:
                     c["value_errors"] += 1

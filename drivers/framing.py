@@ -33,6 +33,8 @@ ESC_ESC = 0xDD
 
 _END_B = bytes([END])
 _ESC_B = bytes([ESC])
+_ESCAPED_END = bytes([ESC, ESC_END])
+_ESCAPED_ESC = bytes([ESC, ESC_ESC])
 
 
 def crc16(data: bytes | bytearray | memoryview) -> int:
@@ -42,27 +44,30 @@ def crc16(data: bytes | bytearray | memoryview) -> int:
 
 def escape(body: bytes) -> bytes:
     """A full SLIP frame of ``body``: END, body with END/ESC escaped, END."""
-    return _END_B + body.replace(_ESC_B, bytes([ESC, ESC_ESC])).replace(_END_B, bytes([ESC, ESC_END])) + _END_B
+    return _END_B + body.replace(_ESC_B, _ESCAPED_ESC).replace(_END_B, _ESCAPED_END) + _END_B
 
 
 def unescape(chunk: bytes | bytearray) -> bytes | None:
-    """The body of an escaped chunk (no END bytes in it), or None for an invalid escape."""
+    """The body of an escaped chunk (no END bytes in it), or None for an invalid escape.
+
+    Split at every ESC: each piece after the first must start with ESC_END or ESC_ESC (an empty piece is an ESC
+    followed by another ESC, or by nothing), which stands for END or ESC; the rest of the piece is plain bytes."""
     if ESC not in chunk:
         return bytes(chunk)
-    out = bytearray()
-    it = iter(chunk)
-    for b in it:
-        if b != ESC:
-            out.append(b)
-            continue
-        nxt = next(it, None)
-        if nxt == ESC_END:
-            out.append(END)
-        elif nxt == ESC_ESC:
-            out.append(ESC)
+    pieces = bytes(chunk).split(_ESC_B)
+    out = [pieces[0]]
+    for piece in pieces[1:]:
+        if not piece:
+            return None
+        code = piece[0]
+        if code == ESC_END:
+            out.append(_END_B)
+        elif code == ESC_ESC:
+            out.append(_ESC_B)
         else:
             return None
-    return bytes(out)
+        out.append(piece[1:])
+    return b"".join(out)
 
 
 def take_frame(buf: bytes | bytearray, max_body: int) -> tuple[int, bytes | None, str | None]:

@@ -9,6 +9,7 @@ pieces, so one field type table, one range check and one error sentence serve ev
 from __future__ import annotations
 
 import math
+import struct
 import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -19,7 +20,7 @@ from typing import Any
 from drivers.errors import EncodeError
 
 __all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "load_icd",
-           "wire_value"]
+           "wire_value", "wire_values"]
 
 HOST_TO_DEVICE = "host->device"
 DEVICE_TO_HOST = "device->host"
@@ -88,6 +89,20 @@ class MessageSpec:
         """The whole frame: payload and overhead, before any escaping."""
         return self.payload_len + self.overhead
 
+    @cached_property  # built once: every frame is packed and unpacked with it
+    def packer(self) -> struct.Struct:
+        """The payload's ``struct.Struct`` (``fmt``)."""
+        return struct.Struct(self.fmt)
+
+    @cached_property
+    def tuple_attrs(self) -> tuple[tuple[str, int], ...]:
+        """``(attr, length)`` of every tuple attribute (fields with an ``index``), in field order."""
+        lengths: dict[str, int] = {}
+        for f in self.fields:
+            if f.index is not None:
+                lengths[f.attr] = max(lengths.get(f.attr, 0), f.index + 1)
+        return tuple(lengths.items())
+
 
 def load_icd(path: str | Path) -> dict[str, Any]:
     """The ICD TOML as a dict."""
@@ -127,22 +142,42 @@ def field_specs(m: dict[str, Any], enums: dict[str, tuple[str, ...]], where: str
 # -- encoding one field ---------------------------------------------------------------------------
 
 
-def wire_value(f: FieldSpec, msg: Any, where: str, byte_order: str = "little") -> Any:
+def wire_values(spec: MessageSpec, msg: Any, message: str, byte_order: str = "little") -> list[Any]:
+    """The wire values of every field of ``msg`` (a ``spec.cls``), in payload order (:func:`wire_value`)."""
+    return [wire_value(f, msg, message, byte_order) for f in spec.fields]
+
+
+def wire_value(f: FieldSpec, msg: Any, message: str, byte_order: str = "little") -> Any:
     """The wire value of field ``f`` of ``msg`` (an int, a float, or 3 bytes for i24); EncodeError naming
-    ``where`` (the device, message and field), the value and what is allowed."""
+    ``message`` (the device and message) and the field, the value and what is allowed.
+
+    A plain int or float inside its field takes the straight way; anything else goes through the checks that
+    convert it or say what is wrong."""
     if f.bits is not None:
-        return _flags(f, msg, where)
+        return _flags(f, msg, f"{message}.{f.name}")
     value = getattr(msg, f.attr)
-    if f.index is not None:
-        value = _element(f, value, where)
+    index = f.index
+    if index is not None:
+        try:
+            value = value[index]
+        except (TypeError, IndexError):
+            raise _not_a_sequence(f, value, message) from None
     if f.enum is not None:
-        return _enum_index(f, value, where)
-    wire = _number(value, where)
+        return _enum_index(f, value, f"{message}.{f.name}")
+    kind = type(value)
+    wire = value if kind is float or kind is int else _number(value, f"{message}.{f.name}")
     if f.scale != 1.0:
         wire = wire / f.scale
     if f.is_float:
-        return _float_wire(f, wire, value, where)
-    n = _int_wire(f, wire, value, where)
+        if type(wire) is float and f.lo <= wire <= f.hi and math.isfinite(wire):
+            return wire
+        return _float_wire(f, wire, value, f"{message}.{f.name}")
+    if type(wire) is int:
+        n = wire
+    else:
+        n = round(wire) if math.isfinite(wire) else None
+    if n is None or not f.lo <= n <= f.hi:
+        n = _int_wire(f, wire, value, f"{message}.{f.name}")  # says why (it does not return here)
     if f.type == "i24":
         return n.to_bytes(3, byte_order, signed=True)
     return n
@@ -152,18 +187,15 @@ def _flags(f: FieldSpec, msg: Any, where: str) -> int:
     v = 0
     for i, bit in enumerate(f.bits or ()):
         flag = getattr(msg, bit)
-        if not isinstance(flag, bool | int) and type(flag).__name__ != "bool_":
+        if type(flag) is not bool and not isinstance(flag, int) and type(flag).__name__ != "bool_":
             raise EncodeError(f"{where}: {bit} = {flag!r} is not a flag; allowed: True or False.")
         if flag:
             v |= 1 << i
     return v
 
 
-def _element(f: FieldSpec, value: Any, where: str) -> Any:
-    try:
-        return value[f.index]
-    except (TypeError, IndexError):
-        raise EncodeError(f"{where}: {f.attr} must be a sequence with an element {f.index}; got {value!r}.") from None
+def _not_a_sequence(f: FieldSpec, value: Any, message: str) -> EncodeError:
+    return EncodeError(f"{message}.{f.name}: {f.attr} must be a sequence with an element {f.index}; got {value!r}.")
 
 
 def _enum_index(f: FieldSpec, value: Any, where: str) -> int:
@@ -264,31 +296,35 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
     ``frame`` is the frame in hex, or its bytes (made hex only when a value is refused).
     """
     kw: dict[str, Any] = {}
-    tuples: dict[str, dict[int, Any]] = {}
+    tuple_attrs = spec.tuple_attrs
+    for attr, n in tuple_attrs:  # filled element by element below, made tuples at the end
+        kw[attr] = [None] * n
     for f, v in zip(spec.fields, raw, strict=True):
-        if f.bits is not None:
-            if v >> len(f.bits):
+        bits = f.bits
+        if bits is not None:
+            if v < 0 or v > f.hi:  # a bit past the ICD's flags (hi: every defined bit set)
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = 0x{v:X} has undefined bits set",
                                f"<= 0x{f.hi:X}", f"0x{v:X}")
-            for i, bit in enumerate(f.bits):
+            for i, bit in enumerate(bits):
                 kw[bit] = bool(v >> i & 1)
             continue
-        if f.enum is not None:
-            if v >= len(f.enum):
+        enum = f.enum
+        if enum is not None:
+            if v > f.hi:  # hi: the last entry of the table
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = {v} is not in its table",
-                               f"0..{len(f.enum) - 1}", v)
-            val: Any = f.enum[v]
+                               f"0..{len(enum) - 1}", v)
+            val: Any = enum[v]
         else:
             if not (f.lo <= v <= f.hi and (not f.is_float or math.isfinite(v))):
                 raise _refused(exc, frame, f"{prefix}{spec.name}.{f.name} = {v!r} is outside its range",
                                f"a finite number from {f.lo:g} to {f.hi:g}" if f.is_float else f"{f.lo}..{f.hi}", v)
             val = v * f.scale if f.scale != 1.0 else v
-        if f.index is not None:
-            tuples.setdefault(f.attr, {})[f.index] = val
-        else:
+        if f.index is None:
             kw[f.attr] = val
-    for attr, items in tuples.items():
-        kw[attr] = tuple(items[i] for i in range(len(items)))
+        else:
+            kw[f.attr][f.index] = val
+    for attr, _ in tuple_attrs:
+        kw[attr] = tuple(kw[attr])
     if spec.norms:
         _check_norms(spec, kw, exc, frame, prefix)
     return spec.cls(**kw)
@@ -297,10 +333,19 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
 def _check_norms(spec: MessageSpec, kw: dict[str, Any], exc: Callable[..., Exception], frame: str | bytes,
                  prefix: str) -> None:
     for attr, tol in spec.norms:
-        norm = math.sqrt(sum(x * x for x in kw[attr]))
+        norm = norm2(kw[attr])
         if not abs(norm - 1.0) <= tol:
             raise _refused(exc, frame, f"{prefix}{spec.name}.{attr} has norm {norm:.9g}, not a unit quaternion",
                            f"1 within {tol:g}", f"{norm:.9g}")
+
+
+def norm2(values: Sequence[Any]) -> float:
+    """The Euclidean norm of a few numbers, summed in order (a unit-norm check on a decoded or encoded tuple)."""
+    total = 0.0
+    for x in values:
+        x = float(x)
+        total += x * x
+    return math.sqrt(total)
 
 
 def _refused(exc: Callable[..., Exception], frame: str | bytes, reason: str, expected: str, computed: Any) -> Exception:

@@ -149,6 +149,28 @@ class FdPort:
         return f"FdPort({self.name!r})"
 
 
+class _LineCondition(threading.Condition):
+    """The lock of one in-process line (:func:`pipe_pair`) and how many threads wait on it: an end wakes the other
+    only when one waits (the stand's own loop, the usual reader and writer, never does)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waiting = 0
+
+    def wait_counted(self, timeout: float | None) -> bool:
+        """``wait(timeout)``, counted while it waits (the lock held, as for ``wait``)."""
+        self.waiting += 1
+        try:
+            return self.wait(timeout)
+        finally:
+            self.waiting -= 1
+
+    def wake(self) -> None:
+        """``notify_all()`` when a thread waits (the lock held)."""
+        if self.waiting:
+            self.notify_all()
+
+
 class PipePort:
     """One end of an in-process serial line (:func:`pipe_pair`), with the parts of the ``serial.Serial`` API
     drivers use and no file descriptor.
@@ -160,7 +182,7 @@ class PipePort:
     bytes or the other end closes). Both ends may be used from different threads.
     """
 
-    def __init__(self, name: str, rx: bytearray, tx: bytearray, cond: threading.Condition, capacity: int,
+    def __init__(self, name: str, rx: bytearray, tx: bytearray, cond: _LineCondition, capacity: int,
                  timeout: float | None = 0.0, write_timeout: float = 1.0) -> None:
         self.name = self.port = name
         self._rx, self._tx, self._cond, self.capacity = rx, tx, cond, capacity
@@ -182,17 +204,17 @@ class PipePort:
                     left = None if deadline is None else deadline - time.monotonic()
                     if left is not None and left <= 0:
                         break
-                    self._cond.wait(left)
+                    self._cond.wait_counted(left)
         with self._cond:
             out = bytes(rx[:size])
             del rx[:size]
-            self._cond.notify_all()
+            self._cond.wake()
         return out
 
     def write(self, data: bytes) -> int:
         data = bytes(data)
         view, tx, cond = memoryview(data), self._tx, self._cond
-        deadline = time.monotonic() + self.write_timeout
+        deadline = None  # the write timeout runs from the first wait for room
         with cond:
             while view:
                 if not self.is_open:
@@ -201,10 +223,12 @@ class PipePort:
                 if room > 0:
                     tx += view[:room]
                     view = view[room:]
-                    cond.notify_all()
+                    cond.wake()
                     continue
+                if deadline is None:
+                    deadline = time.monotonic() + self.write_timeout
                 left = deadline - time.monotonic()
-                if left <= 0 or not cond.wait(left) and self.capacity - len(tx) <= 0:
+                if left <= 0 or not cond.wait_counted(left) and self.capacity - len(tx) <= 0:
                     err = DeviceTimeoutError(
                         f"{self.name}: {len(view)} of {len(data)} bytes could not be written within "
                         f"{self.write_timeout:g} s; the other end is not reading.",
@@ -219,12 +243,12 @@ class PipePort:
     def reset_input_buffer(self) -> None:
         with self._cond:
             self._rx.clear()
-            self._cond.notify_all()
+            self._cond.wake()
 
     def close(self) -> None:
         with self._cond:
             self.is_open = False
-            self._cond.notify_all()
+            self._cond.wake()
 
     def __repr__(self) -> str:
         return f"PipePort({self.name!r})"
@@ -235,7 +259,7 @@ def pipe_pair(name: str = "pipe", capacity: int = 65536) -> tuple[PipePort, Pipe
     round, each direction holding at most ``capacity`` bytes. Close both ends when done."""
     if not (isinstance(capacity, int) and 64 <= capacity <= 1 << 24):
         raise ValueError(f"pipe_pair capacity = {capacity!r}; allowed 64 to 16777216 bytes.")
-    cond = threading.Condition()
+    cond = _LineCondition()
     a_to_b, b_to_a = bytearray(), bytearray()
     a = PipePort(f"{name}-a", b_to_a, a_to_b, cond, capacity)
     b = PipePort(f"{name}-b", a_to_b, b_to_a, cond, capacity)

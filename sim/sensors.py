@@ -11,6 +11,7 @@ Sun's signal to a nadir-facing coarse head; a known limitation).
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -133,10 +134,11 @@ def gauss_markov_adev(tau_s, sigma, correlation_s):
 
 
 class GyroState(NamedTuple):
-    """The gyro's slowly varying biases after the last sample (rad/s, sensor axes)."""
+    """The gyro's slowly varying biases after the last sample (rad/s, sensor axes): 3 floats each, an array
+    after a batch of samples, a tuple after one; either is taken back."""
 
-    rate_random_walk: np.ndarray
-    gauss_markov: np.ndarray
+    rate_random_walk: np.ndarray | tuple
+    gauss_markov: np.ndarray | tuple
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -217,6 +219,7 @@ class Gyro:
         object.__setattr__(self, "_gm", (math.exp(-x), gm_step))
         object.__setattr__(self, "_white", self.arw_rad_sqrt_s / math.sqrt(self.sample_period_s))
         object.__setattr__(self, "_walk", self.rrw_rad_s_sqrt_s * math.sqrt(self.sample_period_s))
+        object.__setattr__(self, "_bias_floats", tuple(self.bias_rad_s.tolist()))
 
     @property
     def gauss_markov_sigma_rad_s(self) -> float:
@@ -236,12 +239,13 @@ class Gyro:
 
     def errors(self, n: int, rng: np.random.Generator | None, state: GyroState) -> tuple[np.ndarray, GyroState]:
         """Bias plus noise of ``n`` consecutive samples, ``(n, 3)`` rad/s, and the state after them."""
+        if n == 1:  # one sample per tick in the loop: the same arithmetic in the same order, on floats
+            err, state = self._one(rng, state)
+            return np.array(err)[None, :], state
         out = np.broadcast_to(self.bias_rad_s, (n, 3)).copy()
         if rng is None:
             return out + state.rate_random_walk + state.gauss_markov, state
         w = rng.standard_normal((n, 3, 3))
-        if n == 1:  # one sample per tick in the loop: the same arithmetic in the same order, minus the batch tools
-            return self._one(out[0], w[0], state)
         if self.arw_rad_sqrt_s > 0:
             out += w[:, 0, :] * self._white
         rrw = state.rate_random_walk
@@ -253,7 +257,7 @@ class Gyro:
             out += walk
         else:
             out += rrw
-        gm = state.gauss_markov
+        gm = np.asarray(state.gauss_markov, dtype=float)
         if self.bias_instability_rad_s > 0:
             phi, c = self._gm
             # b_k = phi b_(k-1) + c w_k, the exact discretisation of the continuous process
@@ -264,19 +268,25 @@ class Gyro:
             out += gm
         return out, GyroState(rrw, gm)
 
-    def _one(self, out: np.ndarray, w: np.ndarray, state: GyroState) -> tuple[np.ndarray, GyroState]:
+    def _one(self, rng: np.random.Generator | None, state: GyroState) -> tuple[tuple, GyroState]:
+        """Bias plus noise of one sample (3 floats) and the state after it: the arithmetic of :meth:`errors` in the
+        same order, from the same 9 draws, on floats."""
+        bx, by, bz = self._bias_floats
+        rx, ry, rz = map(float, state.rate_random_walk)  # floats, also from an array state
+        gx, gy, gz = map(float, state.gauss_markov)
+        if rng is None:
+            return (bx + rx + gx, by + ry + gy, bz + rz + gz), state
+        n0, n1, n2, n3, n4, n5, n6, n7, n8 = rng.standard_normal(9).tolist()
         if self.arw_rad_sqrt_s > 0:
-            out += w[0] * self._white
-        rrw = state.rate_random_walk
+            white = self._white
+            bx, by, bz = bx + n0 * white, by + n1 * white, bz + n2 * white
         if self.rrw_rad_s_sqrt_s > 0:
-            rrw = rrw + w[1] * self._walk
-        out += rrw
-        gm = state.gauss_markov
+            walk = self._walk
+            rx, ry, rz = rx + n3 * walk, ry + n4 * walk, rz + n5 * walk
         if self.bias_instability_rad_s > 0:
             phi, c = self._gm
-            gm = c * w[2] + phi * gm
-        out += gm
-        return out[None, :], GyroState(rrw, gm)
+            gx, gy, gz = c * n6 + phi * gx, c * n7 + phi * gy, c * n8 + phi * gz
+        return (bx + rx + gx, by + ry + gy, bz + rz + gz), GyroState((rx, ry, rz), (gx, gy, gz))
 
     def measure(self, omega_BN_B, rng: np.random.Generator | None, state: GyroState | None = None):
         """Readings of consecutive samples: ``(omega_S, saturated, state)``.
@@ -289,6 +299,9 @@ class Gyro:
         w = np.asarray(omega_BN_B, dtype=float)
         if w.shape[-1:] != (3,) or w.ndim > 2 or not np.all(np.isfinite(w)):
             raise ValueError(f"gyro omega_BN_B must be finite rates of shape (3,) or (n, 3); got shape {w.shape}.")
+        if w.ndim == 1:
+            y1, saturated1, state = self.measure_one(w.tolist(), rng, state)
+            return np.array(y1), np.array(saturated1), state
         if state is None:
             state = self.initial_state(rng)
         w2 = np.atleast_2d(w)
@@ -298,9 +311,30 @@ class Gyro:
         y = np.clip(y, -self.range_rad_s, self.range_rad_s)
         if self.lsb_rad_s > 0:
             y = np.round(y / self.lsb_rad_s) * self.lsb_rad_s
-        if w.ndim == 1:
-            return y[0], saturated[0], state
         return y, saturated, state
+
+    def measure_one(self, omega_BN_B, rng: np.random.Generator | None, state: GyroState | None = None):
+        """One reading, ``(omega_S, saturated, state)`` as 3 floats and 3 bools: what :meth:`measure` gives for
+        one sample, bit for bit (the loop measures one sample per tick, on floats).
+
+        ``omega_BN_B``: 3 finite floats, the true body rate (rad/s) at the measurement time."""
+        wx, wy, wz = omega_BN_B
+        if not (math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)):
+            raise ValueError(f"gyro omega_BN_B must be finite rates; got {omega_BN_B!r}.")
+        if state is None:
+            state = self.initial_state(rng)
+        (ex, ey, ez), state = self._one(rng, state)
+        # The input matrix stays one numpy product: BLAS may fuse its multiplies and adds, and one sample must
+        # read exactly as it does in a batch.
+        mx, my, mz = (np.array((wx, wy, wz)) @ self._input_T).tolist()
+        x, y, z = mx + ex, my + ey, mz + ez
+        r = self.range_rad_s
+        saturated = (abs(x) > r, abs(y) > r, abs(z) > r)
+        x, y, z = min(max(x, -r), r), min(max(y, -r), r), min(max(z, -r), r)
+        lsb = self.lsb_rad_s
+        if lsb > 0:
+            x, y, z = round(x / lsb) * lsb, round(y / lsb) * lsb, round(z / lsb) * lsb
+        return (x, y, z), saturated, state
 
 
 class DelayLine:
@@ -316,27 +350,28 @@ class DelayLine:
             raise ValueError(f"DelayLine span_s = {span_s!r} must be a finite number >= 0.")
         self.span_s = float(span_s)
         self._t: list[float] = []
-        self._x: list[np.ndarray] = []
+        self._x: list[tuple] = []
 
     def push(self, t_s: float, x) -> None:
         if self._t and not t_s > self._t[-1]:
             raise ValueError(f"DelayLine.push: t_s = {t_s!r} must be after the last sample at {self._t[-1]!r}.")
         self._t.append(float(t_s))
-        self._x.append(np.asarray(x, dtype=float))
+        self._x.append(tuple(map(float, x)))
         cut = 0
         while cut + 1 < len(self._t) and self._t[cut + 1] <= t_s - self.span_s:
             cut += 1
         if cut:
             del self._t[:cut], self._x[:cut]
 
-    def at(self, t_s: float) -> np.ndarray:
+    def at(self, t_s: float) -> tuple:
+        """The signal at ``t_s``, a tuple of floats."""
         if not self._t:
             raise ValueError("DelayLine.at: no sample has been pushed yet.")
         t = self._t
         if t_s <= t[0]:
-            return self._x[0].copy()
+            return self._x[0]
         if t_s >= t[-1]:
-            return self._x[-1].copy()
-        i = int(np.searchsorted(t, t_s))
+            return self._x[-1]
+        i = bisect_left(t, t_s)
         f = (t_s - t[i - 1]) / (t[i] - t[i - 1])
-        return self._x[i - 1] + f * (self._x[i] - self._x[i - 1])
+        return tuple([a + f * (b - a) for a, b in zip(self._x[i - 1], self._x[i], strict=True)])

@@ -118,6 +118,7 @@ class GyroEmulator(DatagramEmulator):
         self._grid0 = 0.0  # sample k of the current period is due at _grid0 + k * period_s
         self._k = 1
         self._seq = 0
+        self._latency_s = round(cfg.latency_s * 1e6) * 1e-6  # on the datagram's 1 us grid
         #: The newest RATE sent, or None.
         self.latest_rate: GyroRate | None = None
 
@@ -161,17 +162,19 @@ class GyroEmulator(DatagramEmulator):
         """The RATE the gyro reports for sample time ``t_k`` (advances the sample counter)."""
         omega = self.source(t_k)
         try:
-            wx, wy, wz = (float(v) for v in omega)
+            wx, wy, wz = omega
+            wx, wy, wz = float(wx), float(wy), float(wz)
             if not (math.isfinite(wx) and math.isfinite(wy) and math.isfinite(wz)):
                 raise ValueError
         except (TypeError, ValueError):
             raise ValueError(f"rate_source({t_k!r}) must return 3 finite floats (rad/s, sensor axes); "
                              f"got {omega!r}.") from None
         r = self.range_rad_s
-        sat = (abs(wx) > r, abs(wy) > r, abs(wz) > r)
-        if sat[0] or sat[1] or sat[2]:
+        sat_x, sat_y, sat_z = abs(wx) > r, abs(wy) > r, abs(wz) > r
+        saturated = sat_x or sat_y or sat_z
+        if saturated:
             self.counters["saturations"] += 1
-            wx, wy, wz = (min(max(w, -r), r) for w in (wx, wy, wz))
+            wx, wy, wz = min(max(wx, -r), r), min(max(wy, -r), r), min(max(wz, -r), r)
         startup = t_k - (self._t_on or 0.0) < self.config.startup_time_s - _EPS_S
         lsb = self.codec.rate_lsb_rad_s  # type: ignore[attr-defined]
         seq = self._seq
@@ -179,12 +182,12 @@ class GyroEmulator(DatagramEmulator):
         self.counters["samples"] += 1
         msg = GyroRate(
             omega_rad_s=(round(wx / lsb) * lsb, round(wy / lsb) * lsb, round(wz / lsb) * lsb),
-            valid=not (startup or any(sat)),
-            saturated_x=sat[0], saturated_y=sat[1], saturated_z=sat[2],
+            valid=not (startup or saturated),
+            saturated_x=sat_x, saturated_y=sat_y, saturated_z=sat_z,
             startup=startup,
             time_synced=self.time_synced,
             seq=seq,
-            latency_s=round(self.config.latency_s * 1e6) * 1e-6,
+            latency_s=self._latency_s,
             time_us=self.device_time_us(t_k),
         )
         self.latest_rate = msg

@@ -33,7 +33,9 @@ from drivers.icd_codec import (
     decode_fields,
     field_specs,
     index_messages,
+    norm2,
     wire_value,
+    wire_values,
 )
 from drivers.icd_codec import load_icd as _load_icd
 
@@ -196,6 +198,24 @@ class FrameRejected(ProtocolError):
         self.kind = kind
 
 
+def _hex(frame: bytes) -> str:
+    """A frame as an error names it (made only when a frame is refused)."""
+    return frame.hex().upper()
+
+
+def _field_error(spec: MessageSpec, msg: Any, exc: Exception) -> EncodeError:
+    """The field of ``msg`` whose value cannot be encoded at all (``exc``, not an EncodeError), named."""
+    for f in spec.fields:
+        try:
+            wire_value(f, msg, spec.name)
+        except EncodeError:
+            continue
+        except Exception as field_exc:  # noqa: BLE001 - this field's value is the odd object
+            return EncodeError(f"{spec.name}.{f.name}: {f.attr} = {getattr(msg, f.attr, None)!r} cannot be "
+                               f"encoded ({type(field_exc).__name__}: {field_exc}).")
+    return EncodeError(f"{spec.name}: cannot be encoded ({type(exc).__name__}: {exc}).")
+
+
 class NackError(DriverError):
     """The device refused a command with a NACK: ``command`` (name), ``error`` (name from the ICD)."""
 
@@ -348,22 +368,21 @@ class StarTrackerCodec:
 
     def payload(self, msg: Message) -> bytes:
         """The payload bytes of ``msg`` (no address, id or CRC); EncodeError for anything the ICD refuses."""
-        spec = self.spec_of(msg)
-        values = []
-        for f in spec.fields:
-            try:
-                values.append(wire_value(f, msg, f"{spec.name}.{f.name}"))
-            except EncodeError:
-                raise
-            except Exception as exc:  # noqa: BLE001 - any odd object (an array as a flag, a huge int) names its field
-                raise EncodeError(f"{spec.name}.{f.name}: {f.attr} = {getattr(msg, f.attr, None)!r} cannot be "
-                                  f"encoded ({type(exc).__name__}: {exc}).") from None
+        return self._payload(self.spec_of(msg), msg)
+
+    def _payload(self, spec: MessageSpec, msg: Message) -> bytes:
+        try:
+            values = wire_values(spec, msg, spec.name)
+        except EncodeError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any odd object (an array as a flag, a huge int) names its field
+            raise _field_error(spec, msg, exc) from None
         for attr, tol in spec.norms:
-            norm = math.sqrt(sum(float(x) ** 2 for x in getattr(msg, attr)))
+            norm = norm2(getattr(msg, attr))
             if not abs(norm - 1.0) <= tol:
                 raise EncodeError(f"{spec.name}.{attr} = {getattr(msg, attr)!r} has norm {norm!r}; it must be a unit "
                                   f"quaternion within {tol:g}.")
-        return struct.pack(spec.fmt, *values)
+        return spec.packer.pack(*values)
 
     def encode_body(self, msg: Message, address: int | None = None) -> bytes:
         """``address | id | payload | CRC``, unescaped."""
@@ -371,7 +390,7 @@ class StarTrackerCodec:
         if not (isinstance(address, int) and 0 <= address <= 0xFF):
             raise EncodeError(f"Star tracker address = {address!r} is not allowed; allowed: 0 to 255.")
         spec = self.spec_of(msg)
-        head = bytes((address, spec.id)) + self.payload(msg)
+        head = bytes((address, spec.id)) + self._payload(spec, msg)
         return head + crc16(head).to_bytes(2, "little")
 
     def encode(self, msg: Message, address: int | None = None) -> bytes:
@@ -383,31 +402,31 @@ class StarTrackerCodec:
     def decode_body(self, body: bytes, address: int | None = None, direction: str | None = None) -> Message:
         """Decode one unescaped body. ``address``: the only address accepted (None = any);
         ``direction``: only messages of this direction are accepted (None = both)."""
-        hx = body.hex().upper()
         if len(body) < 4:
-            raise FrameRejected("short", "star tracker frame too short", frame_hex=hx,
+            raise FrameRejected("short", "star tracker frame too short", frame_hex=_hex(body),
                                 expected=">= 4 bytes", computed=f"{len(body)} bytes")
         got = int.from_bytes(body[-2:], "little")
         calc = crc16(body[:-2])
         if got != calc:
-            raise FrameRejected("crc", "star tracker frame with a bad CRC-16", frame_hex=hx,
+            raise FrameRejected("crc", "star tracker frame with a bad CRC-16", frame_hex=_hex(body),
                                 expected=f"0x{got:04X} (received)", computed=f"0x{calc:04X}")
         if address is not None and body[0] != address:
-            raise FrameRejected("address", "star tracker frame for another address", frame_hex=hx,
+            raise FrameRejected("address", "star tracker frame for another address", frame_hex=_hex(body),
                                 expected=f"0x{address:02X}", computed=f"0x{body[0]:02X}")
         spec = self.by_id.get(body[1])
         if spec is None:
-            raise FrameRejected("unknown_id", f"unknown star tracker message id 0x{body[1]:02X}", frame_hex=hx,
+            raise FrameRejected("unknown_id", f"unknown star tracker message id 0x{body[1]:02X}", frame_hex=_hex(body),
                                 expected=f"one of {sorted(hex(i) for i in self.by_id)}", computed=f"0x{body[1]:02X}")
         if direction is not None and spec.direction != direction:
             raise FrameRejected("direction", f"message {spec.name} is sent {spec.direction}, not {direction}",
-                                frame_hex=hx)
+                                frame_hex=_hex(body))
         payload = body[2:-2]
         if len(payload) != spec.payload_len:
-            raise FrameRejected("length", f"{spec.name} payload of the wrong length", frame_hex=hx,
+            raise FrameRejected("length", f"{spec.name} payload of the wrong length", frame_hex=_hex(body),
                                 expected=f"{spec.payload_len} bytes", computed=f"{len(payload)} bytes")
-        return self.decode_payload(spec, payload, hx)
+        return self.decode_payload(spec, payload, body)
 
-    def decode_payload(self, spec: MessageSpec, payload: bytes, hx: str = "") -> Message:
-        """The message of one frame's payload; FrameRejected for a value outside its table or range."""
-        return decode_fields(spec, struct.unpack(spec.fmt, payload), FrameRejected, hx or payload)
+    def decode_payload(self, spec: MessageSpec, payload: bytes, frame: str | bytes = b"") -> Message:
+        """The message of one frame's payload; FrameRejected for a value outside its table or range, naming
+        ``frame`` (the whole frame, in hex or as bytes; the payload when not given)."""
+        return decode_fields(spec, spec.packer.unpack(payload), FrameRejected, frame or payload)

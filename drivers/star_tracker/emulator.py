@@ -305,12 +305,14 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         p = self.params
         truth = self.source(t_e)
         try:
-            q = [float(x) for x in truth.q_TN]
-            n = math.sqrt(sum(x * x for x in q))
-            if len(q) != 4 or not math.isfinite(n) or n < 0.5:
+            qw, qx, qy, qz = truth.q_TN
+            qw, qx, qy, qz = float(qw), float(qx), float(qy), float(qz)
+            n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            if not math.isfinite(n) or n < 0.5:
                 raise ValueError
-            q = [x / n for x in q]
-            wx, wy, wz = (float(x) for x in truth.omega_TN_T)
+            q = (qw / n, qx / n, qy / n, qz / n)
+            wx, wy, wz = truth.omega_TN_T
+            wx, wy, wz = float(wx), float(wy), float(wz)
             rate = math.sqrt(wx * wx + wy * wy + wz * wz)
             if not math.isfinite(rate):
                 raise ValueError
@@ -354,7 +356,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         valid = good and self.mode == "TRACKING"
         sc = cfg.noise_cross_arcsec * ARCSEC
         sr = cfg.noise_roll_arcsec * ARCSEC
-        n1, n2, n3 = rng.standard_normal(3)
+        n1, n2, n3 = rng.standard_normal(3).tolist()
         b = self._bias
         dq = small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
         qm = hamilton(q, dq)

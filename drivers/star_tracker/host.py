@@ -185,9 +185,9 @@ class StarTrackerHost(SerialHost):
 
     def _feed(self, data: bytes) -> int:
         dec = self._decoder
-        before = {k: dec.counters[k] for k in ("oversize", "bad_escape")}
+        oversize, bad_escape = dec.counters["oversize"], dec.counters["bad_escape"]
         bodies = dec.feed(data)
-        for k, v in before.items():
+        for k, v in (("oversize", oversize), ("bad_escape", bad_escape)):
             if dec.counters[k] != v:
                 self.counters[f"rejected_{k}"] += dec.counters[k] - v
                 self.last_rejected = f"{dec.counters[k] - v} SLIP chunk(s) dropped as {k.replace('_', ' ')}."

@@ -160,7 +160,8 @@ def in_field(direction: Sequence[float] | None, radius: float, exclusion: float)
     the boresight (+z)? A body the stand left out (None) never is."""
     if direction is None:
         return False
-    x, y, z = (float(v) for v in direction)
+    x, y, z = direction
+    x, y, z = float(x), float(y), float(z)
     norm = math.sqrt(x * x + y * y + z * z)
     if not norm > 0:
         return False

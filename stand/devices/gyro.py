@@ -175,7 +175,7 @@ def rate_source(spec: GyroSpec, ctx: BuildContext):
         line.push(t_s, truth.w)
 
     def source(t_k):
-        y, _, state[0] = model.measure(line.at(t_k - delay), rng, state[0])
+        y, _, state[0] = model.measure_one(line.at(t_k - delay), rng, state[0])
         return y
 
     return push, source
@@ -245,6 +245,8 @@ class EmulatedGyro(_GyroDevice):
             self._push(t_s)
         emu, host = self.emulator, self.host
         emu.service(t_s)
+        # What a pipe line holds is there at once: the host takes it now, so settling only checks the counts.
+        host.poll()
         settle_serial(emu, host, self.name, "RATE datagram")
 
 

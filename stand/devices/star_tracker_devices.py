@@ -102,12 +102,13 @@ class TrackerDevice(SerialDevice):
         self.observer = FrameObserver()
         self._host = None
 
-    def _new_solution(self):
+    def _new_solution(self, poll: bool = True):
         """The newest solution on the link since the last call, as the stand observes it beside the flight code
         (:class:`drivers.framing.FrameObserver` on the host's framing layer); ``take_solution`` stays theirs. The
-        poll only moves what arrived on the line through the host's framing layer, as the flight code's next call
-        would; nothing is read from the host. A served tracker has no host: its observer is on the emulator."""
-        if self._host is not None:
+        poll (unless the caller just polled) only moves what arrived on the line through the host's framing layer,
+        as the flight code's next call would; nothing is read from the host. A served tracker has no host: its
+        observer is on the emulator."""
+        if poll and self._host is not None:
             self._host.poll()
         n = self.observer.count(Solution)
         if n == self._seen:
@@ -130,8 +131,12 @@ class TrackerDevice(SerialDevice):
     def _score(self, sol, t_exp: float) -> None:
         self.last_solution = sol
         self.solutions += 1
-        for flag in FLAG_BITS:
-            self.flags[flag] += bool(getattr(sol, flag))
+        bits = 0  # the ICD's flags byte; the flags that make a solution invalid are counted
+        for flag, bit in ICD_FLAG_BITS.items():
+            if getattr(sol, flag):
+                bits |= bit
+                if flag in FLAG_BITS:
+                    self.flags[flag] += 1
         q_true = self.truth_at.pop(round(t_exp * 1e6), None)
         cross = roll = math.nan
         if q_true is not None:
@@ -139,7 +144,6 @@ class TrackerDevice(SerialDevice):
         if sol.valid:
             self.valid += 1
             self.errors.append((t_exp, cross, roll))
-        bits = sum(b for f, b in ICD_FLAG_BITS.items() if getattr(sol, f))
         self.last = (t_exp, *sol.q_TN, float(sol.valid), float(MODES.get(sol.mode, -1)), float(bits), cross, roll)
         # Keep the truth log short: exposures older than a few seconds will never be reported.
         if len(self.truth_at) > 256:
@@ -192,6 +196,7 @@ class EmulatedTracker(TrackerDevice):
         from drivers.star_tracker.host import StarTrackerHost
 
         super().__init__(spec, ctx)
+        self._commands_in = -1  # the host's sent count the emulator was last seen to have taken in
         measure = measure_source(spec, ctx, self)
         self.open_emulated(spec.port,
                            lambda end: StarTrackerEmulator(end, measure, _config(spec), ctx.rng,
@@ -227,14 +232,20 @@ class EmulatedTracker(TrackerDevice):
     def publish(self, t_s: float) -> None:
         emu, host = self.emulator, self.host
         faulted = line_faulted(emu)  # frames lost or held on purpose: take what arrived, wait for nothing
-        if host.counters["sent"] > frames_in(emu.counters) and not faulted:
-            self._settle(lambda: emu.port.in_waiting > 0, emu.port)
+        sent = host.counters["sent"]
+        if sent != self._commands_in and not faulted:  # the host sent commands since the emulator last had all
+            if sent > frames_in(emu.counters):
+                self._settle(lambda: emu.port.in_waiting > 0, emu.port)
+            else:
+                self._commands_in = sent  # counts only grow: nothing to check until the host sends again
         emu.service(t_s)
         if faulted:  # duplicates and babble can put the host's count ahead of what the emulator sent
             take_in_arrived(host)
-        elif emu.counters["sent"] > frames_in(host.counters):
-            self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
-        sol = self._new_solution()
+        else:
+            host.poll()  # what a pipe line holds is there at once; settling then only checks the counts
+            if emu.counters["sent"] > frames_in(host.counters):
+                self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
+        sol = self._new_solution(poll=faulted)  # unfaulted, the host has taken in everything sent
         if sol is not None:
             self._score(sol, self.emulator.sim_time_s(sol.time_us))
 

@@ -94,6 +94,33 @@ def test_one_call_or_many_give_identical_readings_and_the_seed_reproduces_them()
     assert not np.array_equal(other, whole)
 
 
+def test_one_sample_at_a_time_on_floats_reads_as_the_batch_bit_for_bit():
+    # The loop measures one sample per tick with measure_one (floats, tuples in and out); every reading, saturation
+    # flag and the state after them must be the batch's, bit for bit, including saturated and quantised samples.
+    g = Gyro(sample_period_s=0.1, arw_rad_sqrt_s=1e-4, rrw_rad_s_sqrt_s=1e-6, bias_instability_rad_s=1e-5,
+             bias_correlation_s=20.0, bias_rad_s=[1e-4, -2e-4, 3e-5], scale_factor=[1e-3, -2e-3, 5e-4],
+             misalignment=[[0.0, 1e-3, -2e-3], [5e-4, 0.0, 1e-3], [-1e-3, 2e-3, 0.0]], lsb_rad_s=1e-7,
+             range_rad_s=0.02, dcm_SB=[[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    w = np.random.default_rng(5).normal(0.0, 0.01, (400, 3))
+    whole, sat_whole, state_whole = g.measure(w, np.random.default_rng(9))
+    rng = np.random.default_rng(9)
+    state = g.initial_state(rng)
+    rows, sats = [], []
+    for sample in w.tolist():
+        y, sat, state = g.measure_one(tuple(sample), rng, state)
+        assert all(type(v) is float for v in y)
+        rows.append(y)
+        sats.append(sat)
+    assert np.array(rows).tobytes() == whole.tobytes()
+    # the range was reached, and flagged
+    assert [list(s) for s in sats] == sat_whole.tolist() and any(any(s) for s in sats)
+    assert np.array(state).tobytes() == np.array(state_whole).tobytes()
+    y1, sat1, _ = g.measure(w[0], np.random.default_rng(9), g.initial_state(np.random.default_rng(9)))
+    assert y1.shape == (3,) and sat1.shape == (3,)  # measure keeps its array interface for one sample
+    with pytest.raises(ValueError, match="omega_BN_B"):
+        g.measure_one((0.0, math.nan, 0.0), None)
+
+
 def test_delay_line_gives_the_rate_one_delay_earlier():
     line = DelayLine(span_s=0.05)
     for k in range(20):
