@@ -259,6 +259,7 @@ class TruthModel:
         self._I = self.body._I
         self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
         self._b_B = (-1, None)  # (k, b_B): a field sensor and the recorder both ask each step
+        self._wheel_speeds: tuple = (None, None, ())  # (w, h_wheels, speeds): see wheel_speeds_rad_s
         # RK4 with both torques written out in one function (rk4_magnetic_gg): the default scenario's step.
         self._fused = integrator == "rk4" and self.magnetic and self.gravity_gradient
         #: The body torque of the "torque" effects (N m, body axes), held over the step (:meth:`effector`).
@@ -287,9 +288,20 @@ class TruthModel:
         """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them (() without wheels)."""
         if self.wheels is None:
             return ()
-        J = self._wheeled._J
-        return tuple(h / j - (ax * self.w[0] + ay * self.w[1] + az * self.w[2])
-                     for h, j, (ax, ay, az) in zip(self.h_wheels, J, self._wheeled._A, strict=True))
+        # Every wheel device reads its speed several times a tick (its motor, its telemetry, its row) and the
+        # controller may read them too: computed once per state. The key is the state tuples themselves, not the
+        # step index, so a state put in from outside (a test setting ``w``) is never answered from the cache.
+        w, h_wheels = self.w, self.h_wheels
+        w_of, h_of, speeds = self._wheel_speeds
+        if w_of is w and h_of is h_wheels:
+            return speeds
+        w0, w1, w2 = w
+        out = []
+        for h, j, (ax, ay, az) in zip(h_wheels, self._wheeled._J, self._wheeled._A, strict=True):
+            out.append(h / j - (ax * w0 + ay * w1 + az * w2))
+        speeds = tuple(out)
+        self._wheel_speeds = (w, h_wheels, speeds)
+        return speeds
 
     def angular_momentum_B(self) -> tuple:
         """Total angular momentum of body and wheels (N m s, body components)."""

@@ -239,7 +239,8 @@ class ReactionWheelEmulator(CanDevice):
         """The RW_SPEED_TLM the wheel reports at ``t_s`` (advances the sample counter)."""
         got = self.source(t_s)
         try:
-            if isinstance(got, (int, float)) or getattr(got, "shape", None) == ():
+            # A number or a 0-d array is a speed; anything else a pair (the stand's source: a tuple, asked first).
+            if not isinstance(got, tuple) and (isinstance(got, (int, float)) or getattr(got, "shape", None) == ()):
                 speed, torque = float(got), self.command_at(t_s).torque_Nm
             else:
                 s, tq = got
