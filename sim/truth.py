@@ -427,13 +427,7 @@ class TruthModel:
         if self._fused:
             self._step_fused(base, dipole_B)
             return
-        # The four stages sample the half-step grid at base, base + 1 (twice) and base + 2; each
-        # point is looked up once per step, field before position as the stages did (the track
-        # fills its chunks in the same order), only what the listed torques use.
-        track = self.track
-        mag, gg = self.magnetic, self.gravity_gradient
-        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
-                                   for i in (base, base + 1, base + 2))
+        self._stage_points = self._points_of_step(base)
         torque = self._stage_torque
         # Stage times are passed relative to the step start so the stage lookup is exact.
         q, w = self._step(self.q, self.w, self.h, torque, 0.0)
@@ -442,6 +436,15 @@ class TruthModel:
         self.q, self.w = q, w
         self.k += 1
         self.t_ns += self.step_ns
+
+    def _points_of_step(self, base: int) -> tuple:
+        """(field, position) at the half-step grid points ``base``, ``base + 1`` and ``base + 2`` that the four
+        stages of the step from ``base`` sample; each point is looked up once per step, field before position (the
+        track fills its chunks in that order), only what the listed torques use (None for the other)."""
+        track, mag, gg = self.track, self.magnetic, self.gravity_gradient
+        return ((track.field(base) if mag else None, track.position(base) if gg else None),
+                (track.field(base + 1) if mag else None, track.position(base + 1) if gg else None),
+                (track.field(base + 2) if mag else None, track.position(base + 2) if gg else None))
 
     def _step_fused(self, base: int, dipole_B) -> None:
         track = self.track
@@ -467,17 +470,13 @@ class TruthModel:
 
     def _step_wheels(self, dipole_B, wheel_torque_Nm) -> None:
         if wheel_torque_Nm is not None:
-            tau = tuple(float(x) for x in wheel_torque_Nm)
-            if len(tau) != self.wheels.n or not all(math.isfinite(x) for x in tau):
+            tau = tuple(map(float, wheel_torque_Nm))
+            if len(tau) != self.wheels.n or not all(map(math.isfinite, tau)):
                 raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite torques "
                                  "in N m, one per wheel.")
             self.wheel_torque_Nm = tau
         self.dipole_B = dipole_B
-        base = 2 * self.k
-        track = self.track
-        mag, gg = self.magnetic, self.gravity_gradient
-        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
-                                   for i in (base, base + 1, base + 2))
+        self._stage_points = self._points_of_step(2 * self.k)
         torque = self._stage_torque
         body = self._wheeled
         q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)

@@ -240,7 +240,8 @@ class ReactionWheelCodec(CanCodec):
 
     @staticmethod
     def _tlm_values(msg: WheelSpeed) -> tuple:
-        return (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
+        # The float itself is the speed (what .speed_rad_s returns, without the property's call).
+        return (float(msg), msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
                 bool(msg.torque_limited))
 
     @staticmethod

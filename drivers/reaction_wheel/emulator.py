@@ -176,7 +176,8 @@ class ReactionWheelEmulator(CanDevice):
 
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
-        self._watchdog(t_s)
+        if t_s >= self._expires_s:  # a command's timeout ran out (most ticks: none is running, or not yet)
+            self._watchdog(t_s)
         return self._drain(t_s)
 
     def _watchdog(self, t_s: float) -> None:
