@@ -146,6 +146,10 @@ class ReactionWheel:
         u = float(u_nm)
         if not (math.isfinite(w) and math.isfinite(u)):
             raise ValueError(f"omega_rad_s = {omega_rad_s!r}, u_nm = {u_nm!r}; both must be finite.")
+        return self._advance(w, u, h)
+
+    def _advance(self, w: float, u: float, h: float) -> tuple[float, float, float]:
+        """:meth:`step` on values already checked: finite floats, ``h`` > 0 (a motor steps its rotor this way)."""
         J = self.inertia
         w_start = w
         remaining = h
@@ -301,7 +305,7 @@ class WheelMotor:
             u *= min(max(room, 0.0), 1.0)
         return u
 
-    def speed_loop_torque(self, state: WheelState, omega_cmd_rad_s: float, h_s: float) -> float:
+    def speed_loop_torque(self, state: tuple[float, float], omega_cmd_rad_s: float, h_s: float) -> float:
         """The torque command of the wheel's speed loop for the next ``h_s`` (before the motor's limits).
 
         It asks for the mean torque that closes the speed error over ``max(speed_loop_s, h_s)`` plus
@@ -333,8 +337,9 @@ class WheelMotor:
             self._lag[h] = f
         return f
 
-    def step(self, state: WheelState, u_cmd_Nm: float, h_s: float) -> tuple[WheelState, float, float]:
-        """Advance ``h_s`` seconds with torque command ``u_cmd_Nm`` held: ``(state, body_torque_Nm, friction_J)``."""
+    def step(self, state: tuple[float, float], u_cmd_Nm: float, h_s: float) -> tuple[WheelState, float, float]:
+        """Advance ``h_s`` seconds with torque command ``u_cmd_Nm`` held: ``(state, body_torque_Nm, friction_J)``.
+        ``state``: a :class:`WheelState` or any (speed, motor torque) pair."""
         h = _positive("h_s", h_s, "s")
         w0, tau0 = float(state[0]), float(state[1])
         if not (math.isfinite(w0) and math.isfinite(tau0) and math.isfinite(float(u_cmd_Nm))):
@@ -345,14 +350,15 @@ class WheelMotor:
         decay, mean = self._lag_factors(h)
         tau_end = u + (tau0 - u) * decay
         tau_mean = u + (tau0 - u) * mean
-        w1, _, friction = self.wheel.step(w0, tau_mean, h)
+        w1, _, friction = self.wheel._advance(w0, tau_mean, h)
         cap = max(self.max_speed_rad_s, abs(w0))
         if abs(w1) > cap and tau_mean * w1 > 0.0:
             w1 = math.copysign(cap, w1)  # the back-EMF allows no more within this step
         J = self.wheel.inertia
         return WheelState(w1, tau_end), -J * (w1 - w0) / h, friction
 
-    def step_speed(self, state: WheelState, omega_cmd_rad_s: float, h_s: float) -> tuple[WheelState, float, float]:
+    def step_speed(self, state: tuple[float, float], omega_cmd_rad_s: float,
+                   h_s: float) -> tuple[WheelState, float, float]:
         """:meth:`step` in speed mode: the speed loop computes the torque command."""
         return self.step(state, self.speed_loop_torque(state, omega_cmd_rad_s, h_s), h_s)
 
@@ -375,7 +381,7 @@ class WheelMotor:
         tau_end = u + (tau0 - u) * decay
         tau_mean = u + (tau0 - u) * mean
         rotor = self._scaled_rotor if self._scaled_rotor is not None else self.wheel
-        w1, _, friction = rotor.step(w0, tau_mean, h)
+        w1, _, friction = rotor._advance(w0, tau_mean, h)
         cap = max(self.max_speed_rad_s, abs(w0))
         if abs(w1) > cap and tau_mean * w1 > 0.0:
             w1 = math.copysign(cap, w1)

@@ -259,6 +259,7 @@ class TruthModel:
         self._I = self.body._I
         self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
         self._b_B = (-1, None)  # (k, b_B): a field sensor and the recorder both ask each step
+        self._wheel_speeds: tuple = (None, None, ())  # (w, h_wheels, speeds): see wheel_speeds_rad_s
         # RK4 with both torques written out in one function (rk4_magnetic_gg): the default scenario's step.
         self._fused = integrator == "rk4" and self.magnetic and self.gravity_gradient
         #: The body torque of the "torque" effects (N m, body axes), held over the step (:meth:`effector`).
@@ -287,9 +288,20 @@ class TruthModel:
         """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them (() without wheels)."""
         if self.wheels is None:
             return ()
-        J = self._wheeled._J
-        return tuple(h / j - (ax * self.w[0] + ay * self.w[1] + az * self.w[2])
-                     for h, j, (ax, ay, az) in zip(self.h_wheels, J, self._wheeled._A, strict=True))
+        # Every wheel device reads its speed several times a tick (its motor, its telemetry, its row) and the
+        # controller may read them too: computed once per state. The key is the state tuples themselves, not the
+        # step index, so a state put in from outside (a test setting ``w``) is never answered from the cache.
+        w, h_wheels = self.w, self.h_wheels
+        w_of, h_of, speeds = self._wheel_speeds
+        if w_of is w and h_of is h_wheels:
+            return speeds
+        w0, w1, w2 = w
+        out = []
+        for h, j, (ax, ay, az) in zip(h_wheels, self._wheeled._J, self._wheeled._A, strict=True):
+            out.append(h / j - (ax * w0 + ay * w1 + az * w2))
+        speeds = tuple(out)
+        self._wheel_speeds = (w, h_wheels, speeds)
+        return speeds
 
     def angular_momentum_B(self) -> tuple:
         """Total angular momentum of body and wheels (N m s, body components)."""
@@ -415,13 +427,7 @@ class TruthModel:
         if self._fused:
             self._step_fused(base, dipole_B)
             return
-        # The four stages sample the half-step grid at base, base + 1 (twice) and base + 2; each
-        # point is looked up once per step, field before position as the stages did (the track
-        # fills its chunks in the same order), only what the listed torques use.
-        track = self.track
-        mag, gg = self.magnetic, self.gravity_gradient
-        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
-                                   for i in (base, base + 1, base + 2))
+        self._stage_points = self._points_of_step(base)
         torque = self._stage_torque
         # Stage times are passed relative to the step start so the stage lookup is exact.
         q, w = self._step(self.q, self.w, self.h, torque, 0.0)
@@ -430,6 +436,15 @@ class TruthModel:
         self.q, self.w = q, w
         self.k += 1
         self.t_ns += self.step_ns
+
+    def _points_of_step(self, base: int) -> tuple:
+        """(field, position) at the half-step grid points ``base``, ``base + 1`` and ``base + 2`` that the four
+        stages of the step from ``base`` sample; each point is looked up once per step, field before position (the
+        track fills its chunks in that order), only what the listed torques use (None for the other)."""
+        track, mag, gg = self.track, self.magnetic, self.gravity_gradient
+        return ((track.field(base) if mag else None, track.position(base) if gg else None),
+                (track.field(base + 1) if mag else None, track.position(base + 1) if gg else None),
+                (track.field(base + 2) if mag else None, track.position(base + 2) if gg else None))
 
     def _step_fused(self, base: int, dipole_B) -> None:
         track = self.track
@@ -455,17 +470,13 @@ class TruthModel:
 
     def _step_wheels(self, dipole_B, wheel_torque_Nm) -> None:
         if wheel_torque_Nm is not None:
-            tau = tuple(float(x) for x in wheel_torque_Nm)
-            if len(tau) != self.wheels.n or not all(math.isfinite(x) for x in tau):
+            tau = tuple(map(float, wheel_torque_Nm))
+            if len(tau) != self.wheels.n or not all(map(math.isfinite, tau)):
                 raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite torques "
                                  "in N m, one per wheel.")
             self.wheel_torque_Nm = tau
         self.dipole_B = dipole_B
-        base = 2 * self.k
-        track = self.track
-        mag, gg = self.magnetic, self.gravity_gradient
-        self._stage_points = tuple((track.field(i) if mag else None, track.position(i) if gg else None)
-                                   for i in (base, base + 1, base + 2))
+        self._stage_points = self._points_of_step(2 * self.k)
         torque = self._stage_torque
         body = self._wheeled
         q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)

@@ -478,12 +478,13 @@ def _fly(f: _Flight) -> None:
                 receive(t)
             if k % rec_every == 0 or k == n_steps:
                 stage = TRUTH
-                row = (t, *truth.q, *truth.w, *truth.r_N, *truth.v_N)
+                values = [t, *truth.q, *truth.w, *truth.r_N, *truth.v_N]
                 stage = ROW
                 busy[0] = ~k
                 for part in parts:
-                    row = (*row, *part())
+                    values += part()  # one list grown in place, not a tuple copied once per part
                 busy[0] = None
+                row = tuple(values)
                 stage = WRITER
                 record(row)
                 stage = OBSERVER

@@ -102,9 +102,13 @@ class WheelSpeed(float):
     def __new__(cls, speed_rad_s: float, torque_Nm: float, valid: bool, speed_limited: bool,
                 torque_limited: bool, seq: int) -> WheelSpeed:
         obj = super().__new__(cls, speed_rad_s)
-        for name, value in (("torque_Nm", torque_Nm), ("valid", valid), ("speed_limited", speed_limited),
-                            ("torque_limited", torque_limited), ("seq", seq)):
-            object.__setattr__(obj, name, value)
+        # Past the refusing __setattr__; one call per field (a sample is built twice a tick per wheel: sent, taken).
+        set_field = object.__setattr__
+        set_field(obj, "torque_Nm", torque_Nm)
+        set_field(obj, "valid", valid)
+        set_field(obj, "speed_limited", speed_limited)
+        set_field(obj, "torque_limited", torque_limited)
+        set_field(obj, "seq", seq)
         return obj
 
     @property
@@ -236,7 +240,8 @@ class ReactionWheelCodec(CanCodec):
 
     @staticmethod
     def _tlm_values(msg: WheelSpeed) -> tuple:
-        return (msg.speed_rad_s, msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
+        # The float itself is the speed (what .speed_rad_s returns, without the property's call).
+        return (float(msg), msg.torque_Nm, msg.seq, bool(msg.valid), bool(msg.speed_limited),
                 bool(msg.torque_limited))
 
     @staticmethod

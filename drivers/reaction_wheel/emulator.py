@@ -176,7 +176,8 @@ class ReactionWheelEmulator(CanDevice):
 
     def receive(self, t_s: float) -> int:
         """Drain the bus and apply every command at ``t_s``; returns the number of frames read."""
-        self._watchdog(t_s)
+        if t_s >= self._expires_s:  # a command's timeout ran out (most ticks: none is running, or not yet)
+            self._watchdog(t_s)
         return self._drain(t_s)
 
     def _watchdog(self, t_s: float) -> None:
@@ -239,7 +240,8 @@ class ReactionWheelEmulator(CanDevice):
         """The RW_SPEED_TLM the wheel reports at ``t_s`` (advances the sample counter)."""
         got = self.source(t_s)
         try:
-            if isinstance(got, (int, float)) or getattr(got, "shape", None) == ():
+            # A number or a 0-d array is a speed; anything else a pair (the stand's source: a tuple, asked first).
+            if not isinstance(got, tuple) and (isinstance(got, (int, float)) or getattr(got, "shape", None) == ()):
                 speed, torque = float(got), self.command_at(t_s).torque_Nm
             else:
                 s, tq = got

@@ -231,19 +231,17 @@ class _Wheel(Device):
 
     def _step_motor(self, cmd) -> None:
         """One dynamics step of the motor under the held command, from the truth's wheel speed."""
-        from sim.actuators import WheelState
-
         w0 = self.speed_rad_s()
-        state = WheelState(w0, self._motor_tau)
-        self._mode = MODE_CODES.get(cmd.mode, -1.0)
-        if cmd.mode == "SPEED":
+        mode = cmd.mode
+        self._mode = MODE_CODES.get(mode, -1.0)
+        # The motor's state (sim.actuators.WheelState) as a plain pair: speed, motor torque now.
+        if mode == "SPEED":
             self._cmd = cmd.speed_rad_s
-            state, body, friction = self.motor.step_speed(state, cmd.speed_rad_s, self.h_s)
+            state, body, friction = self.motor.step_speed((w0, self._motor_tau), cmd.speed_rad_s, self.h_s)
         else:
-            if cmd.mode == "IDLE":  # motor off: no drive, the rotor coasts on its friction
-                state = WheelState(w0, 0.0)
+            tau0 = 0.0 if mode == "IDLE" else self._motor_tau  # IDLE: motor off, the rotor coasts on its friction
             self._cmd = cmd.torque_Nm
-            state, body, friction = self.motor.step(state, cmd.torque_Nm, self.h_s)
+            state, body, friction = self.motor.step((w0, tau0), cmd.torque_Nm, self.h_s)
         self._motor_tau = state.motor_torque_Nm
         self._tau = -body  # the rotor gets what the body gives up: motor minus friction
         self.energy_friction_J += friction

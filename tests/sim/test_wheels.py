@@ -170,6 +170,29 @@ def test_truth_model_with_wheels_steps_as_the_wheel_propagator_does():
     np.testing.assert_allclose(truth.angular_momentum_B(), H, rtol=1e-13)
 
 
+def _relative_speeds(truth, cluster):
+    """Omega = h / J - a . omega per wheel, from the truth's state, written out independently of the truth."""
+    A = np.asarray(cluster.spin_axes_B, float)  # 3 x n, one column per wheel
+    return tuple(float(h / j - A[:, i] @ np.asarray(truth.w))
+                 for i, (h, j) in enumerate(zip(truth.h_wheels, cluster.inertia, strict=True)))
+
+
+def test_wheel_speeds_are_computed_once_per_state_and_follow_every_state_change():
+    # Each wheel device reads its speed several times a tick: one state gives one tuple, not a new one per read.
+    cluster = _pyramid()
+    truth = _truth(cluster, (100.0, 50.0, -20.0, 0.0))
+    first = truth.wheel_speeds_rad_s
+    assert truth.wheel_speeds_rad_s is first
+    np.testing.assert_allclose(first, _relative_speeds(truth, cluster), rtol=1e-15, atol=1e-12)
+    truth.step((0.0, 0.0, 0.0), (0.01, -0.02, 0.005, 0.0))  # a step: new speeds
+    stepped = truth.wheel_speeds_rad_s
+    assert stepped != first
+    np.testing.assert_allclose(stepped, _relative_speeds(truth, cluster), rtol=1e-15, atol=1e-12)
+    truth.w = (0.1, 0.0, 0.0)  # a state put in from outside (a test, a tool): never answered from the cache
+    np.testing.assert_allclose(truth.wheel_speeds_rad_s, _relative_speeds(truth, cluster), rtol=1e-15, atol=1e-12)
+    assert truth.wheel_speeds_rad_s != stepped
+
+
 def test_truth_model_with_wheels_and_gravity_gradient_conserves_nothing_it_should_not():
     # Internal wheel torques leave the inertial momentum alone; gravity gradient changes it.
     cluster = _pyramid()
