@@ -130,3 +130,56 @@ def test_mrp_feedback_carries_the_attitude_on_the_gyro_without_a_valid_solution(
 def test_mrp_feedback_refuses_a_gain_that_is_not_positive():
     with pytest.raises(ValueError, match=r"controller.options.p_Nm_s = -1.0; give a positive gain"):
         _flight((1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), p_Nm_s=-1.0)
+
+
+# ------------------------------------------------------------------------------------------------ bench loop rows
+def test_bench_rows_split_the_tick_and_judge_the_goal_against_basilisk(tmp_path, monkeypatch):
+    from stand import benches
+
+    # Basilisk "measured in this sitting" by a stand-in for the script, so the test runs without Basilisk.
+    calls = []
+    monkeypatch.setattr(benches, "_basilisk_round", lambda python, script, key: calls.append((script, key)) or 50.0)
+    rows = {r["name"]: r for r in benches._wheel_pointing_rows(tmp_path, True, "/bsk/python", 2)}
+    assert calls == [("wheel_pointing_basilisk.py", "per_tick_us")] * 2  # once after each of the stand's rounds
+    per_tick = rows["loop.wheel_pointing.per_tick"]["value"]
+    fsw = rows["loop.wheel_pointing.flight_code_per_tick"]["value"]
+    own = rows["loop.wheel_pointing.own_cost_per_tick"]["value"]
+    assert 0.0 < fsw < per_tick and own == pytest.approx(per_tick - fsw, abs=0.11)
+    assert rows["loop.wheel_pointing.basilisk_per_tick"]["value"] == 50.0
+    goal = rows["loop.wheel_pointing.own_cost_vs_basilisk"]
+    assert goal["limit"] == ">= 1" and goal["full_only"]
+    assert goal["value"] == pytest.approx(50.0 / own, rel=5e-3) and goal["pass"] == (goal["value"] >= 1.0)
+    assert rows["loop.wheel_pointing.sigma_BR_vs_basilisk"]["pass"]  # the first 60 s against Basilisk's samples
+    # Without STAND_BASILISK_PYTHON the anchor is the JSON's tick, and the row says it is another sitting's.
+    rows = {r["name"]: r for r in benches._wheel_pointing_rows(tmp_path / "b", True, None, 1)}
+    ref = json.loads(REFERENCE.read_text())
+    assert rows["loop.wheel_pointing.basilisk_per_tick"]["value"] == round(ref["per_tick_us"], 1)
+    assert "another sitting" in rows["loop.wheel_pointing.basilisk_per_tick"]["note"]
+
+
+def test_timing_the_flight_code_changes_no_telemetry(tmp_path):
+    # The bench wraps the controller to time it; the run it measures must be the run a user gets.
+    import dataclasses
+
+    from stand import benches
+
+    sc = dataclasses.replace(load(SCENARIO), duration_s=5.0)
+    with build(sc) as scene:
+        run(scene, tmp_path / "plain", progress=False)
+    _, _, fsw_s, timed = benches._split_run(sc, tmp_path / "timed")
+    plain = telemetry.load(tmp_path / "plain")
+    assert fsw_s > 0.0 and set(plain) == set(timed)
+    for name in plain:
+        assert np.array_equal(plain[name], timed[name], equal_nan=True), name
+
+
+def test_image_tracker_limit_is_the_stated_target():
+    import inspect
+
+    from stand import benches
+
+    # docs/benchmarks.md states the target: an orbit (5,677 s) within a minute of wall time, 95x, rounded up.
+    assert benches.IMAGE_TRACKER_TARGET == 100.0 >= 5677.0 / 60.0
+    source = inspect.getsource(benches._image_tracker_rows)
+    assert "IMAGE_TRACKER_TARGET" in source and "150" not in source
+    assert "5,677 / 60" in (fixtures.ROOT.parent / "docs" / "benchmarks.md").read_text()
