@@ -183,3 +183,18 @@ def test_image_tracker_limit_is_the_stated_target():
     source = inspect.getsource(benches._image_tracker_rows)
     assert "IMAGE_TRACKER_TARGET" in source and "150" not in source
     assert "5,677 / 60" in (fixtures.ROOT.parent / "docs" / "benchmarks.md").read_text()
+
+
+def test_the_wheel_carries_what_the_scenario_and_the_bench_read():
+    # stand run reads the scenario, stand bench loop the Basilisk JSON and (with STAND_BASILISK_PYTHON) the scripts;
+    # the flight code is a module of the stand package. All must be in the wheel (pyproject's package-data).
+    import fnmatch
+    import tomllib
+
+    root = fixtures.ROOT.parent
+    patterns = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["fixtures"]
+    for name in ("scenarios/wheel_pointing_basilisk.toml", "reference/basilisk/wheel_pointing_basilisk.json",
+                 "reference/basilisk/wheel_pointing_basilisk.py", "reference/basilisk/detumble_basilisk.py"):
+        assert (fixtures.ROOT / name).is_file(), name
+        assert any(fnmatch.fnmatch(name, p) for p in patterns), name
+    assert MrpFeedback.__module__ == "stand.adcs.mrp_feedback"
