@@ -27,10 +27,10 @@ error and that no reference integrates the same way.
 Reference. The same closed loop integrated by scipy's DOP853 (:data:`REF_RTOL`, :data:`REF_ATOL`) from one
 control tick to the next, the command held constant over each piece, so the zero-order hold is exact and the
 integrator never steps across a jump of the command. Its equations are written here again, on numpy, apart from
-the truth model's (:func:`gyrostat_rhs`): the gyrostat of Schaub & Junkins sec. 4.5 with gravity-gradient torque
-on the orbit the truth uses (the same J2 RK4 nodes, interpolated by scipy's cubic Hermite spline). Errors are the
-largest over the control ticks of the run: the attitude angle between run and reference (arcsec) and the wheel
-speed (rpm).
+the truth model's float code (:func:`gyrostat_rhs`): the gyrostat of Schaub & Junkins sec. 4.5 with
+gravity-gradient torque on the orbit the truth uses (the same J2 RK4 nodes, interpolated by scipy's cubic Hermite
+spline). Errors are the largest over the control ticks of the run: the attitude angle between run and reference
+(arcsec) and the wheel speed (rpm).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ import numpy as np
 
 from sim.constants import J2_EARTH, MU_EARTH, R_EARTH
 from sim.orbit import propagate_j2
-from sim.rotations import angle_between
+from sim.rotations import angle_between, dcm
 from sim.time import NS_PER_S, seconds_to_ns
 from sim.truth import TruthModel, compose_floats, rotate_to_body
 from sim.wheels import WheelCluster
@@ -266,14 +266,6 @@ def orbit_spline(plant: Plant):
     return CubicHermiteSpline(t, r, v, axis=0)
 
 
-def _dcm(q) -> np.ndarray:
-    """Body-from-inertial matrix of q_BN (scalar first), written out here apart from sim.rotations.dcm."""
-    w, x, y, z = q / np.sqrt(q @ q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)],
-                     [2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)],
-                     [2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)]])
-
-
 def gyrostat_rhs(plant: Plant):
     """``f(t, y, tau)`` of the reference, y = (q_BN, omega_BN_B, h_abs): ``I_s domega/dt = T - omega x (I_s omega +
     A h) - A tau``, ``dh/dt = tau``, ``dq/dt = q (x) (0, omega) / 2``, T the gravity-gradient torque
@@ -288,7 +280,7 @@ def gyrostat_rhs(plant: Plant):
         q, w, h = y[:4], y[4:7], y[7:]
         T = -(A @ tau)
         if position is not None:
-            r_B = _dcm(q) @ position(t)
+            r_B = dcm(q / math.sqrt(q @ q)) @ position(t)  # the attitude q stands for, unit
             r = math.sqrt(r_B @ r_B)
             T = T + 3.0 * MU_EARTH / r ** 5 * np.cross(r_B, I @ r_B)
         dw = Is_inv @ (T - np.cross(w, Is @ w + A @ h))

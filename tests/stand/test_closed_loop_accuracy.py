@@ -38,9 +38,10 @@ def _order(plant, ref, integrator, steps):
 @pytest.mark.parametrize(("integrator", "steps", "order"), [
     ("rk4", (0.2, 0.1, 0.05), 4.0), ("rkmk4", (0.2, 0.1, 0.05), 4.0), ("implicit_midpoint", (0.02, 0.01), 2.0)])
 def test_fixed_control_rate_converges_at_the_integrators_order(tumbling, integrator, steps, order):
-    # Measured on the attitude: rk4 3.9992 and 3.9998, rkmk4 4.0025 and 4.0014, implicit midpoint 2.0000 (on the
-    # wheel speeds 3.9997 and 4.0001, 3.9942 and 3.9993, 2.0000); 0.02 leaves room for round-off only. The command is held over whole control periods that every step divides, so the
-    # right-hand side is smooth inside each step and nothing but the integrator changes with the step.
+    # The command is held over whole control periods that every step divides, so the right-hand side is smooth
+    # inside each step and nothing but the integrator changes with the step. Measured on the attitude: rk4 3.9992
+    # and 3.9998, rkmk4 4.0025 and 4.0014, implicit midpoint 2.0000 (on the wheel speeds 3.9997 and 4.0001, 3.9942
+    # and 3.9993, 2.0000); the tolerance 0.02 leaves room for round-off only.
     plant, ref = tumbling
     errs, orders = _order(plant, ref, integrator, steps)
     assert all(abs(p - order) <= 0.02 for p in orders), (errs, orders)
