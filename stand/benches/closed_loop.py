@@ -103,6 +103,7 @@ class Trajectory:
     speeds_rad_s: np.ndarray  # (n, wheels) relative to the body
     wall_s: float = 0.0
     truth_s: float = 0.0
+    cpu_s: float = 0.0  # the process's CPU time over the run: what the shared machine's load does not inflate
     #: The reference ADCS's mode changes ``(t_s, mode)`` (none for a controller without modes).
     modes: list = field(default_factory=list)
 
@@ -234,7 +235,7 @@ def run_fixed(plant: Plant, step_s: float, integrator: str) -> Trajectory:
                          "the controller's rate must be a whole number of steps.")
     every = period_ns // step_ns
     clock = time.perf_counter
-    wall0 = clock()
+    wall0, cpu0 = clock(), time.process_time()
     truth, command = plant.truth(step_s, integrator), plant.controller()
     zero, truth_s = (0.0, 0.0, 0.0), 0.0
     ts, qs, ws, ss = [], [], [], []
@@ -251,8 +252,8 @@ def run_fixed(plant: Plant, step_s: float, integrator: str) -> Trajectory:
         for _ in range(every):
             truth.step(zero, u)
         truth_s += clock() - t0
-    return Trajectory(np.array(ts), np.array(qs), np.array(ws), np.array(ss), clock() - wall0, truth_s,
-                      _modes(command))
+    return Trajectory(np.array(ts), np.array(qs), np.array(ws), np.array(ss), wall_s=clock() - wall0,
+                      truth_s=truth_s, cpu_s=time.process_time() - cpu0, modes=_modes(command))
 
 
 def orbit_spline(plant: Plant):
@@ -320,7 +321,8 @@ def reference(plant: Plant, rtol: float = REF_RTOL, atol: float = REF_ATOL) -> T
         if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
             raise FloatingPointError(f"the DOP853 reference failed at t = {t:g} s: {sol.message}")
         y = sol.y[:, -1]
-    return Trajectory(np.array(ts), np.array(qs), np.array(ws), np.array(ss), clock() - wall0, 0.0, _modes(command))
+    return Trajectory(np.array(ts), np.array(qs), np.array(ws), np.array(ss), wall_s=clock() - wall0,
+                      modes=_modes(command))
 
 
 def errors(run: Trajectory, ref: Trajectory) -> tuple[float, float]:
@@ -351,8 +353,9 @@ def _row(case: str, integrator: str, step_s: float, run: Trajectory | None, ref:
         return {**base, "value": "refused", "unit": "", "note": refusal[:240]}
     att, rpm = errors(run, ref)
     return {**base, "value": att, "unit": "arcsec", "error": att, "error_unit": "arcsec", "wheel_speed_error": rpm,
-            "wheel_speed_error_unit": "rpm", "wall_s": run.wall_s, "truth_s": run.truth_s,
-            "note": f"h {step_s:g} s; wheel speed {rpm:.2e} rpm; {run.wall_s:.2f} s ({run.truth_s:.2f} s in the truth)"}
+            "wheel_speed_error_unit": "rpm", "wall_s": run.wall_s, "truth_s": run.truth_s, "cpu_s": run.cpu_s,
+            "note": f"h {step_s:g} s; wheel speed {rpm:.2e} rpm; wall {run.wall_s:.2f} s ({run.truth_s:.2f} s in the "
+                    f"truth), CPU {run.cpu_s:.2f} s"}
 
 
 def _order_row(case: str, rows: list[dict], floor_arcsec: float) -> dict | None:
@@ -405,6 +408,7 @@ def bench_rows(quick: bool = False) -> list[dict]:
                 case_rows.append(_row(case, integrator, step_s, run, ref))
         rows += case_rows
         rows.append({"name": f"accuracy.closed_loop.{case}.reference_self_check", "value": att, "unit": "arcsec",
+                     "case": f"closed_loop.{case}", "method": "reference", "error": att, "wheel_speed_error": rpm,
                      "note": f"DOP853 rtol {REF_RTOL:g} against rtol {REF_RTOL / 10:g}: wheel speed {rpm:.1e} rpm; "
                              f"{plant.duration_s:g} s, control every {plant.control_period_s:g} s; reference "
                              f"{ref.wall_s:.1f} s"})
@@ -422,16 +426,18 @@ def plot(rows: list[dict], path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import FuncFormatter
 
     cases = [c for c in dict.fromkeys(r.get("case") for r in rows) if c and c.startswith("closed_loop.")]
     fig, axes = plt.subplots(len(cases), 2, figsize=(11.0, 4.3 * len(cases)), squeeze=False)
     for ax_row, case in zip(axes, cases, strict=True):
-        sel = [r for r in rows if r.get("case") == case and isinstance(r.get("value"), float)]
+        sel = [r for r in rows if r.get("case") == case and isinstance(r.get("value"), float) and "error" in r]
         for ax, key, unit, target in ((ax_row[0], "error", "arcsec", TARGET_ARCSEC),
                                       (ax_row[1], "wheel_speed_error", "rpm", TARGET_RPM)):
             _panel(ax, sel, key, unit, target, case.removeprefix("closed_loop."))
-            ax.xaxis.set_minor_formatter(NullFormatter())  # minor labels overlap on a short log axis
+            # A short log axis: label 2 and 5 of each decade too, not every minor tick (they overlap).
+            ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
+            ax.xaxis.set_minor_formatter(FuncFormatter(lambda x, _: f"{x:g}" if f"{x:.0e}"[0] in "25" else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -448,6 +454,9 @@ def _panel(ax, sel: list[dict], key: str, unit: str, target: float, case: str) -
         for x, y, h in pts:
             ax.annotate(f"{h:g} s", (x, y), textcoords="offset points", xytext=(4, 3), fontsize=7)
     ax.axhline(target, color="k", ls="--", lw=0.8, label=f"target {target:.2g} {unit}")
+    for r in sel:
+        if r["method"] == "reference":
+            ax.axhline(max(r[key], 1e-16), color="grey", ls=":", lw=0.8, label="DOP853 rtol 1e-12 vs 1e-13")
     quantity = "attitude error" if key == "error" else "wheel-speed error"
     ax.set_title(f"{case}: {quantity}", fontsize=10)
     ax.set_xlabel("wall time of the closed-loop run (truth + controller) [s]")
