@@ -15,7 +15,13 @@ For each method and step or tolerance: final error (deg for attitude, m for orbi
 relative drift of the conserved quantities (energy; |H| for the body, orbital angular momentum for
 orbits; J2 energy for the J2 case), wall time (``time.perf_counter``, median of repeats). Rows
 carry the acceptance figures of issue 6 with ``pass``; a work-precision plot (error against run
-time, log-log) is written to ``plot_path`` and named in the last row.
+time, log-log) is written to ``plot_path`` and named in a row.
+
+Closed loop (issue 26, :mod:`stand.benches.closed_loop`): the pointing scenario and a three-wheel MRP pointing
+case on the stand's truth at dynamics steps 0.2 ... 0.01 s with every integrator a scenario may choose, the
+controller at its own rate (zero-order hold), against DOP853 of the same loop integrated piecewise between
+control ticks; the largest attitude (arcsec) and wheel-speed (rpm) errors against wall time, and their figure
+beside ``plot_path`` (``NAME_closed_loop.png``).
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ from sim.integrators import UnstableMethodWarning
 from sim.orbit import MU_EARTH, elements_to_state, j2_energy, propagate_j2, propagate_kepler
 from sim.rotations import angle_between, dcm
 from sim.torque_free import TorqueFreeBody
+
+from . import closed_loop
 
 INERTIA = [10.0, 20.0, 30.0]
 Q0 = [1.0, 0.0, 0.0, 0.0]
@@ -250,4 +258,12 @@ def bench_accuracy(quick: bool = False, plot_path: str | Path = "accuracy.png") 
     _plot(rows, path)
     rows.append({"name": "accuracy.plot", "value": str(path.resolve()), "unit": "",
                  "note": f"work-precision plot (error vs wall time, log-log) written to {path.resolve()}"})
+
+    # -- closed loop -----------------------------------------------------------------------------
+    closed = closed_loop.bench_rows(quick)
+    rows += closed
+    closed_path = path.with_name(f"{path.stem}_closed_loop{path.suffix or '.png'}")
+    closed_loop.plot(closed, closed_path)
+    rows.append({"name": "accuracy.closed_loop.plot", "value": str(closed_path.resolve()), "unit": "",
+                 "note": f"closed-loop work-precision plot written to {closed_path.resolve()}"})
     return rows
