@@ -132,6 +132,7 @@ class ReplaySource:
         self.max_samples = max_samples
         self.listeners: list = []
         self.status = "replay"
+        self.frames: dict = {}  # a replay has no tracker frames (they are shown live only)
 
     def snapshot(self):
         return (state.replay_samples(self.run_dir, self.meta, self.max_samples, self.sky),
@@ -254,6 +255,7 @@ class ViewServer:
         app.router.add_get("/api/samples", self._samples)
         app.router.add_get("/api/stars", self._stars_route)
         app.router.add_get("/api/events", self._events)
+        app.router.add_get("/api/frame", self._frame)
         app.router.add_get("/ws", self._ws)
         app.router.add_post("/api/control", self._control)
         app.router.add_get("/api/faults", self._faults_get)
@@ -349,6 +351,27 @@ class ViewServer:
     async def _events(self, request):
         return _json(state.read_events(self.source.run_dir))
 
+    async def _frame(self, request):
+        """``GET /api/frame?device=NAME``: the newest detector frame of an image tracker (PNG; its time and solution
+        in the ``X-Stand-Frame`` header, JSON), 400 without a device, 404 for a device that renders no image or has
+        no frame yet (a replay has none: frames are shown live only)."""
+        name = request.query.get("device")
+        if not name:
+            return _json({"error": "device is missing: /api/frame?device=NAME, NAME a tracker whose source is "
+                                   "image"}, status=400)
+        rendering = [d["name"] for d in self.source.meta.get("devices", ())
+                     if isinstance(d.get("image"), dict) and d["image"].get("renders")]
+        if name not in rendering:
+            return _json({"error": f"device {name[:100]!r} is not allowed: it is not a device of this run that renders "
+                                   f"an image ({', '.join(rendering) or 'none does'})"}, status=404)
+        latest = self.source.frames.get(name)
+        if latest is None:
+            why = "a replay has no frames (they are shown live only)" if self.source.mode == "replay" else \
+                "it has sent no frame yet (frames are taken while a page is open)"
+            return _json({"error": f"no frame of {name!r}: {why}"}, status=404)
+        info, png = latest
+        return web.Response(body=png, content_type="image/png", headers={"X-Stand-Frame": state.dumps(info)})
+
     async def _ws(self, request):
         ws = web.WebSocketResponse(heartbeat=20.0)
         await ws.prepare(request)
@@ -356,6 +379,8 @@ class ViewServer:
         self.source.pages = len(self.sockets)
         try:
             await ws.send_str(state.dumps({"type": "status", "status": self.source.status}))
+            for info, _ in list(self.source.frames.values()):  # the newest frame of each tracker, for a new page
+                await ws.send_str(state.dumps({"type": "frame", **info}))
             async for msg in ws:
                 if msg.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
                     break
@@ -466,6 +491,9 @@ class PipeLink:
             self.conn.send_bytes(b"S" + data.encode())
         elif kind == "fault":
             self.conn.send_bytes(b"A" + state.dumps(data).encode())
+        elif kind == "frame":  # an image tracker's frame: its header (JSON), a newline, its 8-bit pixels
+            header, pixels = data
+            self.conn.send_bytes(b"I" + state.dumps(header).encode() + b"\n" + pixels)
         else:
             self.conn.send_bytes(b"R" + np.ascontiguousarray(data, dtype="<f8").tobytes())
 
@@ -530,6 +558,9 @@ def _relay(conn, source, heartbeat) -> None:
             source.answered(json.loads(data))
         elif tag == b"V":
             source.summary_ready()
+        elif tag == b"I":
+            header, _, pixels = data.partition(b"\n")
+            source.frame(json.loads(header), pixels)
         elif tag == b"C":
             return
         else:
