@@ -52,7 +52,7 @@ def shrink(image: np.ndarray, background_e: float, sigma_e: float, factor: int =
     knee = np.float32(max(KNEE_SIGMA * sigma_e, 1.0))
     above = np.maximum(small[:h, :w] - np.float32(background_e + BLACK_SIGMA * sigma_e), np.float32(0.0))
     level = np.arcsinh(above / knee) * np.float32(255.0 / math.asinh(WHITE_E / knee))
-    return np.minimum(level, np.float32(255.0)).astype(np.uint8)
+    return np.minimum(level + np.float32(0.5), np.float32(255.0)).astype(np.uint8)  # rounded
 
 
 def encode_png(header: dict, pixels: bytes) -> bytes:
