@@ -89,7 +89,7 @@ def test_a_truth_tracker_shows_no_image(browser, tmp_path):  # noqa: F811
     with server.ViewServer(server.ReplaySource(out)) as view:
         _open(browser, view.url)
         assert not browser.find_element("id", "trackimg").get_attribute("hidden")
-        caption = browser.find_element("css selector", f"#trackimg figure[data-device='st1'] figcaption").text
+        caption = browser.find_element("css selector", "#trackimg figure[data-device='st1'] figcaption").text
         assert caption == "st1: no image: source = 'truth': this tracker does not render"
         assert browser.find_elements("css selector", "#trackimg img") == []
         assert _severe(browser) == []
