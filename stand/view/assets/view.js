@@ -1210,7 +1210,11 @@
     const devs = S.meta.devices.filter((d) => d.image);
     S.imageDevices = devs;
     $("trackimg").hidden = devs.length === 0;
-    document.querySelector("main").classList.toggle("with-images", devs.length > 0);
+    // Frames to show: the panel beside the faults; only "no image" lines: one thin row above the plots.
+    const frames = S.live && devs.some((d) => d.image.renders);
+    document.querySelector("main").classList.toggle("with-images", frames);
+    document.querySelector("main").classList.toggle("image-notes", devs.length > 0 && !frames);
+    $("trackimg-title").textContent = frames ? "tracker image (live, the newest frame)" : "tracker image:";
     const list = $("trackimg-list");
     for (const d of devs) {
       const fig = document.createElement("figure"), cap = document.createElement("figcaption");
