@@ -5,7 +5,8 @@ Routes: ``/`` the page; ``/assets/...`` its script and style (shipped in the whe
 live run has pushed); ``/api/stars`` the catalog; ``/api/events`` the event log; ``/ws`` a websocket on which a
 live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run;
 ``GET /api/faults`` the faults injected so far (from the event log), the scenario's own and the fault types;
-``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`).
+``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`); ``/api/frame?device=NAME``
+the newest detector frame of an image tracker in a live run (PNG, :mod:`stand.view.frames`).
 
 Every request that names a host (browsers always do) must name one the server listens on: the address the
 connection reached, ``localhost`` when that is a loopback address, the bound host as given, and the machine's
@@ -352,9 +353,10 @@ class ViewServer:
         return _json(state.read_events(self.source.run_dir))
 
     async def _frame(self, request):
-        """``GET /api/frame?device=NAME``: the newest detector frame of an image tracker (PNG; its time and solution
-        in the ``X-Stand-Frame`` header, JSON), 400 without a device, 404 for a device that renders no image or has
-        no frame yet (a replay has none: frames are shown live only)."""
+        """``GET /api/frame?device=NAME[&seq=N]``: the newest detector frame of an image tracker, or frame ``N`` when it
+        is among the last ``state.RECENT_FRAMES`` (PNG; its time and solution in the ``X-Stand-Frame`` header, JSON);
+        400 without a device, 404 for a device that renders no image, no frame yet (a replay has none: frames are
+        shown live only) or a frame number not kept."""
         name = request.query.get("device")
         if not name:
             return _json({"error": "device is missing: /api/frame?device=NAME, NAME a tracker whose source is "
@@ -369,6 +371,13 @@ class ViewServer:
             why = "a replay has no frames (they are shown live only)" if self.source.mode == "replay" else \
                 "it has sent no frame yet (frames are taken while a page is open)"
             return _json({"error": f"no frame of {name!r}: {why}"}, status=404)
+        if "seq" in request.query:  # the frame the page was told of (the newest may have moved on meanwhile)
+            text = request.query["seq"]
+            latest = self.source.frame_numbered(name, int(text)) if text.isdigit() else None
+            if latest is None:
+                return _json({"error": f"seq {text[:20]!r} is not allowed: the number of one of the last "
+                                       f"{state.RECENT_FRAMES} frames of {name!r} (the newest is "
+                                       f"{self.source.frames[name][0]['seq']})"}, status=404)
         info, png = latest
         return web.Response(body=png, content_type="image/png", headers={"X-Stand-Frame": state.dumps(info)})
 
@@ -507,6 +516,7 @@ class PipeLink:
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
     status the run's side set by itself (a pause it released), ``A`` + the run's answer to a fault command (JSON),
+    ``I`` + an image tracker's frame (its header as JSON, a newline, its 8-bit pixels),
     ``F`` + the run's status when it ended, ``V`` once its ``summary.json`` is written (the pages fetch the verdict),
     ``C`` to end the process (after the run's linger, :meth:`LiveSession.linger`); back go control commands
     (``"pause"``, ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S`` until the run's end,

@@ -59,6 +59,9 @@ UNATTENDED_PAUSE_S = 600.0
 #: its next control poll (every 0.25 s of wall time, every 0.05 s while paused) and the feed sends the answer at
 #: its next push (ten a second), so a run that is alive answers within about half a second.
 FAULT_ANSWER_S = 10.0
+#: Frames of each image tracker the live server keeps for ``GET /api/frame?device=NAME&seq=N`` (two seconds' worth at
+#: ``stand.view.frames.FRAME_HZ``): a page asks for the frame it was told of, which a newer one may follow meanwhile.
+RECENT_FRAMES = 4
 
 
 # --------------------------------------------------------------------------------------------------- geometry
@@ -539,6 +542,7 @@ class LiveSource:
         self._answers: dict[int, dict] = {}
         self._fault_ids = 0
         self.frames: dict[str, tuple[dict, bytes]] = {}  # device -> (header, PNG) of its newest frame
+        self._recent_frames: dict[str, collections.deque] = {}  # device -> its last RECENT_FRAMES, by seq
         self._frame_seq = 0
 
     def fault(self, command: dict, timeout_s: float = FAULT_ANSWER_S) -> dict:
@@ -617,7 +621,15 @@ class LiveSource:
             self._frame_seq += 1
             info = {**header, "seq": self._frame_seq, "bytes": len(png)}
             self.frames[str(header["device"])] = (info, png)
+            self._recent_frames.setdefault(str(header["device"]), collections.deque(maxlen=RECENT_FRAMES)).append(
+                (info, png))
         self._notify({"type": "frame", **info})
+
+    def frame_numbered(self, device: str, seq: int) -> tuple[dict, bytes] | None:
+        """Frame ``seq`` of ``device`` if it is among its last ``RECENT_FRAMES`` (the one a page was told of, even
+        when a newer one came while it asked), else None."""
+        with self._lock:
+            return next((f for f in self._recent_frames.get(device, ()) if f[0]["seq"] == seq), None)
 
     def summary_ready(self) -> None:
         """The finished run's ``summary.json`` is written: the pages fetch the verdict (``/api/meta``)."""

@@ -84,6 +84,15 @@ def test_the_frame_endpoint_serves_the_newest_frame_and_refuses_the_rest(watched
         port = view.port
         status, body = _raw(port, "/api/frame?device=st1", {"Host": f"127.0.0.1:{port}"})
         assert status == 200 and body[:8] == b"\x89PNG\r\n\x1a\n"
+        # the frame a page was told of, by number, while it is among the last few
+        assert _get(view.url + f"api/frame?device=st1&seq={info['seq']}") == (200, png)
+        if info["seq"] > 1:
+            older = source.frame_numbered("st1", info["seq"] - 1)
+            assert older is not None and older[0]["t_s"] < info["t_s"]
+            assert _get(view.url + f"api/frame?device=st1&seq={info['seq'] - 1}") == (200, older[1])
+        for seq in (str(info["seq"] + 1), "0", "-1", "x"):
+            status, body = _get(view.url + f"api/frame?device=st1&seq={seq}")
+            assert status == 404 and "the number of one of the last 4 frames" in json.loads(body)["error"]
         # what it refuses, each with a sentence
         assert _get(view.url + "api/frame")[0] == 400
         status, body = _get(view.url + "api/frame?device=mtq")  # a device that renders nothing
