@@ -22,11 +22,14 @@ every 8th row) the extractor measures the background from.
 
 from __future__ import annotations
 
+import logging
 import math
 import threading
 import time
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 #: Most frames per second (wall time) the page is sent of each tracker.
 FRAME_HZ = 2.0
@@ -80,6 +83,7 @@ class FrameTap:
         self._lock = threading.Lock()
         self.taken = 0  # frames copied in the loop's thread
         self.take_s = 0.0  # the loop thread's time spent copying them (stand bench view)
+        self.error: str | None = None
 
     def arm(self) -> bool:
         """Ask for the next exposure's image, unless one was asked for less than a period ago or is on its way."""
@@ -91,11 +95,18 @@ class FrameTap:
         return True
 
     def take(self, t_s: float, fields: dict) -> None:
-        """The loop's thread, right after the exposure's solve: copy the image the extractor read."""
+        """The loop's thread, right after the exposure's solve: copy the image the extractor read. Whatever goes
+        wrong here costs the page its frame, never the tracker its measurement (``error`` says what, once)."""
         w0 = time.perf_counter()
         self.solver.on_frame = None
-        exposure = self.solver.exposure
-        frame = (t_s, exposure.image(), float(exposure.background_e), float(exposure.sigma_e), dict(fields))
+        try:
+            exposure = self.solver.exposure
+            frame = (t_s, exposure.image(), float(exposure.background_e), float(exposure.sigma_e), dict(fields))
+        except Exception as exc:  # noqa: BLE001 - the run goes on without this frame
+            if self.error is None:
+                self.error = f"{self.name}: no frame for the page: {type(exc).__name__}: {exc}"
+                log.warning("%s", self.error)
+            return
         with self._lock:
             self._frame = frame
         self.taken += 1

@@ -569,8 +569,7 @@ def _relay(conn, source, heartbeat) -> None:
         elif tag == b"V":
             source.summary_ready()
         elif tag == b"I":
-            header, _, pixels = data.partition(b"\n")
-            source.frame(json.loads(header), pixels)
+            _frame(source, data)
         elif tag == b"C":
             return
         else:
@@ -579,6 +578,16 @@ def _relay(conn, source, heartbeat) -> None:
                 width = sum(int(c["width"]) for c in cols) if cols else None
             if width:
                 source.ingest(np.frombuffer(data, dtype="<f8").reshape(-1, width))
+
+
+def _frame(source, data: bytes) -> None:
+    """An image tracker's frame from the pipe (header JSON, a newline, pixels) to the pages; one that cannot be read
+    or encoded is left out, logged, and the page goes on."""
+    header, _, pixels = data.partition(b"\n")
+    try:
+        source.frame(json.loads(header), pixels)
+    except (ValueError, KeyError, TypeError) as exc:
+        log.warning("a tracker frame was left out of the page: %s", exc)
 
 
 def write_view_url(run_dir, url: str, host: str, token: str | None) -> Path:

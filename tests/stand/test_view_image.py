@@ -142,3 +142,28 @@ def test_shrink_keeps_a_one_pixel_star_and_blackens_the_sky():
     # the noise of the sky: below the black level in most blocks, dim elsewhere
     sky = np.delete(small.ravel(), [150 * 512 + 300, 5 * 512 + 10])
     assert np.median(sky) < 20 and sky.max() < small[150, 300]
+
+
+def test_a_broken_frame_costs_the_page_its_frame_not_the_run(tmp_path, caplog):
+    """A copy that fails in the tracker's thread never reaches the tracker; a corrupt frame on the pipe is left out of
+    the page, which goes on with the next good one."""
+
+    class Solver:
+        on_frame = None
+        exposure = None  # no image to copy
+
+    solver = Solver()
+    tap = frames.FrameTap("st1", solver)
+    assert tap.arm() and solver.on_frame == tap.take
+    tap.take(3.0, {"stars_in_field": 5})  # raises nothing
+    assert solver.on_frame is None and tap.taken == 0 and "no frame for the page: AttributeError" in tap.error
+    assert tap.collect() is None
+    meta = state.describe(scenario.load(scenario.find(SCENARIO)))
+    source = state.LiveSource(tmp_path, meta)
+    header = {"device": "st1", "t_s": 1.0, "size_px": [512, 384]}
+    with caplog.at_level("WARNING", logger="stand.view.server"):
+        server._frame(source, json.dumps(header).encode() + b"\n" + b"\x00" * 100)  # 100 bytes, not 512 x 384
+        server._frame(source, b"{not json\n" + b"\x00" * 10)
+    assert source.frames == {} and len([r for r in caplog.records if "left out of the page" in r.message]) == 2
+    server._frame(source, json.dumps(header).encode() + b"\n" + bytes(512 * 384))
+    assert source.frames["st1"][0]["seq"] == 1 and source.frames["st1"][1][:4] == b"\x89PNG"
