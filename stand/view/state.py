@@ -299,6 +299,10 @@ class LiveFeed:
     :meth:`poll_control` hands them to the loop one at a time, before any pause or stop, as ``("fault", payload)``;
     the loop hands each to the run's fault schedule and gives the answer back with :meth:`answer_fault`, which the
     sender thread sends at its next push as ``("fault", answer)``.
+
+    The frames of image trackers (:meth:`watch_devices`, :mod:`stand.view.frames`) are asked for by the sender thread
+    while the server says a page is open, at most ``frames.FRAME_HZ`` a second, and sent as ``("frame", (header,
+    pixels))``; the loop's side pays nothing for them per tick.
     """
 
     def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES, *,
