@@ -8,7 +8,7 @@ a second (wall time), and only while a page is open:
    :class:`FrameTap` when a page is open and the tap's last frame is at least ``1 / FRAME_HZ`` old: it sets the
    solver's ``on_frame``;
 2. at the tracker's next exposure the loop's thread calls it once (:meth:`FrameTap.take`): one copy of the exposure
-   (:meth:`SparseExposure.image`, about 2 ms for 1024 x 768), and ``on_frame`` is unset again. Without a page, or
+   (:meth:`SparseExposure.image`, under 1 ms of CPU for 1024 x 768), and ``on_frame`` is unset again. Without a page, or
    between two frames, the exposure pays one attribute test and nothing else; no tick pays anything;
 3. the sender thread shrinks the copy (:func:`shrink`: 2 x 2 maximum, so a star of one pixel stays, and an asinh
    stretch to 8 bits) and sends it through the pipe with its header (:meth:`FrameTap.collect`);
