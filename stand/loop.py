@@ -600,6 +600,14 @@ def _finish(f: _Flight) -> dict:
     return counters
 
 
+def _show_devices(observer, scene: Scene) -> None:
+    """Hand the scene's devices to an observer that shows more than rows (the live page asks an image tracker for a
+    frame at its own rate, ``stand.view.frames``); once per run, nothing per tick."""
+    watch = getattr(observer, "watch_devices", None)
+    if watch is not None:
+        watch(scene.devices)
+
+
 def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float | None = None,
         progress: bool = False, clock=time.monotonic, sleep=time.sleep, observer=None) -> RunResult:
     """Run the scene, recording into ``out_dir``. Returns how it went; never leaves a bus open.
@@ -615,6 +623,7 @@ def run(scene: Scene, out_dir, *, speed: float | None = None, duration_s: float 
     scene's fault schedule whose answer goes back through ``observer.answer_fault(answer)`` (``_live_faults``).
     """
     f = _Flight(scene, out_dir, speed, duration_s, progress, clock, sleep, observer)
+    _show_devices(observer, scene)
     f.events.log("start", f"scenario {f.sc.name} for {f.duration_s:g} s", speed=speed)
     # What exists now (the libraries, the scene) lives as long as the run: kept out of the collector, a full
     # collection no longer walks that whole heap every few thousand ticks (up to 60 ms each; unfrozen at the end).

@@ -305,7 +305,9 @@ class DeviceKind:
         """What the operator view draws for a device of this spec, into its entry in ``view.json``: ``fovs``
         (fields of view: ``{"shape": "rect", "axis_S", "fov_deg", "label"}`` or ``{"shape": "cone", "axis_S",
         "half_deg", "label"}``, ``"head": true`` for a head lit by its ``NAME.currents``), and any of
-        ``exclusion_deg`` (body -> cone half-angle) and ``rate_limit_deg_s``. (``view_state`` and
+        ``exclusion_deg`` (body -> cone half-angle), ``rate_limit_deg_s`` and ``image`` (the live page's image panel:
+        ``{"renders": True, "size_px", "delay_s"}`` for a device whose ``image`` solver renders a detector image,
+        ``{"renders": False, "why"}`` for one of a kind that could but does not). (``view_state`` and
         ``view_error_columns`` join them.) The default draws a spec's ``fov_deg`` (rectangle) or ``fov_half_deg``
         (cone)."""
         fov, half = getattr(spec, "fov_deg", None), getattr(spec, "fov_half_deg", None)

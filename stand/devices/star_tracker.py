@@ -114,7 +114,8 @@ class StarTrackerKind(DeviceKind):
     column_bits = {"flags": tuple(ICD_FLAG_BITS)}
     plot_files = {"tracker_{name}.png": "solution errors with their limits, validity, mode and flags"}
     view_layer_meanings = {"fovs": "the field of view", "exclusion_deg": "the Sun, Moon and Earth exclusion cones",
-                           "rate_limit_deg_s": "the body rate above which it cannot solve"}
+                           "rate_limit_deg_s": "the body rate above which it cannot solve",
+                           "image": "its detector image, shown live when it renders one (source = image)"}
     view_state = {"missing": "no solution", "flags": True, "invalid": ["acquiring", "invalid: acquiring"]}
     view_error_columns = ("err_cross", "err_roll")
     #: Drawn with the stand's default optics when a tracker's scenario gives none (truth-source trackers).
@@ -128,7 +129,8 @@ class StarTrackerKind(DeviceKind):
                           "label": spec.name}],
                 "exclusion_deg": {b: float(em[f"{b}_exclusion_deg"]) for b in ("sun", "moon", "earth")
                                   if f"{b}_exclusion_deg" in em},
-                "rate_limit_deg_s": float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None}
+                "rate_limit_deg_s": float(em["rate_limit_deg_s"]) if "rate_limit_deg_s" in em else None,
+                "image": _image_layer(spec, optics, em)}
     metrics = {
         "tracker_availability_after": "fraction of star-tracker solutions after time at_s that are valid",
         "tracker_error_cross_arcsec_p95": "95th percentile of the valid solutions' cross-boresight error (arcsec)",
@@ -265,6 +267,16 @@ class StarTrackerKind(DeviceKind):
         return [plot_tracker(tel, out_dir, name, cross_limit_arcsec=most("tracker_error_cross_arcsec_p95"),
                              roll_limit_arcsec=most("tracker_error_roll_arcsec_p95"), availability=availability,
                              modes=MODES, flag_bits=FLAG_BITS)]
+
+
+def _image_layer(spec, optics, em: dict) -> dict:
+    """The live page's image panel: whether the tracker renders (source = image), its detector size and the delay
+    from an exposure to its solution (the telemetry sample whose validity and flags belong to a shown frame)."""
+    if getattr(spec, "source", "truth") != "image" or optics is None:
+        return {"renders": False, "why": f"source = {getattr(spec, 'source', 'truth')!r}: this tracker does not "
+                "render"}
+    return {"renders": True, "size_px": [int(optics.width), int(optics.height)],
+            "delay_s": float(em.get("output_delay_s", 0.1))}
 
 
 def _solutions(tel, n: str) -> dict | None:

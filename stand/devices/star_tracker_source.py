@@ -35,6 +35,9 @@ def measure_source(spec, ctx, dev):
     def measure(t_s: float) -> TrackerTruth:
         out = fields(t_s)
         out.update(solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N))
+        take = solver.on_frame  # set when the operator page asked for this exposure's image (stand.view.frames)
+        if take is not None:
+            take(t_s, out)
         return TrackerTruth(**out)
 
     return measure
@@ -70,6 +73,9 @@ class ImageSolver:
         self._before: tuple[float, np.ndarray] | None = None  # the valid one before it
         self.counts = {"frames": 0, "lis": 0, "tracking": 0, "failed": 0}
         self.frame_ms: list[float] = []
+        #: Set by the live page's feed when it wants the next exposure's image, ``on_frame(t_s, fields)``, called
+        #: from the loop after the solve (it unsets itself): None, and so free, when no page watches.
+        self.on_frame = None
 
     def _prior(self, t_s: float):
         if self._last is None:

@@ -5,7 +5,8 @@ Routes: ``/`` the page; ``/assets/...`` its script and style (shipped in the whe
 live run has pushed); ``/api/stars`` the catalog; ``/api/events`` the event log; ``/ws`` a websocket on which a
 live run pushes new samples, events and status; ``POST /api/control`` pause, resume or stop a live run;
 ``GET /api/faults`` the faults injected so far (from the event log), the scenario's own and the fault types;
-``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`).
+``POST /api/faults`` inject or clear a fault in a live run (:meth:`ViewServer._faults_post`); ``/api/frame?device=NAME``
+the newest detector frame of an image tracker in a live run (PNG, :mod:`stand.view.frames`).
 
 Every request that names a host (browsers always do) must name one the server listens on: the address the
 connection reached, ``localhost`` when that is a loopback address, the bound host as given, and the machine's
@@ -132,6 +133,7 @@ class ReplaySource:
         self.max_samples = max_samples
         self.listeners: list = []
         self.status = "replay"
+        self.frames: dict = {}  # a replay has no tracker frames (they are shown live only)
 
     def snapshot(self):
         return (state.replay_samples(self.run_dir, self.meta, self.max_samples, self.sky),
@@ -254,6 +256,7 @@ class ViewServer:
         app.router.add_get("/api/samples", self._samples)
         app.router.add_get("/api/stars", self._stars_route)
         app.router.add_get("/api/events", self._events)
+        app.router.add_get("/api/frame", self._frame)
         app.router.add_get("/ws", self._ws)
         app.router.add_post("/api/control", self._control)
         app.router.add_get("/api/faults", self._faults_get)
@@ -349,6 +352,35 @@ class ViewServer:
     async def _events(self, request):
         return _json(state.read_events(self.source.run_dir))
 
+    async def _frame(self, request):
+        """``GET /api/frame?device=NAME[&seq=N]``: the newest detector frame of an image tracker, or frame ``N`` when it
+        is among the last ``state.RECENT_FRAMES`` (PNG; its time and solution in the ``X-Stand-Frame`` header, JSON);
+        400 without a device, 404 for a device that renders no image, no frame yet (a replay has none: frames are
+        shown live only) or a frame number not kept."""
+        name = request.query.get("device")
+        if not name:
+            return _json({"error": "device is missing: /api/frame?device=NAME, NAME a tracker whose source is "
+                                   "image"}, status=400)
+        rendering = [d["name"] for d in self.source.meta.get("devices", ())
+                     if isinstance(d.get("image"), dict) and d["image"].get("renders")]
+        if name not in rendering:
+            return _json({"error": f"device {name[:100]!r} is not allowed: it is not a device of this run that renders "
+                                   f"an image ({', '.join(rendering) or 'none does'})"}, status=404)
+        latest = self.source.frames.get(name)
+        if latest is None:
+            why = "a replay has no frames (they are shown live only)" if self.source.mode == "replay" else \
+                "it has sent no frame yet (frames are taken while a page is open)"
+            return _json({"error": f"no frame of {name!r}: {why}"}, status=404)
+        if "seq" in request.query:  # the frame the page was told of (the newest may have moved on meanwhile)
+            text = request.query["seq"]
+            latest = self.source.frame_numbered(name, int(text)) if text.isdigit() else None
+            if latest is None:
+                return _json({"error": f"seq {text[:20]!r} is not allowed: the number of one of the last "
+                                       f"{state.RECENT_FRAMES} frames of {name!r} (the newest is "
+                                       f"{self.source.frames[name][0]['seq']})"}, status=404)
+        info, png = latest
+        return web.Response(body=png, content_type="image/png", headers={"X-Stand-Frame": state.dumps(info)})
+
     async def _ws(self, request):
         ws = web.WebSocketResponse(heartbeat=20.0)
         await ws.prepare(request)
@@ -356,6 +388,8 @@ class ViewServer:
         self.source.pages = len(self.sockets)
         try:
             await ws.send_str(state.dumps({"type": "status", "status": self.source.status}))
+            for info, _ in list(self.source.frames.values()):  # the newest frame of each tracker, for a new page
+                await ws.send_str(state.dumps({"type": "frame", **info}))
             async for msg in ws:
                 if msg.type in (WSMsgType.ERROR, WSMsgType.CLOSE):
                     break
@@ -466,6 +500,9 @@ class PipeLink:
             self.conn.send_bytes(b"S" + data.encode())
         elif kind == "fault":
             self.conn.send_bytes(b"A" + state.dumps(data).encode())
+        elif kind == "frame":  # an image tracker's frame: its header (JSON), a newline, its 8-bit pixels
+            header, pixels = data
+            self.conn.send_bytes(b"I" + state.dumps(header).encode() + b"\n" + pixels)
         else:
             self.conn.send_bytes(b"R" + np.ascontiguousarray(data, dtype="<f8").tobytes())
 
@@ -479,6 +516,7 @@ class PipeLink:
 def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str | None) -> None:
     """The server process of ``stand run --view``. Messages on ``conn``: ``R`` + rows as float64 bytes, ``S`` + a
     status the run's side set by itself (a pause it released), ``A`` + the run's answer to a fault command (JSON),
+    ``I`` + an image tracker's frame (its header as JSON, a newline, its 8-bit pixels),
     ``F`` + the run's status when it ended, ``V`` once its ``summary.json`` is written (the pages fetch the verdict),
     ``C`` to end the process (after the run's linger, :meth:`LiveSession.linger`); back go control commands
     (``"pause"``, ``"stop"``, None, ``("fault", payload)``) and, every ``HEARTBEAT_S`` until the run's end,
@@ -530,6 +568,8 @@ def _relay(conn, source, heartbeat) -> None:
             source.answered(json.loads(data))
         elif tag == b"V":
             source.summary_ready()
+        elif tag == b"I":
+            _frame(source, data)
         elif tag == b"C":
             return
         else:
@@ -538,6 +578,16 @@ def _relay(conn, source, heartbeat) -> None:
                 width = sum(int(c["width"]) for c in cols) if cols else None
             if width:
                 source.ingest(np.frombuffer(data, dtype="<f8").reshape(-1, width))
+
+
+def _frame(source, data: bytes) -> None:
+    """An image tracker's frame from the pipe (header JSON, a newline, pixels) to the pages; one that cannot be read
+    or encoded is left out, logged, and the page goes on."""
+    header, _, pixels = data.partition(b"\n")
+    try:
+        source.frame(json.loads(header), pixels)
+    except (ValueError, KeyError, TypeError) as exc:
+        log.warning("a tracker frame was left out of the page: %s", exc)
 
 
 def write_view_url(run_dir, url: str, host: str, token: str | None) -> Path:

@@ -59,6 +59,9 @@ UNATTENDED_PAUSE_S = 600.0
 #: its next control poll (every 0.25 s of wall time, every 0.05 s while paused) and the feed sends the answer at
 #: its next push (ten a second), so a run that is alive answers within about half a second.
 FAULT_ANSWER_S = 10.0
+#: Frames of each image tracker the live server keeps for ``GET /api/frame?device=NAME&seq=N`` (two seconds' worth at
+#: ``stand.view.frames.FRAME_HZ``): a page asks for the frame it was told of, which a newer one may follow meanwhile.
+RECENT_FRAMES = 4
 
 
 # --------------------------------------------------------------------------------------------------- geometry
@@ -296,6 +299,10 @@ class LiveFeed:
     :meth:`poll_control` hands them to the loop one at a time, before any pause or stop, as ``("fault", payload)``;
     the loop hands each to the run's fault schedule and gives the answer back with :meth:`answer_fault`, which the
     sender thread sends at its next push as ``("fault", answer)``.
+
+    The frames of image trackers (:meth:`watch_devices`, :mod:`stand.view.frames`) are asked for by the sender thread
+    while the server says a page is open, at most ``frames.FRAME_HZ`` a second, and sent as ``("frame", (header,
+    pixels))``; the loop's side pays nothing for them per tick.
     """
 
     def __init__(self, link, meta: dict, push_hz: float = 10.0, max_samples: int = MAX_SAMPLES, *,
@@ -318,6 +325,9 @@ class LiveFeed:
         self._paused_s = now  # when the current pause began
         self._tell: str | None = None  # a status for the server, sent by the sender thread
         self._lost_logged = False
+        self.pages = 0  # pages open, as the server last said
+        self.taps: list = []  # image trackers' frame taps (watch_devices)
+        self.frames_sent = 0
         self.pushes = 0
         self.rows_taken = 0  # rows the sender took from the deque (all the loop recorded, unless some were dropped)
         self.cpu_s = 0.0
@@ -336,6 +346,13 @@ class LiveFeed:
         if command != "pause" and self.error is None:
             return command
         return self._check(command)
+
+    def watch_devices(self, devices: dict) -> None:
+        """The run's devices (``stand.loop.run`` hands them over once): the image trackers' frames are shown
+        (:mod:`stand.view.frames`), asked for by the sender thread while a page is open."""
+        from .frames import taps
+
+        self.taps = taps(devices)
 
     def answer_fault(self, answer: dict) -> None:
         """The run's answer to a fault command (from the loop's thread); sent at the next push."""
@@ -413,6 +430,7 @@ class LiveFeed:
         now = self.clock()
         if isinstance(message, dict):
             self._heard_s = now
+            self.pages = int(message.get("pages", 0))
             if message.get("pages", 0) > 0:
                 self._page_seen_s = now
             return
@@ -432,6 +450,21 @@ class LiveFeed:
             self.link.send(("status", status))
         while self._answers:
             self.link.send(("fault", self._answers.popleft()))
+        self._send_rows()
+        if self.taps:
+            self._send_frames()
+
+    def _send_frames(self) -> None:
+        """The frames the loop took since the last push, and the next asked for while a page is open."""
+        for tap in self.taps:
+            frame = tap.collect()
+            if frame is not None:
+                self.link.send(("frame", frame))
+                self.frames_sent += 1
+            if self.pages > 0:
+                tap.arm()
+
+    def _send_rows(self) -> None:
         rows = self.rows
         new = [rows.popleft() for _ in range(len(rows))]  # the loop appends on the right meanwhile
         if not new:
@@ -512,6 +545,9 @@ class LiveSource:
         self._answered = threading.Condition()
         self._answers: dict[int, dict] = {}
         self._fault_ids = 0
+        self.frames: dict[str, tuple[dict, bytes]] = {}  # device -> (header, PNG) of its newest frame
+        self._recent_frames: dict[str, collections.deque] = {}  # device -> its last RECENT_FRAMES, by seq
+        self._frame_seq = 0
 
     def fault(self, command: dict, timeout_s: float = FAULT_ANSWER_S) -> dict:
         """Send a fault command (``{"action": "inject", "fault": {...}}`` or ``{"action": "clear", "name": ...}``)
@@ -578,6 +614,26 @@ class LiveSource:
             self._answered.notify_all()
         self._notify({"type": "status", "status": "finished", "run_status": run_status,
                       **({"events": events} if events else {})})
+
+    def frame(self, header: dict, pixels: bytes) -> None:
+        """An image tracker's newest frame (8 bits, :meth:`stand.view.frames.FrameTap.collect`): encoded, kept for
+        ``GET /api/frame``, and announced to the pages, which then load it."""
+        from .frames import encode_png
+
+        png = encode_png(header, pixels)
+        with self._lock:
+            self._frame_seq += 1
+            info = {**header, "seq": self._frame_seq, "bytes": len(png)}
+            self.frames[str(header["device"])] = (info, png)
+            self._recent_frames.setdefault(str(header["device"]), collections.deque(maxlen=RECENT_FRAMES)).append(
+                (info, png))
+        self._notify({"type": "frame", **info})
+
+    def frame_numbered(self, device: str, seq: int) -> tuple[dict, bytes] | None:
+        """Frame ``seq`` of ``device`` if it is among its last ``RECENT_FRAMES`` (the one a page was told of, even
+        when a newer one came while it asked), else None."""
+        with self._lock:
+            return next((f for f in self._recent_frames.get(device, ()) if f[0]["seq"] == seq), None)
 
     def summary_ready(self) -> None:
         """The finished run's ``summary.json`` is written: the pages fetch the verdict (``/api/meta``)."""
@@ -675,6 +731,8 @@ class LocalLink:
             self.source.released(data)
         elif kind == "fault":
             self.source.answered(data)
+        elif kind == "frame":
+            self.source.frame(*data)
         else:
             self.source.ingest(data)
 

@@ -364,10 +364,10 @@ def test_a_live_page_keeps_drawing_nan_rows(browser, run_dir, tmp_path):
             f.write(json.dumps({"kind": "odd", "message": "NaN time", "t_s": math.nan}) + "\n")
         bad = flat[100:150].copy()
         bad[:, 1:] = np.nan
+        n = browser.execute_script("return window.standView.stats.draws")  # before the pushes: their redraw counts
         source.ingest(bad)
         source.ingest(flat[150:200])
         _wait(browser, "return window.standView.store.n === 200")
-        n = browser.execute_script("return window.standView.stats.draws")
         _wait(browser, f"return window.standView.stats.draws > {n}")
         for t in (12.0, 16.0):  # inside the NaN rows, then after them
             _seek(browser, t)

@@ -185,7 +185,7 @@
   const S = {
     meta: null, store: new Store(), events: [], stars: null, land: null, t: 0, i: -1, playing: false, follow: true,
     live: false, status: "", stats: { draws: 0, firstDrawMs: null, lastDrawMs: null, pushes: 0, pushTimes: [] },
-    starCache: null, modeNames: new Map(), overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1,
+    starCache: null, modeNames: new Map(), overlay: [], faults: [], faultMarks: [], faultTypes: [], faultAnswers: [], eventsSeen: -1, frames: {},
   };
   window.standView = S;
 
@@ -1201,6 +1201,75 @@
     });
   }
 
+  // ------------------------------------------------------------------------------------------ tracker images
+  // The newest detector frame of each image-source tracker (stand/view/frames.py): the server announces a frame on
+  // the websocket, the page loads it from /api/frame (one load at a time per tracker: a frame that arrives while
+  // one loads waits, and only the newest of those is loaded). Its solution's validity and flags are the tracker's
+  // telemetry at the exposure plus the tracker's output delay (and one recording period).
+  function setupTrackerImages() {
+    const devs = S.meta.devices.filter((d) => d.image);
+    S.imageDevices = devs;
+    $("trackimg").hidden = devs.length === 0;
+    // Frames to show: the panel beside the faults; only "no image" lines: one thin row above the plots.
+    const frames = S.live && devs.some((d) => d.image.renders);
+    document.querySelector("main").classList.toggle("with-images", frames);
+    document.querySelector("main").classList.toggle("image-notes", devs.length > 0 && !frames);
+    $("trackimg-title").textContent = frames ? "tracker image (live, the newest frame)" : "tracker image:";
+    const list = $("trackimg-list");
+    for (const d of devs) {
+      const fig = document.createElement("figure"), cap = document.createElement("figcaption");
+      fig.dataset.device = d.name;
+      if (d.image.renders && S.live) {
+        const img = document.createElement("img");
+        img.alt = `${d.name}: detector image`; img.hidden = true;
+        img.addEventListener("load", () => frameLoaded(d.name));
+        img.addEventListener("error", () => frameLoaded(d.name, true));
+        fig.appendChild(img);
+        cap.textContent = `${d.name}: waiting for the first frame`;
+      } else if (d.image.renders) cap.textContent = `${d.name}: no image in a replay (frames are shown live only)`;
+      else cap.textContent = `${d.name}: no image: ${d.image.why || "this tracker does not render"}`;
+      fig.appendChild(cap); list.appendChild(fig);
+      S.frames[d.name] = { shown: null, loading: null, waiting: null, loaded: 0, errors: 0 };
+    }
+  }
+  function onFrame(msg) {
+    const f = S.frames[msg.device];
+    if (!f) return;
+    if (f.loading) { f.waiting = msg; return; }
+    loadFrame(msg.device, msg);
+  }
+  function loadFrame(name, msg) {
+    const f = S.frames[name], img = document.querySelector(`#trackimg figure[data-device="${name}"] img`);
+    if (!img) return;
+    f.loading = msg;
+    img.src = `/api/frame?device=${encodeURIComponent(name)}&seq=${msg.seq}`;
+  }
+  function frameLoaded(name, failed) {
+    const f = S.frames[name], img = document.querySelector(`#trackimg figure[data-device="${name}"] img`);
+    if (failed) f.errors++;
+    else { f.shown = f.loading; f.loaded++; img.hidden = false; }
+    f.loading = null;
+    drawTrackerImages();
+    if (f.waiting) { const next = f.waiting; f.waiting = null; loadFrame(name, next); }
+  }
+  function drawTrackerImages() {
+    for (const d of S.imageDevices || []) {
+      const f = S.frames[d.name];
+      if (!f || !f.shown) continue;
+      const m = f.shown, cap = document.querySelector(`#trackimg figure[data-device="${d.name}"] figcaption`);
+      const stars = m.stars_extracted === null || m.stars_extracted === undefined ? "–" : m.stars_extracted;
+      const at = m.t_s + (d.image.delay_s || 0) + 1 / (S.meta.record_rate_hz || 10);
+      const st = S.store, k = st.n && st.t(st.n - 1) >= at - 1e-9 ? st.index(at) : -1;
+      let sol = "solution pending";
+      if (k >= 0) {
+        const s = deviceState(d, k), flags = st.get(d.name + ".flags", k);
+        sol = `solution ${s.label || "–"}` + (Number.isFinite(flags) ? `, flags 0x${(flags | 0).toString(16).padStart(2, "0")}` : "");
+      }
+      cap.textContent = `${d.name} at t = ${m.t_s.toFixed(1)} s: ${stars} stars extracted, ${m.stars_matched} matched; ${sol}`;
+      cap.title = `exposure at t = ${m.t_s.toFixed(3)} s, ${m.full_px[0]} x ${m.full_px[1]} px shown at ${m.size_px[0]} x ${m.size_px[1]} (2 x 2 maximum, asinh stretch); the solution reported ${d.image.delay_s} s later`;
+    }
+  }
+
   // ------------------------------------------------------------------------------------------ time and drawing
   let pending = false;
   function redraw() {
@@ -1219,6 +1288,7 @@
     timed("plots", () => { for (const p of S.plots || []) p.draw(); if (S.strip) S.strip.draw(); });
     timed("events", () => drawEvents(false));
     timed("timeline", drawTimeline);
+    timed("images", drawTrackerImages);
     header();
     const now = performance.now();
     S.stats.draws++; S.stats.lastDrawMs = now - t0;
@@ -1308,6 +1378,7 @@
       else if (msg.type === "events") { S.events.push(...msg.events); redraw(); }
       else if (msg.type === "status") { S.status = msg.status; if (msg.events) S.events.push(...msg.events); redraw(); }
       else if (msg.type === "summary") refreshVerdict();
+      else if (msg.type === "frame") onFrame(msg);
       else if (msg.type === "error") console.warn(msg.message);
     };
     ws.onclose = () => { if (S.live && S.status !== "finished") { S.status = "disconnected"; redraw(); } };
@@ -1344,6 +1415,7 @@
     S.events = samples.events || []; if (samples.status) S.status = samples.status;
     S.t = S.live && S.store.n ? S.store.t(S.store.n - 1) : (S.store.n ? S.store.t(0) : 0);
     buildPlots();
+    setupTrackerImages();
     if (S.live) connect();
     const legend = [["Sun", COLORS.sun], ["Moon", COLORS.moon], ["body +X", COLORS.axes[0]], ["+Y", COLORS.axes[1]], ["+Z", COLORS.axes[2]],
       ["valid field", COLORS.valid], ["Sun in field", COLORS.sunFlag], ["Moon", COLORS.moonFlag], ["Earth", COLORS.earthFlag], ["rate", COLORS.rate], ["no solution", COLORS.nosol]];
