@@ -39,7 +39,7 @@ MAX_INT_SCALE = 1024  # an integer scale's raw * scale + offset stays within 64 
 
 @cython.cfunc
 @cython.inline
-def round_half_even(x: cython.double) -> cython.double:
+def _round_half_even(x: cython.double) -> cython.double:
     """Python's ``round(x)`` (to the nearest integer, a tie to the even one), as a float: x - floor(x) is exact."""
     r = floor(x)
     d = x - r
@@ -114,9 +114,9 @@ class Signal:
         if self.kind == IDENTITY and t is not float:
             r = iv
         elif self.kind == LINEAR_INT and t is not float:
-            r = round_half_even((iv - self.ioffset) / self.iscale)  # exact: both ints are exact doubles
+            r = _round_half_even((iv - self.ioffset) / self.iscale)  # exact: both ints are exact doubles
         else:
-            r = round_half_even((x - self.offset) / self.scale)
+            r = _round_half_even((x - self.offset) / self.scale)
         if not self.raw_lo <= r <= self.raw_hi:
             return (False, 0)
         raw: cython.longlong = cython.cast(cython.longlong, r)
