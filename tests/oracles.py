@@ -57,6 +57,22 @@ def require_compiled(name: str) -> ModuleType:
         raise  # not reached
 
 
+def build_fixtures(name: str) -> tuple:
+    """Two pytest fixtures for the compiled path ``name``: ``compiled`` (its twin, :func:`require_compiled`) and
+    ``build`` (the plain module, then the twin: a test taking it runs on both builds). In a test module:
+    ``compiled, build = build_fixtures("sim.body_step")``."""
+
+    @pytest.fixture(scope="module", name="compiled")
+    def compiled() -> ModuleType:
+        return require_compiled(name)
+
+    @pytest.fixture(params=["python", "compiled"], name="build")
+    def build(request) -> ModuleType:
+        return importlib.import_module(name) if request.param == "python" else request.getfixturevalue("compiled")
+
+    return compiled, build
+
+
 def require_tool(command: str, package: str) -> str:
     """The path of the program ``command`` (a Debian package that `.ci/run` installs); skip locally, fail under CI,
     when it is not on the PATH."""

@@ -17,18 +17,9 @@ from drivers import dbc as dbc_mod
 from drivers import fixture_path
 from drivers.dbc import DbcCodec
 from tests.drivers.test_dbc import MIXED_DBC, MTQ_DBC, _fast_messages, _physical_values
-from tests.oracles import require_compiled
+from tests.oracles import build_fixtures, require_compiled
 
-
-@pytest.fixture(scope="module")
-def compiled():
-    return require_compiled("drivers.bitpack")
-
-
-@pytest.fixture(params=["python", "compiled"])
-def build(request):
-    """Each build of drivers.bitpack in turn."""
-    return plain if request.param == "python" else request.getfixturevalue("compiled")
+compiled, build = build_fixtures("drivers.bitpack")
 
 
 def _packers(codec: DbcCodec, name: str, order: tuple[str, ...], compiled) -> tuple:

@@ -16,18 +16,9 @@ import sim.body_step as plain
 from sim import rigid_body
 from sim import truth as truth_mod
 from sim.constants import MU_EARTH
-from tests.oracles import require_compiled
+from tests.oracles import build_fixtures, require_compiled
 
-
-@pytest.fixture(scope="module")
-def compiled():
-    return require_compiled("sim.body_step")
-
-
-@pytest.fixture(params=["python", "compiled"])
-def build(request):
-    """Each build of sim.body_step in turn."""
-    return plain if request.param == "python" else request.getfixturevalue("compiled")
+compiled, build = build_fixtures("sim.body_step")
 
 
 def _state(rng: np.random.Generator, scale_w: float, scale_m: float):
