@@ -47,9 +47,11 @@ def _extensions():
         target = stage / (twin.replace(".", "/") + ".py")
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, target)
-        extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS,
-                                    optional=not REQUIRED))
-    return cythonize(extensions, compiler_directives=DIRECTIVES, build_dir=str(stage / "c"), quiet=True)
+        extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS))
+    compiled = cythonize(extensions, compiler_directives=DIRECTIVES, build_dir=str(stage / "c"), quiet=True)
+    for extension in compiled:  # set after cythonize, which does not carry it over
+        extension.optional = not REQUIRED
+    return compiled
 
 
 setup(ext_modules=_extensions(), py_modules=["compiled_paths"])
