@@ -1,21 +1,57 @@
 """Only the compiled part of the build; everything else about the package is in pyproject.toml.
 
-Two small C extensions, each equal to a Python original to the bit (docs/fast_paths.md):
+Every module listed in ``compiled_paths.MODULES`` is compiled by Cython in pure-Python mode under its twin name
+(``sim/body_step.py`` -> ``sim._body_step_compiled``): the same file, so the readable source is the compiled one,
+and the plain module stays beside it for ``STAND_NATIVE=0`` (docs/fast_paths.md).
 
-* ``sim._native`` (sim/_native.c): the default scenario's attitude step (sim.truth.rk4_magnetic_gg);
-* ``drivers._bitpack`` (drivers/_bitpack.c): the DBC codec's per-message fast path (drivers.dbc.MessagePacker).
-
-Both are optional: without a C compiler the install goes on and the stand runs the Python originals
-(``stand bench loop`` says which ran; ``STAND_NATIVE=0`` asks for Python). -ffp-contract=off keeps the compiler from
-fusing a multiply and an add into one FMA, which would change the last bit of the results.
+The build is optional: without a C compiler (or Cython) the install goes on and the stand runs the plain Python,
+which gives the same bits (``summary.json``'s ``compiled_paths`` and ``stand bench loop`` say which ran).
+``STAND_REQUIRE_COMPILED=1`` makes it required (CI sets it on a machine with a compiler). -ffp-contract=off and
+-fno-fast-math keep the C compiler from fusing a multiply and an add into one FMA or reordering sums, and the Cython
+directives keep Python's semantics for division and ``**`` (no cdivision, no C pow), so the results are Python's to
+the bit.
 """
 
 import os
+import runpy
+import shutil
+from pathlib import Path
 
-from setuptools import Extension, setup
+from setuptools import setup
 
-flags = ["-ffp-contract=off", "-fno-fast-math"] if os.name == "posix" else []
-setup(ext_modules=[
-    Extension("sim._native", ["sim/_native.c"], extra_compile_args=flags, optional=True),
-    Extension("drivers._bitpack", ["drivers/_bitpack.c"], extra_compile_args=flags, optional=True),
-])
+HERE = Path(__file__).resolve().parent
+REQUIRED = os.environ.get("STAND_REQUIRE_COMPILED", "").strip() not in ("", "0")
+FLAGS = ["-ffp-contract=off", "-fno-fast-math"] if os.name == "posix" else []
+#: Python's semantics, stated (they are Cython 3's defaults too): true division checks for zero and follows Python
+#: for negative operands, ``**`` returns what Python returns.
+DIRECTIVES = {"language_level": 3, "cdivision": False, "cpow": False, "infer_types": None}
+
+
+def _extensions():
+    """The Cython extensions of compiled_paths.MODULES, or [] when Cython is missing (and not required)."""
+    paths = runpy.run_path(str(HERE / "compiled_paths.py"))
+    try:
+        from Cython.Build import cythonize
+        from setuptools import Extension
+    except ImportError:
+        if REQUIRED:
+            raise
+        return []
+    # The twin's source is a copy of the module under the twin's name (Cython names the module after its file);
+    # it lives in the build tree only.
+    stage = HERE / "build" / "cython"
+    extensions = []
+    for name in paths["MODULES"]:
+        twin = paths["twin"](name)
+        source = HERE / (name.replace(".", "/") + ".py")
+        target = stage / (twin.replace(".", "/") + ".py")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(source, target)
+        extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS))
+    compiled = cythonize(extensions, compiler_directives=DIRECTIVES, build_dir=str(stage / "c"), quiet=True)
+    for extension in compiled:  # set after cythonize, which does not carry it over
+        extension.optional = not REQUIRED
+    return compiled
+
+
+setup(ext_modules=_extensions(), py_modules=["compiled_paths"])

@@ -94,7 +94,7 @@ class CanCodec:
               tables: Iterable[tuple[str, str, tuple[str, ...]]]) -> None:
         """Check the DBC's value ``tables`` ((message, signal, names) each) against the codec's names and build the
         packers (``_packers``, each message's signals in ``signals`` order: positionally, no dict per frame), the
-        decode table, ``lengths``, ``cycle_time_s`` and ``compiled`` (ids plus ``id_offset``)."""
+        decode table, ``lengths`` and ``cycle_time_s`` (ids plus ``id_offset``)."""
         self.dbc = dbc
         for msg, sig, names in tables:
             table = dbc.choices(msg, sig)
@@ -109,8 +109,6 @@ class CanCodec:
         self.lengths: dict[int, int] = {dbc.frame_id(n) + offset: dbc.length(n) for n in dbc.names}
         #: GenMsgCycleTime of each periodic message, s.
         self.cycle_time_s: dict[str, float | None] = {n: dbc.cycle_time_s(n) for n in dbc.names}
-        #: True when the compiled bit packer (drivers._bitpack) runs every message, False for the generated Python.
-        self.compiled = all(q.compiled for q in packers.values())
 
     # -- encode ---------------------------------------------------------------------------------
 

@@ -9,17 +9,15 @@ about 20 us per message, and the stand's loop exchanges several frames every 0.1
 thousands of times real time. Anything the fast path does not cover (big-endian, multiplexed,
 float or container messages) goes through cantools.
 
-The fast path itself is specialised per message when the DBC is loaded (:func:`_compile_message`):
-straight-line Python source with the message's shifts, masks, scales and ranges as literals, so a
-frame costs one function call instead of a loop over signal descriptors (about 1 us instead of 3-4
-per 8-byte frame, on the stand's per-tick path). The generated encoder only takes the common case
-(numbers within range); anything else (enum names, numpy scalars, missing or unknown signals,
-out-of-range values) goes to the descriptor loop :meth:`DbcCodec._encode_general`, which is the
-reference and raises the errors.
+The fast path itself is one :class:`drivers.bitpack.Packer` per message, built when the DBC is loaded
+(the message's shifts, masks, scales and ranges as C numbers where the install compiled ``drivers.bitpack``,
+see ``compiled_paths``). It only takes the common case (numbers within range); anything else (enum names,
+numpy scalars, missing or unknown signals, out-of-range values) goes to the descriptor loop
+:meth:`DbcCodec._encode_general`, which is the reference and raises the errors. A message the packer does not
+cover (over 8 bytes, a signal over 52 bits) goes through cantools.
 
 Device codecs that run every tick take :meth:`DbcCodec.packer`: the same fast path on positional values in the
-codec's own order (no dict per frame), run by the compiled ``drivers._bitpack`` when the install built it
-(drivers/_bitpack.c, the same results to the bit) and by the generated Python otherwise.
+codec's own order (no dict per frame).
 
 Conventions (the same as cantools with ``decode_choices=False``, ``scaling=True``):
 
@@ -38,19 +36,22 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import compiled_paths
+from drivers.bitpack import IDENTITY as _IDENTITY
+from drivers.bitpack import LINEAR as _LINEAR
+from drivers.bitpack import LINEAR_INT as _LINEAR_INT
 from drivers.errors import EncodeError, ProtocolError, frame_hex
+
+#: The bit packer: compiled where the install could (compiled_paths), the same to the bit.
+_bitpack = compiled_paths.load("drivers.bitpack")
 
 __all__ = ["DbcCodec"]
 
-# Conversion kinds, chosen by the same rule as cantools' BaseConversion.factory.
-_IDENTITY = 0  # scale 1, offset 0: physical is the raw integer
-_LINEAR_INT = 1  # integer scale and offset: physical stays an int
-_LINEAR = 2  # anything else: physical is a float
+# Conversion kinds (drivers.bitpack's), chosen by the same rule as cantools' BaseConversion.factory.
 
 
 def _is_integer(value: float) -> bool:
@@ -111,19 +112,18 @@ class _Signal:
 
 
 class _Message:
-    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message",
-                 "encode_fast", "decode_fast")
+    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message", "packer")
 
     def __init__(self, msg: Any, fast: bool) -> None:
         self.name: str = msg.name
         self.frame_id: int = msg.frame_id
         self.length: int = msg.length
         self.cantools_message = msg
-        self.fast = fast
         self.signals: tuple[_Signal, ...] = tuple(_Signal(s) for s in msg.signals) if fast else ()
         self.signal_names: frozenset[str] = frozenset(s.name for s in msg.signals)
-        # values -> payload, or None to take the descriptor loop; payload -> {signal: value}.
-        self.encode_fast, self.decode_fast = _compile_message(self) if fast else (None, None)
+        #: The fast path in DBC order (values -> payload or None; payload -> values), None through cantools.
+        self.packer = _packer(self, tuple(s.name for s in self.signals)) if fast else None
+        self.fast = self.packer is not None
 
 
 def _is_literal(x: Any) -> bool:
@@ -138,120 +138,15 @@ def _fast_path_supported(msg: Any) -> bool:
                and _is_literal(s.conversion.scale) and _is_literal(s.conversion.offset) for s in msg.signals)
 
 
-def _raw_range_implied(sig: _Signal) -> bool:
-    """True when every value within ``[lo, hi]`` gives a raw value the bits can hold.
-
-    physical -> raw (a subtraction, a division by a constant, a rounding) is monotonic in
-    floating point, so checking the two ends is enough; the encoder then skips the raw check.
-    """
-    try:
-        ends = (DbcCodec._raw_of(sig, sig.lo), DbcCodec._raw_of(sig, sig.hi))
-    except (ValueError, OverflowError):
-        return False
-    return all(sig.raw_lo <= raw <= sig.raw_hi for raw in ends)
-
-
-#: Raw values below this are exact quotients in float64 (what the integer-scale shortcut relies on).
-_EXACT_QUOTIENT = 1 << 53
-
-
-def _signal_code(i: int, sig: _Signal) -> tuple[list[str], str, list[str], str]:
-    """The straight-line code of one signal: (encoder lines for value ``v{i}``, its packed field, decoder lines,
-    its physical value). The arithmetic is exactly that of :meth:`DbcCodec._encode_general` and of cantools (the
-    same operations in the same order on the same constants, written as literals)."""
-    v, r = f"v{i}", f"r{i}"
-    # Plain numbers within [min|max] only (this also refuses NaN); the loop handles the rest.
-    enc = [f"    t = type({v})",
-           f"    if t is not float and t is not int and t is not bool or not {sig.lo!r} <= {v} <= {sig.hi!r}:",
-           "        return None"]
-    if sig.kind == _IDENTITY:  # round() of an int or a bool is the same number
-        enc.append(f"    {r} = {v} if t is not float else round({v})")
-    elif sig.kind == _LINEAR or sig.mask < _EXACT_QUOTIENT:
-        # For an integer scale, cantools divides only when the value is not an exact multiple;
-        # an exact multiple below 2**53 divides exactly anyway, so one division is the same.
-        shifted = v if sig.offset == 0 and type(sig.offset) is int else f"({v} - {sig.offset!r})"
-        enc.append(f"    {r} = round({shifted} / {sig.scale!r})")
-    else:  # cantools' integer-scale path: avoid a division when the value is exact
-        enc += [f"    {r} = {v} - {sig.offset!r}",
-                f"    q, m = divmod({r}, {sig.scale!r})",
-                f"    {r} = round(q if m == 0 else {r} / {sig.scale!r})"]
-    if not _raw_range_implied(sig):
-        enc += [f"    if not {sig.raw_lo} <= {r} <= {sig.raw_hi}:", "        return None"]
-    dec = [f"    {r} = (word >> {sig.start}) & {sig.mask:#x}"]
-    if sig.sign_bit:
-        dec.append(f"    {r} = ({r} ^ {sig.sign_bit:#x}) - {sig.sign_bit:#x}")
-    value = r if sig.kind == _IDENTITY else f"{r} * {sig.scale!r} + {sig.offset!r}"
-    return enc, f"({r} & {sig.mask:#x}) << {sig.start}", dec, value
-
-
-def _compile_message(entry: _Message, order: tuple[str, ...] | None = None) -> tuple[Any, Any]:
-    """Generate the straight-line encoder and decoder of one fast-path message.
-
-    Without ``order``: ``encode(values)`` takes a dict and ``decode(data)`` returns one. With ``order`` (a
-    permutation of the signal names): ``encode(*values)`` takes the values positionally in that order and
-    ``decode(data)`` returns a tuple in that order (no dict on the per-tick path). Either way the bytes and values
-    are those of cantools, bit for bit; only the loop and the look-ups are gone.
-    """
-    by_name = {sig.name: (i, sig) for i, sig in enumerate(entry.signals)}
-    signals = [by_name[n] for n in order] if order is not None else list(by_name.values())
-    if order is None:
-        enc = ["def encode(values):",
-               f"    if len(values) != {len(entry.signals)}:",
-               "        return None",
-               "    try:",
-               *(f"        v{i} = values[{sig.name!r}]" for i, sig in signals),
-               "    except KeyError:",
-               "        return None"]
-    else:
-        enc = [f"def encode({', '.join(f'v{i}' for i, _ in signals)}):"]
-    dec = ["def decode(data):", "    word = int.from_bytes(data, 'little')"]
-    fields, out = [], []
-    for i, sig in signals:
-        e, f, d, value = _signal_code(i, sig)
-        enc += e
-        dec += d
-        fields.append(f)
-        out.append(value if order is not None else f"{sig.name!r}: {value}")
-    enc.append(f"    return ({' | '.join(fields) or '0'}).to_bytes({entry.length}, 'little')")
-    dec.append(f"    return ({', '.join(out)},)" if order is not None else f"    return {{{', '.join(out)}}}")
-    namespace: dict[str, Any] = {}
-    exec(compile("\n".join(enc + [""] + dec), f"<dbc {entry.name}>", "exec"), namespace)  # noqa: S102
-    return namespace["encode"], namespace["decode"]
-
-
-def _packer_type() -> Any:
-    """``drivers._bitpack.Packer`` when the build made it and ``STAND_NATIVE`` is not ``0``; else None."""
-    if os.environ.get("STAND_NATIVE", "1") == "0":
-        return None
-    try:
-        from drivers._bitpack import Packer
-    except ImportError:  # built without a C compiler: the generated Python, the same to the bit
-        return None
-    return Packer
-
-
-_Packer = _packer_type()
-#: Which implementation packs the fast-path messages: "compiled" (drivers/_bitpack.c) or "python".
-NATIVE = "python" if _Packer is None else "compiled"
-
-
-def _compiled_packer(entry: _Message, order: tuple[str, ...]) -> Any:
-    """The C build of the positional fast path for ``entry``, or None without it or for a signal beyond what it
-    covers (more than 52 bits, a frame over 8 bytes)."""
-    if _Packer is None or entry.length > 8:
-        return None
+def _packer(entry: _Message, order: tuple[str, ...]) -> Any:
+    """The bit packer of ``entry``'s signals in ``order``, or None for a message beyond it (it goes through
+    cantools)."""
     by_name = {sig.name: sig for sig in entry.signals}
-    rows = []
-    for name in order:
-        sig = by_name[name]
-        bits = sig.mask.bit_length()
-        if bits > 52 or not all(_is_literal(x) for x in (sig.scale, sig.offset, sig.lo, sig.hi)):
-            return None
-        rows.append((sig.start, bits, bool(sig.sign_bit), sig.kind, sig.scale, sig.offset, sig.lo, sig.hi,
-                     sig.raw_lo, sig.raw_hi))
+    rows = tuple((sig.start, sig.mask.bit_length(), bool(sig.sign_bit), sig.kind, sig.scale, sig.offset, sig.lo,
+                  sig.hi, sig.raw_lo, sig.raw_hi) for sig in (by_name[name] for name in order))
     try:
-        return _Packer(entry.length, rows)
-    except ValueError:  # an integer scale too large for its 64-bit arithmetic: the Python path
+        return _bitpack.Packer(entry.length, rows)
+    except ValueError:  # over 8 bytes, a signal over 52 bits, an integer scale over 1024
         return None
 
 
@@ -261,20 +156,17 @@ class MessagePacker:
     ``pack(*values)`` (physical values in DBC units, in ``order``) is the payload, or None where
     :meth:`DbcCodec.encode` must decide (anything but plain numbers within range; it raises the error naming the
     field); ``unpack(payload)`` of exactly ``length`` bytes is the tuple of physical values in ``order``.
-    ``compiled`` says whether the C build (``drivers._bitpack``) or the generated Python runs; they agree to the
-    bit. A message outside the fast path (big-endian, multiplexed, float signals) goes through cantools.
+    A message outside the fast path (big-endian, multiplexed, float signals, beyond the packer) goes through
+    cantools.
     """
 
-    __slots__ = ("name", "frame_id", "length", "order", "pack", "unpack", "compiled")
+    __slots__ = ("name", "frame_id", "length", "order", "pack", "unpack")
 
     def __init__(self, codec: DbcCodec, entry: _Message, order: tuple[str, ...]) -> None:
         self.name, self.frame_id, self.length, self.order = entry.name, entry.frame_id, entry.length, order
-        native = _compiled_packer(entry, order) if entry.fast else None
-        self.compiled = native is not None
-        if native is not None:
-            self.pack, self.unpack = native.pack, native.unpack
-        elif entry.fast:
-            self.pack, self.unpack = _compile_message(entry, order)
+        packer = _packer(entry, order) if entry.fast else None
+        if packer is not None:
+            self.pack, self.unpack = packer.pack, packer.unpack
         else:
             self.pack = lambda *values: None  # noqa: E731 - DbcCodec.encode takes every case
             self.unpack = lambda data: tuple(codec.decode(entry.frame_id, data)[1][n] for n in order)  # noqa: E731
@@ -390,7 +282,7 @@ class DbcCodec:
         if not entry.fast:
             return entry.frame_id, self._encode_cantools(entry, values)
         try:
-            payload = entry.encode_fast(values)
+            payload = self._encode_fast(entry, values)
             if payload is None:
                 payload = self._encode_general(entry, values)
         except EncodeError:
@@ -398,6 +290,17 @@ class DbcCodec:
         except (TypeError, ValueError, ArithmeticError) as exc:  # an object no number check foresaw
             raise EncodeError(f"Cannot encode {name}: {type(exc).__name__}: {exc} (DBC {self.path.name}).") from None
         return entry.frame_id, payload
+
+    @staticmethod
+    def _encode_fast(entry: _Message, values: Mapping[str, Any]) -> bytes | None:
+        """The packer's payload for every signal of ``entry`` given, or None for the descriptor loop to decide."""
+        if len(values) != len(entry.signals):
+            return None
+        try:
+            ordered = [values[sig.name] for sig in entry.signals]
+        except KeyError:
+            return None
+        return entry.packer.pack(*ordered)
 
     def _encode_general(self, entry: _Message, values: Mapping[str, Any]) -> bytes:
         """The fast path as a loop over signal descriptors: every case, and every error."""
@@ -417,15 +320,7 @@ class DbcCodec:
                 pass  # cantools skips the range check for values in the VAL_ table
             elif not sig.lo <= value <= sig.hi:  # also refuses NaN
                 raise self._out_of_range(entry, sig, value)
-            kind = sig.kind
-            if kind == _LINEAR:
-                raw = round((value - sig.offset) / sig.scale)
-            elif kind == _IDENTITY:
-                raw = round(value)
-            else:  # cantools' integer-scale path: avoid a division when the value is exact
-                raw = value - sig.offset
-                quotient, remainder = divmod(raw, sig.scale)
-                raw = round(quotient if remainder == 0 else raw / sig.scale)
+            raw = self._raw_of(sig, value)
             if not sig.raw_lo <= raw <= sig.raw_hi:
                 raise self._out_of_range(entry, sig, value)
             word |= (raw & sig.mask) << sig.start
@@ -535,7 +430,7 @@ class DbcCodec:
             )
         if not entry.fast:
             return entry.name, self._decode_cantools(entry, data)
-        return entry.name, entry.decode_fast(data)
+        return entry.name, dict(zip([sig.name for sig in entry.signals], entry.packer.unpack(data), strict=True))
 
     def _decode_cantools(self, entry: _Message, data: bytes | bytearray) -> dict[str, int | float]:
         try:

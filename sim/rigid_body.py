@@ -22,9 +22,15 @@ and imports neither, so the imports between the three go one way.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
+
+import compiled_paths
+
+#: Euler's equations, RK4 and the environment's torques on floats: compiled where the install could.
+_step = compiled_paths.load("sim.body_step")
+#: The error every fixed-step stepper raises when its new state at ``t`` (s) is not finite.
+non_finite_state = _step.non_finite_state
 
 #: Largest rotation (and nutation phase) per RK4 step, rad. At 0.1 rad per step the local error
 #: of RK4 is ~(0.1)^5/120 ~ 1e-7 rad, so a 10^5-step run stays at the 1e-3 deg level.
@@ -131,7 +137,14 @@ def check_step(inertia, omega, step_s: float, name: str = "step_s", max_angle_ra
 
 
 class RigidBody:
-    """Euler's equations and an RK4 step on plain floats for one inertia matrix."""
+    """Euler's equations and an RK4 step on plain floats for one inertia matrix.
+
+    ``derivatives(q, w, tau) -> (dq/dt, domega/dt)`` (float tuples for quaternion q, rate w and torque tau) and
+    ``rk4_step(q, w, h, torque=None, t=0.0) -> (q, w)`` (one classical RK4 step of length ``h``, the torque
+    ``torque(t, q, w) -> (tx, ty, tz)`` in N m, body frame, re-evaluated at every stage; the quaternion
+    renormalised; q and w tuples) are those of ``sim.body_step.BodyDynamics`` (``dynamics``), the one source of the
+    attitude step, compiled where the install could (docs/fast_paths.md).
+    """
 
     def __init__(self, inertia, triangle: bool = True):
         I = check_inertia(inertia, triangle=triangle)
@@ -140,65 +153,9 @@ class RigidBody:
         self.inertia_inv = Ii
         self._I = tuple(float(x) for x in I.ravel())
         self._Ii = tuple(float(x) for x in Ii.ravel())
-
-    def derivatives(self, q, w, tau):
-        """(dq/dt, domega/dt) as float tuples for quaternion q, rate w and torque tau (tuples)."""
-        i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._I
-        j00, j01, j02, j10, j11, j12, j20, j21, j22 = self._Ii
-        qw, qx, qy, qz = q
-        wx, wy, wz = w
-        hx = i00 * wx + i01 * wy + i02 * wz
-        hy = i10 * wx + i11 * wy + i12 * wz
-        hz = i20 * wx + i21 * wy + i22 * wz
-        rx = tau[0] - (wy * hz - wz * hy)
-        ry = tau[1] - (wz * hx - wx * hz)
-        rz = tau[2] - (wx * hy - wy * hx)
-        dw = (j00 * rx + j01 * ry + j02 * rz, j10 * rx + j11 * ry + j12 * rz,
-              j20 * rx + j21 * ry + j22 * rz)
-        dq = (0.5 * (-qx * wx - qy * wy - qz * wz), 0.5 * (qw * wx + qy * wz - qz * wy),
-              0.5 * (qw * wy - qx * wz + qz * wx), 0.5 * (qw * wz + qx * wy - qy * wx))
-        return dq, dw
-
-    def rk4_step(self, q, w, h, torque: Callable | None = None, t: float = 0.0):
-        """One classical RK4 step of length ``h``; the torque is re-evaluated at every stage.
-
-        ``torque(t, q, w) -> (tx, ty, tz)`` in N m, body frame; ``None`` means torque-free.
-        Returns the renormalised quaternion and the rate as float tuples.
-        """
-        # Written out stage by stage on floats: generator expressions over zip() cost more than
-        # the arithmetic at this size, and this step runs tens of thousands of times per orbit.
-        f = self.derivatives
-        zero = (0.0, 0.0, 0.0)
-        h2 = 0.5 * h
-        q0, q1, q2, q3 = q
-        w0, w1, w2 = w
-        (a0, a1, a2, a3), (b0, b1, b2) = f(q, w, torque(t, q, w) if torque else zero)
-        qs = (q0 + h2 * a0, q1 + h2 * a1, q2 + h2 * a2, q3 + h2 * a3)
-        ws = (w0 + h2 * b0, w1 + h2 * b1, w2 + h2 * b2)
-        (c0, c1, c2, c3), (d0, d1, d2) = f(qs, ws, torque(t + h2, qs, ws) if torque else zero)
-        qs = (q0 + h2 * c0, q1 + h2 * c1, q2 + h2 * c2, q3 + h2 * c3)
-        ws = (w0 + h2 * d0, w1 + h2 * d1, w2 + h2 * d2)
-        (e0, e1, e2, e3), (g0, g1, g2) = f(qs, ws, torque(t + h2, qs, ws) if torque else zero)
-        qs = (q0 + h * e0, q1 + h * e1, q2 + h * e2, q3 + h * e3)
-        ws = (w0 + h * g0, w1 + h * g1, w2 + h * g2)
-        (k0, k1, k2, k3), (m0, m1, m2) = f(qs, ws, torque(t + h, qs, ws) if torque else zero)
-        h6 = h / 6.0
-        qn = (q0 + h6 * (a0 + 2.0 * (c0 + e0) + k0), q1 + h6 * (a1 + 2.0 * (c1 + e1) + k1),
-              q2 + h6 * (a2 + 2.0 * (c2 + e2) + k2), q3 + h6 * (a3 + 2.0 * (c3 + e3) + k3))
-        wn = (w0 + h6 * (b0 + 2.0 * (d0 + g0) + m0), w1 + h6 * (b1 + 2.0 * (d1 + g1) + m1),
-              w2 + h6 * (b2 + 2.0 * (d2 + g2) + m2))
-        n = math.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
-        if not math.isfinite(n) or not all(math.isfinite(x) for x in wn):
-            raise non_finite_state(t + h, h)
-        return (qn[0] / n, qn[1] / n, qn[2] / n, qn[3] / n), wn
-
-
-def non_finite_state(t: float, h: float) -> FloatingPointError:
-    """The error every fixed-step stepper raises when its new state at ``t`` (s) is not finite."""
-    return FloatingPointError(
-        f"attitude integration produced a non-finite state at t = {t:.9g} s (step {h:g} s); the "
-        "step is too large for the dynamics or a torque is non-finite."
-    )
+        self.dynamics = _step.BodyDynamics(self._I, self._Ii)
+        self.derivatives = self.dynamics.derivatives
+        self.rk4_step = self.dynamics.rk4
 
 
 def check_finite_state(q, w, t: float, h: float) -> None:

@@ -31,17 +31,18 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 from collections.abc import Callable
 
 import numpy as np
+
+import compiled_paths
 
 from . import orbit as orbit_mod
 from .constants import J2_EARTH, MU_EARTH, R_EARTH
 from .effects import EFFECT_TYPES, Effect  # noqa: F401 - Effect: the interface effector() takes
 from .frames import EarthRotation
 from .integrators import max_angle_rad, stepper
-from .rigid_body import RigidBody, check_step, non_finite_state
+from .rigid_body import RigidBody, check_step
 from .rotations import hamilton_floats
 from .time import NS_PER_S
 from .wheels import WheelCluster, WheeledBody
@@ -52,6 +53,9 @@ CHUNK_S = 200.0
 #: Most half-step grid points in one chunk (positions, velocities and field: about 1 KB a point with the
 #: vectorised field model's temporaries). The shipped scenarios' chunks (4001 points at 0.1 s) are under it.
 CHUNK_POINTS = 8192
+
+#: The attitude step and the environment's torques: compiled where the install could (compiled_paths).
+_step = compiled_paths.load("sim.body_step")
 
 
 def _summed3(readers) -> Callable[[], tuple]:
@@ -83,17 +87,8 @@ def chunk_points(half_step_s: float) -> int:
     return min(CHUNK_POINTS, max(2, int(round(CHUNK_S / half_step_s))))
 
 
-def rotate_to_body(q, v):
-    """``dcm(q) @ v`` on float tuples (v_N -> v_B for q = q_BN), without building the matrix."""
-    w, x, y, z = q
-    vx, vy, vz = v
-    # dcm(q) v = v - 2w (u x v) + 2 u x (u x v), u = (x, y, z)
-    cx = y * vz - z * vy
-    cy = z * vx - x * vz
-    cz = x * vy - y * vx
-    return (vx - 2.0 * (w * cx - (y * cz - z * cy)),
-            vy - 2.0 * (w * cy - (z * cx - x * cz)),
-            vz - 2.0 * (w * cz - (x * cy - y * cx)))
+#: ``dcm(q) @ v`` on float tuples (v_N -> v_B for q = q_BN), without building the matrix.
+rotate_to_body = _step.rotate_to_body
 
 
 def compose_floats(q_CB, q_BN):
@@ -257,14 +252,14 @@ class TruthModel:
         self.has_field = field_N is not None
         self.dipole_B = (0.0, 0.0, 0.0)
         self._I = self.body._I
-        self._stage_points: tuple = ()  # (field, position) at the step's three half-step grid points
         self._b_B = (-1, None)  # (k, b_B): a field sensor and the recorder both ask each step
         self._wheel_speeds: tuple = (None, None, ())  # (w, h_wheels, speeds): see wheel_speeds_rad_s
-        # RK4 with both torques written out in one function (rk4_magnetic_gg): the default scenario's step.
-        self._fused = integrator == "rk4" and self.magnetic and self.gravity_gradient
+        #: The environment's torques at the RK4 stages (the compiled RK4 step calls it without a Python call).
+        self._environment = _step.EnvironmentTorque(self.body.dynamics, self.h, MU_EARTH, self.magnetic,
+                                                    self.gravity_gradient)
         #: The body torque of the "torque" effects (N m, body axes), held over the step (:meth:`effector`).
         self.torque_B = (0.0, 0.0, 0.0)
-        self._stage_torque = self._torque if (self.magnetic or self.gravity_gradient) else None
+        self._stage_torque = self._environment if (self.magnetic or self.gravity_gradient) else None
 
     # --- truth at the current time ------------------------------------------------------------
     @property
@@ -327,33 +322,12 @@ class TruthModel:
         return b
 
     # --- dynamics --------------------------------------------------------------------------------
-    def _torque(self, t, q, w):
-        """Torque at RK4 stage time ``t`` (s within the step: 0, h/2 or h) for stage state (q, w)."""
-        field, position = self._stage_points[0 if t == 0.0 else (1 if t < self.h else 2)]
-        tx = ty = tz = 0.0
-        if self.magnetic:
-            bx, by, bz = rotate_to_body(q, field)
-            mx, my, mz = self.dipole_B
-            tx, ty, tz = my * bz - mz * by, mz * bx - mx * bz, mx * by - my * bx
-        if self.gravity_gradient:
-            rx, ry, rz = rotate_to_body(q, position)
-            i00, i01, i02, i10, i11, i12, i20, i21, i22 = self._I
-            ix = i00 * rx + i01 * ry + i02 * rz
-            iy = i10 * rx + i11 * ry + i12 * rz
-            iz = i20 * rx + i21 * ry + i22 * rz
-            r2 = rx * rx + ry * ry + rz * rz
-            c = 3.0 * MU_EARTH / (r2 * r2 * math.sqrt(r2))
-            tx += c * (ry * iz - rz * iy)
-            ty += c * (rz * ix - rx * iz)
-            tz += c * (rx * iy - ry * ix)
-        return tx, ty, tz
-
     def _torque_and_body(self, t, q, w):
         """The environment's torque at a stage plus the held body torque of the "torque" effects."""
         bx, by, bz = self.torque_B
         if not (self.magnetic or self.gravity_gradient):
             return bx, by, bz
-        tx, ty, tz = self._torque(t, q, w)
+        tx, ty, tz = self._environment(t, q, w)
         return tx + bx, ty + by, tz + bz
 
     def effector(self, effects) -> Callable[[], None]:
@@ -371,7 +345,6 @@ class TruthModel:
         if by_type["torque"]:
             body = _summed3([e.read for e in by_type["torque"]])
             dipole = _summed3(dipoles)
-            self._fused = False  # the fused step knows only the environment's torques
             self._stage_torque = self._torque_and_body
 
             model = self  # not ``self`` inside: a failing read is blamed on its device, not on the truth
@@ -422,51 +395,37 @@ class TruthModel:
             return
         if wheel_torque_Nm is not None:
             raise ValueError("wheel_torque_Nm was given to a truth model without wheels.")
-        self.dipole_B = dipole_B
-        base = 2 * self.k
-        if self._fused:
-            self._step_fused(base, dipole_B)
-            return
-        self._stage_points = self._points_of_step(base)
-        torque = self._stage_torque
+        self._hold(dipole_B)
         # Stage times are passed relative to the step start so the stage lookup is exact.
-        q, w = self._step(self.q, self.w, self.h, torque, 0.0)
+        q, w = self._step(self.q, self.w, self.h, self._stage_torque, 0.0)
         if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
             check_step(self.body.inertia, w, self.h, "dynamics.step_s", self._max_angle, self.integrator)
         self.q, self.w = q, w
         self.k += 1
         self.t_ns += self.step_ns
 
-    def _points_of_step(self, base: int) -> tuple:
-        """(field, position) at the half-step grid points ``base``, ``base + 1`` and ``base + 2`` that the four
-        stages of the step from ``base`` sample; each point is looked up once per step, field before position (the
-        track fills its chunks in that order), only what the listed torques use (None for the other)."""
-        track, mag, gg = self.track, self.magnetic, self.gravity_gradient
-        return ((track.field(base) if mag else None, track.position(base) if gg else None),
-                (track.field(base + 1) if mag else None, track.position(base + 1) if gg else None),
-                (track.field(base + 2) if mag else None, track.position(base + 2) if gg else None))
-
-    def _step_fused(self, base: int, dipole_B) -> None:
-        track = self.track
+    def _hold(self, dipole_B) -> None:
+        """Hold ``dipole_B`` over the next step and give the environment's torque the step's three half-step points:
+        the field and the position at the step's start, middle and end, only what the listed torques use."""
+        self.dipole_B = dipole_B
+        if self._stage_torque is None:
+            return
+        mag, gg = self.magnetic, self.gravity_gradient
+        track, base = self.track, 2 * self.k
         j = base - track._chunk_start_idx
-        if 0 <= j and j + 2 < track._chunk_len:
+        if 0 <= j and j + 2 < track._chunk_len:  # the usual case: one slice of each flat list
             j *= 3
-            f, p = track._field[j:j + 9], track._pos[j:j + 9]
-        else:  # the step crosses into a new chunk: look up point by point, field before position
-            f, p = track.field(base), track.position(base)
-            f += track.field(base + 1)
-            p += track.position(base + 1)
-            f += track.field(base + 2)
-            p += track.position(base + 2)
-        new = _rk4_magnetic_gg(self.q, self.w, self.h, self._I, self.body._Ii, dipole_B, f, p, MU_EARTH)
-        if new is None:
-            raise non_finite_state(self.h, self.h)
-        q, w = new
-        if w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > self._limit_sq:
-            check_step(self.body.inertia, w, self.h, "dynamics.step_s", self._max_angle, self.integrator)
-        self.q, self.w = q, w
-        self.k += 1
-        self.t_ns += self.step_ns
+            f = tuple(track._field[j:j + 9]) if mag else None
+            p = tuple(track._pos[j:j + 9]) if gg else None
+        else:  # the step crosses into a new chunk: point by point, field before position (the order fills go in)
+            fs, ps = [], []
+            for i in (base, base + 1, base + 2):
+                if mag:
+                    fs += track.field(i)
+                if gg:
+                    ps += track.position(i)
+            f, p = (tuple(fs) if mag else None), (tuple(ps) if gg else None)
+        self._environment.set_step(dipole_B if type(dipole_B) is tuple else tuple(dipole_B), f, p)
 
     def _step_wheels(self, dipole_B, wheel_torque_Nm) -> None:
         if wheel_torque_Nm is not None:
@@ -475,8 +434,7 @@ class TruthModel:
                 raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite torques "
                                  "in N m, one per wheel.")
             self.wheel_torque_Nm = tau
-        self.dipole_B = dipole_B
-        self._stage_points = self._points_of_step(2 * self.k)
+        self._hold(dipole_B)
         torque = self._stage_torque
         body = self._wheeled
         q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)
@@ -485,97 +443,3 @@ class TruthModel:
         self.q, self.w, self.h_wheels = q, w, hw
         self.k += 1
         self.t_ns += self.step_ns
-
-
-def rk4_magnetic_gg(q, w, h, I, Ii, dipole_B, fields_N, positions_N, mu=MU_EARTH):
-    """One RK4 step of the rigid body under magnetic (m x B) and gravity-gradient torque, written out in one function.
-
-    The same arithmetic, in the same order, as ``RigidBody.rk4_step`` with ``TruthModel._torque`` (so the result is
-    the same to the bit); only the calls between them are gone, which halves the cost of the default scenario's
-    step. ``fields_N`` and ``positions_N`` hold nine floats each: the inertial field (T) and position (m) at the step's
-    start, middle and end. Returns ``(q, w)`` normalised, or None when the new state is not finite.
-
-    ``sim._native.rk4_magnetic_gg`` is this function compiled (sim/_native.c, the same operations in the same
-    order); the truth model uses it when the build made it (see ``NATIVE``).
-    """
-    i00, i01, i02, i10, i11, i12, i20, i21, i22 = I
-    j00, j01, j02, j10, j11, j12, j20, j21, j22 = Ii
-    mx, my, mz = dipole_B
-    q0, q1, q2, q3 = q
-    w0, w1, w2 = w
-    h2 = 0.5 * h
-    gm3 = 3.0 * mu
-    out = []
-    qw, qx, qy, qz, wx, wy, wz = q0, q1, q2, q3, w0, w1, w2
-    for stage in range(4):
-        o = 0 if stage == 0 else (3 if stage < 3 else 6)
-        fx, fy, fz = fields_N[o], fields_N[o + 1], fields_N[o + 2]
-        vx, vy, vz = positions_N[o], positions_N[o + 1], positions_N[o + 2]
-        # rotate_to_body(q, field) and rotate_to_body(q, position)
-        cx = qy * fz - qz * fy
-        cy = qz * fx - qx * fz
-        cz = qx * fy - qy * fx
-        bx = fx - 2.0 * (qw * cx - (qy * cz - qz * cy))
-        by = fy - 2.0 * (qw * cy - (qz * cx - qx * cz))
-        bz = fz - 2.0 * (qw * cz - (qx * cy - qy * cx))
-        cx = qy * vz - qz * vy
-        cy = qz * vx - qx * vz
-        cz = qx * vy - qy * vx
-        rx = vx - 2.0 * (qw * cx - (qy * cz - qz * cy))
-        ry = vy - 2.0 * (qw * cy - (qz * cx - qx * cz))
-        rz = vz - 2.0 * (qw * cz - (qx * cy - qy * cx))
-        ix = i00 * rx + i01 * ry + i02 * rz
-        iy = i10 * rx + i11 * ry + i12 * rz
-        iz = i20 * rx + i21 * ry + i22 * rz
-        r2 = rx * rx + ry * ry + rz * rz
-        c = gm3 / (r2 * r2 * math.sqrt(r2))
-        tx = (my * bz - mz * by) + c * (ry * iz - rz * iy)
-        ty = (mz * bx - mx * bz) + c * (rz * ix - rx * iz)
-        tz = (mx * by - my * bx) + c * (rx * iy - ry * ix)
-        # RigidBody.derivatives
-        hx = i00 * wx + i01 * wy + i02 * wz
-        hy = i10 * wx + i11 * wy + i12 * wz
-        hz = i20 * wx + i21 * wy + i22 * wz
-        ex = tx - (wy * hz - wz * hy)
-        ey = ty - (wz * hx - wx * hz)
-        ez = tz - (wx * hy - wy * hx)
-        dw0 = j00 * ex + j01 * ey + j02 * ez
-        dw1 = j10 * ex + j11 * ey + j12 * ez
-        dw2 = j20 * ex + j21 * ey + j22 * ez
-        dq0 = 0.5 * (-qx * wx - qy * wy - qz * wz)
-        dq1 = 0.5 * (qw * wx + qy * wz - qz * wy)
-        dq2 = 0.5 * (qw * wy - qx * wz + qz * wx)
-        dq3 = 0.5 * (qw * wz + qx * wy - qy * wx)
-        out.append((dq0, dq1, dq2, dq3, dw0, dw1, dw2))
-        s = h if stage == 2 else h2
-        qw, qx, qy, qz = q0 + s * dq0, q1 + s * dq1, q2 + s * dq2, q3 + s * dq3
-        wx, wy, wz = w0 + s * dw0, w1 + s * dw1, w2 + s * dw2
-    (a0, a1, a2, a3, b0, b1, b2), (c0, c1, c2, c3, d0, d1, d2), (e0, e1, e2, e3, g0, g1, g2), \
-        (k0, k1, k2, k3, m0, m1, m2) = out
-    h6 = h / 6.0
-    n0 = q0 + h6 * (a0 + 2.0 * (c0 + e0) + k0)
-    n1 = q1 + h6 * (a1 + 2.0 * (c1 + e1) + k1)
-    n2 = q2 + h6 * (a2 + 2.0 * (c2 + e2) + k2)
-    n3 = q3 + h6 * (a3 + 2.0 * (c3 + e3) + k3)
-    wn = (w0 + h6 * (b0 + 2.0 * (d0 + g0) + m0), w1 + h6 * (b1 + 2.0 * (d1 + g1) + m1),
-          w2 + h6 * (b2 + 2.0 * (d2 + g2) + m2))
-    n = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
-    if not (math.isfinite(n) and math.isfinite(wn[0]) and math.isfinite(wn[1]) and math.isfinite(wn[2])):
-        return None
-    return (n0 / n, n1 / n, n2 / n, n3 / n), wn
-
-
-def _native_step():
-    """The compiled step when the build made it and ``STAND_NATIVE`` is not ``0``; else None."""
-    if os.environ.get("STAND_NATIVE", "1") == "0":
-        return None
-    try:
-        from ._native import rk4_magnetic_gg as native
-    except ImportError:  # built without a C compiler: the Python step, the same to the bit
-        return None
-    return native
-
-
-#: Which implementation of the default scenario's step runs: "compiled" (sim/_native.c) or "python".
-_rk4_magnetic_gg = _native_step() or rk4_magnetic_gg
-NATIVE = "compiled" if _rk4_magnetic_gg is not rk4_magnetic_gg else "python"

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+import compiled_paths
 from sim.time import seconds_to_ns
 
 from . import devices
@@ -267,6 +268,7 @@ def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
         "rate_deg_s_at": checkpoints,
         "device_counters": result.counters,
         "telemetry_rows": int(len(tel["t_s"])),
+        "compiled_paths": compiled_paths.active(),  # which hot paths ran compiled (docs/fast_paths.md)
         # What was injected and when (docs/faults.md); absent from a run that takes no faults.
         **({"faults": scene.faults.summary()} if getattr(scene, "faults", None) is not None else {}),
     })

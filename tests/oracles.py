@@ -1,9 +1,10 @@
 """What a test needs from outside the stand: an independent oracle (astropy, skyfield-data, jplephem, sgp4, satkit,
-allantools...) or a compiled path (sim._native, drivers._bitpack).
+allantools...) or a compiled path (a twin of compiled_paths.MODULES).
 
-On a developer's machine that lacks one the test is skipped, with the reason. Under CI (``CI`` set, as CI sets it)
-the same lack is a failure: CI installs the test extra and has a C compiler, so a missing oracle or a build that did
-not compile means the check it guards never ran, and a green run would vouch for what nobody checked.
+On a developer's machine that lacks an oracle the test is skipped, with the reason. Under CI (``CI`` set, as CI sets
+it) the same lack is a failure: CI installs the test extra, so a missing oracle means the check it guards never ran,
+and a green run would vouch for what nobody checked. A compiled path that did not build fails wherever a C compiler
+is present (:func:`require_compiled`).
 """
 
 from __future__ import annotations
@@ -37,20 +38,39 @@ def require(module: str, what: str = "the test extra") -> ModuleType:
         raise  # not reached: unavailable() always raises
 
 
-def require_compiled(native: str, extension: str) -> None:
-    """Go on only when the compiled path runs (``native`` is the module's ``NATIVE``, ``extension`` its C module).
+def require_compiled(name: str) -> ModuleType:
+    """The compiled twin of ``name`` (one of ``compiled_paths.MODULES``), imported directly whatever ``STAND_NATIVE``
+    says (a test compares it with the plain module).
 
-    ``STAND_NATIVE=0`` asks for the Python original on purpose: skipped everywhere. Otherwise a build that did not
-    compile skips locally, and fails under CI when a C compiler (``cc``) is on the PATH, since setup.py would then
-    have built it."""
-    if native == "compiled":
-        return
-    if os.environ.get("STAND_NATIVE", "1") == "0":
-        pytest.skip(f"STAND_NATIVE=0 asks for the Python original, not {extension}")
-    reason = f"{extension} was not built (pip install -e . compiles it when a C compiler is present)"
-    if in_ci() and shutil.which("cc"):
-        pytest.fail(f"CI: {reason}, although a C compiler ({shutil.which('cc')}) is here", pytrace=False)
-    pytest.skip(reason)
+    A missing twin is never a silent skip: it fails wherever a C compiler (``cc``) is on the PATH, since the install
+    would then have built it; without a compiler it skips with the reason (-ra lists it)."""
+    import compiled_paths
+
+    twin = compiled_paths.twin(name)
+    try:
+        return importlib.import_module(twin)
+    except ImportError as exc:
+        reason = f"{twin} was not built ({exc}); pip install -e . compiles it when a C compiler is present"
+        if shutil.which("cc"):
+            pytest.fail(f"{reason}, and a C compiler ({shutil.which('cc')}) is here", pytrace=False)
+        pytest.skip(reason)
+        raise  # not reached
+
+
+def build_fixtures(name: str) -> tuple:
+    """Two pytest fixtures for the compiled path ``name``: ``compiled`` (its twin, :func:`require_compiled`) and
+    ``build`` (the plain module, then the twin: a test taking it runs on both builds). In a test module:
+    ``compiled, build = build_fixtures("sim.body_step")``."""
+
+    @pytest.fixture(scope="module", name="compiled")
+    def compiled() -> ModuleType:
+        return require_compiled(name)
+
+    @pytest.fixture(params=["python", "compiled"], name="build")
+    def build(request) -> ModuleType:
+        return importlib.import_module(name) if request.param == "python" else request.getfixturevalue("compiled")
+
+    return compiled, build
 
 
 def require_tool(command: str, package: str) -> str:

@@ -27,24 +27,22 @@ def test_a_present_oracle_is_returned(monkeypatch):
     assert require("json").dumps([1]) == "[1]"
 
 
-def test_a_build_that_did_not_compile_fails_in_ci_only_with_a_compiler(monkeypatch):
-    monkeypatch.delenv("STAND_NATIVE", raising=False)
-    monkeypatch.setenv("CI", "true")
+def test_a_compiled_path_that_did_not_build_fails_wherever_a_compiler_is(monkeypatch):
+    import compiled_paths
+
+    monkeypatch.setattr(compiled_paths, "twin", lambda name: "sim._no_such_twin_compiled")
+    monkeypatch.delenv("CI", raising=False)
     monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/cc" if name == "cc" else None)
-    with pytest.raises(pytest.fail.Exception, match="sim._native was not built"):
-        require_compiled("python", "sim._native")
-    require_compiled("compiled", "sim._native")  # built: goes on
+    with pytest.raises(pytest.fail.Exception, match="sim._no_such_twin_compiled was not built"):
+        require_compiled("sim.body_step")
     monkeypatch.setattr(shutil, "which", lambda name: None)
-    with pytest.raises(pytest.skip.Exception):  # no C compiler: nothing could have been built
-        require_compiled("python", "sim._native")
-    monkeypatch.delenv("CI")
-    monkeypatch.setattr(shutil, "which", lambda name: "/usr/bin/cc")
-    with pytest.raises(pytest.skip.Exception):  # a developer's machine
-        require_compiled("python", "sim._native")
+    with pytest.raises(pytest.skip.Exception, match="was not built"):  # no C compiler: nothing could have been built
+        require_compiled("sim.body_step")
 
 
-def test_stand_native_0_is_a_deliberate_choice_and_skips_even_in_ci(monkeypatch):
-    monkeypatch.setenv("CI", "true")
+def test_a_built_twin_is_returned_even_under_stand_native_0(monkeypatch):
+    import compiled_paths
+
     monkeypatch.setenv("STAND_NATIVE", "0")
-    with pytest.raises(pytest.skip.Exception, match="STAND_NATIVE=0"):
-        require_compiled("python", "drivers._bitpack")
+    monkeypatch.setattr(compiled_paths, "twin", lambda name: "json")  # any importable module stands for a twin
+    assert require_compiled("sim.body_step").dumps([1]) == "[1]"

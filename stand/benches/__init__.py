@@ -149,8 +149,7 @@ def bench_loop(quick: bool = False) -> list[dict]:
     Basilisk comparison case runs between them, so both are measured in the same sitting on the same load."""
     import os
 
-    import drivers.dbc as dbc_mod
-    import sim.truth as truth_mod
+    import compiled_paths
     from stand.scenario import DEFAULT_SCENARIO, load
 
     sc = load(DEFAULT_SCENARIO)
@@ -193,8 +192,7 @@ def bench_loop(quick: bool = False) -> list[dict]:
                          "note": "median real-time factor over Basilisk's median, same sitting"})
         buses = sorted({d.interface for d in sc.devices if d.kind == "magnetorquer"})
         rows.append({"name": "loop.full_chain.per_tick", "value": round(wall / max(n, 1) * 1e6, 1), "unit": "us",
-                     "note": f"bus: {', '.join(buses)}; attitude step: {truth_mod.NATIVE}, CAN bit packing: "
-                             f"{dbc_mod.NATIVE} (STAND_NATIVE=0 runs the Python of both)"})
+                     "note": f"bus: {', '.join(buses)}; {compiled_paths.summary()}"})
         rate = np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
         for ts, ref in basilisk_stand_case_rates().items():
             if ts > result.sim_duration_s:

@@ -1,5 +1,6 @@
-"""DbcCodec.packer: the positional per-tick codec. The compiled packer (drivers/_bitpack.c) and the generated Python
-agree to the bit on any input, and both agree with the dict path (and so with cantools)."""
+"""DbcCodec.packer: the positional per-tick codec. drivers.bitpack, its one source, compiled (Cython, compiled_paths)
+and plain agree to the bit on any input, both agree with the dict path (and so with cantools), and both refuse a
+signal table they could misread. `.ci/run` runs this file a second time with ``STAND_NATIVE=0``."""
 
 from __future__ import annotations
 
@@ -10,17 +11,26 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import compiled_paths
+import drivers.bitpack as plain
 from drivers import dbc as dbc_mod
 from drivers import fixture_path
-from drivers.dbc import DbcCodec, _compile_message
+from drivers.dbc import DbcCodec
 from tests.drivers.test_dbc import MIXED_DBC, MTQ_DBC, _fast_messages, _physical_values
-from tests.oracles import require_compiled
+from tests.oracles import build_fixtures, require_compiled
+
+compiled, build = build_fixtures("drivers.bitpack")
 
 
-@pytest.fixture(scope="module")
-def compiled() -> None:
-    require_compiled(dbc_mod.NATIVE, "drivers._bitpack")
-
+def _packers(codec: DbcCodec, name: str, order: tuple[str, ...], compiled) -> tuple:
+    """The plain and the compiled packer of one message in ``order`` (the rows DbcCodec builds)."""
+    rows = dbc_mod._packer(codec._message(name), order)  # any build: it is only read for its rows below
+    assert rows is not None
+    by_name = {sig.name: sig for sig in codec._message(name).signals}
+    table = tuple((s.start, s.mask.bit_length(), bool(s.sign_bit), s.kind, s.scale, s.offset, s.lo, s.hi, s.raw_lo,
+                   s.raw_hi) for s in (by_name[n] for n in order))
+    length = codec.length(name)
+    return plain.Packer(length, table), compiled.Packer(length, table)
 
 
 @pytest.fixture(scope="module")
@@ -62,21 +72,18 @@ def _same(a, b) -> bool:
                                     for x, y in zip(a, b, strict=True))
 
 
-@pytest.mark.usefixtures("compiled")
 @pytest.mark.parametrize("which", ["mtq", "rw", "mixed"])
 @settings(max_examples=400, suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None)
 @given(data=st.data())
-def test_compiled_and_generated_packers_agree_on_any_values(which, data, codecs) -> None:
+def test_compiled_and_plain_packers_agree_on_any_values(which, data, codecs, compiled) -> None:
     codec = codecs[which]
     name = data.draw(st.sampled_from(_fast_messages(codec)))
     order = _order(codec, name, data.draw)
-    packer = codec.packer(name, order)
-    assert packer.compiled
-    pack_py, unpack_py = _compile_message(codec._message(name), order)
+    python, native = _packers(codec, name, order, compiled)
     values = tuple(_value(codec, name, s, data.draw) for s in order)
-    assert _same(packer.pack(*values), pack_py(*values)), values
-    payload = data.draw(st.binary(min_size=packer.length, max_size=packer.length))
-    assert _same(packer.unpack(payload), unpack_py(payload)), payload.hex()
+    assert _same(native.pack(*values), python.pack(*values)), values
+    payload = data.draw(st.binary(min_size=python.length, max_size=python.length))
+    assert _same(native.unpack(payload), python.unpack(payload)), payload.hex()
 
 
 @pytest.mark.parametrize("which", ["mtq", "rw", "mixed"])
@@ -96,7 +103,6 @@ def test_packer_equals_the_dict_path(which, data, codecs) -> None:
         assert (packer.frame_id, payload) == codec.encode(name, values)
     else:
         assert packer.pack(*(0 for _ in order)) is None  # DbcCodec.encode takes every case
-        assert not packer.compiled
     payload = data.draw(st.binary(min_size=packer.length, max_size=packer.length))
     if name == "MUX_MSG":
         return  # cantools decodes only the multiplexed signals present: not a fixed tuple
@@ -112,14 +118,61 @@ def test_packer_refuses_an_order_that_is_not_the_signals(codecs) -> None:
         mtq.packer("NOPE", ())
 
 
-@pytest.mark.usefixtures("compiled")
-def test_compiled_packer_checks_its_arguments(codecs) -> None:
-    packer = codecs["mtq"].packer("MTQ_MODE_CMD", ("mode", "reset_counters", "seq"))
-    assert packer.pack(1, False, 7) == bytes([1, 7, 0, 0, 0, 0, 0, 0])
+def test_the_packer_checks_its_arguments(build) -> None:
+    packer = build.Packer(8, ((0, 8, False, 0, 1, 0, -1e-6, 255.000001, 0, 255),
+                              (8, 1, False, 0, 1, 0, -1e-6, 1.000001, 0, 1),
+                              (16, 8, False, 0, 1, 0, 0.0, 255.0, 0, 255)))
+    assert packer.pack(1, False, 7) == bytes([1, 0, 7, 0, 0, 0, 0, 0])
     with pytest.raises(TypeError, match="takes 3 values; got 2"):
         packer.pack(1, False)
     with pytest.raises(ValueError, match="takes 8 bytes; got 3"):
         packer.unpack(b"\x01\x02\x03")
     assert packer.unpack(bytearray(8)) == (0, 0, 0)
+    assert packer.unpack(memoryview(bytes([1, 1, 7, 0, 0, 0, 0, 0]))) == (1, 1, 7)
     with pytest.raises(ValueError, match="1 to 8"):
-        dbc_mod._Packer(9, [])
+        build.Packer(9, ())
+    with pytest.raises(ValueError, match="beyond the packer"):
+        build.Packer(8, ((0, 53, False, 0, 1, 0, 0.0, 1.0, 0, 1),))
+
+
+class _ClearsOnBool:
+    """A signal flag whose truth test empties the table it sits in (the old C read the table's rows after that)."""
+
+    def __init__(self, victim: list) -> None:
+        self.victim = victim
+
+    def __bool__(self) -> bool:
+        self.victim.clear()
+        return True
+
+
+def test_a_signal_table_that_could_change_while_read_raises_type_error(build) -> None:
+    """The old C read a list of rows as it converted them: a flag whose __bool__ cleared the list was read after it
+    was freed, and a list in place of a row's tuple went to a tuple parser. The table is a tuple of tuples now
+    (immutable), the flag a bool: anything else is a TypeError before any row is read, in both builds."""
+    row = (0, 8, True, 0, 1, 0, -128.0, 127.0, -128, 127)
+    victim: list = []
+    victim.extend([(0, 8, _ClearsOnBool(victim), 0, 1, 0, -128.0, 127.0, -128, 127), row])
+    with pytest.raises(TypeError, match="takes an int and a tuple"):
+        build.Packer(8, victim)
+    assert len(victim) == 2  # nothing read it
+    with pytest.raises(TypeError, match="signed a bool"):
+        build.Packer(8, tuple(victim))
+    assert len(victim) == 2
+    with pytest.raises(TypeError, match="a signal is a tuple"):
+        build.Packer(8, (list(row),))
+    with pytest.raises(TypeError, match="a signal is a tuple"):
+        build.Packer(8, (row[:9],))
+    assert build.Packer(8, (row,)).pack(-3) == bytes([253, 0, 0, 0, 0, 0, 0, 0])
+
+
+def test_the_codec_runs_the_build_compiled_paths_chose(codecs) -> None:
+    """What summary.json and `stand bench loop` report: the compiled twin unless STAND_NATIVE=0 (or no build)."""
+    chosen = compiled_paths.load("drivers.bitpack")
+    assert dbc_mod._bitpack is chosen
+    packer = codecs["mtq"].packer("MTQ_MODE_CMD", ("mode", "reset_counters", "seq"))
+    assert type(packer.pack.__self__) is chosen.Packer
+    expected = "compiled" if compiled_paths.native_allowed() else "python"
+    if expected == "compiled":
+        require_compiled("drivers.bitpack")
+    assert compiled_paths.active()["drivers.bitpack"] == expected

@@ -102,37 +102,11 @@ def test_truth_model_stage_torque_equals_the_torque_functions():
     truth = TruthModel(inertia=inertia, q_BN=[1.0, 0.0, 0.0, 0.0], omega_BN_B=[0.01, 0.02, 0.03],
                        r_N=[7e6, 1e5, -2e5], v_N=[0.0, 7.5e3, 1.0e3], step_ns=100_000_000,
                        field_itrs=lambda t, r: env.dipole_field_itrs(r), earth_rotation=rot)
-    truth.dipole_B = (0.1, -0.05, 0.2)
     field_N, r_N = truth.track.field(0), truth.track.position(0)
-    truth._stage_points = ((field_N, r_N),) * 3
+    truth._environment.set_step((0.1, -0.05, 0.2), tuple(field_N) * 3, tuple(r_N) * 3)
     q = np.array([0.8, 0.2, -0.4, 0.4])
     q /= np.linalg.norm(q)
-    got = truth._torque(0.0, tuple(q), (0.0, 0.0, 0.0))
+    got = truth._environment(0.0, tuple(q), (0.0, 0.0, 0.0))
     expected = (torques.magnetic_torque([0.1, -0.05, 0.2], dcm(q) @ field_N)
                 + torques.gravity_gradient_torque(inertia, dcm(q) @ r_N))
     np.testing.assert_allclose(got, expected, rtol=1e-12, atol=1e-20)
-
-
-def test_the_written_out_rk4_step_is_the_general_step_to_the_bit():
-    """``rk4_magnetic_gg`` (the default scenario's step) against ``RigidBody.rk4_step`` with ``TruthModel._torque``
-    over many steps of a tumbling body with a changing dipole: every state bit for bit the same."""
-    from sim.attitude import check_inertia
-    from sim.truth import TruthModel
-
-    inertia = check_inertia([[0.02, 0.001, -0.0005], [0.001, 0.025, 0.0002], [-0.0005, 0.0002, 0.015]])
-    rot = frames.EarthRotation(Epoch.from_iso("2026-03-20T12:00:00Z"), "uniform")
-
-    def model():
-        return TruthModel(inertia=inertia, q_BN=[0.8, 0.2, -0.4, 0.4], omega_BN_B=[0.1, -0.2, 0.15],
-                          r_N=[7e6, 1e5, -2e5], v_N=[0.0, 7.5e3, 1.0e3], step_ns=100_000_000,
-                          field_itrs=lambda t, r: env.dipole_field_itrs(r), earth_rotation=rot)
-
-    fused, general = model(), model()
-    assert fused._fused
-    general._fused = False
-    rng = np.random.default_rng(3)
-    for k in range(2500):  # crosses a chunk boundary of the orbit track (2000 steps at 0.1 s)
-        dipole = tuple(rng.uniform(-0.2, 0.2, 3).tolist()) if k % 7 else (0.0, 0.0, 0.0)
-        fused.step(dipole)
-        general.step(dipole)
-        assert fused.q == general.q and fused.w == general.w, k

@@ -203,9 +203,9 @@ def _fail_row(scene, monkeypatch):
 
 
 def _fail_truth(scene, monkeypatch):
-    def step(base, dipole):
+    def step(q, w, h, torque, t):
         raise FloatingPointError("attitude rate is not finite")
-    scene.truth._step_fused = step
+    scene.truth._step = step
 
 
 def _fail_writer(scene, monkeypatch):
