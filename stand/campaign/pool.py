@@ -109,10 +109,11 @@ class _LocalPool:
                     s.give(pending.popleft())
             watched = [s for s in self.slots if s.task is not None or not s.ready]
             self._wait(watched)
-            for s in watched:
-                outcome = self._check(s, died, pending)
-                if outcome is not None:
-                    yield outcome
+            outcomes = [o for s in watched if (o := self._check(s, died, pending)) is not None]
+            for s in self.slots:  # a worker that answered gets its next case before the client writes this one
+                if s.idle() and pending:
+                    s.give(pending.popleft())
+            yield from outcomes
 
     def _wait(self, watched: list[_Slot]) -> None:
         from multiprocessing.connection import wait

@@ -15,7 +15,7 @@ from .errors import CampaignError
 from .pool import WORKER_DEATHS, _Inline, _LocalPool
 from .results import aggregate
 from .spec import MAX_RUNS, Spec, validate
-from .store import _prepare, _write_case, finished
+from .store import _prepare, _write_case, finished, part_dir
 from .summary_report import write_report
 
 log = logging.getLogger(__name__)
@@ -86,6 +86,9 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         bar.add(rec, resumed=True)
     todo = [t for t in tasks if t["index"] not in done]
     del tasks
+    if scheduler is None:  # workers on this machine write each run once, where the campaign keeps it
+        for t in todo:
+            t["dest"] = str(part_dir(out.absolute(), t["index"]))
     if scheduler is not None:
         executor = _Dask(scheduler, spec.key, case_timeout_s)
     elif workers == 0:
