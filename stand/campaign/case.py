@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
+import logging
 import os
 import shutil
 import sys
@@ -19,6 +21,8 @@ from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
 from .fault_groups import started
+
+log = logging.getLogger(__name__)
 
 #: Exit code of a Dask worker process ended by the per-case limit.
 EXIT_OVERRUN = 70
@@ -164,7 +168,21 @@ def _watchdog(task: dict) -> threading.Timer | None:
 
 
 # ------------------------------------------------------------------------------------------------ executors
-def warm() -> None:
-    """Import what a run needs once per worker process, so the first case's timings are its own."""
+def warm(task: dict | None = None) -> None:
+    """Import what a run needs once per worker process, so the first case's timings are its own. With a campaign's
+    ``task``, also build its scene's devices once and close them, unrun (without its controller and faults: no
+    flight or plug-in code runs here): the modules the devices import and the data files they load (tables,
+    catalogues, coefficients) are then loaded once per process, not in the first case. A case then starts as in
+    a process that ran others before it (the bench and the tests check that it reproduces a fresh process's
+    record bit for bit); a scene that fails to build here fails in its case, where it is recorded."""
     for name in devices.kind_names():
         devices.get(name)
+    if task is None:
+        return
+    try:
+        sc = parse(task["data"], task["source"])
+        sc = dataclasses.replace(sc, controller=dataclasses.replace(sc.controller, kind="none"), faults=())
+        with _RUN_LOCK, build(sc, None, Path(task["base"])):
+            pass
+    except (Exception, SystemExit) as exc:  # recorded by the case that meets it
+        log.debug("warming the worker with case %s failed: %s", task.get("index"), _raised(exc))

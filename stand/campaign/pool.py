@@ -11,14 +11,15 @@ from .errors import CampaignError
 #: Times a case may end its worker process (os._exit, a signal, a crash) before it is recorded as an error.
 WORKER_DEATHS = 2
 
-def _worker_main(conn) -> None:
-    """A local pool worker: cases from ``conn`` one at a time, each answered with its record and files."""
+def _worker_main(conn, first: dict | None = None) -> None:
+    """A local pool worker: cases from ``conn`` one at a time, each answered with its record. ``first``: a case
+    whose scene warms the process (``warm``) before it says it is ready."""
     import signal
 
     # Ctrl-C goes to the whole process group; the client stops the campaign and ends its workers. A worker that
     # acted on it would record a half-run case as "stopped".
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    warm()
+    warm(first)
     conn.send(("ready", None))  # a case's wall-clock limit starts when it is handed over, not before the imports
     while True:
         try:
@@ -49,9 +50,9 @@ def _exit_text(code: int | None) -> str:
 class _Slot:
     """One worker process of the local pool and the case it runs."""
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, first: dict | None = None):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child,), name="stand-campaign-worker")
+        self.proc = ctx.Process(target=_worker_main, args=(child, first), name="stand-campaign-worker")
         self.proc.start()
         child.close()
         self.task: dict | None = None
@@ -95,6 +96,7 @@ class _LocalPool:
         self.workers, self.case_timeout_s, self.deaths = workers, case_timeout_s, deaths
         self.ctx = multiprocessing.get_context("spawn")
         self.slots: list[_Slot] = []
+        self.first: dict | None = None
 
     def results(self, tasks: list[dict]):
         """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
@@ -102,7 +104,8 @@ class _LocalPool:
 
         pending = deque(tasks)
         died: dict[int, list[str]] = {}
-        self.slots = [_Slot(self.ctx) for _ in range(min(self.workers, len(pending)))]
+        self.first = tasks[0] if tasks else None
+        self.slots = [_Slot(self.ctx, self.first) for _ in range(min(self.workers, len(pending)))]
         while pending or any(s.task is not None for s in self.slots):
             for s in self.slots:
                 if s.idle() and pending:
@@ -160,7 +163,7 @@ class _LocalPool:
     def _replace(self, s: _Slot, kill: bool = False) -> None:
         """A new worker process in this slot, the old one ended (killed if it still runs)."""
         s.end(kill=kill)
-        fresh = _Slot(self.ctx)
+        fresh = _Slot(self.ctx, self.first)
         s.conn, s.proc, s.task, s.since, s.ready = fresh.conn, fresh.proc, None, 0.0, False
 
     def close(self, cancel: bool = False) -> None:

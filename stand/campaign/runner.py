@@ -96,7 +96,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     else:
         executor = _LocalPool(workers, case_timeout_s, worker_deaths)
     execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
-                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "lost": [],
+                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "started_at": t_ready, "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
