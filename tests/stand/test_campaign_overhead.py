@@ -10,12 +10,17 @@ import pytest
 from stand import campaign as cm
 from stand.campaign import spec as spec_mod
 from stand.campaign.pool import _LocalPool
-from stand.campaign.store import part_dir
 from stand.scenario import SCENARIO_DIR
 
 SHORT_S = 20.0
 #: What the campaign keeps of a run, and the record.
 CASE_FILES = {*cm.RUN_FILES, "case.json"}
+
+
+def part_dir(out, index: int):
+    """Where the campaign writes case ``index`` before it counts."""
+    final = cm.case_dir(out, index)
+    return final.with_name(final.name + ".part")
 
 
 def _files(folder) -> set[str]:
@@ -36,31 +41,34 @@ for name, data in result["files"].items():
 """
 
 
-@pytest.mark.parametrize("scenario, dispersions, duration_s", [
-    ("detumble", "detumble_dispersions.toml", SHORT_S),
-    ("pointing_star_tracker", "fault_dispersions.toml", 600.0),  # star tracker, gyro, wheels, faults
+@pytest.mark.parametrize("scenario, dispersions, duration_s, runs", [
+    ("detumble", "detumble_dispersions.toml", SHORT_S, 4),
+    # Star tracker, gyro, wheels and a fault (the file's fault times need the scenario's 600 s).
+    ("pointing_star_tracker", "fault_dispersions.toml", 600.0, 3),
 ])
-def test_a_case_in_a_warm_worker_is_the_case_of_a_fresh_process(tmp_path, scenario, dispersions, duration_s):
-    """The pool's worker builds a scene to warm itself, then runs cases 0 to 3; case 3 runs after three others.
-    Run alone in a new interpreter, case 3 gives the same telemetry, byte for byte, and the same summary."""
+def test_a_case_in_a_warm_worker_is_the_case_of_a_fresh_process(tmp_path, scenario, dispersions, duration_s, runs):
+    """The pool's worker builds a scene to warm itself, then runs the cases one after another; the last one runs
+    after the others. Run alone in a new interpreter, it gives the same telemetry, byte for byte, and the same
+    summary."""
     spec = cm.make_spec(scenario, SCENARIO_DIR / dispersions, duration_s=duration_s)
     out = tmp_path / "camp"
-    result = cm.run_campaign(spec, out, 4, workers=1, plots=False)
-    assert result["finished"] == 4 and result["errors"] == 0
-    pids = {json.loads((cm.case_dir(out, k) / "case.json").read_text())["pid"] for k in range(4)}
-    assert len(pids) == 1, "the four cases ran in one worker process"
+    result = cm.run_campaign(spec, out, runs, workers=1, plots=False)
+    assert result["finished"] == runs and result["errors"] == 0
+    pids = {json.loads((cm.case_dir(out, k) / "case.json").read_text())["pid"] for k in range(runs)}
+    assert len(pids) == 1, "the cases ran in one worker process"
+    last = runs - 1
     fresh = tmp_path / "fresh"
     fresh.mkdir()
-    subprocess.run([sys.executable, "-c", FRESH, json.dumps(spec.to_json()), "3", str(fresh)], check=True,
+    subprocess.run([sys.executable, "-c", FRESH, json.dumps(spec.to_json()), str(last), str(fresh)], check=True,
                    timeout=600)
-    warm = cm.case_dir(out, 3)
+    warm = cm.case_dir(out, last)
     for name in ("telemetry/rows.f64", "telemetry/schema.json"):
         assert (warm / name).read_bytes() == (fresh / name).read_bytes(), name
     assert (warm / "telemetry/rows.f64").stat().st_size > 0
     summary = {p: cm.comparable(json.loads((p / "summary.json").read_text())) for p in (warm, fresh)}
     assert summary[warm] == summary[fresh]
     record = json.loads((fresh / "record.json").read_text())
-    assert record["digest"] == result["cases"][3]["digest"]
+    assert record["digest"] == result["cases"][last]["digest"]
 
 
 def test_a_local_worker_writes_the_run_once_where_the_campaign_keeps_it(tmp_path):
