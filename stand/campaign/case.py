@@ -76,7 +76,7 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
     process): Ctrl-C stops the campaign instead of being recorded.
     """
-    t_start = time.time()
+    t_start, cpu_start = time.time(), time.process_time()
     dest = task.get("dest")
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
@@ -98,6 +98,8 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
             if watchdog is not None:
                 watchdog.cancel()
     rec["timing"]["worker_end"] = time.time()
+    # The CPU time of this process for the case beyond its loop, which a loaded machine does not inflate.
+    rec["timing"]["overhead_cpu_s"] = time.process_time() - cpu_start - rec["timing"]["loop_cpu_s"]
     return {"record": rec, "files": files, **({"dir": str(out)} if dest else {})}
 
 
@@ -105,9 +107,9 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
     """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
     sc = parse(task["data"], task["source"])
     with build(sc, None, Path(task["base"])) as scene:
-        t_built = time.time()
+        t_built, cpu_built = time.time(), time.process_time()
         result = run(scene, out, progress=False)
-        t_ran = time.time()
+        t_ran, cpu_ran = time.time(), time.process_time()
     if interruptible and result.status == "stopped":
         raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
     summary = write_summary(scene, result, out, plots=False)
@@ -132,7 +134,8 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
            "digest": digest(summary, rows)}
     t_end = time.time()
     rec["timing"] = {"worker_start": t_start, "wait_s": t_lock - t_start, "build_s": t_built - t_lock,
-                     "run_s": result.wall_time_s, "loop_s": t_ran - t_built, "summary_s": t_end - t_ran}
+                     "run_s": result.wall_time_s, "loop_s": t_ran - t_built, "loop_cpu_s": cpu_ran - cpu_built,
+                     "summary_s": t_end - t_ran}
     return rec, files
 
 

@@ -95,7 +95,7 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
     timing = [r.get("timing", {}) for r in records]
     run_s = [t["run_s"] for t in timing if "run_s" in t]
     overhead = {k: _stats([t[k] for t in timing if k in t])
-                for k in ("wait_s", "build_s", "summary_s", "transfer_s", "write_s")}
+                for k in ("wait_s", "build_s", "summary_s", "transfer_s", "write_s", "overhead_cpu_s", "write_cpu_s")}
     overhead["between_runs_s"] = _stats(between_runs(records))
     ex = dict(execution or meta.get("execution") or {})
     if ex.get("wall_s") and ex.get("runs_this_session"):
@@ -123,6 +123,7 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
                          for r in records if not r.get("passed")],
         "run_time_s": _stats(run_s),
         "loop_time_s": _stats([t["loop_s"] for t in timing if "loop_s" in t]),
+        "loop_cpu_s": _stats([t["loop_cpu_s"] for t in timing if "loop_cpu_s" in t]),
         "overhead_s": overhead,
         "execution": ex,
         "cases": [{"case": r["index"], "seed": r["seed"], "status": r.get("status"), "pass": r.get("passed"),

@@ -75,8 +75,9 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         raise CampaignError(str(ScenarioError("--case-timeout", case_timeout_s, "seconds of wall time per case, "
                                               f"from 0 (no limit) to {MAX_CASE_TIMEOUT_S:g}")))
     out = Path(out)
-    t0 = time.time()
+    t0, cpu0 = time.time(), time.process_time()
     tasks = validate(spec, runs)
+    validate_cpu_s = time.process_time() - cpu0
     _prepare(out, spec)
     t_ready = time.time()
     done = {k: r for k, r in finished(out).items() if k < runs}
@@ -96,7 +97,8 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     else:
         executor = _LocalPool(workers, case_timeout_s, worker_deaths)
     execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
-                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "started_at": t_ready, "lost": [],
+                 "resumed": resumed, "validate_s": round(t_ready - t0, 3),
+                 "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)

@@ -64,7 +64,7 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
     """Make a case's folder whole: its files (unless the worker wrote them there already: ``dir``), then its
     ``case.json``, then the rename that makes it count."""
     rec = result["record"]
-    t0 = time.time()
+    t0, cpu0 = time.time(), time.process_time()
     final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
     if result.get("dir") is None or Path(result["dir"]) != part:
         shutil.rmtree(part, ignore_errors=True)
@@ -75,6 +75,7 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
     timing["write_s"] = time.time() - t0
+    timing["write_cpu_s"] = time.process_time() - cpu0
     (part / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
     if final.exists():
         shutil.rmtree(final, ignore_errors=True)
