@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import hashlib
 import json
+import logging
 import os
+import shutil
 import sys
 import tempfile
 import threading
@@ -17,6 +21,8 @@ from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
 from .fault_groups import started
+
+log = logging.getLogger(__name__)
 
 #: Exit code of a Dask worker process ended by the per-case limit.
 EXIT_OVERRUN = 70
@@ -61,52 +67,87 @@ def _raised(exc: BaseException) -> str:
 
 
 def run_case(task: dict, *, interruptible: bool = False) -> dict:
-    """Run one case in a temporary folder and return its record and files (what a worker sends back).
+    """Run one case and return its record and files (what a worker sends back).
 
+    Where the task names a ``dest`` folder (a worker on the client's machine: the local pool, or this process), the
+    run is written there once, as the campaign keeps it, and only the record travels back (``dir``); elsewhere (a
+    Dask worker, perhaps on another machine) the run goes to a temporary folder and its files travel back.
     Anything the run raises, SystemExit and other BaseExceptions included, is recorded as an error case: a
     plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
     process): Ctrl-C stops the campaign instead of being recorded.
     """
-    t_start = time.time()
-    rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
-           "host": os.uname().nodename, "pid": os.getpid()}
-    files: dict[str, bytes] = {}
-    with _RUN_LOCK, tempfile.TemporaryDirectory(prefix="stand-case-") as tmp:
+    t_start, cpu_start = time.time(), time.process_time()
+    dest = task.get("dest")
+    with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
+                     ) as tmp:
         watchdog = _watchdog(task)
         t_lock = time.time()
-        out = Path(tmp) / "run"
+        out = Path(dest) if dest else Path(tmp) / "run"
         try:
-            sc = parse(task["data"], task["source"])
-            with build(sc, None, Path(task["base"])) as scene:
-                t_built = time.time()
-                out.mkdir()
-                result = run(scene, out, progress=False)
-                t_ran = time.time()
-            if interruptible and result.status == "stopped":
-                raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
-            summary = write_summary(scene, result, out, plots=False)
-            for name in RUN_FILES:
-                p = out / name
-                if p.exists():
-                    files[name] = p.read_bytes()
+            if dest:
+                shutil.rmtree(out, ignore_errors=True)  # what a worker that died running this case left
+            out.mkdir(parents=True)
+            rec, files = _run_into(task, out, interruptible, t_start, t_lock)
         except BaseException as exc:  # one failing run is recorded; the campaign goes on
+            if dest:
+                shutil.rmtree(out, ignore_errors=True)
             if interruptible and isinstance(exc, KeyboardInterrupt):
                 raise
             return {"record": _error_record(task, _raised(exc), t_start), "files": {}}
         finally:
             if watchdog is not None:
                 watchdog.cancel()
+    rec["timing"]["worker_end"] = time.time()
+    # The CPU time of this process for the case beyond its loop, which a loaded machine does not inflate.
+    rec["timing"]["overhead_cpu_s"] = time.process_time() - cpu_start - rec["timing"]["loop_cpu_s"]
+    return {"record": rec, "files": files, **({"dir": str(out)} if dest else {})}
+
+
+def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock: float) -> tuple[dict, dict]:
+    """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
+    sc = parse(task["data"], task["source"])
+    with build(sc, None, Path(task["base"])) as scene:
+        t_built, cpu_built = time.time(), time.process_time()
+        result = run(scene, out, progress=False)
+        t_ran, cpu_ran = time.time(), time.process_time()
+    if interruptible and result.status == "stopped":
+        raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
+    summary = write_summary(scene, result, out, plots=False)
+    files: dict[str, bytes] = {}
+    if task.get("dest"):
+        _keep_only_run_files(out)
+        with open(out / "telemetry" / "rows.f64", "rb") as f:  # just written: read from the page cache
+            rows = f.read()
+    else:
+        for name in RUN_FILES:
+            p = out / name
+            if p.exists():
+                files[name] = p.read_bytes()
+        rows = files.get("telemetry/rows.f64", b"")
+    rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
+           "host": os.uname().nodename, "pid": os.getpid(),
+           "faults": started(task.get("faults", []), summary),
+           "status": summary["status"], "passed": bool(summary["pass"]), "error": summary["error"],
+           "criteria": [{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
+                        for c in summary["criteria"]],
+           "rate_deg_s_at": summary.get("rate_deg_s_at", {}),
+           "digest": digest(summary, rows)}
     t_end = time.time()
-    rec.update(faults=started(task.get("faults", []), summary),
-               status=summary["status"], passed=bool(summary["pass"]), error=summary["error"],
-               criteria=[{k: c.get(k) for k in ("name", "metric", "value", "unit", "limit", "pass")}
-                         for c in summary["criteria"]],
-               rate_deg_s_at=summary.get("rate_deg_s_at", {}),
-               digest=digest(summary, files.get("telemetry/rows.f64", b"")),
-               timing={"worker_start": t_start, "wait_s": t_lock - t_start, "build_s": t_built - t_lock,
-                       "run_s": result.wall_time_s, "loop_s": t_ran - t_built, "summary_s": t_end - t_ran,
-                       "worker_end": t_end})
-    return {"record": rec, "files": files}
+    rec["timing"] = {"worker_start": t_start, "wait_s": t_lock - t_start, "build_s": t_built - t_lock,
+                     "run_s": result.wall_time_s, "loop_s": t_ran - t_built, "loop_cpu_s": cpu_ran - cpu_built,
+                     "summary_s": t_end - t_ran}
+    return rec, files
+
+
+def _keep_only_run_files(out: Path) -> None:
+    """Leave the campaign's files of a run (RUN_FILES) and nothing else, as the files sent back would be."""
+    keep = {out / name for name in RUN_FILES}
+    for p in sorted(out.rglob("*"), reverse=True):  # files before their folders
+        if p.is_dir():
+            if not any(k.is_relative_to(p) for k in keep):
+                shutil.rmtree(p, ignore_errors=True)
+        elif p not in keep:
+            p.unlink()
 
 
 def _watchdog(task: dict) -> threading.Timer | None:
@@ -130,7 +171,21 @@ def _watchdog(task: dict) -> threading.Timer | None:
 
 
 # ------------------------------------------------------------------------------------------------ executors
-def warm() -> None:
-    """Import what a run needs once per worker process, so the first case's timings are its own."""
+def warm(task: dict | None = None) -> None:
+    """Import what a run needs once per worker process, so the first case's timings are its own. With a campaign's
+    ``task``, also build its scene's devices once and close them, unrun (without its controller and faults: no
+    flight or plug-in code runs here): the modules the devices import and the data files they load (tables,
+    catalogues, coefficients) are then loaded once per process, not in the first case. A case then starts as in
+    a process that ran others before it (the bench and the tests check that it reproduces a fresh process's
+    record bit for bit); a scene that fails to build here fails in its case, where it is recorded."""
     for name in devices.kind_names():
         devices.get(name)
+    if task is None:
+        return
+    try:
+        sc = parse(task["data"], task["source"])
+        sc = dataclasses.replace(sc, controller=dataclasses.replace(sc.controller, kind="none"), faults=())
+        with _RUN_LOCK, build(sc, None, Path(task["base"])):
+            pass
+    except (Exception, SystemExit) as exc:  # recorded by the case that meets it
+        log.debug("warming the worker with case %s failed: %s", task.get("index"), _raised(exc))

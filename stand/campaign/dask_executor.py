@@ -27,7 +27,6 @@ class _Dask:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
         self.key, self.case_timeout_s = key, case_timeout_s
-        self.client.run(warm)
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
@@ -36,6 +35,7 @@ class _Dask:
         from distributed import as_completed
 
         limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
+        self.client.run(warm, tasks[0] if tasks else None)  # every worker builds one scene before the first case
         futures = {self.client.submit(run_case, {**t, **limit}, pure=False,
                                       key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
         for f in as_completed(list(futures), loop=self.client.loop):

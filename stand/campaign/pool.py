@@ -3,6 +3,7 @@ inline executor (every case in this process)."""
 
 from __future__ import annotations
 
+import pickle
 import time
 
 from .case import _error_record, _raised, run_case, warm
@@ -10,15 +11,19 @@ from .errors import CampaignError
 
 #: Times a case may end its worker process (os._exit, a signal, a crash) before it is recorded as an error.
 WORKER_DEATHS = 2
+#: A worker's next case is sent while it runs the current one (so it starts it without waiting for the client)
+#: when the pickled case is at most this big: the pipe's buffer holds it, and the client never blocks on a send.
+QUEUED_BYTES = 32 << 10
 
-def _worker_main(conn) -> None:
-    """A local pool worker: cases from ``conn`` one at a time, each answered with its record and files."""
+def _worker_main(conn, first: dict | None = None) -> None:
+    """A local pool worker: cases from ``conn`` one at a time, each answered with its record. ``first``: a case
+    whose scene warms the process (``warm``) before it says it is ready."""
     import signal
 
     # Ctrl-C goes to the whole process group; the client stops the campaign and ends its workers. A worker that
     # acted on it would record a half-run case as "stopped".
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    warm()
+    warm(first)
     conn.send(("ready", None))  # a case's wall-clock limit starts when it is handed over, not before the imports
     while True:
         try:
@@ -47,14 +52,16 @@ def _exit_text(code: int | None) -> str:
 
 
 class _Slot:
-    """One worker process of the local pool and the case it runs."""
+    """One worker process of the local pool, the case it runs (``task``) and the one sent to run next (``queued``).
+    """
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, first: dict | None = None):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child,), name="stand-campaign-worker")
+        self.proc = ctx.Process(target=_worker_main, args=(child, first), name="stand-campaign-worker")
         self.proc.start()
         child.close()
         self.task: dict | None = None
+        self.queued: dict | None = None
         self.since = 0.0
         self.ready = False
 
@@ -63,8 +70,25 @@ class _Slot:
 
     def give(self, task: dict) -> None:
         self.task, self.since = task, time.monotonic()
+        self._send(pickle.dumps(task, pickle.HIGHEST_PROTOCOL))
+
+    def queue(self, task: dict) -> bool:
+        """Send ``task`` to run after the current one, if it is small enough to wait in the pipe."""
+        data = pickle.dumps(task, pickle.HIGHEST_PROTOCOL)
+        if len(data) > QUEUED_BYTES:
+            return False
+        self.queued = task
+        self._send(data)
+        return True
+
+    def done(self) -> dict:
+        """The current case answered: the queued one (the worker has started it) becomes the current one."""
+        task, self.task, self.queued, self.since = self.task, self.queued, None, time.monotonic()
+        return task
+
+    def _send(self, data: bytes) -> None:
         try:
-            self.conn.send(task)
+            self.conn.send_bytes(data)  # what Connection.send does, the size known first
         except OSError:  # the worker died since it said ready: the pool sees its end and gives the case again
             pass
 
@@ -95,6 +119,7 @@ class _LocalPool:
         self.workers, self.case_timeout_s, self.deaths = workers, case_timeout_s, deaths
         self.ctx = multiprocessing.get_context("spawn")
         self.slots: list[_Slot] = []
+        self.first: dict | None = None
 
     def results(self, tasks: list[dict]):
         """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
@@ -102,17 +127,27 @@ class _LocalPool:
 
         pending = deque(tasks)
         died: dict[int, list[str]] = {}
-        self.slots = [_Slot(self.ctx) for _ in range(min(self.workers, len(pending)))]
+        self.first = tasks[0] if tasks else None
+        self.slots = [_Slot(self.ctx, self.first) for _ in range(min(self.workers, len(pending)))]
         while pending or any(s.task is not None for s in self.slots):
-            for s in self.slots:
-                if s.idle() and pending:
-                    s.give(pending.popleft())
+            self._hand_out(pending)
             watched = [s for s in self.slots if s.task is not None or not s.ready]
             self._wait(watched)
-            for s in watched:
-                outcome = self._check(s, died, pending)
-                if outcome is not None:
-                    yield outcome
+            outcomes = [o for s in watched if (o := self._check(s, died, pending)) is not None]
+            self._hand_out(pending)  # before the client writes what came back
+            yield from outcomes
+
+    def _hand_out(self, pending) -> None:
+        """A case to every idle worker, and one more to each busy worker while more cases wait than there are
+        workers (near the end, a case queued behind a long one would keep an idle worker waiting)."""
+        for s in self.slots:
+            if s.idle() and pending:
+                s.give(pending.popleft())
+        for s in self.slots:
+            if s.task is not None and s.queued is None and len(pending) > len(self.slots):
+                task = pending.popleft()
+                if not s.queue(task):
+                    pending.appendleft(task)
 
     def _wait(self, watched: list[_Slot]) -> None:
         from multiprocessing.connection import wait
@@ -134,8 +169,7 @@ class _LocalPool:
                 s.ready = True
                 return None
             if kind == "result" and s.task is not None:
-                index, s.task = s.task["index"], None
-                return index, result, None
+                return s.done()["index"], result, None
         if not s.proc.is_alive():
             s.proc.join()
             if s.task is None:  # it died importing the stand: no case is to blame and none can run
@@ -143,6 +177,8 @@ class _LocalPool:
                                     f"({_exit_text(s.proc.exitcode)}); try --workers 0 to see why.")
             task = s.task
             died.setdefault(task["index"], []).append(_exit_text(s.proc.exitcode))
+            if s.queued is not None:  # not started, or started and lost with the worker: given again, unblamed
+                pending.appendleft(s.queued)
             self._replace(s)
             if len(died[task["index"]]) < self.deaths:
                 pending.appendleft(task)  # maybe a passing crash (out of memory): once more, first
@@ -151,6 +187,8 @@ class _LocalPool:
                                          f"it ({', '.join(died[task['index']])}); not run again")
         if s.task is not None and self.case_timeout_s and time.monotonic() - s.since >= self.case_timeout_s:
             index = s.task["index"]
+            if s.queued is not None:
+                pending.appendleft(s.queued)
             self._replace(s, kill=True)
             return index, None, (f"still running after the per-case limit of {self.case_timeout_s:g} s of wall time "
                                  "(--case-timeout); its worker process was ended")
@@ -159,8 +197,8 @@ class _LocalPool:
     def _replace(self, s: _Slot, kill: bool = False) -> None:
         """A new worker process in this slot, the old one ended (killed if it still runs)."""
         s.end(kill=kill)
-        fresh = _Slot(self.ctx)
-        s.conn, s.proc, s.task, s.since, s.ready = fresh.conn, fresh.proc, None, 0.0, False
+        fresh = _Slot(self.ctx, self.first)
+        s.conn, s.proc, s.task, s.queued, s.since, s.ready = fresh.conn, fresh.proc, None, None, 0.0, False
 
     def close(self, cancel: bool = False) -> None:
         for s in self.slots:

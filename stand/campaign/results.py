@@ -3,6 +3,7 @@ distributions, worst cases)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from pathlib import Path
@@ -94,7 +95,8 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
     timing = [r.get("timing", {}) for r in records]
     run_s = [t["run_s"] for t in timing if "run_s" in t]
     overhead = {k: _stats([t[k] for t in timing if k in t])
-                for k in ("wait_s", "build_s", "summary_s", "transfer_s", "write_s")}
+                for k in ("wait_s", "build_s", "summary_s", "transfer_s", "write_s", "overhead_cpu_s", "write_cpu_s")}
+    overhead["between_runs_s"] = _stats(between_runs(records))
     ex = dict(execution or meta.get("execution") or {})
     if ex.get("wall_s") and ex.get("runs_this_session"):
         ex["runs_per_min"] = round(ex["runs_this_session"] / ex["wall_s"] * 60, 2)
@@ -120,6 +122,8 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
                           "failed": [c["name"] for c in r.get("criteria", []) if not c["pass"]]}
                          for r in records if not r.get("passed")],
         "run_time_s": _stats(run_s),
+        "loop_time_s": _stats([t["loop_s"] for t in timing if "loop_s" in t]),
+        "loop_cpu_s": _stats([t["loop_cpu_s"] for t in timing if "loop_cpu_s" in t]),
         "overhead_s": overhead,
         "execution": ex,
         "cases": [{"case": r["index"], "seed": r["seed"], "status": r.get("status"), "pass": r.get("passed"),
@@ -129,6 +133,24 @@ def aggregate(out: str | Path, runs: int, execution: dict | None = None) -> dict
     }
     write_json_atomic(out / "campaign.json", result)
     return result
+
+
+def between_runs(records: list[dict]) -> list[float]:
+    """What each run cost its worker beyond its loop (the ``stand.loop.run`` call), s: from the start of one case
+    to the start of the next on the same worker process, less the first one's loop. Parse, build, summary, the
+    record's way back and the client's handing over of the next case are in it; the pool's start is not."""
+    by_worker: dict[tuple, list[dict]] = {}
+    for r in records:
+        t = r.get("timing", {})
+        if "worker_start" in t and r.get("pid") is not None:
+            by_worker.setdefault((r.get("host"), r["pid"]), []).append(t)
+    gaps = []
+    for times in by_worker.values():
+        times.sort(key=lambda t: t["worker_start"])
+        for a, b in itertools.pairwise(times):
+            if "loop_s" in a:
+                gaps.append(b["worker_start"] - a["worker_start"] - a["loop_s"])
+    return gaps
 
 
 def _inputs(records: list[dict]) -> dict[str, list]:

@@ -15,7 +15,7 @@ from .errors import CampaignError
 from .pool import WORKER_DEATHS, _Inline, _LocalPool
 from .results import aggregate
 from .spec import MAX_RUNS, Spec, validate
-from .store import _prepare, _write_case, finished
+from .store import _prepare, _write_case, finished, part_dir
 from .summary_report import write_report
 
 log = logging.getLogger(__name__)
@@ -75,8 +75,9 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         raise CampaignError(str(ScenarioError("--case-timeout", case_timeout_s, "seconds of wall time per case, "
                                               f"from 0 (no limit) to {MAX_CASE_TIMEOUT_S:g}")))
     out = Path(out)
-    t0 = time.time()
+    t0, cpu0 = time.time(), time.process_time()
     tasks = validate(spec, runs)
+    validate_cpu_s = time.process_time() - cpu0
     _prepare(out, spec)
     t_ready = time.time()
     done = {k: r for k, r in finished(out).items() if k < runs}
@@ -86,6 +87,9 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         bar.add(rec, resumed=True)
     todo = [t for t in tasks if t["index"] not in done]
     del tasks
+    if scheduler is None:  # workers on this machine write each run once, where the campaign keeps it
+        for t in todo:
+            t["dest"] = str(part_dir(out.absolute(), t["index"]))
     if scheduler is not None:
         executor = _Dask(scheduler, spec.key, case_timeout_s)
     elif workers == 0:
@@ -93,7 +97,8 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     else:
         executor = _LocalPool(workers, case_timeout_s, worker_deaths)
     execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
-                 "resumed": resumed, "validate_s": round(t_ready - t0, 3), "lost": [],
+                 "resumed": resumed, "validate_s": round(t_ready - t0, 3),
+                 "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import hashlib
 import json
 from dataclasses import dataclass
@@ -36,10 +38,8 @@ class Spec:
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
     def scenario_dict(self) -> dict:
-        data = scenario_mod.loads(self.scenario_text, self.scenario_name)
-        for item in self.overrides:
-            scenario_mod.set_value(data, item)
-        return data
+        """The scenario's TOML with the overrides applied: a copy the caller may change."""
+        return copy.deepcopy(_base_dict(self.scenario_text, self.scenario_name, self.overrides))
 
     def dispersions(self) -> Dispersions:
         return parse_dispersions(self.dispersions_text, self.scenario_dict(), self.dispersions_source)
@@ -48,7 +48,9 @@ class Spec:
         """The task of case ``index``: its scenario dict (dispersed, seeded), values and seed."""
         disp = dispersions or self.dispersions()
         run_seed, values = case_values(disp, self.seed, index)
-        data = apply(self.scenario_dict(), values, run_seed, self.duration_s, disp.faults)
+        # ``apply`` deep-copies: the parsed base is shared, never changed.
+        data = apply(_base_dict(self.scenario_text, self.scenario_name, self.overrides), values, run_seed,
+                     self.duration_s, disp.faults)
         scalars: dict[str, float] = {}
         for d in disp.items:
             scalars.update(d.scalars(values[d.field]))
@@ -63,6 +65,16 @@ class Spec:
     def from_json(cls, d: dict) -> Spec:
         fields = {f.name for f in dataclasses.fields(cls)}
         return cls(**{k: (tuple(v) if k == "overrides" else v) for k, v in d.items() if k in fields})
+
+
+@functools.lru_cache(maxsize=4)
+def _base_dict(text: str, name: str, overrides: tuple[str, ...]) -> dict:
+    """The scenario's TOML parsed once per process (a campaign's cases all start from it; parsing the text again
+    for each case was half of its validation). Callers copy it before changing anything."""
+    data = scenario_mod.loads(text, name)
+    for item in overrides:
+        scenario_mod.set_value(data, item)
+    return data
 
 
 def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = None,

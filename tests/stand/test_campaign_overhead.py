@@ -1,0 +1,156 @@
+"""A campaign's cost per run beyond the loop (issue 26): what a worker keeps between cases, what travels back, what
+is written, and the proof that a case in a warm worker is the case of a fresh process."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from stand import campaign as cm
+from stand.campaign import spec as spec_mod
+from stand.campaign.pool import _LocalPool
+from stand.scenario import SCENARIO_DIR
+
+SHORT_S = 20.0
+#: What the campaign keeps of a run, and the record.
+CASE_FILES = {*cm.RUN_FILES, "case.json"}
+
+
+def part_dir(out, index: int):
+    """Where the campaign writes case ``index`` before it counts."""
+    final = cm.case_dir(out, index)
+    return final.with_name(final.name + ".part")
+
+
+def _files(folder) -> set[str]:
+    return {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file()}
+
+
+FRESH = """
+import json, sys
+from pathlib import Path
+from stand import campaign as cm
+spec = cm.Spec.from_json(json.loads(sys.argv[1]))
+result = cm.run_case(spec.case(int(sys.argv[2])))
+out = Path(sys.argv[3])
+for name, data in result["files"].items():
+    (out / name).parent.mkdir(parents=True, exist_ok=True)
+    (out / name).write_bytes(data)
+(out / "record.json").write_text(json.dumps(result["record"]))
+"""
+
+
+@pytest.mark.parametrize("scenario, dispersions, duration_s, runs", [
+    ("detumble", "detumble_dispersions.toml", SHORT_S, 4),
+    # Star tracker, gyro, wheels and a fault (the file's fault times need the scenario's 600 s).
+    ("pointing_star_tracker", "fault_dispersions.toml", 600.0, 3),
+])
+def test_a_case_in_a_warm_worker_is_the_case_of_a_fresh_process(tmp_path, scenario, dispersions, duration_s, runs):
+    """The pool's worker builds a scene to warm itself, then runs the cases one after another; the last one runs
+    after the others. Run alone in a new interpreter, it gives the same telemetry, byte for byte, and the same
+    summary."""
+    spec = cm.make_spec(scenario, SCENARIO_DIR / dispersions, duration_s=duration_s)
+    out = tmp_path / "camp"
+    result = cm.run_campaign(spec, out, runs, workers=1, plots=False)
+    assert result["finished"] == runs and result["errors"] == 0
+    pids = {json.loads((cm.case_dir(out, k) / "case.json").read_text())["pid"] for k in range(runs)}
+    assert len(pids) == 1, "the cases ran in one worker process"
+    last = runs - 1
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    subprocess.run([sys.executable, "-c", FRESH, json.dumps(spec.to_json()), str(last), str(fresh)], check=True,
+                   timeout=600)
+    warm = cm.case_dir(out, last)
+    for name in ("telemetry/rows.f64", "telemetry/schema.json"):
+        assert (warm / name).read_bytes() == (fresh / name).read_bytes(), name
+    assert (warm / "telemetry/rows.f64").stat().st_size > 0
+    summary = {p: cm.comparable(json.loads((p / "summary.json").read_text())) for p in (warm, fresh)}
+    assert summary[warm] == summary[fresh]
+    record = json.loads((fresh / "record.json").read_text())
+    assert record["digest"] == result["cases"][last]["digest"]
+
+
+def test_a_local_worker_writes_the_run_once_where_the_campaign_keeps_it(tmp_path):
+    """With a ``dest`` (a worker on the client's machine) the run is written in the case's folder and only the
+    record travels back; the folder ends with the files a case always had, nothing more."""
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    out.mkdir()
+    task = {**spec.case(1), "dest": str(part_dir(out, 1))}
+    result = cm.run_case(task)
+    assert result["files"] == {} and result["dir"] == task["dest"]
+    assert _files(part_dir(out, 1)) == set(cm.RUN_FILES)  # the run's own log and the like are not kept
+    assert len(json.dumps(result["record"])) < 8192  # the record is what crosses the pipe
+    alone = cm.run_case(spec.case(1))  # no dest: a temporary folder and the files sent back (Dask)
+    assert set(alone["files"]) == set(cm.RUN_FILES)
+    assert alone["record"]["digest"] == result["record"]["digest"]
+    assert alone["files"]["telemetry/rows.f64"] == (part_dir(out, 1) / "telemetry/rows.f64").read_bytes()
+
+
+def test_a_campaign_folder_holds_the_same_files_on_every_executor(tmp_path):
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    for workers in (0, 1):
+        out = tmp_path / f"w{workers}"
+        cm.run_campaign(spec, out, 2, workers=workers, plots=False)
+        assert sorted(p.name for p in (out / "cases").iterdir()) == ["00000", "00001"]  # no .part left
+        for k in range(2):
+            assert _files(cm.case_dir(out, k)) == CASE_FILES
+
+
+def test_a_failing_run_leaves_no_half_written_case(scenario_dict, write_scenario, tmp_path):
+    """A run that raises in its worker: its folder is removed, and the client writes the error record alone."""
+    scenario_dict["controller"] = {"kind": "plugin", "rate_hz": 5.0, "module": "no_such_module_anywhere:Nope"}
+    scenario_dict["criteria"] = [{"name": "spin", "metric": "final_rate_deg_s", "max": 100.0}]
+    path = write_scenario(scenario_dict)
+    dfile = tmp_path / "d.toml"
+    dfile.write_text('[[dispersions]]\nfield = "devices.mtq.mag_noise_nT"\ndistribution = "uniform"\nmin = 0.0\n'
+                     'max = 1.0\n')
+    spec = cm.make_spec(str(path), dfile, duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    result = cm.run_campaign(spec, out, 1, workers=1, plots=False)
+    assert result["errors"] == 1 and "no_such_module_anywhere" in result["failed_cases"][0]["error"]
+    assert _files(cm.case_dir(out, 0)) == {"case.json"}
+    assert not part_dir(out, 0).exists()
+
+
+def test_a_worker_gets_its_next_case_before_the_client_writes_the_last_one():
+    """The pool hands the next case to the worker that answered before it yields the answer to the writer, so the
+    worker never waits for the client's disk."""
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    tasks = [spec.case(k) for k in range(3)]
+    pool = _LocalPool(1)
+    try:
+        answers = pool.results(tasks)
+        index, result, reason = next(answers)
+        assert index == 0 and reason is None and result["record"]["status"] == "completed"
+        assert pool.slots[0].task is not None and pool.slots[0].task["index"] == 1
+        assert [i for i, _, _ in answers] == [1, 2]
+    finally:
+        pool.close(cancel=True)
+
+
+def test_the_base_scenario_is_parsed_once_for_all_cases(monkeypatch):
+    """Validating a campaign parses the scenario's TOML once, not once per case (it was half the validation)."""
+    calls = []
+    real = spec_mod.scenario_mod.loads
+    monkeypatch.setattr(spec_mod.scenario_mod, "loads", lambda *a, **kw: calls.append(a) or real(*a, **kw))
+    spec_mod._base_dict.cache_clear()
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    calls.clear()
+    tasks = cm.validate(spec, 12)
+    assert len(calls) <= 1 and len(tasks) == 12
+    # Each case's dict is its own: changing one changes neither the next case nor the shared base.
+    tasks[0]["data"]["spacecraft"]["mass_kg"] = -1.0
+    assert spec.case(0)["data"]["spacecraft"]["mass_kg"] > 0 and spec.scenario_dict()["spacecraft"]["mass_kg"] > 0
+
+
+def test_warming_a_worker_with_a_case_loads_what_its_devices_need():
+    """``warm(task)`` builds the case's devices once (no controller, nothing run): the drivers they import are
+    loaded before the first case, in a process that had not imported them."""
+    code = ("import sys, json\nfrom stand import campaign as cm\nfrom stand.scenario import SCENARIO_DIR\n"
+            "spec = cm.make_spec('detumble', SCENARIO_DIR / 'detumble_dispersions.toml', duration_s=20.0)\n"
+            "task = spec.case(0)\nname = 'drivers.magnetorquer.emulator'\nbefore = name in sys.modules\n"
+            "cm.warm(task)\nprint(json.dumps([before, name in sys.modules]))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300)
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == [False, True]
