@@ -243,7 +243,7 @@ class MEKF:
             checked = _covariance(R_B, "R_B")
             if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3):
                 self._R_checked = (R_B.copy(), checked)
-        return self._update(np.array(z), _H_ATTITUDE, checked, gate_sigma, gate_slack_rad2)
+        return self._update(np.array(z), None, checked, gate_sigma, gate_slack_rad2)
 
     def update_vector(self, b_B, r_N, sigma_rad: float, gate_sigma: float | None = None) -> bool:
         """Update with a measured unit direction ``b_B`` of the reference direction ``r_N`` (sun, field), with
@@ -259,7 +259,11 @@ class MEKF:
         return self._update(b - pred, H, R, gate_sigma)
 
     def _update(self, z, H, R, gate_sigma, gate_slack_rad2: float = 0.0) -> bool:
-        S = H @ self.P @ H.T + R
+        """The Kalman update with residual ``z``, measurement matrix ``H`` (None: an attitude measurement, ``[I 0]``,
+        whose products are slices of P: the same numbers without the matrix products) and covariance ``R``."""
+        P = self.P
+        PHt = P[:, :3] if H is None else P @ H.T
+        S = (PHt[:3] if H is None else H @ PHt) + R
         Sinv = np.array(inv3(S.tolist()))  # 3 x 3 by its adjugate: np.linalg.inv costs more than the arithmetic
         if gate_sigma is not None:
             limit = gate_sigma ** 2 * len(z)
@@ -269,10 +273,14 @@ class MEKF:
                     or float(z @ np.array(inv3((S + gate_slack_rad2 * _EYE3).tolist())) @ z) > limit):
                 self.rejected += 1
                 return False
-        K = self.P @ H.T @ Sinv
+        K = PHt @ Sinv
         dx = (K @ z).tolist()
-        IKH = _EYE6 - K @ H
-        self._set_P(IKH @ self.P @ IKH.T + K @ R @ K.T, "update")  # Joseph form
+        if H is None:
+            IKH = _EYE6.copy()
+            IKH[:, :3] -= K
+        else:
+            IKH = _EYE6 - K @ H
+        self._set_P(IKH @ P @ IKH.T + K @ R @ K.T, "update")  # Joseph form
         self.q = positive(normalised(qmul(self.q, (1.0, 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2]))))
         self.bias = add(self.bias, dx[3:])
         self.updates += 1
@@ -288,7 +296,6 @@ class MEKF:
 
 _EYE3 = np.eye(3)
 _EYE6 = np.eye(6)
-_H_ATTITUDE = np.hstack((np.eye(3), np.zeros((3, 3))))
 
 
 def _transition(w: Vec3, wn: float, dt_s: float) -> np.ndarray:
