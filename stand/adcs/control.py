@@ -140,6 +140,7 @@ class WheelDistribution:
         self.A = A / np.linalg.norm(A, axis=0)
         self.n = A.shape[1]
         self.pinv = np.linalg.pinv(self.A)
+        self._neg_pinv_rows = tuple(tuple(row) for row in (-self.pinv).tolist())  # u = -pinv @ torque, row by row
         _, _, Vt = np.linalg.svd(self.A)
         self.null = Vt[3:].T  # n x (n - 3) orthonormal basis of A's null space
         if max_torque_Nm is None:
@@ -149,11 +150,13 @@ class WheelDistribution:
             if not np.all(np.isfinite(m)) or np.any(m <= 0.0):
                 raise ControlError(f"max_torque_Nm = {max_torque_Nm!r}; give finite positive limits (N m).")
             self.max_torque = m
+        self._max_torque_list = None if self.max_torque is None else self.max_torque.tolist()
 
     def motor_torques(self, torque_B, speeds_rad_s=None, inertia_kg_m2=None, speed_target_rad_s=0.0,
                       null_gain_per_s: float = 0.0) -> np.ndarray:
         """Motor torques ``u`` (N m per rotor) with ``-A u = torque_B`` (before the limit scaling)."""
-        u = -self.pinv @ _vec(torque_B, "torque_B")
+        t = _vec(torque_B, "torque_B")
+        u = [dot(row, t) for row in self._neg_pinv_rows]
         if null_gain_per_s > 0.0 and self.null.shape[1] and speeds_rad_s is not None:
             speeds = np.asarray(speeds_rad_s, dtype=float)
             J = np.broadcast_to(np.asarray(inertia_kg_m2, dtype=float), (self.n,))
@@ -161,12 +164,12 @@ class WheelDistribution:
                 raise ControlError(f"speeds_rad_s = {np.asarray(speeds_rad_s).tolist()}; {self.n} speeds needed.")
             # A rotor torque in the null space changes the wheel momenta without torquing the body.
             want = -null_gain_per_s * J * (speeds - speed_target_rad_s)
-            u = u + self.null @ (self.null.T @ want)
-        if self.max_torque is not None:
-            ratio = float(np.max(np.abs(u) / self.max_torque))
+            u = (np.array(u) + self.null @ (self.null.T @ want)).tolist()
+        if self._max_torque_list is not None:
+            ratio = max(abs(x) / m for x, m in zip(u, self._max_torque_list, strict=True))
             if ratio > 1.0:
-                u = u / ratio
-        return u
+                u = [x / ratio for x in u]
+        return np.array(u)
 
     def body_torque(self, motor_torques) -> np.ndarray:
         return -self.A @ np.asarray(motor_torques, dtype=float)

@@ -178,3 +178,16 @@ def test_control_torque_on_floats_matches_the_textbook_law_in_numpy():
 def test_mekf_refuses_a_bad_quaternion_by_name(q):
     with pytest.raises(FilterError, match="q_BN_meas"):
         MEKF([1.0, 0.0, 0.0, 0.0]).update_attitude(q, 1e-8)
+
+
+def test_motor_torques_on_floats_match_the_pseudo_inverse_in_numpy():
+    from stand.adcs.control import WheelDistribution
+
+    tilt = math.acos(1.0 / math.sqrt(3.0))
+    az = np.radians([0.0, 90.0, 180.0, 270.0])
+    A = np.stack((math.sin(tilt) * np.cos(az), math.sin(tilt) * np.sin(az), np.full(4, math.cos(tilt))))
+    d = WheelDistribution(A, max_torque_Nm=0.01)
+    for t in (VECS[0] * 1e-3 / np.linalg.norm(VECS[0]), np.array([0.02, -0.01, 0.03])):  # inside and over the limit
+        want = -np.linalg.pinv(A) @ t
+        want = want / max(1.0, float(np.max(np.abs(want))) / 0.01)
+        np.testing.assert_allclose(d.motor_torques(t), want, rtol=0, atol=1e-12 * float(np.max(np.abs(want))))
