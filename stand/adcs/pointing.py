@@ -46,7 +46,7 @@ from . import guidance as gd
 from .control import LAWS, WheelDistribution, control_torque, dumping_dipole, pd_gains
 from .determination import MEKF
 from .modes import DETUMBLE, FINE_POINTING, MODES, SUN_ACQUISITION, ModeConfig, ModeManager
-from .quat import add, conj, cross, mat3, mv, norm, normalised, positive, qmul, scale, sub
+from .quat import add, conj, cross, finite3, mat3, mv, norm, normalised, positive, qmul, scale, sub
 
 __all__ = ["PointingController", "default_wheel_axes_B"]
 
@@ -117,15 +117,16 @@ def _non_negative(options, name):
 def _finite3_or_none(v) -> tuple | None:
     """``v`` as 3 floats, or None unless it is 3 finite numbers (a sensor's sample, refused without an error)."""
     try:
-        x, y, z = (float(c) for c in v)
-    except (TypeError, ValueError):
+        return finite3(v, "sample", ValueError)
+    except ValueError:
         return None
-    return (x, y, z) if math.isfinite(x) and math.isfinite(y) and math.isfinite(z) else None
 
 
 def _unit_quat_or_none(q) -> tuple | None:
     """``q`` normalised, or None unless it is 4 finite numbers of norm within 1e-3 of 1."""
     try:
+        if isinstance(q, np.ndarray) and q.shape != (4,):
+            return None
         w, x, y, z = (float(c) for c in q)
     except (TypeError, ValueError):
         return None

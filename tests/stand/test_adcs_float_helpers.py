@@ -191,3 +191,25 @@ def test_motor_torques_on_floats_match_the_pseudo_inverse_in_numpy():
         want = -np.linalg.pinv(A) @ t
         want = want / max(1.0, float(np.max(np.abs(want))) / 0.01)
         np.testing.assert_allclose(d.motor_torques(t), want, rtol=0, atol=1e-12 * float(np.max(np.abs(want))))
+
+
+@pytest.mark.parametrize("sample", [np.ones((3, 1)), [1.0, 2.0], [1.0, math.nan, 0.0], [math.inf, 0.0, 0.0], "abc",
+                                    None])
+def test_a_gyro_sample_that_is_not_three_finite_numbers_is_dropped(sample):
+    from stand.adcs.pointing import _finite3_or_none
+
+    assert _finite3_or_none(sample) is None
+
+
+@pytest.mark.parametrize("q", [np.ones((4, 1)) / 2.0, [1.0, 0.0, 0.0], [1.1, 0.0, 0.0, 0.0], [math.nan, 0, 0, 1], None])
+def test_a_tracker_quaternion_that_is_not_a_finite_unit_quaternion_is_dropped(q):
+    from stand.adcs.pointing import _unit_quat_or_none
+
+    assert _unit_quat_or_none(q) is None
+
+
+def test_a_good_tracker_quaternion_is_normalised():
+    from stand.adcs.pointing import _unit_quat_or_none
+
+    q = np.array([1.0005, 0.0, 0.0, 0.0])
+    assert _unit_quat_or_none(q) == (1.0, 0.0, 0.0, 0.0)
