@@ -33,7 +33,7 @@ import numpy as np
 
 from sim.rotations import canonical, compose, conjugate
 
-from .quat import cross, dcm1, error, finite3
+from .quat import Vec3, add, cross, dcm1, dot, error, finite3, mv, scale, sub
 
 __all__ = ["WheelDistribution", "attitude_error", "control_torque", "dumping_dipole", "mrp", "pd_gains"]
 
@@ -44,7 +44,7 @@ class ControlError(ValueError):
     """Control input that cannot be used (NaN, wrong shape, bad gains)."""
 
 
-def _vec(v, name: str) -> np.ndarray:
+def _vec(v, name: str) -> Vec3:
     return finite3(v, name, ControlError)
 
 
@@ -90,7 +90,7 @@ def pd_gains(inertia, natural_frequency_rad_s: float, damping_ratio: float = 0.9
 
 
 def control_torque(q_BN, omega_BN_B, q_RN, omega_RN_R, inertia, K, P, h_wheels_B=(0.0, 0.0, 0.0),
-                   domega_RN_R=(0.0, 0.0, 0.0), law: str = "mrp") -> np.ndarray:
+                   domega_RN_R=(0.0, 0.0, 0.0), law: str = "mrp") -> Vec3:
     """The torque ``u_B`` (N m, body) that makes the body track the reference; see the module docstring.
 
     ``h_wheels_B``: the wheels' momentum ``A J Omega`` (N m s, body), for the gyroscopic compensation.
@@ -99,25 +99,32 @@ def control_torque(q_BN, omega_BN_B, q_RN, omega_RN_R, inertia, K, P, h_wheels_B
         raise ControlError(f"law = {law!r}; allowed: {', '.join(LAWS)}.")
     w = _vec(omega_BN_B, "omega_BN_B")
     I = np.asarray(inertia, dtype=float)
-    I = np.diag(I) if I.shape == (3,) else I
+    I = (np.diag(I) if I.shape == (3,) else I).tolist()
     q_BR = error(_unit4(q_BN, "q_BN"), _unit4(q_RN, "q_RN"))
     C_BR = dcm1(q_BR)
-    w_RN_B = C_BR @ _vec(omega_RN_R, "omega_RN_R")
-    dw = w - w_RN_B
-    e = q_BR[1:] / (1.0 + q_BR[0]) if law == "mrp" else 2.0 * q_BR[1:]  # w >= 0: the short way round
-    H = I @ w + _vec(h_wheels_B, "h_wheels_B")
-    return (-_gain(K, "K") @ e - _gain(P, "P") @ dw + cross(w, H)
-            + I @ (C_BR @ _vec(domega_RN_R, "domega_RN_R") - cross(w, w_RN_B)))
+    w_RN_B = mv(C_BR, _vec(omega_RN_R, "omega_RN_R"))
+    dw = sub(w, w_RN_B)
+    d = 1.0 + q_BR[0]  # w >= 0: the short way round
+    e = (q_BR[1] / d, q_BR[2] / d, q_BR[3] / d) if law == "mrp" else scale(2.0, q_BR[1:])
+    H = add(mv(I, w), _vec(h_wheels_B, "h_wheels_B"))
+    feedback = sub(scale(-1.0, mv(_gain(K, "K").tolist(), e)), mv(_gain(P, "P").tolist(), dw))
+    return add(add(feedback, cross(w, H)),
+               mv(I, sub(mv(C_BR, _vec(domega_RN_R, "domega_RN_R")), cross(w, w_RN_B))))
 
 
-def _unit4(q, name: str) -> np.ndarray:
-    a = np.asarray(q, dtype=float)
-    if a.shape != (4,) or not np.all(np.isfinite(a)):
-        raise ControlError(f"{name} = {np.asarray(q).tolist()} must be 4 finite numbers [w, x, y, z].")
-    n = float(np.sqrt(a @ a))
+def _unit4(q, name: str) -> tuple[float, float, float, float]:
+    try:
+        if isinstance(q, np.ndarray) and q.shape != (4,):
+            raise ValueError
+        w, x, y, z = (float(c) for c in q)
+    except (TypeError, ValueError):
+        w = x = y = z = math.nan
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise ControlError(f"{name} = {np.asarray(q, dtype=object).tolist()} must be 4 finite numbers [w, x, y, z].")
+    n = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(n - 1.0) > 1e-6:
         raise ControlError(f"{name} has norm {n:.9g}; a unit quaternion is required.")
-    return a
+    return w, x, y, z
 
 
 class WheelDistribution:
@@ -133,6 +140,7 @@ class WheelDistribution:
         self.A = A / np.linalg.norm(A, axis=0)
         self.n = A.shape[1]
         self.pinv = np.linalg.pinv(self.A)
+        self._neg_pinv_rows = tuple(tuple(row) for row in (-self.pinv).tolist())  # u = -pinv @ torque, row by row
         _, _, Vt = np.linalg.svd(self.A)
         self.null = Vt[3:].T  # n x (n - 3) orthonormal basis of A's null space
         if max_torque_Nm is None:
@@ -142,11 +150,13 @@ class WheelDistribution:
             if not np.all(np.isfinite(m)) or np.any(m <= 0.0):
                 raise ControlError(f"max_torque_Nm = {max_torque_Nm!r}; give finite positive limits (N m).")
             self.max_torque = m
+        self._max_torque_list = None if self.max_torque is None else self.max_torque.tolist()
 
     def motor_torques(self, torque_B, speeds_rad_s=None, inertia_kg_m2=None, speed_target_rad_s=0.0,
                       null_gain_per_s: float = 0.0) -> np.ndarray:
         """Motor torques ``u`` (N m per rotor) with ``-A u = torque_B`` (before the limit scaling)."""
-        u = -self.pinv @ _vec(torque_B, "torque_B")
+        t = _vec(torque_B, "torque_B")
+        u = [dot(row, t) for row in self._neg_pinv_rows]
         if null_gain_per_s > 0.0 and self.null.shape[1] and speeds_rad_s is not None:
             speeds = np.asarray(speeds_rad_s, dtype=float)
             J = np.broadcast_to(np.asarray(inertia_kg_m2, dtype=float), (self.n,))
@@ -154,12 +164,12 @@ class WheelDistribution:
                 raise ControlError(f"speeds_rad_s = {np.asarray(speeds_rad_s).tolist()}; {self.n} speeds needed.")
             # A rotor torque in the null space changes the wheel momenta without torquing the body.
             want = -null_gain_per_s * J * (speeds - speed_target_rad_s)
-            u = u + self.null @ (self.null.T @ want)
-        if self.max_torque is not None:
-            ratio = float(np.max(np.abs(u) / self.max_torque))
+            u = (np.array(u) + self.null @ (self.null.T @ want)).tolist()
+        if self._max_torque_list is not None:
+            ratio = max(abs(x) / m for x, m in zip(u, self._max_torque_list, strict=True))
             if ratio > 1.0:
-                u = u / ratio
-        return u
+                u = [x / ratio for x in u]
+        return np.array(u)
 
     def body_torque(self, motor_torques) -> np.ndarray:
         return -self.A @ np.asarray(motor_torques, dtype=float)
@@ -169,21 +179,21 @@ class WheelDistribution:
         return self.A @ (np.asarray(inertia_kg_m2, dtype=float) * np.asarray(speeds_rad_s, dtype=float))
 
 
-def dumping_dipole(b_B, h_err_B, gain_per_s: float, max_dipole_A_m2: float | None = None) -> np.ndarray:
+def dumping_dipole(b_B, h_err_B, gain_per_s: float, max_dipole_A_m2: float | None = None) -> Vec3:
     """Magnetorquer dipole (A m^2, body) that removes the excess wheel momentum ``h_err_B`` across the field.
 
     ``m = k (h_err x b) / |b|^2``; the torque ``m x b = -k (h_err - b (b . h_err) / |b|^2)``. Scaled down as a
     whole so no axis exceeds ``max_dipole_A_m2``.
     """
     b = _vec(b_B, "b_B")
-    bb = float(b @ b)
+    bb = dot(b, b)
     if bb == 0.0:
         raise ControlError("b_B is zero; no dipole can dump momentum without a field.")
     if not (math.isfinite(gain_per_s) and gain_per_s >= 0.0):
         raise ControlError(f"gain_per_s = {gain_per_s!r}; it must be finite and >= 0.")
-    m = gain_per_s * cross(_vec(h_err_B, "h_err_B"), b) / bb
+    m = tuple(gain_per_s * c / bb for c in cross(_vec(h_err_B, "h_err_B"), b))
     if max_dipole_A_m2 is not None:
-        peak = float(np.max(np.abs(m)))
+        peak = max(abs(c) for c in m)
         if peak > max_dipole_A_m2:
-            m = m * (max_dipole_A_m2 / peak)
+            m = scale(max_dipole_A_m2 / peak, m)
     return m

@@ -29,7 +29,7 @@ import numpy as np
 
 from sim.rotations import canonical, compose, quat_from_dcm
 
-from .quat import conj, dcm1, finite3, positive, qmul
+from .quat import Quat, Vec3, add, conj, dcm1, finite3, inv3, mv, norm, normalised, positive, qmul, rotation_vector, sub
 
 __all__ = ["MEKF", "FilterError", "quest", "triad"]
 
@@ -55,14 +55,20 @@ def _skew(v) -> np.ndarray:
     return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
-def _quat(q, name: str) -> np.ndarray:
-    a = np.asarray(q, dtype=float)
-    if a.shape != (4,) or not np.all(np.isfinite(a)):
-        raise FilterError(f"{name} = {np.asarray(q).tolist()} must be 4 finite numbers [w, x, y, z].")
-    n = np.linalg.norm(a)
+def _quat(q, name: str) -> Quat:
+    """``q`` normalised, as 4 floats; refused unless it is 4 finite numbers of norm within 1e-3 of 1."""
+    try:
+        if isinstance(q, np.ndarray) and q.shape != (4,):
+            raise ValueError
+        w, x, y, z = (float(c) for c in q)
+    except (TypeError, ValueError):
+        w = x = y = z = math.nan
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise FilterError(f"{name} = {np.asarray(q, dtype=object).tolist()} must be 4 finite numbers [w, x, y, z].")
+    n = math.sqrt(w * w + x * x + y * y + z * z)
     if abs(n - 1.0) > 1e-3:
         raise FilterError(f"{name} has norm {n:.6g}; a unit quaternion is expected.")
-    return a / n
+    return w / n, x / n, y / n, z / n
 
 
 #: Smallest sine of the angle between TRIAD's two vectors (0.57 deg): below it the second axis is noise.
@@ -166,8 +172,8 @@ class MEKF:
 
     def __init__(self, q_BN, bias_rad_s=(0.0, 0.0, 0.0), sigma_attitude_rad: float = 0.1,
                  sigma_bias_rad_s: float = 1e-4, arw_rad_s05: float = 1e-5, rrw_rad_s15: float = 1e-7):
-        self.q = canonical(_quat(q_BN, "q_BN"))
-        self.bias = _finite3(bias_rad_s, "bias_rad_s")
+        self.q: Quat = positive(_quat(q_BN, "q_BN"))
+        self.bias: Vec3 = _finite3(bias_rad_s, "bias_rad_s")
         for name, v in (("sigma_attitude_rad", sigma_attitude_rad), ("sigma_bias_rad_s", sigma_bias_rad_s)):
             if not (math.isfinite(v) and v > 0.0):
                 raise FilterError(f"{name} = {v!r}; it must be a finite positive 1-sigma.")
@@ -177,7 +183,7 @@ class MEKF:
         self.P = np.diag([sigma_attitude_rad ** 2] * 3 + [sigma_bias_rad_s ** 2] * 3)
         self.arw = float(arw_rad_s05)
         self.rrw = float(rrw_rad_s15)
-        self.omega_B = np.zeros(3)  # last bias-corrected rate (rad/s)
+        self.omega_B: Vec3 = (0.0, 0.0, 0.0)  # last bias-corrected rate (rad/s)
         self.updates = 0
         self.rejected = 0
         self._Q: dict[float, np.ndarray] = {}
@@ -185,40 +191,31 @@ class MEKF:
 
     # -- outputs ------------------------------------------------------------------------------------
     @property
-    def sigma3_attitude_rad(self) -> np.ndarray:
+    def sigma3_attitude_rad(self) -> Vec3:
         """3-sigma of the attitude error per body axis (rad)."""
-        return 3.0 * np.sqrt(np.diag(self.P)[:3])
+        d = self.P.diagonal().tolist()
+        return 3.0 * math.sqrt(d[0]), 3.0 * math.sqrt(d[1]), 3.0 * math.sqrt(d[2])
 
     @property
-    def sigma3_bias_rad_s(self) -> np.ndarray:
-        return 3.0 * np.sqrt(np.diag(self.P)[3:])
+    def sigma3_bias_rad_s(self) -> Vec3:
+        d = self.P.diagonal().tolist()
+        return 3.0 * math.sqrt(d[3]), 3.0 * math.sqrt(d[4]), 3.0 * math.sqrt(d[5])
 
     # -- propagation --------------------------------------------------------------------------------
     def propagate(self, omega_meas_B, dt_s: float) -> None:
         """Advance ``dt_s`` seconds with the gyro rate ``omega_meas_B`` (rad/s, body axes) held over the step."""
         if not (math.isfinite(dt_s) and dt_s >= 0.0):
             raise FilterError(f"dt_s = {dt_s!r}; the propagation step must be a finite number of seconds >= 0.")
-        w = _finite3(omega_meas_B, "omega_meas_B") - self.bias
+        w = sub(_finite3(omega_meas_B, "omega_meas_B"), self.bias)
         self.omega_B = w
         if dt_s == 0.0:
             return
-        wn = float(np.linalg.norm(w))
+        wn = norm(w)
         half = 0.5 * wn * dt_s
         # sin(x)/x with its series near 0, so a zero rate is exact and never divides by zero.
         s = 0.5 * dt_s * (1.0 - half * half / 6.0) if half < 1e-4 else math.sin(half) / wn
-        self.q = positive(_normalise(qmul(self.q, (math.cos(half), s * w[0], s * w[1], s * w[2]))))
-        W = _skew(w)
-        W2 = W @ W
-        th = wn * dt_s
-        if th < 1e-4:
-            Phi11 = _EYE3 - W * dt_s + 0.5 * W2 * dt_s ** 2
-            Phi12 = -(_EYE3 * dt_s - 0.5 * W * dt_s ** 2 + W2 * dt_s ** 3 / 6.0)
-        else:
-            Phi11 = _EYE3 - W * (math.sin(th) / wn) + W2 * ((1.0 - math.cos(th)) / wn ** 2)
-            Phi12 = W * ((1.0 - math.cos(th)) / wn ** 2) - _EYE3 * dt_s - W2 * ((th - math.sin(th)) / wn ** 3)
-        Phi = np.eye(6)
-        Phi[:3, :3] = Phi11
-        Phi[:3, 3:] = Phi12
+        self.q = positive(normalised(qmul(self.q, (math.cos(half), s * w[0], s * w[1], s * w[2]))))
+        Phi = _transition(w, wn, dt_s)
         Q = self._Q.get(dt_s)
         if Q is None:
             v2, u2 = self.arw ** 2, self.rrw ** 2
@@ -239,19 +236,14 @@ class MEKF:
         the model leaves out, such as a solution's age times the body rate.
         """
         qm = _quat(q_BN_meas, "q_BN_meas")
-        dq = qmul(conj(self.q), qm)
-        if dq[0] < 0.0:
-            dq = -dq
-        # Rotation vector of the residual (2 atan2 keeps it exact at large residuals).
-        vn = float(np.linalg.norm(dq[1:]))
-        z = dq[1:] * (2.0 * math.atan2(vn, dq[0]) / vn) if vn > 0.0 else np.zeros(3)
+        z = rotation_vector(qmul(conj(self.q), qm))  # the residual's rotation vector
         src, checked = self._R_checked
         # A controller passes the same matrix every period: its checks (an eigenvalue solve) run once.
         if src is None or not (isinstance(R_B, np.ndarray) and R_B.shape == (3, 3) and np.array_equal(R_B, src)):
             checked = _covariance(R_B, "R_B")
             if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3):
                 self._R_checked = (R_B.copy(), checked)
-        return self._update(z, _H_ATTITUDE, checked, gate_sigma, gate_slack_rad2)
+        return self._update(np.array(z), None, checked, gate_sigma, gate_slack_rad2)
 
     def update_vector(self, b_B, r_N, sigma_rad: float, gate_sigma: float | None = None) -> bool:
         """Update with a measured unit direction ``b_B`` of the reference direction ``r_N`` (sun, field), with
@@ -259,7 +251,7 @@ class MEKF:
         b, r = _vectors(b_B, "b_B"), _vectors(r_N, "r_N")
         if not (math.isfinite(sigma_rad) and sigma_rad > 0.0):
             raise FilterError(f"sigma_rad = {sigma_rad!r}; it must be a finite positive 1-sigma.")
-        pred = dcm1(self.q) @ r
+        pred = np.array(mv(dcm1(self.q), r))
         H = np.zeros((3, 6))
         H[:, :3] = _skew(pred)
         # The unit-vector noise lies across the direction; the small along-axis term keeps R invertible.
@@ -267,44 +259,70 @@ class MEKF:
         return self._update(b - pred, H, R, gate_sigma)
 
     def _update(self, z, H, R, gate_sigma, gate_slack_rad2: float = 0.0) -> bool:
-        S = H @ self.P @ H.T + R
-        Sinv = np.linalg.inv(S)
+        """The Kalman update with residual ``z``, measurement matrix ``H`` (None: an attitude measurement, ``[I 0]``,
+        whose products are slices of P: the same numbers without the matrix products) and covariance ``R``."""
+        P = self.P
+        PHt = P[:, :3] if H is None else P @ H.T
+        S = (PHt[:3] if H is None else H @ PHt) + R
+        Sinv = np.array(inv3(S.tolist()))  # 3 x 3 by its adjugate: np.linalg.inv costs more than the arithmetic
         if gate_sigma is not None:
             limit = gate_sigma ** 2 * len(z)
             # The slack only widens the gate: a residual inside it without the slack needs no second inverse.
             if float(z @ Sinv @ z) > limit and (
                     gate_slack_rad2 <= 0.0
-                    or float(z @ np.linalg.inv(S + gate_slack_rad2 * np.eye(len(z))) @ z) > limit):
+                    or float(z @ np.array(inv3((S + gate_slack_rad2 * _EYE3).tolist())) @ z) > limit):
                 self.rejected += 1
                 return False
-        K = self.P @ H.T @ Sinv
-        dx = K @ z
-        IKH = np.eye(6) - K @ H
-        self._set_P(IKH @ self.P @ IKH.T + K @ R @ K.T, "update")  # Joseph form
-        a = dx[:3]
-        self.q = positive(_normalise(qmul(self.q, (1.0, 0.5 * a[0], 0.5 * a[1], 0.5 * a[2]))))
-        self.bias = self.bias + dx[3:]
+        K = PHt @ Sinv
+        dx = (K @ z).tolist()
+        if H is None:
+            IKH = _EYE6.copy()
+            IKH[:, :3] -= K
+        else:
+            IKH = _EYE6 - K @ H
+        self._set_P(IKH @ P @ IKH.T + K @ R @ K.T, "update")  # Joseph form
+        self.q = positive(normalised(qmul(self.q, (1.0, 0.5 * dx[0], 0.5 * dx[1], 0.5 * dx[2]))))
+        self.bias = add(self.bias, dx[3:])
         self.updates += 1
         return True
 
     def _set_P(self, P, where: str) -> None:
         P = 0.5 * (P + P.T)
-        if not np.all(np.isfinite(P)) or np.min(np.diag(P)) <= 0.0:
+        if not np.isfinite(P).all() or P.diagonal().min() <= 0.0:
             raise FilterError(f"the MEKF covariance lost positive definiteness in the {where} (diagonal "
                               f"{np.diag(P).tolist()}); check the noise settings and the measurement covariances.")
         self.P = P
 
 
 _EYE3 = np.eye(3)
-_H_ATTITUDE = np.hstack((np.eye(3), np.zeros((3, 3))))
+_EYE6 = np.eye(6)
 
 
-def _finite3(v, name: str) -> np.ndarray:
+def _transition(w: Vec3, wn: float, dt_s: float) -> np.ndarray:
+    """The 6 x 6 error transition over ``dt_s`` at the constant rate ``w`` (``wn = |w|``): ``[[Phi11, Phi12], [0, I]]``,
+    each block ``a I + b [w x] + c [w x]^2`` (Markley & Crassidis eq. 6.83; its series for small angles)."""
+    th = wn * dt_s
+    if th < 1e-4:
+        Phi11 = _skew_poly(w, 1.0, -dt_s, 0.5 * dt_s ** 2)
+        Phi12 = _skew_poly(w, -dt_s, 0.5 * dt_s ** 2, -(dt_s ** 3 / 6.0))
+    else:
+        c = (1.0 - math.cos(th)) / wn ** 2
+        Phi11 = _skew_poly(w, 1.0, -(math.sin(th) / wn), c)
+        Phi12 = _skew_poly(w, -dt_s, c, -((th - math.sin(th)) / wn ** 3))
+    return np.array([(*Phi11[0], *Phi12[0]), (*Phi11[1], *Phi12[1]), (*Phi11[2], *Phi12[2]),
+                     (0.0, 0.0, 0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 0.0, 0.0, 1.0)])
+
+
+def _skew_poly(w: Vec3, a: float, b: float, c: float):
+    """``a I + b [w x] + c [w x]^2`` as three rows (``[w x]^2 = w w^T - |w|^2 I``, written out)."""
+    x, y, z = w
+    return ((a - c * (y * y + z * z), -b * z + c * x * y, b * y + c * x * z),
+            (b * z + c * x * y, a - c * (x * x + z * z), -b * x + c * y * z),
+            (-b * y + c * x * z, b * x + c * y * z, a - c * (x * x + y * y)))
+
+
+def _finite3(v, name: str) -> Vec3:
     return finite3(v, name, FilterError)
-
-
-def _normalise(q) -> np.ndarray:
-    return q / np.linalg.norm(q)
 
 
 def _covariance(R, name: str) -> np.ndarray:

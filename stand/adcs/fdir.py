@@ -32,7 +32,7 @@ from collections import deque
 
 import numpy as np
 
-from .quat import conj, qmul
+from .quat import Vec3, conj, positive, qmul
 
 __all__ = ["FLAGS", "Fdir", "GyroMonitor", "WheelMonitor", "rate_from_attitudes"]
 
@@ -53,15 +53,14 @@ OPTIONS = {"fdir": True, "fdir_window_s": 2.0, "fdir_wheel_threshold_Nm": None, 
 GATE_SIGMA = 5.0
 
 
-def rate_from_attitudes(q1_BN, q2_BN, dt_s: float) -> np.ndarray:
+def rate_from_attitudes(q1_BN, q2_BN, dt_s: float) -> Vec3:
     """The mean body rate (rad/s, body axes) taking ``q1_BN`` to ``q2_BN`` in ``dt_s``: q2 = q1 (x) exp(omega dt/2)."""
-    dq = qmul(conj(q1_BN), q2_BN)
-    if dq[0] < 0.0:
-        dq = -dq
-    vn = float(np.linalg.norm(dq[1:]))
+    w, x, y, z = positive(qmul(conj(q1_BN), q2_BN))
+    vn = math.sqrt(x * x + y * y + z * z)
     if vn == 0.0:
-        return np.zeros(3)
-    return dq[1:] * (2.0 * math.atan2(vn, dq[0]) / vn / dt_s)
+        return 0.0, 0.0, 0.0
+    k = 2.0 * math.atan2(vn, w) / vn / dt_s
+    return x * k, y * k, z * k
 
 
 class WheelMonitor:
@@ -69,7 +68,7 @@ class WheelMonitor:
 
     def __init__(self, inertia_kg_m2, max_speed_rad_s: float, period_s: float, window_s: float, threshold_Nm: float,
                  persist: int):
-        self.J = np.asarray(inertia_kg_m2, dtype=float)
+        self.J = [float(j) for j in inertia_kg_m2]
         self.n = len(self.J)
         self.periods = max(1, round(window_s / period_s))
         self.window_s = self.periods * period_s
@@ -80,24 +79,26 @@ class WheelMonitor:
         # The last `periods` commands in a ring (row k % periods), so their mean is one sum per period.
         self._cmds = np.zeros((self.periods, self.n))
         self._n_cmds = 0
-        self._strikes = np.zeros(self.n, dtype=int)
+        self._strikes = [0] * self.n
         #: The newest residual torque per wheel (N m; NaN: not judged).
-        self.residual_Nm = np.full(self.n, math.nan)
+        self.residual_Nm = [math.nan] * self.n
 
     def update(self, fresh_speeds) -> list[int]:
         """This period's fresh speeds (n, NaN for none); returns the wheels that failed the check ``persist`` times in a
         row (the caller records the period's commands afterwards with :meth:`commanded`)."""
-        self._speeds.append(np.array(fresh_speeds, dtype=float))  # a copy: the caller refills its array
+        self._speeds.append([float(s) for s in fresh_speeds])  # a copy: the caller refills its array
         if len(self._speeds) <= self.periods or self._n_cmds < self.periods:
             return []
         w0, w1 = self._speeds[0], self._speeds[-1]
-        got = self.J * (w1 - w0) / self.window_s
-        want = self._cmds.sum(axis=0) / self.periods
-        r = got - want
-        judged = np.isfinite(r) & (np.abs(w0) < self.judged_below) & (np.abs(w1) < self.judged_below)
-        self.residual_Nm = np.where(judged, r, math.nan)
-        bad = judged & (np.abs(r) > self.threshold_Nm)
-        self._strikes = np.where(bad, self._strikes + 1, np.where(judged, 0, self._strikes))
+        want_sum = self._cmds.sum(axis=0).tolist()
+        limit = self.judged_below
+        for i in range(self.n):
+            r = self.J[i] * (w1[i] - w0[i]) / self.window_s - want_sum[i] / self.periods  # got - commanded
+            if math.isfinite(r) and abs(w0[i]) < limit and abs(w1[i]) < limit:
+                self.residual_Nm[i] = r
+                self._strikes[i] = self._strikes[i] + 1 if abs(r) > self.threshold_Nm else 0
+            else:
+                self.residual_Nm[i] = math.nan  # not judged: the strikes stay as they were
         return [i for i in range(self.n) if self._strikes[i] >= self.persist]
 
     def commanded(self, torques_Nm) -> None:
@@ -192,9 +193,9 @@ class Fdir:
                 self.events.append((t_s, f"{name} heard again"))
 
     def tracker_solution(self, t_s: float, q_BN) -> None:
-        self._solutions.append((t_s, np.asarray(q_BN, dtype=float)))
+        self._solutions.append((t_s, tuple(q_BN)))
 
-    def tracker_rate_B(self) -> np.ndarray | None:
+    def tracker_rate_B(self) -> Vec3 | None:
         """The body rate from the oldest and newest tracker solutions kept (rad/s), or None with fewer than two."""
         if len(self._solutions) < 2:
             return None

@@ -27,7 +27,8 @@ import numpy as np
 from sim.frames import dcm_lvlh_gcrs
 from sim.rotations import canonical, quat_from_dcm
 
-from .quat import cross, finite3
+from .quat import cross as cross_floats
+from .quat import finite3
 
 __all__ = ["inertial", "nadir", "pointing_frame", "sun_pointing", "target_pointing"]
 
@@ -40,7 +41,12 @@ class GuidanceError(ValueError):
 
 
 def _vec(v, name: str) -> np.ndarray:
-    return finite3(v, name, GuidanceError)
+    return np.array(finite3(v, name, GuidanceError))
+
+
+def cross(a, b) -> np.ndarray:
+    """``a x b`` of two 3-vectors as an array (the guidance does its frame algebra in numpy: it runs once a period)."""
+    return np.array(cross_floats(a, b))
 
 
 def _unit(v, name: str) -> np.ndarray:

@@ -46,7 +46,7 @@ from . import guidance as gd
 from .control import LAWS, WheelDistribution, control_torque, dumping_dipole, pd_gains
 from .determination import MEKF
 from .modes import DETUMBLE, FINE_POINTING, MODES, SUN_ACQUISITION, ModeConfig, ModeManager
-from .quat import conj, cross, positive, qmul
+from .quat import add, conj, cross, finite3, mat3, mv, norm, normalised, positive, qmul, scale, sub
 
 __all__ = ["PointingController", "default_wheel_axes_B"]
 
@@ -112,6 +112,26 @@ def _non_negative(options, name):
     if not (isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v >= 0):
         raise ValueError(f"options.{name} = {v!r}; it must be a finite number >= 0.")
     return float(v)
+
+
+def _finite3_or_none(v) -> tuple | None:
+    """``v`` as 3 floats, or None unless it is 3 finite numbers (a sensor's sample, refused without an error)."""
+    try:
+        return finite3(v, "sample", ValueError)
+    except ValueError:
+        return None
+
+
+def _unit_quat_or_none(q) -> tuple | None:
+    """``q`` normalised, or None unless it is 4 finite numbers of norm within 1e-3 of 1."""
+    try:
+        if isinstance(q, np.ndarray) and q.shape != (4,):
+            return None
+        w, x, y, z = (float(c) for c in q)
+    except (TypeError, ValueError):
+        return None
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    return normalised((w, x, y, z)) if math.isfinite(n) and abs(n - 1.0) <= 1e-3 else None
 
 
 def _speed_of(sample):
@@ -197,7 +217,8 @@ class PointingController:
         self.wheel_viscous = _non_negative(options, "wheel_viscous_Nm_s")
         self.null_gain = float(options.get("null_gain_per_s", 0.0))
         self.q_TB = _mount(options, "star_tracker_q_TB")
-        self.dcm_BS_gyro = dcm(_mount(options, "gyro_q_SB")).T
+        self._q_BT = conj(tuple(self.q_TB.tolist()))
+        self.dcm_BS_gyro = mat3(dcm(_mount(options, "gyro_q_SB")).T)
         self.dcm_BS_mtq = dcm(_mount(options, "magnetorquer_q_SB")).T
         self.dcm_BS_sun = dcm(_mount(options, "sun_sensor_q_SB")).T
         sig = _option_vec(options, "tracker_sigma_rad", 2, (math.radians(5.0 / 3600.0), math.radians(40.0 / 3600.0)))
@@ -205,7 +226,7 @@ class PointingController:
         self.R_tracker_B = C_BT @ np.diag([sig[0] ** 2, sig[0] ** 2, sig[1] ** 2]) @ C_BT.T
         self.arw = float(options.get("gyro_arw_rad_s05", 1e-5))
         self.rrw = float(options.get("gyro_rrw_rad_s15", 1e-7))
-        self.initial_bias = _option_vec(options, "initial_bias_rad_s", 3, (0.0, 0.0, 0.0))
+        self.initial_bias = tuple(_option_vec(options, "initial_bias_rad_s", 3, (0.0, 0.0, 0.0)).tolist())
         self.sigma_bias = _positive(options, "sigma_bias_rad_s", 1e-4)
         self.gate_sigma = options.get("gate_sigma")
         self.fdir = self._setup_fdir(options)
@@ -214,6 +235,7 @@ class PointingController:
             raise ValueError(f"options.law = {self.law!r}; allowed: {', '.join(LAWS)}.")
         wn = self.natural_frequency = _positive(options, "natural_frequency_rad_s", 0.1)
         self.K, self.P = pd_gains(self.inertia, wn, _positive(options, "damping_ratio", 0.9), self.law)
+        self._inertia_rows, self._P_rows = mat3(self.inertia), mat3(self.P)
         self.detumble_gain = _positive(options, "detumble_gain_N_m_s", float(np.max(np.diag(self.inertia))) * 0.1)
         self.dump_gain = float(options.get("dump_gain_per_s", 0.0))
         self.max_dipole = _positive(options, "max_dipole_A_m2", 0.2)
@@ -229,12 +251,12 @@ class PointingController:
         self.modes = ModeManager(ModeConfig(**options.get("modes", {})), mode)
         self.filter: MEKF | None = None
         self._t_prev: float | None = None
-        self._omega_meas_B: np.ndarray | None = None
+        self._omega_meas_B: tuple | None = None  # the gyro's rate in body axes (rad/s)
         self._speeds = np.zeros(n)
         self._b_B: np.ndarray | None = None
         self.last_wheel_cmd = np.zeros(n)
         self.last_dipole = np.zeros(3)
-        self.last_q_RN = np.array([1.0, 0.0, 0.0, 0.0])
+        self.last_q_RN = (1.0, 0.0, 0.0, 0.0)
         self._w_RN_prev: tuple | None = None  # (t_s, omega_RN_R) of the last fine-pointing period
         self.counters = {"tracker_used": 0, "tracker_invalid": 0, "gyro_missing": 0, "gyro_rejected": 0}
         self._asked_tracker_s = -math.inf  # when the FDIR last asked a silent tracker for solutions again
@@ -296,7 +318,7 @@ class PointingController:
     def reference(self, t_s: float):
         """``(q_RN, omega_RN_R)`` at ``t_s`` for the configured guidance."""
         if self.guidance == "inertial":
-            return self.q_RN, np.zeros(3)
+            return self.q_RN, (0.0, 0.0, 0.0)
         if self.guidance == "sun":
             from sim.environment import sun_position_gcrs
 
@@ -364,7 +386,7 @@ class PointingController:
         w = self._omega_meas_B
         if self.filter is not None and w is not None:
             # The rate over the last period: the mean of its end samples (second order while slewing).
-            self.filter.propagate(w if w_prev is None else 0.5 * (w + w_prev), dt)
+            self.filter.propagate(w if w_prev is None else scale(0.5, add(w, w_prev)), dt)
         fix = q_meas is not None
         if q_meas is not None:
             if self.filter is None:
@@ -383,27 +405,29 @@ class PointingController:
                 if accepted:
                     fd.tracker_solution(t_s, q_meas)
         rate = self._rate_B()
-        sigma3 = float(np.max(self.filter.sigma3_attitude_rad)) if self.filter is not None else math.inf
-        mode = self.modes.update(t_s, float(np.linalg.norm(rate)), fix, sigma3)
-        h_w = self.dist.momentum_B(self._speeds, self.wheel_inertia)
+        sigma3 = max(self.filter.sigma3_attitude_rad) if self.filter is not None else math.inf
+        mode = self.modes.update(t_s, norm(rate), fix, sigma3)
+        h_w = tuple(self.dist.momentum_B(self._speeds, self.wheel_inertia).tolist())
         if mode == FINE_POINTING and self.filter is not None:
             q_RN, w_RN = self.reference(t_s)
-            self.last_q_RN = np.asarray(q_RN, dtype=float)
+            self.last_q_RN = tuple(float(c) for c in q_RN)
+            w_RN = tuple(float(c) for c in w_RN)
             # The reference's angular acceleration (R-frame derivative) by a backward difference over one period:
             # the feed-forward that keeps a slewing target (a ground pass) from lagging by alpha / wn^2.
             prev = self._w_RN_prev
-            dw_RN = (w_RN - prev[1]) / (t_s - prev[0]) if prev is not None and 0.0 < t_s - prev[0] <= (
-                1.5 * self.period_s) else np.zeros(3)
-            self._w_RN_prev = (t_s, np.asarray(w_RN, dtype=float))
+            dt_RN = 0.0 if prev is None else t_s - prev[0]
+            dw_RN = tuple((a - b) / dt_RN for a, b in zip(w_RN, prev[1], strict=True)) if prev is not None and (
+                0.0 < dt_RN <= 1.5 * self.period_s) else (0.0, 0.0, 0.0)
+            self._w_RN_prev = (t_s, w_RN)
             u_B = control_torque(self.filter.q, rate, q_RN, w_RN, self.inertia, self.K, self.P, h_w, dw_RN,
                                  law=self.law)
         elif mode == SUN_ACQUISITION:
             u_B = self._sun_acquisition_torque(rate, h_w)
         else:
-            u_B = -self.detumble_gain * rate + cross(rate, self.inertia @ rate + h_w)
+            u_B = add(scale(-self.detumble_gain, rate), cross(rate, add(mv(self._inertia_rows, rate), h_w)))
         m_B = self._dump(h_w) if self.mtq is not None else None
         if m_B is not None and self._b_B is not None:
-            u_B = u_B - cross(m_B, self._b_B)  # the magnetic torque is already on the body
+            u_B = sub(u_B, cross(m_B, self._b_B))  # the magnetic torque is already on the body
         cmd = self._allocate(u_B)
         for wheel, u in zip(self.wheels, cmd, strict=True):
             wheel.command_torque(float(u))
@@ -419,7 +443,8 @@ class PointingController:
         if w is None:
             return 0.0
         bias = self.filter.bias if self.filter is not None else self.initial_bias
-        return float(np.sum((w - bias) ** 2)) * (3.0 * self.period_s) ** 2
+        d = sub(w, bias)
+        return (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) * (3.0 * self.period_s) ** 2
 
     def _allocate(self, u_B) -> np.ndarray:
         """Motor torques for the body torque ``u_B``: over every wheel, or over those left after an isolation (the
@@ -451,7 +476,7 @@ class PointingController:
             w_B = fd.tracker_rate_B()
             if w_B is not None:
                 bias = self.filter.bias if self.filter is not None else self.initial_bias
-                self._omega_meas_B = w_B + bias  # the filter and the control subtract the bias again
+                self._omega_meas_B = add(w_B, bias)  # the filter and the control subtract the bias again
         for i in fd.wheels.update(self._fresh_speeds):
             if i not in fd.isolated:
                 self._isolate(t_s, i)
@@ -485,11 +510,11 @@ class PointingController:
                                "beside the torque commanded"))
 
     # -- pieces -------------------------------------------------------------------------------------
-    def _rate_B(self) -> np.ndarray:
+    def _rate_B(self) -> tuple:
         if self._omega_meas_B is None:
-            return np.zeros(3)
+            return 0.0, 0.0, 0.0
         bias = self.filter.bias if self.filter is not None else self.initial_bias
-        return self._omega_meas_B - bias
+        return sub(self._omega_meas_B, bias)
 
     def _read_gyro(self, t_s: float) -> None:
         s = self.gyro.take_rate()
@@ -501,15 +526,15 @@ class PointingController:
             if s is not None and fd is not None:
                 fd.gyro.sample(None, False)
             return
-        w = np.asarray(s.omega_rad_s, dtype=float)
-        if w.shape != (3,) or not np.all(np.isfinite(w)):
+        w = _finite3_or_none(s.omega_rad_s)
+        if w is None:
             self.counters["gyro_rejected"] += 1  # flagged valid but unusable: flight code drops it, keeps flying
             if fd is not None:
                 fd.gyro.sample(None, False)
             return
         if fd is not None:
             fd.gyro.sample(w, True)
-        self._omega_meas_B = self.dcm_BS_gyro @ w
+        self._omega_meas_B = mv(self.dcm_BS_gyro, w)
 
     def _read_wheels(self, t_s: float) -> None:
         fd = self.fdir
@@ -534,13 +559,13 @@ class PointingController:
         if not getattr(sol, "valid", True):
             self.counters["tracker_invalid"] += 1
             return None
-        q_TN = np.asarray(sol.q_TN if hasattr(sol, "q_TN") else sol.q, dtype=float)
-        if q_TN.shape != (4,) or not np.all(np.isfinite(q_TN)) or abs(np.linalg.norm(q_TN) - 1.0) > 1e-3:
+        q_TN = _unit_quat_or_none(sol.q_TN if hasattr(sol, "q_TN") else sol.q)
+        if q_TN is None:
             self.counters["tracker_invalid"] += 1
             return None
         self.counters["tracker_used"] += 1
         # q_BN = compose(conjugate(q_TB), q_TN) = q_TN (x) conjugate(q_TB) in Hamilton order
-        return positive(qmul(q_TN / np.linalg.norm(q_TN), conj(self.q_TB)))
+        return positive(qmul(q_TN, self._q_BT))
 
     def _read_magnetometer(self, t_s: float) -> None:
         if self.mtq is None:
@@ -567,21 +592,21 @@ class PointingController:
         n = float(np.linalg.norm(v))
         return None if not (math.isfinite(n) and n > 0) else self.dcm_BS_sun @ (v / n)
 
-    def _sun_acquisition_torque(self, rate, h_w) -> np.ndarray:
-        gyro = cross(rate, self.inertia @ rate + h_w)
+    def _sun_acquisition_torque(self, rate, h_w) -> tuple:
+        gyro = cross(rate, add(mv(self._inertia_rows, rate), h_w))
         s = self._sun_B()
         if s is None:
-            return -self.detumble_gain * rate + gyro
+            return add(scale(-self.detumble_gain, rate), gyro)
         # Turning the body about a x s brings the Sun (s, body axes) onto the axis a.
         # |a x s| ~ the angle off the Sun: the same stiffness per radian as fine pointing.
         k = self.natural_frequency ** 2 * float(np.max(np.linalg.eigvalsh(self.inertia)))
-        return k * cross(self.sun_axis_B, s) - self.P @ rate + gyro
+        return add(sub(scale(k, cross(self.sun_axis_B, s)), mv(self._P_rows, rate)), gyro)
 
     def _dump(self, h_w) -> np.ndarray:
         if self._b_B is None or self.dump_gain <= 0.0:
             self.last_dipole = np.zeros(3)
             return self.last_dipole
-        m_B = dumping_dipole(self._b_B, h_w - self.h_target, self.dump_gain, self.max_dipole)
+        m_B = dumping_dipole(self._b_B, sub(h_w, self.h_target), self.dump_gain, self.max_dipole)
         self.mtq.command_dipole(tuple(float(x) for x in self.dcm_BS_mtq.T @ m_B), self.period_s)
         self.last_dipole = m_B
         return m_B

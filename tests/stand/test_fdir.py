@@ -103,7 +103,7 @@ def test_rate_from_attitudes_inverts_a_constant_rate_turn():
     w_B, dt = np.array([0.01, -0.02, 0.005]), 0.5
     half = 0.5 * np.linalg.norm(w_B) * dt
     q1 = quat_from_axis_angle(np.array([0.0, 0.6, 0.8]), 0.4)
-    q2 = qmul(q1, np.concatenate(([math.cos(half)], math.sin(half) * w_B / np.linalg.norm(w_B))))
+    q2 = np.array(qmul(q1, np.concatenate(([math.cos(half)], math.sin(half) * w_B / np.linalg.norm(w_B)))))
     np.testing.assert_allclose(rate_from_attitudes(q1, q2, dt), w_B, rtol=1e-12)
     np.testing.assert_allclose(rate_from_attitudes(q1, -q2, dt), w_B, rtol=1e-12)  # either sign of a quaternion
 
