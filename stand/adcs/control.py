@@ -33,7 +33,7 @@ import numpy as np
 
 from sim.rotations import canonical, compose, conjugate
 
-from .quat import Vec3, add, cross, dcm1, dot, error, finite3, mv, scale, sub
+from .quat import Vec3, add, cross, dcm1, dot, error, finite3, finite4, mv, scale, sub
 
 __all__ = ["WheelDistribution", "attitude_error", "control_torque", "dumping_dipole", "mrp", "pd_gains"]
 
@@ -113,18 +113,10 @@ def control_torque(q_BN, omega_BN_B, q_RN, omega_RN_R, inertia, K, P, h_wheels_B
 
 
 def _unit4(q, name: str) -> tuple[float, float, float, float]:
-    try:
-        if isinstance(q, np.ndarray) and q.shape != (4,):
-            raise ValueError
-        w, x, y, z = (float(c) for c in q)
-    except (TypeError, ValueError):
-        w = x = y = z = math.nan
-    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise ControlError(f"{name} = {np.asarray(q, dtype=object).tolist()} must be 4 finite numbers [w, x, y, z].")
-    n = math.sqrt(w * w + x * x + y * y + z * z)
+    q, n = finite4(q, name, ControlError)
     if abs(n - 1.0) > 1e-6:
         raise ControlError(f"{name} has norm {n:.9g}; a unit quaternion is required.")
-    return w, x, y, z
+    return q
 
 
 class WheelDistribution:

@@ -29,7 +29,23 @@ import numpy as np
 
 from sim.rotations import canonical, compose, quat_from_dcm
 
-from .quat import Quat, Vec3, add, conj, dcm1, finite3, inv3, mv, norm, normalised, positive, qmul, rotation_vector, sub
+from .quat import (
+    Quat,
+    Vec3,
+    add,
+    conj,
+    dcm1,
+    finite3,
+    finite4,
+    inv3,
+    mv,
+    norm,
+    normalised,
+    positive,
+    qmul,
+    rotation_vector,
+    sub,
+)
 
 __all__ = ["MEKF", "FilterError", "quest", "triad"]
 
@@ -57,15 +73,7 @@ def _skew(v) -> np.ndarray:
 
 def _quat(q, name: str) -> Quat:
     """``q`` normalised, as 4 floats; refused unless it is 4 finite numbers of norm within 1e-3 of 1."""
-    try:
-        if isinstance(q, np.ndarray) and q.shape != (4,):
-            raise ValueError
-        w, x, y, z = (float(c) for c in q)
-    except (TypeError, ValueError):
-        w = x = y = z = math.nan
-    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-        raise FilterError(f"{name} = {np.asarray(q, dtype=object).tolist()} must be 4 finite numbers [w, x, y, z].")
-    n = math.sqrt(w * w + x * x + y * y + z * z)
+    (w, x, y, z), n = finite4(q, name, FilterError)
     if abs(n - 1.0) > 1e-3:
         raise FilterError(f"{name} has norm {n:.6g}; a unit quaternion is expected.")
     return w / n, x / n, y / n, z / n

@@ -35,6 +35,20 @@ def finite3(v, name: str, error: type[ValueError]) -> Vec3:
     return x, y, z
 
 
+def finite4(q, name: str, error: type[ValueError]) -> tuple[Quat, float]:
+    """``q`` as 4 floats [w, x, y, z] and its norm; ``error`` (the calling module's own) naming ``name`` unless it is
+    4 finite numbers. Each caller decides which norms it takes."""
+    try:
+        if isinstance(q, np.ndarray) and q.shape != (4,):
+            raise ValueError
+        w, x, y, z = (float(c) for c in q)
+    except (TypeError, ValueError):
+        w = x = y = z = math.nan
+    if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+        raise error(f"{name} = {np.asarray(q, dtype=object).tolist()} must be 4 finite numbers [w, x, y, z].")
+    return (w, x, y, z), math.sqrt(w * w + x * x + y * y + z * z)
+
+
 def qmul(p, q) -> Quat:
     """Hamilton product ``p (x) q``."""
     return hamilton_floats(p, q)
