@@ -100,13 +100,18 @@ MEANINGS = {"t_s": "simulation time since the scenario's epoch",
 
 
 def column_meanings(scene: Scene) -> dict[str, str]:
-    """Column name -> one-line meaning, for the telemetry's schema: the stand's own and what each device's kind
-    declares (a kind not found, or declaring nothing, leaves its columns without one)."""
+    """Column name -> one-line meaning, for the telemetry's schema: the stand's own, what the controller's kind and a
+    plug-in's ``column_meanings`` dict declare, and what each device's kind declares (a kind not found, or declaring
+    nothing, leaves its columns without one)."""
     out = dict(MEANINGS)
     try:
         out.update(controllers.get(scene.scenario.controller.kind).column_meanings)
     except KeyError:
         pass
+    # A plug-in may say what its own columns mean: a ``column_meanings`` dict beside its telemetry_columns().
+    declared = getattr(scene.controller, "column_meanings", None)
+    if isinstance(declared, dict):
+        out.update({str(k): str(v) for k, v in declared.items()})
     for spec in scene.scenario.devices:
         try:
             declared = devices.get(spec.kind).column_meanings

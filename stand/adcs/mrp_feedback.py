@@ -78,6 +78,16 @@ class MrpFeedback:
         self.sigma_BR = (math.nan,) * 3
         self.u_s = (0.0,) * len(self.wheels)
 
+    #: What its columns mean (the telemetry's schema and docs/telemetry_columns.md read it).
+    column_meanings = {
+        "adcs_q_BN_est": "the attitude it flies on, body relative to inertial, scalar first: the tracker's, carried "
+                         "on the gyro's rate while no valid solution arrives (NaN before the first)",
+        "adcs_q_RN": "the commanded (reference) attitude, relative to inertial, scalar first",
+        "adcs_mode": "1 once it has an attitude (it then points), 0 before",
+        "fsw.sigma_BR": "the attitude error MRP, body relative to the reference (shadow set, |sigma| <= 1)",
+        "fsw.wheel_torque_cmd": "the motor torque commanded to each wheel, in the order of the scenario's wheels",
+    }
+
     def telemetry_columns(self):
         return [("adcs_q_BN_est", 4, ""), ("adcs_q_RN", 4, ""), ("adcs_mode", 1, ""), ("fsw.sigma_BR", 3, ""),
                 ("fsw.wheel_torque_cmd", len(self.wheels), "N m")]

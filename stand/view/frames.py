@@ -1,7 +1,7 @@
 """The detector frames of image-source star trackers, live on the operator page.
 
 A tracker whose source is ``image`` renders, noises and solves a detector image at every exposure
-(:class:`stand.devices.star_tracker_source.ImageSolver`). The page shows the newest of them, at most ``FRAME_HZ``
+(the kind's image solver, which offers an ``on_frame`` hook). The page shows the newest of them, at most ``FRAME_HZ``
 a second (wall time), and only while a page is open:
 
 1. the live feed's sender thread (:class:`stand.view.state.LiveFeed`, ten times a second) *arms* a

@@ -37,6 +37,7 @@ from stand.faults import FAULT_TYPES
 from stand.telemetry import load
 
 # The run's view description lives in .meta; the page's modules and benches take it from here as before.
+from .frames import encode_png, taps
 from .meta import VIEW_FILE, RunFileError, describe, dumps, load_meta, write_view_json  # noqa: F401
 
 R_MOON = 1.7374e6
@@ -350,8 +351,6 @@ class LiveFeed:
     def watch_devices(self, devices: dict) -> None:
         """The run's devices (``stand.loop.run`` hands them over once): the image trackers' frames are shown
         (:mod:`stand.view.frames`), asked for by the sender thread while a page is open."""
-        from .frames import taps
-
         self.taps = taps(devices)
 
     def answer_fault(self, answer: dict) -> None:
@@ -618,8 +617,6 @@ class LiveSource:
     def frame(self, header: dict, pixels: bytes) -> None:
         """An image tracker's newest frame (8 bits, :meth:`stand.view.frames.FrameTap.collect`): encoded, kept for
         ``GET /api/frame``, and announced to the pages, which then load it."""
-        from .frames import encode_png
-
         png = encode_png(header, pixels)
         with self._lock:
             self._frame_seq += 1
