@@ -233,16 +233,24 @@ def test_slider_moves_time(browser, replay):
     assert 3.0 < t < 20.0
 
 
+def start_live(scenario, out: Path, speed: float):
+    """``stand run SCENARIO --view`` in its own process: (the process, the page's URL it printed first)."""
+    cmd = [sys.executable, "-m", "stand.cli", "run", str(scenario), "--out", str(out), "--view",
+           "--speed", f"{speed:g}", "--no-progress"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", line)
+    if not url:
+        proc.kill()
+        raise AssertionError(line + proc.communicate()[1])
+    return proc, url.group(1)
+
+
 def test_a_live_run_updates_the_page_and_obeys_pause_and_stop(browser, tmp_path):
     scenario = write_scenario(tmp_path / "sweep.toml", duration_s=600.0)
-    cmd = [sys.executable, "-m", "stand.cli", "run", scenario, "--out", str(tmp_path / "live"), "--view",
-           "--speed", "10", "--no-progress"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, url = start_live(scenario, tmp_path / "live", speed=10)
     try:
-        line = proc.stdout.readline()
-        url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", line)
-        assert url, line + proc.stderr.read()
-        _open(browser, url.group(1))
+        _open(browser, url)
         assert browser.find_element("id", "mode").text == "LIVE"
         n0 = browser.execute_script("return window.standView.store.n")
         t0 = browser.execute_script("return window.standView.t")

@@ -11,9 +11,6 @@ from __future__ import annotations
 import base64
 import json
 import os
-import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +18,7 @@ import numpy as np
 from stand.telemetry import load
 from stand.view import server
 
-from .test_view_browser import ROOT, _open, _severe, _wait, browser  # noqa: F401 - browser is a fixture
+from .test_view_browser import ROOT, _open, _severe, _wait, browser, start_live  # noqa: F401 - browser is a fixture
 from .view_scenario import write as write_scenario
 
 FAULT_RGB = (255, 120, 0)
@@ -62,15 +59,10 @@ def _column_has(img, x, rgb, tol=8) -> int:
 
 def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the fixture
     out = tmp_path / "live"
-    cmd = [sys.executable, "-m", "stand.cli", "run", _scenario(tmp_path / "gyro.toml"), "--out", str(out), "--view",
-           "--speed", "4", "--no-progress"]
-    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, url = start_live(_scenario(tmp_path / "gyro.toml"), out, speed=4)
     try:
-        line = proc.stdout.readline()
-        url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", line)
-        assert url, line + proc.stderr.read()
         assert oct(os.stat(out / "view_url.json").st_mode & 0o777) == "0o600"
-        _open(browser, url.group(1))
+        _open(browser, url)
         _wait(browser, "return window.standView.store.n > 5 && window.standView.status === 'running'")
         assert not browser.find_element("id", "faults-panel").get_attribute("hidden")
         # The panel offers the gyro's faults: its measurement faults with the unit filled in, not a wheel's.
