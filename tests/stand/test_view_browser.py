@@ -7,6 +7,7 @@ page draws: pixels of its canvas against the projection of the truth computed he
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
 import os
@@ -233,23 +234,29 @@ def test_slider_moves_time(browser, replay):
     assert 3.0 < t < 20.0
 
 
-def start_live(scenario, out: Path, speed: float):
-    """``stand run SCENARIO --view`` in its own process: (the process, the page's URL it printed first)."""
+@contextlib.contextmanager
+def live_run(scenario, out: Path, speed: float):
+    """``stand run SCENARIO --view`` in its own process: yields (the process, the page's URL it printed first); the
+    process is killed if still running at the end, and its pipes closed."""
     cmd = [sys.executable, "-m", "stand.cli", "run", str(scenario), "--out", str(out), "--view",
            "--speed", f"{speed:g}", "--no-progress"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    line = proc.stdout.readline()
-    url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", line)
-    if not url:
-        proc.kill()
-        raise AssertionError(line + proc.communicate()[1])
-    return proc, url.group(1)
+    try:
+        line = proc.stdout.readline()
+        url = re.search(r"live view at (http://127\.0\.0\.1:\d+/)", line)
+        assert url, line + (proc.stderr.read() if proc.poll() is not None else "")
+        yield proc, url.group(1)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stdout.close()
+        proc.stderr.close()
 
 
 def test_a_live_run_updates_the_page_and_obeys_pause_and_stop(browser, tmp_path):
     scenario = write_scenario(tmp_path / "sweep.toml", duration_s=600.0)
-    proc, url = start_live(scenario, tmp_path / "live", speed=10)
-    try:
+    with live_run(scenario, tmp_path / "live", speed=10) as (proc, url):
         _open(browser, url)
         assert browser.find_element("id", "mode").text == "LIVE"
         n0 = browser.execute_script("return window.standView.store.n")
@@ -269,12 +276,6 @@ def test_a_live_run_updates_the_page_and_obeys_pause_and_stop(browser, tmp_path)
         assert proc.wait(timeout=30) == 130
         _wait(browser, "return ['finished', 'disconnected'].includes(window.standView.status)")
         assert _severe(browser) == []
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-        proc.stdout.close()
-        proc.stderr.close()
     events = (tmp_path / "live" / "events.jsonl").read_text().splitlines()
     kinds = [json.loads(line)["kind"] for line in events]
     assert "paused" in kinds and "resumed" in kinds and kinds[-1] == "end"

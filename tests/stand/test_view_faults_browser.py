@@ -18,7 +18,7 @@ import numpy as np
 from stand.telemetry import load
 from stand.view import server
 
-from .test_view_browser import ROOT, _open, _severe, _wait, browser, start_live  # noqa: F401 - browser is a fixture
+from .test_view_browser import ROOT, _open, _severe, _wait, browser, live_run  # noqa: F401 - browser is a fixture
 from .view_scenario import write as write_scenario
 
 FAULT_RGB = (255, 120, 0)
@@ -59,8 +59,7 @@ def _column_has(img, x, rgb, tol=8) -> int:
 
 def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the fixture
     out = tmp_path / "live"
-    proc, url = start_live(_scenario(tmp_path / "gyro.toml"), out, speed=4)
-    try:
+    with live_run(_scenario(tmp_path / "gyro.toml"), out, speed=4) as (proc, url):
         assert oct(os.stat(out / "view_url.json").st_mode & 0o777) == "0o600"
         _open(browser, url)
         _wait(browser, "return window.standView.store.n > 5 && window.standView.status === 'running'")
@@ -122,12 +121,6 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         browser.set_window_size(1600, 1400)
         browser.execute_script("window.standView.control('stop')")
         assert proc.wait(timeout=30) == 130
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(timeout=10)
-        proc.stdout.close()
-        proc.stderr.close()
     assert not (out / "view_url.json").exists()
     events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     faults = [e for e in events if e["kind"].startswith("fault_")]
