@@ -70,6 +70,7 @@ def propagate(inertia, q_BN, omega_BN_B, duration_s: float, step_s: float, metho
     ig.check_method(method)
     body = RigidBody(inertia)
     q, w = _initial_state(q_BN, omega_BN_B)
+    q = ig.unit_start(q, method)
     times = _output_times(duration_s, step_s)
     if method == "dop853":
         qa, wa, nfev = ig.dop853(body, q, w, np.array(times), torque, rtol, atol)

@@ -57,6 +57,10 @@ from .rotations import hamilton_floats
 #: Methods ``propagate`` accepts, in the order the bench reports them.
 METHODS = ("rk4", "rkmk4", "dop853", "rk8", "trapezoid", "implicit_midpoint")
 
+#: The methods that keep |q| as it starts (a Lie-group update or a Cayley map) instead of renormalising each step
+#: as "rk4", "rk8" and "trapezoid" do: they must start from a unit quaternion (:func:`unit_start`).
+NORM_PRESERVING = frozenset({"rkmk4", "implicit_midpoint"})
+
 #: Largest rotation and nutation phase per step for second-order methods (rad): their local phase
 #: error is ~angle^3 / 12, so 0.01 rad gives ~1e-7 rad per step, the RK4 level at 0.1 rad.
 SECOND_ORDER_ANGLE_RAD = 0.01
@@ -96,6 +100,20 @@ def check_method(method: str) -> str:
     if method not in METHODS:
         raise ValueError(f"method = {method!r} is not an attitude integrator; allowed: {', '.join(METHODS)}.")
     return method
+
+
+def unit_start(q, method: str) -> tuple:
+    """The starting quaternion ``q`` (float tuple) as ``method`` needs it: normalised for a norm-preserving method.
+
+    A scenario's quaternion typed to 8 digits is 1 +- 1e-8 from unit and passes the unit check. The renormalising
+    methods correct that on their first step; "rkmk4" and "implicit_midpoint" would carry the norm through the run,
+    and it would set a floor of about sqrt(|1 - |q||) rad under their attitude error. Left alone for the others, so
+    their trajectories keep their bits.
+    """
+    if method not in NORM_PRESERVING:
+        return q
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 # -- fixed-step steppers on float tuples (same calling convention as RigidBody.rk4_step) ---------

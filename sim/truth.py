@@ -41,7 +41,7 @@ from . import orbit as orbit_mod
 from .constants import J2_EARTH, MU_EARTH, R_EARTH
 from .effects import EFFECT_TYPES, Effect  # noqa: F401 - Effect: the interface effector() takes
 from .frames import EarthRotation
-from .integrators import max_angle_rad, stepper
+from .integrators import max_angle_rad, stepper, unit_start
 from .rigid_body import RigidBody, check_step
 from .rotations import hamilton_floats
 from .time import NS_PER_S
@@ -211,7 +211,7 @@ class TruthModel:
         self.integrator = integrator
         self._step = stepper(self.body, integrator)
         self._max_angle = max_angle_rad(integrator)
-        self.q = tuple(float(x) for x in q_BN)
+        self.q = unit_start(tuple(float(x) for x in q_BN), integrator)
         self.w = tuple(float(x) for x in omega_BN_B)
         self.wheels = wheels
         if wheels is None:

@@ -1,6 +1,7 @@
 """sim.attitude.propagate(method=...): every integrator against the closed form, order, guards."""
 
 import csv
+import math
 from pathlib import Path
 
 import numpy as np
@@ -264,3 +265,33 @@ def test_rk8_step_guard_refuses_more_than_half_a_radian_per_step():
 def test_rk8_non_finite_torque_is_reported():
     with pytest.raises(FloatingPointError, match="non-finite state"):
         att.propagate(I, Q0, W_SEP, 1.0, 0.5, "rk8", torque=lambda t, q, w: (np.nan, 0.0, 0.0))
+
+
+# A quaternion typed to 8 digits, as scenarios give it (fixtures/scenarios/pointing_star_tracker.toml): its norm is
+# 1 + 4.2e-8, inside the unit check's tolerance.
+Q_8_DIGITS = (0.99965732, 0.01745241, -0.01745241, 0.00872654)
+
+
+# Steps inside each method's guard; bounds about 2x the errors measured from the normalised start (9.7e-6 and
+# 1.5e-3 deg). The implicit midpoint rule's Cayley update drifts 2.7e-14 in |q| over its 6000 steps.
+@pytest.mark.parametrize(("method", "step_s", "bound_deg", "norm_drift"),
+                         [("rkmk4", 0.1, 2e-5, 1e-14), ("implicit_midpoint", 0.01, 3e-3, 1e-13)])
+def test_a_norm_preserving_method_starts_from_the_unit_quaternion(method, step_s, bound_deg, norm_drift):
+    assert method in ig.NORM_PRESERVING
+    assert abs(float(np.linalg.norm(Q_8_DIGITS)) - 1.0) > 4e-8
+    _, q, _ = att.propagate(I, Q_8_DIGITS, W_SEP, 60.0, step_s, method)
+    assert np.max(np.abs(np.linalg.norm(q, axis=1) - 1.0)) < norm_drift
+    # Its attitude is that of the normalised quaternion: the closed form from there, to the method's accuracy.
+    q0 = np.asarray(Q_8_DIGITS) / np.linalg.norm(Q_8_DIGITS)
+    assert float(angle_between(q[-1], TorqueFreeBody(I, q0, W_SEP).attitude(60.0))) / DEG < bound_deg
+
+
+@pytest.mark.parametrize("method", ["rkmk4", "implicit_midpoint", "rk4"])
+def test_the_truth_model_keeps_a_unit_quaternion_whatever_its_integrator(method):
+    from sim.truth import TruthModel
+
+    truth = TruthModel(inertia=I, q_BN=Q_8_DIGITS, omega_BN_B=[0.01, 0.02, 0.03], r_N=(7.0e6, 0.0, 0.0),
+                       v_N=(0.0, 7546.0, 0.0), step_ns=100_000_000, integrator=method, torques=())
+    for _ in range(100):
+        truth.step()
+    assert abs(math.sqrt(sum(x * x for x in truth.q)) - 1.0) < 1e-14
