@@ -25,6 +25,7 @@ the scenario loader or composition. What builds it from a scenario is the contro
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -110,6 +111,24 @@ class BDot:
         self.last_command = m
 
 
+@functools.cache
+def _installed_top_levels() -> dict:
+    """The top-level names of the installed distributions: scanning them costs about 0.2 s, once per process."""
+    return packages_distributions()
+
+
+def _check_installed(top: str, spec: str) -> None:
+    """Refuse a plug-in whose top-level package no installed distribution provides."""
+    if top in _installed_top_levels():
+        return
+    _installed_top_levels.cache_clear()  # installed since this process first looked?
+    if top not in _installed_top_levels():
+        raise PluginError(
+            f"controller.module = {spec!r} is not allowed: {top!r} is not an installed package; install it "
+            "(pip install -e your_package) or give controller.path = 'folder' holding it (the working directory "
+            "is never searched by itself).")
+
+
 def load_plugin(spec: str, path: str | Path | None = None, base: Path | None = None):
     """The class named by ``package.module:ClassName``: from the folder ``path`` (relative to ``base``, the
     scenario's folder) when given, else from an installed distribution. Never from the working directory by
@@ -127,11 +146,7 @@ def load_plugin(spec: str, path: str | Path | None = None, base: Path | None = N
                               f"({folder} is not a folder).")
         module = _import_from(folder, module_name, spec)
     else:
-        if top not in packages_distributions():
-            raise PluginError(
-                f"controller.module = {spec!r} is not allowed: {top!r} is not an installed package; install it "
-                "(pip install -e your_package) or give controller.path = 'folder' holding it (the working directory "
-                "is never searched by itself).")
+        _check_installed(top, spec)
         module = _import_installed(module_name, spec)
     cls = getattr(module, attr, None)
     if not inspect.isclass(cls):
