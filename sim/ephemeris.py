@@ -16,6 +16,8 @@ epochs. Nothing here reads the wall clock.
 
 from __future__ import annotations
 
+import math
+
 import erfa
 import numpy as np
 
@@ -157,9 +159,28 @@ class EphemerisTrack:
         u = (t / h - k)[..., None]
         p0, v0 = self._pv(k)
         p1, v1 = self._pv(k + 1)
-        u2, u3 = u * u, u * u * u
-        return ((2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * h * v0
-                + (-2 * u3 + 3 * u2) * p1 + (u3 - u2) * h * v1)
+        return _hermite(u, h, p0, v0, p1, v1)
+
+    def position_gcrs_floats(self, t_s: float) -> tuple[float, float, float]:
+        """:meth:`position_gcrs` at one time as three floats, equal to its bits: the same :func:`_hermite` on each
+        axis, without the ~20 numpy calls that cost 60-190 us for one point (a tracker asks once a second)."""
+        if not math.isfinite(t_s):
+            raise ValueError("ephemeris track times t_s must be finite seconds since the epoch.")
+        h = self.step_s
+        k = math.floor(t_s / h)
+        u = t_s / h - k
+        if k not in self._nodes or k + 1 not in self._nodes:
+            self._pv(np.array([k, k + 1], dtype=np.int64))
+        (p0, v0), (p1, v1) = self._nodes[k], self._nodes[k + 1]
+        return tuple(_hermite(u, h, float(p0[i]), float(v0[i]), float(p1[i]), float(v1[i])) for i in range(3))
+
+
+def _hermite(u, h, p0, v0, p1, v1):
+    """Cubic Hermite between nodes (p0, v0) and (p1, v1) a step ``h`` apart, at the fraction ``u`` of it: on arrays
+    or on floats (numpy's elementwise operations round as Python's float ones do, in the same order)."""
+    u2, u3 = u * u, u * u * u
+    return ((2 * u3 - 3 * u2 + 1) * p0 + (u3 - 2 * u2 + u) * h * v0
+            + (-2 * u3 + 3 * u2) * p1 + (u3 - u2) * h * v1)
 
 
 #: Measured worst direction error of :func:`sun_position_gcrs_analytic` against JPL DE421 over

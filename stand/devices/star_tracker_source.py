@@ -158,7 +158,7 @@ def sky_truth(spec, truth, tracks: dict, link):
         second = int(t_s)
         if second not in bodies:
             bodies.clear()
-            bodies[second] = {b: tuple(tracks[b].position_gcrs(float(second)).tolist()) for b in ("sun", "moon")
+            bodies[second] = {b: tracks[b].position_gcrs_floats(float(second)) for b in ("sun", "moon")
                               if b in tracks}  # floats: the same values, float arithmetic each exposure
         for body, radius in (("sun", R_SUN), ("moon", R_MOON)):
             if body in bodies[second]:

@@ -67,6 +67,17 @@ def test_track_interpolates_erfa_to_0_01_arcsec_and_stays_within_de421_bounds(de
     assert track.evaluations == int(2 * 86400 / track.step_s) + 2  # the end time opens one more interval
 
 
+@pytest.mark.parametrize("body", ["sun", "moon"])
+def test_one_point_as_floats_is_the_array_result_to_the_bit(body):
+    track = eph.EphemerisTrack(Epoch.from_iso("2031-03-05T00:00:00Z"), body)
+    times = np.concatenate([np.arange(0.0, 3 * 86400.0, 97.0), np.random.default_rng(5).uniform(-3600.0, 4e5, 3000),
+                            [0.0, track.step_s, 2 * track.step_s - 1e-9]])  # on a node, and just below one
+    for t in times:
+        assert track.position_gcrs_floats(float(t)) == tuple(track.position_gcrs(float(t)).tolist()), t
+    with pytest.raises(ValueError, match="must be finite"):
+        track.position_gcrs_floats(float("nan"))
+
+
 def test_track_that_is_never_asked_never_evaluates():
     track = eph.EphemerisTrack(Epoch.from_iso("2026-01-01T00:00:00Z"), "moon")
     assert track.evaluations == 0
