@@ -328,7 +328,9 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 #: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
 #: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
-FIRST_BATCH = 2
+#: One: a tree query costs about 5 us plus 5 us a key, and on ``stand bench tracker``'s frames the first pattern
+#: alone solves 867 of 1000 (the first two 941), so a second key up front is mostly thrown away.
+FIRST_BATCH = 1
 
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
