@@ -24,6 +24,7 @@ from types import ModuleType
 MODULES: tuple[str, ...] = (
     "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
     "drivers.bitpack",  # the DBC codec's per-message bit packing
+    "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
 )
 
 _chosen: dict[str, ModuleType] = {}

@@ -52,11 +52,16 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.special import betainc
 
+import compiled_paths
 from star_screen.catalog import StarPlaces
 from star_screen.geometry import TrackerOptics
 from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust, wahba_dcm
 
 __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "verify", "false_match_probability"]
+
+#: The radius matching's sweep: compiled where the install could (compiled_paths), else the same Python.
+_nearest = compiled_paths.load("star_screen.tracking.nearest")
+_NEAREST_COMPILED = compiled_paths.is_compiled(_nearest)
 
 
 def _chord(angle_rad: float) -> float:
@@ -79,20 +84,29 @@ _PAIR_J = np.array([1, 2, 3, 2, 3, 3])
 
 
 def _angle_of_chord(d: np.ndarray) -> np.ndarray:
-    return 2.0 * np.arcsin(np.clip(0.5 * d, 0.0, 1.0))
+    # np.clip's result by two ufuncs (np.clip itself costs several microseconds of argument handling a call).
+    return 2.0 * np.arcsin(np.minimum(np.maximum(0.5 * d, 0.0), 1.0))
+
+
+def _row_norm(x: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """``np.linalg.norm(x, axis=-1)`` by numpy's own formula for real vectors (the same bits), without its
+    argument handling, which costs more than the arithmetic on a tracker's few vectors."""
+    return np.sqrt(np.add.reduce(x * x, axis=-1, keepdims=keepdims))
 
 
 def _edges(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Separations (rad) of 4-star sets ``u (P, 4, 3)``: (P, 6) unsorted, in pair order (01 02 03 12 13 23)."""
-    d = np.linalg.norm(u[:, _PAIR_I] - u[:, _PAIR_J], axis=-1)
+    d = _row_norm(u[:, _PAIR_I] - u[:, _PAIR_J])
     return _angle_of_chord(d), d
 
 
 def _canonical(u: np.ndarray) -> np.ndarray:
     """Per pattern, the permutation (P, 4) ordering its stars by distance from the centroid."""
-    c = u.mean(axis=1, keepdims=True)
-    c /= np.linalg.norm(c, axis=-1, keepdims=True)
-    return np.argsort(np.linalg.norm(u - c, axis=-1), axis=1, kind="stable")
+    # The centroid's direction: the sum of the four, normalised, is the normalised mean to the bit (a factor 4 is
+    # exact), without np.mean's overhead.
+    c = np.add.reduce(u, axis=1, keepdims=True)
+    c /= _row_norm(c, keepdims=True)
+    return np.argsort(_row_norm(u - c), axis=1, kind="stable")
 
 
 def _keys(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -209,7 +223,8 @@ class _SkyIndex:
     def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the places within the cone (sorted: brightest first) and their unit vectors."""
         chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
-        k = np.asarray(self.tree.query_ball_point(boresight, chord), dtype=np.int64)
+        # Unsorted (the rows are sorted below): the tree's own sort of the indices is work thrown away.
+        k = np.asarray(self.tree.query_ball_point(boresight, chord, return_sorted=False), dtype=np.int64)
         rows = self.perm[k]
         o = np.argsort(rows)
         k = k[o]
@@ -313,7 +328,9 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 #: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
 #: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
-FIRST_BATCH = 2
+#: One: a tree query costs about 5 us plus 5 us a key, and on ``stand bench tracker``'s frames the first pattern
+#: alone solves 867 of 1000 (the first two 941), so a second key up front is mostly thrown away.
+FIRST_BATCH = 1
 
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
@@ -329,11 +346,11 @@ def _image_patterns(u: np.ndarray, max_edge_cos: float):
     fits = np.flatnonzero(((u @ u.T) >= max_edge_cos).ravel()[pairs].all(axis=1))
     if len(fits) == 0:
         return
-    sep = _angle_of_chord(np.linalg.norm(u[:, None, :] - u[None, :, :], axis=-1)).ravel()
+    sep = _angle_of_chord(_row_norm(u[:, None, :] - u[None, :, :])).ravel()
     start, size = 0, FIRST_BATCH
     while start < len(fits):
         q = quads[fits[start : start + size]]
-        q = np.take_along_axis(q, _canonical(u[q]), axis=1)
+        q = q[np.arange(len(q))[:, None], _canonical(u[q])]  # np.take_along_axis's result, without its overhead
         keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
         yield u[q], keys, largest
         start += size
@@ -386,7 +403,7 @@ def identify_lis(
                 r_N = db.u_N[db.patterns[p]]
                 b4 = uc[q]
                 C4 = wahba_dcm(b4, r_N, np.ones(4))
-                if np.max(np.linalg.norm(b4 - r_N @ C4.T, axis=1)) > fit_tolerance_rad:
+                if np.max(_row_norm(b4 - r_N @ C4.T)) > fit_tolerance_rad:
                     continue  # mirror image or wrong correspondence
                 ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)
                 if len(ii) < min_matches or pf > max_false_prob:
@@ -455,67 +472,26 @@ def _match_radius(img_x: np.ndarray, img_y: np.ndarray, cat_x: np.ndarray, cat_y
     keeps the closest (``drop_blends``: is left out).
 
     The pairs of a k-d tree query over the image stars followed by the blend rule, for a
-    fraction of the cost at tracker sizes (no tree to build per frame): image stars sorted by x
-    once; each catalog star's candidates are the image stars within about ``radius`` in x (a
-    contiguous run of the sorted stars, rarely more than three), laid out as one (k, K) table and
-    reduced with one ``argmin`` per row."""
-    empty = np.empty(0, np.int64)
+    fraction of the cost at tracker sizes (no tree to build per frame): the image stars sorted by x
+    once, then the sweep of :mod:`star_screen.tracking.nearest` (two or three image stars looked at
+    per catalog star; compiled where the install could)."""
     n = len(img_x)
     if n == 0 or len(cat_x) == 0:
-        return empty, empty, np.empty(0)
-    # Image stars sorted into columns one radius wide (a radix sort of small integers); the
-    # candidates of a catalog star in column c are the image stars of columns c - 1 .. c + 1,
-    # one contiguous run of the sorted stars.
-    inv = 1.0 / radius
-    ncol = int(max(float(img_x.max()), float(cat_x.max()), 0.0) * inv) + 3
-    col = np.maximum((img_x * inv).astype(np.int64) + 1, 0)  # x >= -radius lands in column 0
-    order = np.argsort(col.astype(np.int16) if ncol < 32000 else col, kind="stable")
-    starts = np.zeros(ncol + 1, np.int64)
-    np.cumsum(np.bincount(col, minlength=ncol), out=starts[1:])
-    cc = np.minimum(np.maximum((cat_x * inv).astype(np.int64) + 1, 1), ncol - 2)
-    lo = starts[cc - 1]
-    hi = starts[cc + 2]
-    xs = img_x[order]
-    K = int((hi - lo).max())
-    if K == 0:
-        return empty, empty, np.empty(0)
-    if K == 1:
-        ok = np.flatnonzero(hi > lo)
-        j = lo[ok]
-        dx = xs[j] - cat_x[ok]
-        dy = img_y[order[j]] - cat_y[ok]
-        d2 = dx * dx + dy * dy
-    else:
-        j = lo[:, None] + np.arange(K)
-        valid = j < hi[:, None]
-        np.minimum(j, n - 1, out=j)
-        dx = xs[j] - cat_x[:, None]
-        dy = img_y[order[j]] - cat_y[:, None]
-        d2 = np.where(valid, dx * dx + dy * dy, np.inf)
-        best = np.argmin(d2, axis=1)
-        rows = np.arange(len(cat_x))
-        d2 = d2[rows, best]
-        j = j[rows, best]
-        ok = rows
-    near = np.flatnonzero(d2 < radius * radius)
-    ci = ok[near]
-    ii = order[j[near]]
-    d2 = d2[near]
-    claims = np.bincount(ii, minlength=n)[ii]
-    if drop_blends:
-        # Several catalog stars nearest to one image star: a blend, whose centroid lies between
-        # them by their flux ratio. Its centroid sigma (a bright spot) would give its bias a large
-        # weight, and which of the stars is nearer flips with a fraction of a pixel: leave it out.
-        single = np.flatnonzero(claims == 1)
-        return ii[single], ci[single], np.sqrt(d2[single])
-    if claims.max(initial=0) > 1:
-        # Several catalog stars near one image star (a blend): keep the closest.
-        o = np.lexsort((d2, ii))
-        first = np.ones(len(o), bool)
-        first[1:] = ii[o[1:]] != ii[o[:-1]]
-        keep = np.sort(o[first])
-        ii, ci, d2 = ii[keep], ci[keep], d2[keep]
-    return ii, ci, np.sqrt(d2)
+        return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
+    order = np.argsort(img_x, kind="stable")
+    xs, ys = img_x[order], img_y[order]
+    k = len(cat_x)
+    if _NEAREST_COMPILED:  # typed memoryviews: C-contiguous float64 and int64 arrays
+        args = (np.ascontiguousarray(xs, float), np.ascontiguousarray(ys, float), order,
+                np.ascontiguousarray(cat_x, float), np.ascontiguousarray(cat_y, float))
+        out = (np.zeros(n, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k))
+    else:  # plain Python reads and writes lists far faster than numpy scalars
+        args = (xs.tolist(), ys.tolist(), order.tolist(), cat_x.tolist(), cat_y.tolist())
+        out = ([0] * n, [0] * k, [0] * k, [0.0] * k)
+    w = _nearest.match_radius(*args, float(radius), bool(drop_blends), *out)
+    _, out_image, out_catalog, out_d2 = out
+    return (np.asarray(out_image[:w], np.int64), np.asarray(out_catalog[:w], np.int64),
+            np.sqrt(np.asarray(out_d2[:w], float)))
 
 
 def identify_tracking(
