@@ -20,7 +20,9 @@ from ..compose import build
 from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
+from .errors import CampaignError
 from .fault_groups import started
+from .spec import Spec, dispersions_of, parse_case
 
 log = logging.getLogger(__name__)
 
@@ -60,10 +62,19 @@ def _error_record(task: dict, reason: str, t_start: float | None = None) -> dict
 
 
 def _raised(exc: BaseException) -> str:
-    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code)."""
+    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code); a
+    CampaignError (a case the scenario refuses) is the campaign's own sentence, as the command line shows it."""
+    if isinstance(exc, CampaignError):
+        return str(exc)
     if isinstance(exc, SystemExit):
         return f"SystemExit: the run's code called sys.exit({exc.code!r})"
     return f"{type(exc).__name__}: {exc}"
+
+
+def case_task(spec: Spec, index: int, **extra) -> dict:
+    """The task of case ``index`` drawn where it runs (a worker holds the spec: only the index travels), with the
+    spec, so the parse that runs it is also its validation (``parse_case``: a refused value names its dispersion)."""
+    return {**spec.case(index, dispersions_of(spec)), **extra, "spec": spec}
 
 
 def run_case(task: dict, *, interruptible: bool = False) -> dict:
@@ -75,8 +86,12 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     Anything the run raises, SystemExit and other BaseExceptions included, is recorded as an error case: a
     plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
     process): Ctrl-C stops the campaign instead of being recorded.
+    ``task`` is a case's (``Spec.case``, or ``case_task`` with its spec), or ``{"index": k, "spec": spec, ...}``:
+    the case is then drawn here, in its worker, and counted in its overhead.
     """
     t_start, cpu_start = time.time(), time.process_time()
+    if "data" not in task:
+        task = case_task(task["spec"], task["index"], **{k: v for k, v in task.items() if k not in ("spec", "index")})
     dest = task.get("dest")
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
@@ -105,7 +120,8 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
 
 def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock: float) -> tuple[dict, dict]:
     """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
-    sc = parse(task["data"], task["source"])
+    # A case of a spec: the parse is its validation, and a value the scenario refuses names its dispersion.
+    sc = parse_case(task["spec"], task) if "spec" in task else parse(task["data"], task["source"])
     with build(sc, None, Path(task["base"])) as scene:
         t_built, cpu_built = time.time(), time.process_time()
         result = run(scene, out, progress=False)

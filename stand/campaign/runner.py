@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from ..errors import ScenarioError
-from .case import _error_record
+from .case import _error_record, case_task
 from .dask_executor import _Dask, _Lost
 from .errors import CampaignError
 from .pool import WORKER_DEATHS, _Inline, _LocalPool
@@ -76,7 +76,11 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
                                               f"from 0 (no limit) to {MAX_CASE_TIMEOUT_S:g}")))
     out = Path(out)
     t0, cpu0 = time.time(), time.process_time()
-    tasks = validate(spec, runs)
+    # What is wrong for every case is refused before anything runs: the dispersion file, its [[faults]], every
+    # value of every choice, and the first case. Each case is then drawn and validated by its worker, where the
+    # parse that runs it is its validation: a value the scenario refuses is that case's error, with the same
+    # sentence, and the client's serial work per case is writing it (docs/campaigns.md, "Measured").
+    validate(spec, 1)
     validate_cpu_s = time.process_time() - cpu0
     _prepare(out, spec)
     t_ready = time.time()
@@ -85,17 +89,16 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     bar = CampaignProgress(runs, progress)
     for rec in done.values():
         bar.add(rec, resumed=True)
-    todo = [t for t in tasks if t["index"] not in done]
-    del tasks
+    todo = [{"index": k} for k in range(runs) if k not in done]
     if scheduler is None:  # workers on this machine write each run once, where the campaign keeps it
         for t in todo:
             t["dest"] = str(part_dir(out.absolute(), t["index"]))
     if scheduler is not None:
-        executor = _Dask(scheduler, spec.key, case_timeout_s)
+        executor = _Dask(scheduler, spec, case_timeout_s)
     elif workers == 0:
-        executor = _Inline()
+        executor = _Inline(spec)
     else:
-        executor = _LocalPool(workers, case_timeout_s, worker_deaths)
+        executor = _LocalPool(workers, case_timeout_s, worker_deaths, spec)
     execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
                  "resumed": resumed, "validate_s": round(t_ready - t0, 3),
                  "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
@@ -104,7 +107,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
     bar.show()
     try:
-        _collect(executor, todo, out, done, bar, execution["lost"])
+        _collect(executor, spec, todo, out, done, bar, execution["lost"])
         stopped = False
     finally:
         executor.close(cancel=stopped)
@@ -119,9 +122,10 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     return result
 
 
-def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignProgress, lost: list[str]) -> None:
-    """Write every case the executor answers: its files, or an error record with the reason."""
-    meta = {t["index"]: {k: t[k] for k in ("index", "seed", "values", "scalars", "faults")} for t in todo}
+def _collect(executor, spec: Spec, todo: list[dict], out: Path, done: dict, bar: CampaignProgress,
+             lost: list[str]) -> None:
+    """Write every case the executor answers: its files, or an error record with the reason (the case's values
+    drawn again here: its worker did not answer)."""
     for index, result, reason in executor.results(todo):
         if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
             lost.append(f"case {index}: {reason}")
@@ -129,7 +133,7 @@ def _collect(executor, todo: list[dict], out: Path, done: dict, bar: CampaignPro
             continue
         if result is None:
             log.info("case %d recorded as an error: %s", index, reason)
-            result = {"record": _error_record(meta[index], reason), "files": {}}
+            result = {"record": _error_record(case_task(spec, index), reason), "files": {}}
         rec = _write_case(out, result, time.time())
         done[index] = rec
         bar.add(rec)
