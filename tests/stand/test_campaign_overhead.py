@@ -2,6 +2,7 @@
 is written, and the proof that a case in a warm worker is the case of a fresh process."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -154,3 +155,72 @@ def test_warming_a_worker_with_a_case_loads_what_its_devices_need():
             "cm.warm(task)\nprint(json.dumps([before, name in sys.modules]))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300)
     assert json.loads(done.stdout.strip().splitlines()[-1]) == [False, True]
+
+
+# ------------------------------------------------- a case the scenario refuses, found by its worker (issue 26)
+#: The magnetometer's noise drawn from -100 to 100 nT: the scenario refuses a negative one.
+SOMETIMES_REFUSED = ('[[dispersions]]\nfield = "devices.mtq.mag_noise_nT"\ndistribution = "uniform"\nmin = -100.0\n'
+                     'max = 100.0\n')
+
+
+def _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs: int):
+    """A spec whose case 0 draws a noise the scenario takes (the campaign checks case 0 before anything runs) and
+    whose later cases draw both kinds, with the draws."""
+    path = write_scenario(scenario_dict)
+    (tmp_path / "d.toml").write_text(SOMETIMES_REFUSED)
+    for seed in range(100):  # bounded: half the draws are negative, so a few seeds do
+        spec = cm.make_spec(str(path), tmp_path / "d.toml", seed=seed, duration_s=5.0)
+        draws = [cm.case_values(spec.dispersions(), seed, k)[1]["devices.mtq.mag_noise_nT"] for k in range(runs)]
+        if draws[0] >= 0 and any(d < 0 for d in draws) and sum(d >= 0 for d in draws) >= 2:
+            return spec, draws
+    raise AssertionError("no seed below 100 draws a valid case 0 and a refused later case")
+
+
+def _check_refused_cases(out, result, draws, client_pid: int) -> None:
+    """Every case recorded; a refused one with the scenario's sentence naming the field, the value and what is
+    allowed (as the campaign's error before the first run reads), validated in a worker process, not the client."""
+    assert result["finished"] == len(draws) and result["status"] == "complete"
+    assert result["errors"] == sum(d < 0 for d in draws)
+    for k, d in enumerate(draws):
+        rec = json.loads((cm.case_dir(out, k) / "case.json").read_text())
+        assert rec["index"] == k and rec["values"]["devices.mtq.mag_noise_nT"] == d
+        assert rec["pid"] != client_pid
+        if d >= 0:
+            assert rec["status"] == "completed" and rec["digest"]
+            continue
+        assert rec["status"] == "error" and not rec["passed"] and _files(cm.case_dir(out, k)) == {"case.json"}
+        assert rec["error"].startswith(f"case {k}: dispersions[0] (devices.mtq.mag_noise_nT, uniform, in d.toml) "
+                                       f"drew {d!r}, which the scenario refuses")
+        assert f"devices[0].mag_noise_nT = {d!r} in " in rec["error"] and "a number >= 0" in rec["error"]
+        assert {c["case"]: c["error"] for c in result["failed_cases"]}[k] == rec["error"]  # in campaign.json too
+
+
+def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_local_worker(
+        scenario_dict, write_scenario, tmp_path, monkeypatch):
+    """The client checks the file, every choice and case 0 before anything runs, and no more: each case is drawn
+    and validated by the worker that runs it (its parse). A refused case is recorded with the sentence the
+    campaign gave when it validated every case itself, and the other cases run."""
+    spec, draws = _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs=4)
+    parses = []
+    real = spec_mod.scenario_mod.parse
+    monkeypatch.setattr(spec_mod.scenario_mod, "parse", lambda *a, **kw: parses.append(a) or real(*a, **kw))
+    cm.validate(spec, 1)
+    up_front = len(parses)
+    parses.clear()
+    out = tmp_path / "camp"
+    result = cm.run_campaign(spec, out, len(draws), workers=1, plots=False)
+    assert len(parses) == up_front, "the client parsed the first case only"
+    _check_refused_cases(out, result, draws, os.getpid())
+
+
+@pytest.mark.slow
+def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_dask_worker(
+        scenario_dict, write_scenario, tmp_path):
+    import distributed
+
+    spec, draws = _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs=4)
+    out = tmp_path / "camp"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
+        result = cm.run_campaign(spec, out, len(draws), scheduler=cluster.scheduler_address, plots=False)
+    _check_refused_cases(out, result, draws, os.getpid())
