@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 
 from .case import _raised, case_task, run_case, warm
 from .errors import CampaignError
@@ -28,6 +29,7 @@ class _Dask:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
         self.spec, self.key, self.case_timeout_s = spec, spec.key, case_timeout_s
+        self.start_cpu_s = 0.0  # the client's CPU time warming the workers: once per campaign, not per case
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
@@ -37,7 +39,9 @@ class _Dask:
 
         limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
         # Every worker builds one scene before the first case.
+        cpu0 = time.process_time()
         self.client.run(_warm, self.spec, tasks[0]["index"] if tasks else None)
+        self.start_cpu_s += time.process_time() - cpu0
         # The spec travels once to each worker, as the result of a task (which the scheduler can compute again if
         # the workers holding it die, unlike scattered data); a case's task is its index.
         spec = self.client.submit(Spec.from_json, self.spec.to_json(), key=f"stand-spec-{self.key}")

@@ -123,6 +123,9 @@ class _LocalPool:
         self.ctx = multiprocessing.get_context("spawn")
         self.slots: list[_Slot] = []
         self.first: dict | None = None
+        #: The client's CPU time spent starting worker processes (once per campaign, and per replaced worker): not
+        #: the client's work per case.
+        self.start_cpu_s = 0.0
 
     def results(self, tasks: list[dict]):
         """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
@@ -131,12 +134,13 @@ class _LocalPool:
         pending = deque(tasks)
         died: dict[int, list[str]] = {}
         self.first = tasks[0] if tasks else None
+        cpu0 = time.process_time()
         self.slots = [_Slot(self.ctx, self.first, self.spec) for _ in range(min(self.workers, len(pending)))]
+        self.start_cpu_s += time.process_time() - cpu0
         while pending or any(s.task is not None for s in self.slots):
             self._hand_out(pending)
             watched = [s for s in self.slots if s.task is not None or not s.ready]
-            self._wait(watched)
-            outcomes = [o for s in watched if (o := self._check(s, died, pending)) is not None]
+            outcomes = [o for s in self._wait(watched) if (o := self._check(s, died, pending)) is not None]
             self._hand_out(pending)  # before the client writes what came back
             yield from outcomes
 
@@ -152,7 +156,10 @@ class _LocalPool:
                 if not s.queue(task):
                     pending.appendleft(task)
 
-    def _wait(self, watched: list[_Slot]) -> None:
+    def _wait(self, watched: list[_Slot]) -> list[_Slot]:
+        """The slots with something to look at: an answer, an ended process, or a case over its limit (only these
+        are checked: with many workers, polling every one after each answer would be the client's work per case
+        growing with the pool)."""
         from multiprocessing.connection import wait
 
         timeout = None
@@ -160,7 +167,10 @@ class _LocalPool:
         if self.case_timeout_s and busy:
             now = time.monotonic()
             timeout = max(0.0, min(s.since + self.case_timeout_s - now for s in busy))
-        wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout)
+        ready = set(wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout))
+        now = time.monotonic()
+        return [s for s in watched if s.conn in ready or s.proc.sentinel in ready
+                or (self.case_timeout_s and s.task is not None and now - s.since >= self.case_timeout_s)]
 
     def _check(self, s: _Slot, died: dict, pending) -> tuple | None:
         if s.conn.poll():  # an answer waits (even if the process ended right after sending it)
@@ -200,7 +210,9 @@ class _LocalPool:
     def _replace(self, s: _Slot, kill: bool = False) -> None:
         """A new worker process in this slot, the old one ended (killed if it still runs)."""
         s.end(kill=kill)
+        cpu0 = time.process_time()
         fresh = _Slot(self.ctx, self.first, self.spec)
+        self.start_cpu_s += time.process_time() - cpu0
         s.conn, s.proc, s.task, s.queued, s.since, s.ready = fresh.conn, fresh.proc, None, None, 0.0, False
 
     def close(self, cancel: bool = False) -> None:
@@ -215,6 +227,7 @@ class _Inline:
 
     name = "inline"
     workers = 1
+    start_cpu_s = 0.0
 
     def __init__(self, spec=None):
         self.spec = spec

@@ -104,15 +104,20 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
                  "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
+    cpu_collect = time.process_time()
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
     bar.show()
     try:
-        _collect(executor, spec, todo, out, done, bar, execution["lost"])
+        _collect(executor, spec, todo, out, done, bar, execution)
         stopped = False
     finally:
         executor.close(cancel=stopped)
         bar.show(final=True)
-        execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3))
+        # The client's CPU time per case while the workers run (receiving, handing out, writing, the progress line),
+        # the workers' start left out: its serial work per run, which bounds how many workers it can keep busy.
+        client_cpu_s = time.process_time() - cpu_collect - executor.start_cpu_s
+        execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3),
+                         client_cpu_s=round(client_cpu_s, 4))
         if stopped:  # campaign.json must not keep saying "running": what is recorded, counted as incomplete
             execution["stopped"] = True
             aggregate(out, runs, execution)
@@ -122,10 +127,32 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     return result
 
 
+class _Account:
+    """Means over a session's answers: from a worker's end to the client's receipt (``transfer_s``), the client's
+    writing of the case (``client_write_s``, wall time: the rename alone when the worker wrote the case), and the
+    CPU time a worker took to write its record (``worker_record_write_cpu_s``: its own record cannot hold it)."""
+
+    def __init__(self):
+        self.n = self.n_written = 0
+        self.transfer_s = self.write_s = self.record_cpu_s = 0.0
+
+    def add(self, rec: dict, write_s: float) -> None:
+        timing = rec["timing"]
+        self.n, self.write_s = self.n + 1, self.write_s + write_s
+        self.transfer_s += timing["transfer_s"]
+        if "record_write_cpu_s" in timing:
+            self.n_written, self.record_cpu_s = self.n_written + 1, self.record_cpu_s + timing["record_write_cpu_s"]
+
+    def means(self) -> dict:
+        return {"transfer_s": self.transfer_s / self.n, "client_write_s": self.write_s / self.n,
+                "worker_record_write_cpu_s": self.record_cpu_s / max(1, self.n_written)}
+
+
 def _collect(executor, spec: Spec, todo: list[dict], out: Path, done: dict, bar: CampaignProgress,
-             lost: list[str]) -> None:
+             execution: dict) -> None:
     """Write every case the executor answers: its files, or an error record with the reason (the case's values
-    drawn again here: its worker did not answer)."""
+    drawn again here: its worker did not answer). ``execution`` gets the lost cases and ``_Account``'s means."""
+    lost, account = execution["lost"], _Account()
     for index, result, reason in executor.results(todo):
         if isinstance(reason, _Lost):  # the infrastructure failed, not the case: the next invocation runs it
             lost.append(f"case {index}: {reason}")
@@ -134,7 +161,10 @@ def _collect(executor, spec: Spec, todo: list[dict], out: Path, done: dict, bar:
         if result is None:
             log.info("case %d recorded as an error: %s", index, reason)
             result = {"record": _error_record(case_task(spec, index), reason), "files": {}}
-        rec = _write_case(out, result, time.time())
+        received = time.time()
+        rec = _write_case(out, result, received)
+        account.add(rec, time.time() - received)
+        execution.update(account.means())
         done[index] = rec
         bar.add(rec)
         bar.show()

@@ -60,23 +60,29 @@ def part_dir(out: Path, index: int) -> Path:
     return final.with_name(final.name + ".part")
 
 
+def write_record(folder: Path, rec: dict) -> None:
+    """A case's ``case.json``, the last file of its folder."""
+    (Path(folder) / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
+
+
 def _write_case(out: Path, result: dict, received: float) -> dict:
-    """Make a case's folder whole: its files (unless the worker wrote them there already: ``dir``), then its
-    ``case.json``, then the rename that makes it count."""
+    """Make a case's folder whole: its files and its ``case.json`` (unless the worker wrote both there already:
+    ``dir`` and ``written``), then the rename that makes it count."""
     rec = result["record"]
     t0, cpu0 = time.time(), time.process_time()
     final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
-    if result.get("dir") is None or Path(result["dir"]) != part:
-        shutil.rmtree(part, ignore_errors=True)
-        part.mkdir(parents=True)
-        for name, data in result["files"].items():
-            (part / name).parent.mkdir(parents=True, exist_ok=True)
-            (part / name).write_bytes(data)
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
-    timing["write_s"] = time.time() - t0
-    timing["write_cpu_s"] = time.process_time() - cpu0
-    (part / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
+    if not (result.get("written") and Path(result["dir"]) == part):
+        if result.get("dir") is None or Path(result["dir"]) != part:
+            shutil.rmtree(part, ignore_errors=True)
+            part.mkdir(parents=True)
+            for name, data in result["files"].items():
+                (part / name).parent.mkdir(parents=True, exist_ok=True)
+                (part / name).write_bytes(data)
+        timing["write_s"] = time.time() - t0
+        timing["write_cpu_s"] = time.process_time() - cpu0
+        write_record(part, rec)
     if final.exists():
         shutil.rmtree(final, ignore_errors=True)
     os.replace(part, final)

@@ -73,15 +73,19 @@ def test_a_case_in_a_warm_worker_is_the_case_of_a_fresh_process(tmp_path, scenar
 
 
 def test_a_local_worker_writes_the_run_once_where_the_campaign_keeps_it(tmp_path):
-    """With a ``dest`` (a worker on the client's machine) the run is written in the case's folder and only the
-    record travels back; the folder ends with the files a case always had, nothing more."""
+    """With a ``dest`` (a worker on the client's machine) the run and its record are written in the case's folder
+    and only the record travels back; the folder ends with the files a case always had, nothing more."""
     spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
     out = tmp_path / "camp"
     out.mkdir()
     task = {**spec.case(1), "dest": str(part_dir(out, 1))}
     result = cm.run_case(task)
-    assert result["files"] == {} and result["dir"] == task["dest"]
-    assert _files(part_dir(out, 1)) == set(cm.RUN_FILES)  # the run's own log and the like are not kept
+    assert result["files"] == {} and result["dir"] == task["dest"] and result["written"]
+    assert _files(part_dir(out, 1)) == CASE_FILES  # the run's own log and the like are not kept
+    # The record on disk is the one sent back, less the CPU time of its own writing (measured after it).
+    sent = json.loads(json.dumps(result["record"], default=float))
+    assert sent["timing"].pop("record_write_cpu_s") >= 0.0
+    assert json.loads((part_dir(out, 1) / "case.json").read_text()) == sent
     assert len(json.dumps(result["record"])) < 8192  # the record is what crosses the pipe
     alone = cm.run_case(spec.case(1))  # no dest: a temporary folder and the files sent back (Dask)
     assert set(alone["files"]) == set(cm.RUN_FILES)
