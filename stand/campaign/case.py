@@ -8,6 +8,7 @@ import hashlib
 import json
 import logging
 import os
+import secrets
 import shutil
 import sys
 import tempfile
@@ -23,7 +24,7 @@ from ..scenario import parse
 from .errors import CampaignError
 from .fault_groups import started
 from .spec import Spec, dispersions_of, parse_case
-from .store import write_record
+from .store import sees_campaign, write_record
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +94,8 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     t_start, cpu_start = time.time(), time.process_time()
     if "data" not in task:
         task = case_task(task["spec"], task["index"], **{k: v for k, v in task.items() if k not in ("spec", "index")})
-    dest = task.get("dest")
+    dest = _destination(task)
+    task = {**task, "dest": dest}
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
         watchdog = _watchdog(task)
@@ -128,6 +130,18 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
         return {"record": rec, "files": files, "dir": str(out)}
     timing = {**rec["timing"], "record_write_cpu_s": time.process_time() - cpu_write}
     return {"record": {**rec, "timing": timing}, "files": files, "dir": str(out), "written": True}
+
+
+def _destination(task: dict) -> str | None:
+    """Where this worker writes the case: ``dest`` (a local worker); with a ``token`` (a Dask worker), a folder of
+    its own beside ``dest`` if it sees the campaign folder (the client's machine, or a shared file system), else
+    None: a temporary folder, and the files travel back."""
+    dest, token = task.get("dest"), task.get("token")
+    if dest is None or token is None:
+        return dest
+    if not sees_campaign(dest, token):
+        return None
+    return f"{dest}.{os.getpid()}-{secrets.token_hex(4)}"  # the scheduler may run a case twice at once
 
 
 def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock: float) -> tuple[dict, dict]:

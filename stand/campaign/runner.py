@@ -15,7 +15,7 @@ from .errors import CampaignError
 from .pool import WORKER_DEATHS, _Inline, _LocalPool
 from .results import aggregate
 from .spec import MAX_RUNS, Spec, validate
-from .store import _prepare, _write_case, finished, part_dir
+from .store import TOKEN_FILE, _prepare, _write_case, finished, part_dir, write_token
 from .summary_report import write_report
 
 log = logging.getLogger(__name__)
@@ -89,10 +89,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     bar = CampaignProgress(runs, progress)
     for rec in done.values():
         bar.add(rec, resumed=True)
-    todo = [{"index": k} for k in range(runs) if k not in done]
-    if scheduler is None:  # workers on this machine write each run once, where the campaign keeps it
-        for t in todo:
-            t["dest"] = str(part_dir(out.absolute(), t["index"]))
+    todo = _tasks(out, runs, done, remote=scheduler is not None)
     if scheduler is not None:
         executor = _Dask(scheduler, spec, case_timeout_s)
     elif workers == 0:
@@ -112,6 +109,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         stopped = False
     finally:
         executor.close(cancel=stopped)
+        (out / TOKEN_FILE).unlink(missing_ok=True)
         bar.show(final=True)
         # The client's CPU time per case while the workers run (receiving, handing out, writing, the progress line),
         # the workers' start left out: its serial work per run, which bounds how many workers it can keep busy.
@@ -125,6 +123,14 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     if plots:
         write_report(out, result)
     return result
+
+
+def _tasks(out: Path, runs: int, done: dict, remote: bool) -> list[dict]:
+    """The cases left to run, each its index (its worker draws it from the spec) and where to write it: a worker on
+    this machine writes the run once, where the campaign keeps it; a Dask worker too where it sees the campaign
+    folder (``token``: this machine, or a shared file system), else it sends the run's files back."""
+    token = {"token": write_token(out)} if remote else {}
+    return [{"index": k, "dest": str(part_dir(out.absolute(), k)), **token} for k in range(runs) if k not in done]
 
 
 class _Account:

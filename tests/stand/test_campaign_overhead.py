@@ -228,3 +228,28 @@ def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_dask_work
                                   dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
         result = cm.run_campaign(spec, out, len(draws), scheduler=cluster.scheduler_address, plots=False)
     _check_refused_cases(out, result, draws, os.getpid())
+
+
+def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_sends_the_files(tmp_path):
+    """A Dask worker is told where the case goes and the session's token: reading the same token in the campaign
+    folder (this machine, a shared file system), it writes the case in a folder of its own beside the case's
+    ``.part`` (the scheduler may run a case twice at once) and sends the record alone, which the client renames;
+    elsewhere it runs in a temporary folder and sends the files, as before."""
+    from stand.campaign import store
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    out.mkdir()
+    token = store.write_token(out)
+    task = {"index": 2, "spec": spec, "dest": str(part_dir(out, 2)), "token": token}
+    sent = cm.run_case({**task, "token": "0" * 32})  # a worker that does not see this folder
+    assert set(sent["files"]) == set(cm.RUN_FILES) and "dir" not in sent and not (out / "cases").exists()
+    wrote = cm.run_case(task)
+    folder = wrote["dir"]
+    assert wrote["files"] == {} and wrote["written"] and folder.startswith(str(part_dir(out, 2)) + ".")
+    assert _files(tmp_path / folder) == CASE_FILES
+    assert wrote["record"]["digest"] == sent["record"]["digest"]
+    store._write_case(out, wrote, wrote["record"]["timing"]["worker_end"])
+    assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002"]
+    assert _files(cm.case_dir(out, 2)) == CASE_FILES
+    assert (cm.case_dir(out, 2) / "telemetry/rows.f64").read_bytes() == sent["files"]["telemetry/rows.f64"]
