@@ -179,8 +179,7 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
                  f"build, summary, digest, writing the record) + the client's {c_cpu * 1e3:.2f} ms (receiving, "
                  f"handing out, writing). Wall time on this machine's load: {o * 1e3:.1f} ms on the worker between "
                  f"one case's loop and the next case's start (the record's way back and the next case's included) + "
-                 f"{c * 1e3:.1f} ms on the client. The pool's "
-                 "start is in neither"},
+                 f"{c * 1e3:.1f} ms on the client. The pool's start is in neither" + _client_threads(ex)},
         {"name": f"campaign.{label}.overhead_parts", "value": round(sum(parts.values()) * 1e3, 2), "unit": "ms",
          "note": ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in parts.items())
          + " (means per run; build includes drawing and validating the case, record is the worker's CPU time writing "
@@ -192,6 +191,18 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
                      "unit": "s", "note": "from the executor's start to the first case's start: spawned worker "
                                           "processes importing the stand, once per campaign"})
     return rows
+
+
+def _client_threads(ex: dict) -> str:
+    """For Dask: how much of the client's CPU time per run is its own thread's, how much the event loop thread's
+    (the Dask client's, and a LocalCluster's scheduler runs in it too)."""
+    if ex["executor"] != "dask":
+        return ""
+    n = max(1, ex["runs_this_session"])
+    own, loop = ex["client_thread_cpu_s"] / n, (ex["client_cpu_s"] - ex["client_thread_cpu_s"]) / n
+    return (f". Of the client's: its own thread {own * 1e3:.2f} ms, the event loop thread {loop * 1e3:.2f} ms (the "
+            "Dask client's, and this LocalCluster's scheduler, which runs in the client's process); the worker's "
+            "beyond the local pool's is Dask's own handling of a task in the worker process")
 
 
 def _campaign_start(result: dict) -> float:

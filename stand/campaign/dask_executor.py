@@ -29,7 +29,8 @@ class _Dask:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
         self.spec, self.key, self.case_timeout_s = spec, spec.key, case_timeout_s
-        self.start_cpu_s = 0.0  # the client's CPU time warming the workers: once per campaign, not per case
+        # The client's CPU time (the process's, this thread's) warming the workers: once per campaign, not per case.
+        self.start_cpu_s = self.start_thread_cpu_s = 0.0
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
@@ -39,9 +40,10 @@ class _Dask:
 
         limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
         # Every worker builds one scene before the first case.
-        cpu0 = time.process_time()
+        cpu0, thread0 = time.process_time(), time.thread_time()
         self.client.run(_warm, self.spec, tasks[0]["index"] if tasks else None)
         self.start_cpu_s += time.process_time() - cpu0
+        self.start_thread_cpu_s += time.thread_time() - thread0
         # The spec travels once to each worker, as the result of a task (which the scheduler can compute again if
         # the workers holding it die, unlike scattered data); a case's task is its index.
         spec = self.client.submit(Spec.from_json, self.spec.to_json(), key=f"stand-spec-{self.key}")

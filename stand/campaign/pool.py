@@ -125,7 +125,7 @@ class _LocalPool:
         self.first: dict | None = None
         #: The client's CPU time spent starting worker processes (once per campaign, and per replaced worker): not
         #: the client's work per case.
-        self.start_cpu_s = 0.0
+        self.start_cpu_s = self.start_thread_cpu_s = 0.0
 
     def results(self, tasks: list[dict]):
         """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
@@ -134,9 +134,9 @@ class _LocalPool:
         pending = deque(tasks)
         died: dict[int, list[str]] = {}
         self.first = tasks[0] if tasks else None
-        cpu0 = time.process_time()
+        cpu0, thread0 = time.process_time(), time.thread_time()
         self.slots = [_Slot(self.ctx, self.first, self.spec) for _ in range(min(self.workers, len(pending)))]
-        self.start_cpu_s += time.process_time() - cpu0
+        self._started(cpu0, thread0)
         while pending or any(s.task is not None for s in self.slots):
             self._hand_out(pending)
             watched = [s for s in self.slots if s.task is not None or not s.ready]
@@ -207,12 +207,16 @@ class _LocalPool:
                                  "(--case-timeout); its worker process was ended")
         return None
 
+    def _started(self, cpu0: float, thread0: float) -> None:
+        self.start_cpu_s += time.process_time() - cpu0
+        self.start_thread_cpu_s += time.thread_time() - thread0
+
     def _replace(self, s: _Slot, kill: bool = False) -> None:
         """A new worker process in this slot, the old one ended (killed if it still runs)."""
         s.end(kill=kill)
-        cpu0 = time.process_time()
+        cpu0, thread0 = time.process_time(), time.thread_time()
         fresh = _Slot(self.ctx, self.first, self.spec)
-        self.start_cpu_s += time.process_time() - cpu0
+        self._started(cpu0, thread0)
         s.conn, s.proc, s.task, s.queued, s.since, s.ready = fresh.conn, fresh.proc, None, None, 0.0, False
 
     def close(self, cancel: bool = False) -> None:
@@ -227,7 +231,7 @@ class _Inline:
 
     name = "inline"
     workers = 1
-    start_cpu_s = 0.0
+    start_cpu_s = start_thread_cpu_s = 0.0
 
     def __init__(self, spec=None):
         self.spec = spec

@@ -101,21 +101,24 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
                  "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
                  **({"scheduler": executor.address} if scheduler is not None else {})}
     stopped = True
-    cpu_collect = time.process_time()
+    cpu_collect, thread_collect = time.process_time(), time.thread_time()
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
     bar.show()
     try:
         _collect(executor, spec, todo, out, done, bar, execution)
         stopped = False
     finally:
+        # The client's CPU time per case while the workers run (receiving, handing out, writing, the progress line),
+        # the workers' start and end left out: its serial work per run, which bounds how many workers it can keep
+        # busy. ``client_thread_cpu_s``: this thread's alone (a Dask client's own event loop thread, and a
+        # LocalCluster's scheduler in it, are in client_cpu_s only).
+        client_cpu_s = time.process_time() - cpu_collect - executor.start_cpu_s
+        thread_cpu_s = time.thread_time() - thread_collect - executor.start_thread_cpu_s
         executor.close(cancel=stopped)
         (out / TOKEN_FILE).unlink(missing_ok=True)
         bar.show(final=True)
-        # The client's CPU time per case while the workers run (receiving, handing out, writing, the progress line),
-        # the workers' start left out: its serial work per run, which bounds how many workers it can keep busy.
-        client_cpu_s = time.process_time() - cpu_collect - executor.start_cpu_s
         execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3),
-                         client_cpu_s=round(client_cpu_s, 4))
+                         client_cpu_s=round(client_cpu_s, 4), client_thread_cpu_s=round(thread_cpu_s, 4))
         if stopped:  # campaign.json must not keep saying "running": what is recorded, counted as incomplete
             execution["stopped"] = True
             aggregate(out, runs, execution)
