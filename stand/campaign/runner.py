@@ -15,7 +15,7 @@ from .errors import CampaignError
 from .pool import WORKER_DEATHS, _Inline, _LocalPool
 from .results import aggregate
 from .spec import MAX_RUNS, Spec, validate
-from .store import TOKEN_FILE, _prepare, _write_case, finished, part_dir, write_token
+from .store import TOKEN_FILE, _prepare, _write_case, finished, part_dir, remove_parts, write_token
 from .summary_report import write_report
 
 log = logging.getLogger(__name__)
@@ -116,6 +116,7 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
         thread_cpu_s = time.thread_time() - thread_collect - executor.start_thread_cpu_s
         executor.close(cancel=stopped)
         (out / TOKEN_FILE).unlink(missing_ok=True)
+        remove_parts(out)
         bar.show(final=True)
         execution.update(runs_this_session=bar.new, wall_s=round(time.time() - t_ready, 3),
                          client_cpu_s=round(client_cpu_s, 4), client_thread_cpu_s=round(thread_cpu_s, 4))

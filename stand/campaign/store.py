@@ -138,5 +138,11 @@ def _prepare(out: Path, spec: Spec) -> None:
     (out / "dispersions.toml").write_text(spec.dispersions_text)
     if not meta.exists():
         write_json_atomic(meta, {"spec": spec.to_json(), "status": "running"})
-    for stale in (out / "cases").glob("*.part*"):
+    remove_parts(out)
+
+
+def remove_parts(out: Path) -> None:
+    """Case folders not made whole (``NNNNN.part``, a Dask worker's ``NNNNN.part.*``): what a worker that died or
+    was ended left, or a second run of a case the scheduler started twice."""
+    for stale in (Path(out) / "cases").glob("*.part*"):
         shutil.rmtree(stale, ignore_errors=True)
