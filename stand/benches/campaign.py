@@ -3,10 +3,11 @@ Dask LocalCluster (2 worker processes on 127.0.0.1).
 
 Rows: runs per minute for each; the overhead one run costs a worker beyond its loop (the ``stand.loop.run`` call),
 measured between cases on the same worker so the pool's start is not in it, plus the client's serial work per run
-(validation, writing the record), with a limit of 10 ms; the scaling from 1 to 2 workers as measured here, and
-the scaling of a 16-worker pool computed from that overhead and the run time (Amdahl, limit 0.9); the pool's
-start (once per campaign, not per run); whether the three campaigns gave identical per-run results (SHA-256 of
-each case's summary and telemetry), and whether one case re-run alone reproduces its record bit for bit.
+(receiving the record, handing out the next case, writing), with a limit of 10 ms; the scaling from 1 to 2 workers
+as measured here, and the scaling of a 16-worker pool computed from that overhead and the run time (Amdahl, limit
+0.9); the pool's start and the client's checks before the first run (once per campaign, not per run); whether
+the three campaigns gave identical per-run results (SHA-256 of each case's summary and telemetry), and whether one
+case re-run alone reproduces its record bit for bit.
 
 The full bench is 200 runs of ``STAND_BENCH_CAMPAIGN_DURATION_S`` simulated seconds each (default 600 s: 200
 runs take several minutes on two shared cores); ``--quick`` is 8 runs of the same duration.
@@ -49,10 +50,12 @@ def bench_campaign(quick: bool = False) -> list[dict]:
         rows += _scaling_rows(results, records)
         for label, r in results.items():
             rows += _overhead_rows(label, r, records[label])
-        v = results["local_1"]["execution"]["validate_s"]
-        rows.append({"name": "campaign.validation_before_first_run", "value": round(v, 2), "unit": "s",
-                     "note": f"every case's scenario parsed on the client ({1e3 * v / runs:.1f} ms per case), not "
-                             "counted in the rates above"})
+        ex1 = results["local_1"]["execution"]
+        rows.append({"name": "campaign.checks_before_first_run", "value": round(1e3 * ex1["validate_cpu_s"], 1),
+                     "unit": "ms", "note": f"CPU time ({1e3 * ex1['validate_s']:.0f} ms wall), once per campaign: the "
+                                           "dispersion file, its [[faults]], every choice's values and case 0 through "
+                                           "the scenario's validation on the client; every case is validated by its "
+                                           "worker (the parse that runs it)"})
         digests = {label: [c["digest"] for c in r["cases"]] for label, r in results.items()}
         same = all(d == digests["local_1"] for d in digests.values())
         rows.append({"name": "campaign.identical_per_run_results", "value": int(same), "unit": "",
@@ -104,22 +107,24 @@ def _steady_rate(records: list[dict]) -> float:
 
 def per_run_overhead_s(result: dict) -> tuple[float, float, float]:
     """(the mean loop time T, the worker's overhead per run o, the client's serial work per run c), s: o is
-    measured between cases on the same worker (``between_runs``), c is the validation before the first run and
-    the writing of each case's record."""
+    measured between cases on the same worker (``between_runs``), c is the client's writing of each case (the
+    rename alone where the worker wrote it; the client's other work per case is in the CPU time only)."""
     loop = result["loop_time_s"]["mean"]
     o = result["overhead_s"]["between_runs_s"].get("mean", 0.0)
-    c = result["execution"]["validate_s"] / result["runs"] + result["overhead_s"]["write_s"].get("mean", 0.0)
+    c = result["execution"]["client_write_s"]
     return loop, o, c
 
 
 def per_run_overhead_cpu_s(result: dict) -> tuple[float, float, float]:
     """The same three in CPU time (``time.process_time`` of the worker and of the client), which the other loads
     of a shared machine do not inflate: on an idle machine with a core per worker, wall time is this. o is the
-    case's CPU time in the worker beyond its loop (parse, build, summary, digest, the record)."""
+    case's CPU time in the worker beyond its loop (drawing and validating the case, build, summary, digest, writing
+    the record); c the client's CPU time while the workers run, per run (receiving, handing out, writing, the progress
+    line), the workers' start left out."""
+    ex = result["execution"]
     loop = result["loop_cpu_s"]["mean"]
-    o = result["overhead_s"]["overhead_cpu_s"].get("mean", 0.0)
-    c = (result["execution"]["validate_cpu_s"] / result["runs"]
-         + result["overhead_s"]["write_cpu_s"].get("mean", 0.0))
+    o = result["overhead_s"]["overhead_cpu_s"].get("mean", 0.0) + ex["worker_record_write_cpu_s"]
+    c = ex["client_cpu_s"] / max(1, ex["runs_this_session"])
     return loop, o, c
 
 
@@ -135,10 +140,6 @@ def _scaling_rows(results: dict, records: dict) -> list[dict]:
     loop, o, c = per_run_overhead_cpu_s(results["local_2"])
     e16 = amdahl_efficiency(loop, o, c, POOL_WORKERS)
     wall = per_run_overhead_s(results["local_2"])
-    # Without the validation before the first run (a phase of its own: the client's only work per run while the
-    # workers run is writing each record).
-    during = amdahl_efficiency(loop, o, results["local_2"]["overhead_s"]["write_cpu_s"].get("mean", 0.0),
-                               POOL_WORKERS)
     return [
         {"name": "campaign.scaling_efficiency_1_to_2", "value": round(r2["runs_per_min"] / (2 * r1["runs_per_min"]), 3),
          "unit": "", "note": "rate with 2 workers / (2 x rate with 1), pool start included; 1.0 is perfect, on 2 "
@@ -150,11 +151,11 @@ def _scaling_rows(results: dict, records: dict) -> list[dict]:
          "limit": f">= {SCALING_LIMIT:g}", "pass": e16 >= SCALING_LIMIT,
          "note": f"E(N) = T / (T + o + N c) with N = {POOL_WORKERS}, T = {loop * 1e3:.0f} ms the mean loop "
                  f"(stand.loop.run), o = {o * 1e3:.2f} ms a run's overhead on its worker, c = {c * 1e3:.2f} ms the "
-                 "client's serial work per run (validation, writing the record), CPU times of the 2-worker "
-                 f"campaign (from its wall times, inflated by this machine's load: "
-                 f"{amdahl_efficiency(*wall, POOL_WORKERS):.3f}); with c the writing of the record alone (the "
-                 f"validation before the first run left out): {during:.3f}; a 16-worker pool also starts 16 "
-                 "processes once (the pool_start rows), not counted per run"},
+                 "client's serial work per run (receiving, handing out, writing), CPU times of the 2-worker "
+                 f"campaign (from its wall times, inflated by this machine's load, c the writing alone: "
+                 f"{amdahl_efficiency(*wall, POOL_WORKERS):.3f}); each case is drawn and validated by its worker (in "
+                 "o); a 16-worker pool also starts 16 processes once (the pool_start rows) after the client's checks "
+                 "(checks_before_first_run), neither counted per run"},
     ]
 
 
@@ -163,7 +164,10 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
     _, o_cpu, c_cpu = per_run_overhead_cpu_s(r)
     total_ms = (o_cpu + c_cpu) * 1e3
     run = r["run_time_s"]["mean"]
-    parts = {k: r["overhead_s"][k].get("mean", 0.0) for k in ("build_s", "summary_s", "transfer_s", "write_s")}
+    ex = r["execution"]
+    parts = {"build": r["overhead_s"]["build_s"].get("mean", 0.0),
+             "summary": r["overhead_s"]["summary_s"].get("mean", 0.0), "record": ex["worker_record_write_cpu_s"],
+             "transfer": ex["transfer_s"], "write": ex["client_write_s"]}
     first = min(x["timing"]["worker_start"] for x in records)
     rows = [
         {"name": f"campaign.{label}.run_loop_mean", "value": round(loop, 4), "unit": "s",
@@ -171,20 +175,34 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
                  "(devices' threads, telemetry file), the rest the simulation"},
         {"name": f"campaign.{label}.overhead_per_run", "value": round(total_ms, 2), "unit": "ms",
          "limit": f"<= {OVERHEAD_LIMIT_MS:g}", "pass": total_ms <= OVERHEAD_LIMIT_MS,
-         "note": f"CPU time: the worker's {o_cpu * 1e3:.2f} ms beyond the loop (parse, build, summary, digest, the "
-                 f"record) + the client's {c_cpu * 1e3:.2f} ms (validation, writing the record). Wall time on this "
-                 f"machine's load: {o * 1e3:.1f} ms on the worker between one case's loop and the next case's start "
-                 f"(the record's way back and the next case's included) + {c * 1e3:.1f} ms on the client. The pool's "
-                 "start is in neither"},
+         "note": f"CPU time: the worker's {o_cpu * 1e3:.2f} ms beyond the loop (drawing and validating the case, "
+                 f"build, summary, digest, writing the record) + the client's {c_cpu * 1e3:.2f} ms (receiving, "
+                 f"handing out, writing). Wall time on this machine's load: {o * 1e3:.1f} ms on the worker between "
+                 f"one case's loop and the next case's start (the record's way back and the next case's included) + "
+                 f"{c * 1e3:.1f} ms on the client. The pool's start is in neither" + _client_threads(ex)},
         {"name": f"campaign.{label}.overhead_parts", "value": round(sum(parts.values()) * 1e3, 2), "unit": "ms",
-         "note": ", ".join(f"{k[:-2]} {v * 1e3:.1f} ms" for k, v in parts.items())
-         + " (means per run; build includes the parse, transfer runs from the worker's end to the client's receipt)"},
+         "note": ", ".join(f"{k} {v * 1e3:.1f} ms" for k, v in parts.items())
+         + " (means per run; build includes drawing and validating the case, record is the worker's CPU time writing "
+           "case.json (0 where the client writes it), transfer runs from the worker's end to the client's receipt, "
+           "write is the client's (the rename alone where the worker wrote the case))"},
     ]
     if label.startswith("local"):
         rows.append({"name": f"campaign.{label}.pool_start", "value": round(first - _campaign_start(r), 2),
                      "unit": "s", "note": "from the executor's start to the first case's start: spawned worker "
                                           "processes importing the stand, once per campaign"})
     return rows
+
+
+def _client_threads(ex: dict) -> str:
+    """For Dask: how much of the client's CPU time per run is its own thread's, how much the event loop thread's
+    (the Dask client's, and a LocalCluster's scheduler runs in it too)."""
+    if ex["executor"] != "dask":
+        return ""
+    n = max(1, ex["runs_this_session"])
+    own, loop = ex["client_thread_cpu_s"] / n, (ex["client_cpu_s"] - ex["client_thread_cpu_s"]) / n
+    return (f". Of the client's: its own thread {own * 1e3:.2f} ms, the event loop thread {loop * 1e3:.2f} ms (the "
+            "Dask client's, and this LocalCluster's scheduler, which runs in the client's process); the worker's "
+            "beyond the local pool's is Dask's own handling of a task in the worker process")
 
 
 def _campaign_start(result: dict) -> float:

@@ -27,16 +27,20 @@ Distributions: ``normal``, ``uniform`` (min, max; ``integer = true`` for whole n
 field, a list with one number per axis (per-axis dispersions).
 
 Values are applied to the scenario's parsed TOML dict and the result goes through ``stand.scenario.parse``, so
-every dispersed value meets the same validation as a hand-written one; all cases are validated before the
-first run starts. Case ``k`` of a campaign with seed ``S`` draws from ``numpy.random.SeedSequence((S, k))``:
-its first child seeds the run (``[scenario] seed``), the next ones the dispersions in file order, so any case
-re-runs alone and adding runs never changes the earlier ones.
+every dispersed value meets the same validation as a hand-written one: the file, every choice's values and case 0
+before the first run starts, every other case in the worker that runs it (a value the scenario refuses is that
+case's error, with the same sentence).
 
-Runs go to a local process pool or to a Dask distributed scheduler. A worker runs the case in a temporary
-folder and returns its files; the client writes them under ``DIR/cases/NNNNN/``, so workers need no shared
-file system. Finished cases (a ``case.json``) are never redone; a run that raises is recorded as an error and
-the others go on. ``aggregate`` turns the cases into ``campaign.json`` and ``write_report`` into
-``report.md`` with plots.
+Case ``k`` of a campaign with seed ``S`` draws from ``numpy.random.SeedSequence((S, k))``: its first child seeds
+the run (``[scenario] seed``), the next ones the dispersions in file order, so any case re-runs alone and adding
+runs never changes the earlier ones.
+
+Runs go to a local process pool or to a Dask distributed scheduler; a worker gets the spec once and each case as
+its index. A local worker writes its case under ``DIR/cases/NNNNN.part`` and the client renames it; a Dask
+worker does too where it sees the campaign folder, else it runs the case in a temporary folder and returns its
+files for the client to write, so workers need no shared file system. Finished cases (a ``case.json``) are
+never redone; a run that raises is recorded as an error and the others go on. ``aggregate`` turns the cases into
+``campaign.json`` and ``write_report`` into ``report.md`` with plots.
 
 The package, one job per module: ``dispersions`` (the file, dotted paths, the draws), ``spec`` (what fixes every
 case; validation), ``case`` (one run and its digest), ``pool`` (local worker processes), ``dask_executor``,

@@ -8,6 +8,7 @@ import hashlib
 import json
 import logging
 import os
+import secrets
 import shutil
 import sys
 import tempfile
@@ -20,7 +21,10 @@ from ..compose import build
 from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
+from .errors import CampaignError
 from .fault_groups import started
+from .spec import Spec, dispersions_of, parse_case
+from .store import sees_campaign, write_record
 
 log = logging.getLogger(__name__)
 
@@ -60,10 +64,19 @@ def _error_record(task: dict, reason: str, t_start: float | None = None) -> dict
 
 
 def _raised(exc: BaseException) -> str:
-    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code)."""
+    """One line for what a run raised; a SystemExit says so (its text alone is just the exit code); a
+    CampaignError (a case the scenario refuses) is the campaign's own sentence, as the command line shows it."""
+    if isinstance(exc, CampaignError):
+        return str(exc)
     if isinstance(exc, SystemExit):
         return f"SystemExit: the run's code called sys.exit({exc.code!r})"
     return f"{type(exc).__name__}: {exc}"
+
+
+def case_task(spec: Spec, index: int, **extra) -> dict:
+    """The task of case ``index`` drawn where it runs (a worker holds the spec: only the index travels), with the
+    spec, so the parse that runs it is also its validation (``parse_case``: a refused value names its dispersion)."""
+    return {**spec.case(index, dispersions_of(spec)), **extra, "spec": spec}
 
 
 def run_case(task: dict, *, interruptible: bool = False) -> dict:
@@ -75,9 +88,14 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     Anything the run raises, SystemExit and other BaseExceptions included, is recorded as an error case: a
     plug-in's ``sys.exit(0)`` must not end a campaign. ``interruptible`` (the case runs in the operator's own
     process): Ctrl-C stops the campaign instead of being recorded.
+    ``task`` is a case's (``Spec.case``, or ``case_task`` with its spec), or ``{"index": k, "spec": spec, ...}``:
+    the case is then drawn here, in its worker, and counted in its overhead.
     """
     t_start, cpu_start = time.time(), time.process_time()
-    dest = task.get("dest")
+    if "data" not in task:
+        task = case_task(task["spec"], task["index"], **{k: v for k, v in task.items() if k not in ("spec", "index")})
+    dest = _destination(task)
+    task = {**task, "dest": dest}
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
         watchdog = _watchdog(task)
@@ -100,12 +118,36 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     rec["timing"]["worker_end"] = time.time()
     # The CPU time of this process for the case beyond its loop, which a loaded machine does not inflate.
     rec["timing"]["overhead_cpu_s"] = time.process_time() - cpu_start - rec["timing"]["loop_cpu_s"]
-    return {"record": rec, "files": files, **({"dir": str(out)} if dest else {})}
+    if not dest:
+        return {"record": rec, "files": files}
+    # The record too is written where the campaign keeps the case, last, by the worker (not by the client, whose
+    # work per case no other process shares); the client's rename makes the folder count. Its CPU time travels
+    # back with the record, not in the file (it is measured once the file is written).
+    cpu_write = time.process_time()
+    try:
+        write_record(out, rec)
+    except OSError:  # the client writes it, and says so if it cannot either
+        return {"record": rec, "files": files, "dir": str(out)}
+    timing = {**rec["timing"], "record_write_cpu_s": time.process_time() - cpu_write}
+    return {"record": {**rec, "timing": timing}, "files": files, "dir": str(out), "written": True}
+
+
+def _destination(task: dict) -> str | None:
+    """Where this worker writes the case: ``dest`` (a local worker); with a ``token`` (a Dask worker), a folder of
+    its own beside ``dest`` if it sees the campaign folder (the client's machine, or a shared file system), else
+    None: a temporary folder, and the files travel back."""
+    dest, token = task.get("dest"), task.get("token")
+    if dest is None or token is None:
+        return dest
+    if not sees_campaign(dest, token):
+        return None
+    return f"{dest}.{os.getpid()}-{secrets.token_hex(4)}"  # the scheduler may run a case twice at once
 
 
 def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock: float) -> tuple[dict, dict]:
     """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
-    sc = parse(task["data"], task["source"])
+    # A case of a spec: the parse is its validation, and a value the scenario refuses names its dispersion.
+    sc = parse_case(task["spec"], task) if "spec" in task else parse(task["data"], task["source"])
     with build(sc, None, Path(task["base"])) as scene:
         t_built, cpu_built = time.time(), time.process_time()
         result = run(scene, out, progress=False)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import os
+import time
 
-from .case import _raised, run_case, warm
+from .case import _raised, case_task, run_case, warm
 from .errors import CampaignError
+from .spec import Spec
 
 #: The HTTP address of the scheduler of a Dask LocalCluster the stand starts (bench, tests): loopback, any free port.
 #: ``dashboard_address=None`` is not "none": the scheduler still serves HTTP on 8787 and warns when it is taken.
@@ -16,7 +18,7 @@ class _Dask:
 
     name = "dask"
 
-    def __init__(self, scheduler, key: str, case_timeout_s: float = 0.0):
+    def __init__(self, scheduler, spec: Spec, case_timeout_s: float = 0.0):
         try:
             from distributed import Client
         except ImportError:
@@ -26,7 +28,9 @@ class _Dask:
         except (OSError, TimeoutError) as exc:
             raise CampaignError(f"--scheduler {scheduler} is not allowed: no Dask scheduler answered there within "
                                 f"30 s ({exc}).") from None
-        self.key, self.case_timeout_s = key, case_timeout_s
+        self.spec, self.key, self.case_timeout_s = spec, spec.key, case_timeout_s
+        # The client's CPU time (the process's, this thread's) warming the workers: once per campaign, not per case.
+        self.start_cpu_s = self.start_thread_cpu_s = 0.0
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
@@ -35,8 +39,15 @@ class _Dask:
         from distributed import as_completed
 
         limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
-        self.client.run(warm, tasks[0] if tasks else None)  # every worker builds one scene before the first case
-        futures = {self.client.submit(run_case, {**t, **limit}, pure=False,
+        # Every worker builds one scene before the first case.
+        cpu0, thread0 = time.process_time(), time.thread_time()
+        self.client.run(_warm, self.spec, tasks[0]["index"] if tasks else None)
+        self.start_cpu_s += time.process_time() - cpu0
+        self.start_thread_cpu_s += time.thread_time() - thread0
+        # The spec travels once to each worker, as the result of a task (which the scheduler can compute again if
+        # the workers holding it die, unlike scattered data); a case's task is its index.
+        spec = self.client.submit(Spec.from_json, self.spec.to_json(), key=f"stand-spec-{self.key}")
+        futures = {self.client.submit(_run_case, spec, {**t, **limit}, pure=False,
                                       key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
         for f in as_completed(list(futures), loop=self.client.loop):
             index = futures.pop(f)
@@ -62,6 +73,15 @@ class _Dask:
 
     def close(self, cancel: bool = False):
         self.client.close(timeout=30)
+
+
+def _warm(spec: Spec, index: int | None) -> None:
+    warm(None if index is None else case_task(spec, index))
+
+
+def _run_case(spec: Spec, task: dict) -> dict:
+    """Case ``task["index"]`` of ``spec``, drawn and validated on its Dask worker."""
+    return run_case({**task, "spec": spec})
 
 
 class _Lost(str):

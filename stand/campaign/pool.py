@@ -6,7 +6,7 @@ from __future__ import annotations
 import pickle
 import time
 
-from .case import _error_record, _raised, run_case, warm
+from .case import _error_record, _raised, case_task, run_case, warm
 from .errors import CampaignError
 
 #: Times a case may end its worker process (os._exit, a signal, a crash) before it is recorded as an error.
@@ -15,15 +15,16 @@ WORKER_DEATHS = 2
 #: when the pickled case is at most this big: the pipe's buffer holds it, and the client never blocks on a send.
 QUEUED_BYTES = 32 << 10
 
-def _worker_main(conn, first: dict | None = None) -> None:
+def _worker_main(conn, first: dict | None = None, spec=None) -> None:
     """A local pool worker: cases from ``conn`` one at a time, each answered with its record. ``first``: a case
-    whose scene warms the process (``warm``) before it says it is ready."""
+    whose scene warms the process (``warm``) before it says it is ready. ``spec``: the campaign's, sent once: a
+    case then comes as its index (and where to write it), and is drawn and validated here, not by the client."""
     import signal
 
     # Ctrl-C goes to the whole process group; the client stops the campaign and ends its workers. A worker that
     # acted on it would record a half-run case as "stopped".
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    warm(first)
+    warm(case_task(spec, first["index"]) if spec is not None and first is not None else first)
     conn.send(("ready", None))  # a case's wall-clock limit starts when it is handed over, not before the imports
     while True:
         try:
@@ -32,11 +33,12 @@ def _worker_main(conn, first: dict | None = None) -> None:
             return
         if task is None:
             return
-        result = run_case(task)
+        result = run_case(task if spec is None else {**task, "spec": spec})
         try:
             conn.send(("result", result))
         except Exception as exc:  # noqa: BLE001 - e.g. a value that does not pickle: the case is still recorded
-            conn.send(("result", {"record": _error_record(task, f"its result could not be sent back: "
+            case = task if spec is None else case_task(spec, task["index"])
+            conn.send(("result", {"record": _error_record(case, f"its result could not be sent back: "
                                                                  f"{_raised(exc)}"), "files": {}}))
 
 
@@ -55,9 +57,9 @@ class _Slot:
     """One worker process of the local pool, the case it runs (``task``) and the one sent to run next (``queued``).
     """
 
-    def __init__(self, ctx, first: dict | None = None):
+    def __init__(self, ctx, first: dict | None = None, spec=None):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_main, args=(child, first), name="stand-campaign-worker")
+        self.proc = ctx.Process(target=_worker_main, args=(child, first, spec), name="stand-campaign-worker")
         self.proc.start()
         child.close()
         self.task: dict | None = None
@@ -113,13 +115,17 @@ class _LocalPool:
 
     name = "local"
 
-    def __init__(self, workers: int, case_timeout_s: float = 0.0, deaths: int = 2):
+    def __init__(self, workers: int, case_timeout_s: float = 0.0, deaths: int = 2, spec=None):
         import multiprocessing
 
-        self.workers, self.case_timeout_s, self.deaths = workers, case_timeout_s, deaths
+        # ``spec``: the campaign's, given to each worker once; the tasks are then indices (``case_task``).
+        self.workers, self.case_timeout_s, self.deaths, self.spec = workers, case_timeout_s, deaths, spec
         self.ctx = multiprocessing.get_context("spawn")
         self.slots: list[_Slot] = []
         self.first: dict | None = None
+        #: The client's CPU time spent starting worker processes (once per campaign, and per replaced worker): not
+        #: the client's work per case.
+        self.start_cpu_s = self.start_thread_cpu_s = 0.0
 
     def results(self, tasks: list[dict]):
         """``(index, result, None)`` for a case that ran, ``(index, None, reason)`` for one recorded as an error."""
@@ -128,12 +134,13 @@ class _LocalPool:
         pending = deque(tasks)
         died: dict[int, list[str]] = {}
         self.first = tasks[0] if tasks else None
-        self.slots = [_Slot(self.ctx, self.first) for _ in range(min(self.workers, len(pending)))]
+        cpu0, thread0 = time.process_time(), time.thread_time()
+        self.slots = [_Slot(self.ctx, self.first, self.spec) for _ in range(min(self.workers, len(pending)))]
+        self._started(cpu0, thread0)
         while pending or any(s.task is not None for s in self.slots):
             self._hand_out(pending)
             watched = [s for s in self.slots if s.task is not None or not s.ready]
-            self._wait(watched)
-            outcomes = [o for s in watched if (o := self._check(s, died, pending)) is not None]
+            outcomes = [o for s in self._wait(watched) if (o := self._check(s, died, pending)) is not None]
             self._hand_out(pending)  # before the client writes what came back
             yield from outcomes
 
@@ -149,7 +156,10 @@ class _LocalPool:
                 if not s.queue(task):
                     pending.appendleft(task)
 
-    def _wait(self, watched: list[_Slot]) -> None:
+    def _wait(self, watched: list[_Slot]) -> list[_Slot]:
+        """The slots with something to look at: an answer, an ended process, or a case over its limit (only these
+        are checked: with many workers, polling every one after each answer would be the client's work per case
+        growing with the pool)."""
         from multiprocessing.connection import wait
 
         timeout = None
@@ -157,7 +167,10 @@ class _LocalPool:
         if self.case_timeout_s and busy:
             now = time.monotonic()
             timeout = max(0.0, min(s.since + self.case_timeout_s - now for s in busy))
-        wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout)
+        ready = set(wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout))
+        now = time.monotonic()
+        return [s for s in watched if s.conn in ready or s.proc.sentinel in ready
+                or (self.case_timeout_s and s.task is not None and now - s.since >= self.case_timeout_s)]
 
     def _check(self, s: _Slot, died: dict, pending) -> tuple | None:
         if s.conn.poll():  # an answer waits (even if the process ended right after sending it)
@@ -194,10 +207,16 @@ class _LocalPool:
                                  "(--case-timeout); its worker process was ended")
         return None
 
+    def _started(self, cpu0: float, thread0: float) -> None:
+        self.start_cpu_s += time.process_time() - cpu0
+        self.start_thread_cpu_s += time.thread_time() - thread0
+
     def _replace(self, s: _Slot, kill: bool = False) -> None:
         """A new worker process in this slot, the old one ended (killed if it still runs)."""
         s.end(kill=kill)
-        fresh = _Slot(self.ctx, self.first)
+        cpu0, thread0 = time.process_time(), time.thread_time()
+        fresh = _Slot(self.ctx, self.first, self.spec)
+        self._started(cpu0, thread0)
         s.conn, s.proc, s.task, s.queued, s.since, s.ready = fresh.conn, fresh.proc, None, None, 0.0, False
 
     def close(self, cancel: bool = False) -> None:
@@ -212,10 +231,15 @@ class _Inline:
 
     name = "inline"
     workers = 1
+    start_cpu_s = start_thread_cpu_s = 0.0
+
+    def __init__(self, spec=None):
+        self.spec = spec
 
     def results(self, tasks: list[dict]):
         for task in tasks:
-            yield task["index"], run_case(task, interruptible=True), None
+            yield task["index"], run_case(task if self.spec is None else {**task, "spec": self.spec},
+                                          interruptible=True), None
 
     def close(self, cancel: bool = False):
         pass

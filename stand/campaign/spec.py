@@ -46,7 +46,7 @@ class Spec:
 
     def case(self, index: int, dispersions: Dispersions | None = None) -> dict:
         """The task of case ``index``: its scenario dict (dispersed, seeded), values and seed."""
-        disp = dispersions or self.dispersions()
+        disp = dispersions or dispersions_of(self)
         run_seed, values = case_values(disp, self.seed, index)
         # ``apply`` deep-copies: the parsed base is shared, never changed.
         data = apply(_base_dict(self.scenario_text, self.scenario_name, self.overrides), values, run_seed,
@@ -75,6 +75,12 @@ def _base_dict(text: str, name: str, overrides: tuple[str, ...]) -> dict:
     for item in overrides:
         scenario_mod.set_value(data, item)
     return data
+
+
+@functools.lru_cache(maxsize=4)
+def dispersions_of(spec: Spec) -> Dispersions:
+    """The spec's dispersion file parsed once per process (every case of a worker draws from it; never changed)."""
+    return spec.dispersions()
 
 
 def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = None,
@@ -110,17 +116,25 @@ def make_spec(scenario: str, dispersions_path: str | Path, seed: int | None = No
 def validate(spec: Spec, runs: int) -> list[dict]:
     """Every case's task, each scenario parsed before the first run; CampaignError names the dispersion and
     the case whose value the scenario refuses."""
-    disp = spec.dispersions()
+    disp = dispersions_of(spec)
     _check_each_choice(spec, disp)
     tasks = []
     for k in range(runs):
         task = spec.case(k, disp)
-        try:
-            scenario_mod.parse(json.loads(json.dumps(task["data"])), task["source"])
-        except ScenarioError as exc:
-            raise CampaignError(f"case {k}: {_culprit(spec, disp, task, exc)}") from None
+        parse_case(spec, {**task, "data": json.loads(json.dumps(task["data"]))}, disp)
         tasks.append(task)
     return tasks
+
+
+def parse_case(spec: Spec, task: dict, disp: Dispersions | None = None) -> scenario_mod.Scenario:
+    """A case's scenario through the scenario's own validation (``stand.scenario.parse``); a value it refuses is a
+    CampaignError naming the case, the dispersion that drew it and the scenario's sentence. The campaign checks
+    its first case so before anything runs, and every worker each case it runs (the parse that runs it)."""
+    try:
+        return scenario_mod.parse(task["data"], task["source"])
+    except ScenarioError as exc:
+        raise CampaignError(f"case {task['index']}: {_culprit(spec, disp or dispersions_of(spec), task, exc)}"
+                            ) from None
 
 
 def _check_each_choice(spec: Spec, disp: Dispersions) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import shutil
 import time
 from pathlib import Path
@@ -54,33 +55,69 @@ def _whole(rec, folder: str) -> bool:
             and _is_digest(rec.get("digest")))
 
 
+#: A file in the campaign folder holding this session's token: a Dask worker that reads the same token there sees the
+#: campaign folder (the client's machine, or a shared file system) and writes its case there, as a local worker does.
+TOKEN_FILE = ".workers-token"
+
+
+def write_token(out: Path) -> str:
+    token = secrets.token_hex(16)
+    (Path(out) / TOKEN_FILE).write_text(token)
+    return token
+
+
+def sees_campaign(dest: str, token: str) -> bool:
+    """Does this process see the campaign folder of the case folder ``dest`` (its token file holds ``token``)?"""
+    try:
+        return (Path(dest).parent.parent / TOKEN_FILE).read_text() == token
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
 def part_dir(out: Path, index: int) -> Path:
     """Where case ``index`` is written before it counts (renamed to ``case_dir`` once whole)."""
     final = case_dir(out, index)
     return final.with_name(final.name + ".part")
 
 
+def write_record(folder: Path, rec: dict) -> None:
+    """A case's ``case.json``, the last file of its folder."""
+    (Path(folder) / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
+
+
 def _write_case(out: Path, result: dict, received: float) -> dict:
-    """Make a case's folder whole: its files (unless the worker wrote them there already: ``dir``), then its
-    ``case.json``, then the rename that makes it count."""
+    """Make a case's folder whole: its files and its ``case.json`` (unless the worker wrote both there already:
+    ``dir`` and ``written``), then the rename that makes it count."""
     rec = result["record"]
     t0, cpu0 = time.time(), time.process_time()
     final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
-    if result.get("dir") is None or Path(result["dir"]) != part:
-        shutil.rmtree(part, ignore_errors=True)
-        part.mkdir(parents=True)
-        for name, data in result["files"].items():
-            (part / name).parent.mkdir(parents=True, exist_ok=True)
-            (part / name).write_bytes(data)
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
-    timing["write_s"] = time.time() - t0
-    timing["write_cpu_s"] = time.process_time() - cpu0
-    (part / "case.json").write_text(json.dumps(rec, indent=1, default=float) + "\n")
+    folder = Path(result["dir"]) if _beside(result.get("dir"), part) else None
+    if folder is None or not result.get("written"):
+        if folder is None:
+            folder = part
+            shutil.rmtree(part, ignore_errors=True)
+            part.mkdir(parents=True)
+            for name, data in result["files"].items():
+                (part / name).parent.mkdir(parents=True, exist_ok=True)
+                (part / name).write_bytes(data)
+        timing["write_s"] = time.time() - t0
+        timing["write_cpu_s"] = time.process_time() - cpu0
+        write_record(folder, rec)
     if final.exists():
         shutil.rmtree(final, ignore_errors=True)
-    os.replace(part, final)
+    os.replace(folder, final)
     return rec
+
+
+def _beside(folder: str | None, part: Path) -> bool:
+    """Is ``folder`` where a worker wrote this case: its ``.part`` folder, or one of the worker's own beside it
+    (``NNNNN.part.*``: a Dask worker, which the scheduler may run twice at once)?"""
+    if folder is None:
+        return False
+    p = Path(folder)
+    return p.parent == part.parent and (p.name == part.name or p.name.startswith(part.name + "."))
 
 
 def _prepare(out: Path, spec: Spec) -> None:
@@ -101,5 +138,11 @@ def _prepare(out: Path, spec: Spec) -> None:
     (out / "dispersions.toml").write_text(spec.dispersions_text)
     if not meta.exists():
         write_json_atomic(meta, {"spec": spec.to_json(), "status": "running"})
-    for stale in (out / "cases").glob("*.part"):
+    remove_parts(out)
+
+
+def remove_parts(out: Path) -> None:
+    """Case folders not made whole (``NNNNN.part``, a Dask worker's ``NNNNN.part.*``): what a worker that died or
+    was ended left, or a second run of a case the scheduler started twice."""
+    for stale in (Path(out) / "cases").glob("*.part*"):
         shutil.rmtree(stale, ignore_errors=True)

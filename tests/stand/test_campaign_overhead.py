@@ -2,6 +2,7 @@
 is written, and the proof that a case in a warm worker is the case of a fresh process."""
 
 import json
+import os
 import subprocess
 import sys
 
@@ -72,15 +73,19 @@ def test_a_case_in_a_warm_worker_is_the_case_of_a_fresh_process(tmp_path, scenar
 
 
 def test_a_local_worker_writes_the_run_once_where_the_campaign_keeps_it(tmp_path):
-    """With a ``dest`` (a worker on the client's machine) the run is written in the case's folder and only the
-    record travels back; the folder ends with the files a case always had, nothing more."""
+    """With a ``dest`` (a worker on the client's machine) the run and its record are written in the case's folder
+    and only the record travels back; the folder ends with the files a case always had, nothing more."""
     spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
     out = tmp_path / "camp"
     out.mkdir()
     task = {**spec.case(1), "dest": str(part_dir(out, 1))}
     result = cm.run_case(task)
-    assert result["files"] == {} and result["dir"] == task["dest"]
-    assert _files(part_dir(out, 1)) == set(cm.RUN_FILES)  # the run's own log and the like are not kept
+    assert result["files"] == {} and result["dir"] == task["dest"] and result["written"]
+    assert _files(part_dir(out, 1)) == CASE_FILES  # the run's own log and the like are not kept
+    # The record on disk is the one sent back, less the CPU time of its own writing (measured after it).
+    sent = json.loads(json.dumps(result["record"], default=float))
+    assert sent["timing"].pop("record_write_cpu_s") >= 0.0
+    assert json.loads((part_dir(out, 1) / "case.json").read_text()) == sent
     assert len(json.dumps(result["record"])) < 8192  # the record is what crosses the pipe
     alone = cm.run_case(spec.case(1))  # no dest: a temporary folder and the files sent back (Dask)
     assert set(alone["files"]) == set(cm.RUN_FILES)
@@ -154,3 +159,97 @@ def test_warming_a_worker_with_a_case_loads_what_its_devices_need():
             "cm.warm(task)\nprint(json.dumps([before, name in sys.modules]))\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300)
     assert json.loads(done.stdout.strip().splitlines()[-1]) == [False, True]
+
+
+# ------------------------------------------------- a case the scenario refuses, found by its worker (issue 26)
+#: The magnetometer's noise drawn from -100 to 100 nT: the scenario refuses a negative one.
+SOMETIMES_REFUSED = ('[[dispersions]]\nfield = "devices.mtq.mag_noise_nT"\ndistribution = "uniform"\nmin = -100.0\n'
+                     'max = 100.0\n')
+
+
+def _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs: int):
+    """A spec whose case 0 draws a noise the scenario takes (the campaign checks case 0 before anything runs) and
+    whose later cases draw both kinds, with the draws."""
+    path = write_scenario(scenario_dict)
+    (tmp_path / "d.toml").write_text(SOMETIMES_REFUSED)
+    for seed in range(100):  # bounded: half the draws are negative, so a few seeds do
+        spec = cm.make_spec(str(path), tmp_path / "d.toml", seed=seed, duration_s=5.0)
+        draws = [cm.case_values(spec.dispersions(), seed, k)[1]["devices.mtq.mag_noise_nT"] for k in range(runs)]
+        if draws[0] >= 0 and any(d < 0 for d in draws) and sum(d >= 0 for d in draws) >= 2:
+            return spec, draws
+    raise AssertionError("no seed below 100 draws a valid case 0 and a refused later case")
+
+
+def _check_refused_cases(out, result, draws, client_pid: int) -> None:
+    """Every case recorded; a refused one with the scenario's sentence naming the field, the value and what is
+    allowed (as the campaign's error before the first run reads), validated in a worker process, not the client."""
+    assert result["finished"] == len(draws) and result["status"] == "complete"
+    assert result["errors"] == sum(d < 0 for d in draws)
+    for k, d in enumerate(draws):
+        rec = json.loads((cm.case_dir(out, k) / "case.json").read_text())
+        assert rec["index"] == k and rec["values"]["devices.mtq.mag_noise_nT"] == d
+        assert rec["pid"] != client_pid
+        if d >= 0:
+            assert rec["status"] == "completed" and rec["digest"]
+            continue
+        assert rec["status"] == "error" and not rec["passed"] and _files(cm.case_dir(out, k)) == {"case.json"}
+        assert rec["error"].startswith(f"case {k}: dispersions[0] (devices.mtq.mag_noise_nT, uniform, in d.toml) "
+                                       f"drew {d!r}, which the scenario refuses")
+        assert f"devices[0].mag_noise_nT = {d!r} in " in rec["error"] and "a number >= 0" in rec["error"]
+        assert {c["case"]: c["error"] for c in result["failed_cases"]}[k] == rec["error"]  # in campaign.json too
+
+
+def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_local_worker(
+        scenario_dict, write_scenario, tmp_path, monkeypatch):
+    """The client checks the file, every choice and case 0 before anything runs, and no more: each case is drawn
+    and validated by the worker that runs it (its parse). A refused case is recorded with the sentence the
+    campaign gave when it validated every case itself, and the other cases run."""
+    spec, draws = _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs=4)
+    parses = []
+    real = spec_mod.scenario_mod.parse
+    monkeypatch.setattr(spec_mod.scenario_mod, "parse", lambda *a, **kw: parses.append(a) or real(*a, **kw))
+    cm.validate(spec, 1)
+    up_front = len(parses)
+    parses.clear()
+    out = tmp_path / "camp"
+    result = cm.run_campaign(spec, out, len(draws), workers=1, plots=False)
+    assert len(parses) == up_front, "the client parsed the first case only"
+    _check_refused_cases(out, result, draws, os.getpid())
+
+
+@pytest.mark.slow
+def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_dask_worker(
+        scenario_dict, write_scenario, tmp_path):
+    import distributed
+
+    spec, draws = _sometimes_refused(scenario_dict, write_scenario, tmp_path, runs=4)
+    out = tmp_path / "camp"
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
+        result = cm.run_campaign(spec, out, len(draws), scheduler=cluster.scheduler_address, plots=False)
+    _check_refused_cases(out, result, draws, os.getpid())
+
+
+def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_sends_the_files(tmp_path):
+    """A Dask worker is told where the case goes and the session's token: reading the same token in the campaign
+    folder (this machine, a shared file system), it writes the case in a folder of its own beside the case's
+    ``.part`` (the scheduler may run a case twice at once) and sends the record alone, which the client renames;
+    elsewhere it runs in a temporary folder and sends the files, as before."""
+    from stand.campaign import store
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    out.mkdir()
+    token = store.write_token(out)
+    task = {"index": 2, "spec": spec, "dest": str(part_dir(out, 2)), "token": token}
+    sent = cm.run_case({**task, "token": "0" * 32})  # a worker that does not see this folder
+    assert set(sent["files"]) == set(cm.RUN_FILES) and "dir" not in sent and not (out / "cases").exists()
+    wrote = cm.run_case(task)
+    folder = wrote["dir"]
+    assert wrote["files"] == {} and wrote["written"] and folder.startswith(str(part_dir(out, 2)) + ".")
+    assert _files(tmp_path / folder) == CASE_FILES
+    assert wrote["record"]["digest"] == sent["record"]["digest"]
+    store._write_case(out, wrote, wrote["record"]["timing"]["worker_end"])
+    assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002"]
+    assert _files(cm.case_dir(out, 2)) == CASE_FILES
+    assert (cm.case_dir(out, 2) / "telemetry/rows.f64").read_bytes() == sent["files"]["telemetry/rows.f64"]
