@@ -9,9 +9,11 @@ Runs on a local process pool (``--workers``, default 1) or on a Dask distributed
 resumes (finished cases are not redone, more runs extend the campaign). ``DIR/campaign.json`` holds pass rates
 with 95 % intervals, metric distributions and the worst cases; ``DIR/report.md`` the plots.
 ``stand run --campaign DIR --case K`` re-runs one case alone. A case that raises anything (``sys.exit`` too), ends
-its worker process twice or runs longer than ``--case-timeout`` is recorded as an error and the others go on.
+its worker process twice or runs longer than ``--case-timeout`` is recorded as an error and the others go on; so is
+a case whose draw the scenario refuses (the dispersion file, every choice and case 0 are checked before anything
+runs; each later case is checked by its worker, which parses it to run it anyway).
 Exit codes: 0 the pass rate reached --min-pass-rate (default: every run passed), 1 it did not, 2 usage or
-dispersion error, 130 stopped (finished cases kept; run again to resume).
+dispersion error found before the first run, 130 stopped (finished cases kept; run again to resume).
 """
 
 from __future__ import annotations
