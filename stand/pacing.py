@@ -38,7 +38,8 @@ from .errors import shown
 
 #: The last part of a wait spun rather than slept. Measured on a 2-core virtual machine for a bare 1 kHz loop: the
 #: sleep overshoots by 80-90 us at the median and by 1 ms or more at p99 under load in the normal scheduling class
-#: (30 us and 80 us under ``chrt -f``), so a shorter spin would make most ticks late on a machine that is not idle.
+#: (30 us and 80 us under ``chrt -f``) and beyond 95 us for a tenth of the ticks or more under load: a 100-200 us spin
+#: would leave those ticks late, on any machine that is not idle. At 1 kHz the spin costs half a core.
 SPIN_S = 0.0005
 #: Slack-time collection: at least this much time left before the deadline to start one (gen-0 collections of the
 #: 1 kHz pointing case measured 13-350 us, gen 1 up to 1.3 ms), and how many times the automatic gen-0 threshold is
