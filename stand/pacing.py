@@ -48,6 +48,8 @@ GC_SLACK_S = 0.0005
 GC_DEFER = 10
 #: Why an overrun happened (module docstring), the keys ``stats`` reports them under.
 CAUSES = ("gc", "work", "stall")
+#: The collectors a pacer has raised the thresholds of, until its ``end``.
+_COLLECTORS_HELD: list = []
 #: A paced run with more overruns than this share of its ticks is not a plain PASS: its verdict says
 #: "PASS, paced with N % overruns" (docs/architecture.md, "Pacing"); a scenario that must fail then gives an
 #: ``overruns`` criterion.
@@ -126,8 +128,11 @@ class Pacer:
         self.overruns = 0
 
     def begin(self) -> None:
-        if self.factor is not None and self.collector is not None and self._thresholds is None:
+        if self.factor is not None and self.collector is not None and self.collector not in _COLLECTORS_HELD:
+            # One pacer at a time holds a collector (two paced runs in threads of one process: the second leaves
+            # it alone, so the thresholds put back at the end are the collector's own).
             gc_ = self.collector
+            _COLLECTORS_HELD.append(gc_)
             self._thresholds = gc_.get_threshold()
             gc_.callbacks.append(self._on_gc)
             gc_.set_threshold(self._thresholds[0] * GC_DEFER, *self._thresholds[1:])
@@ -142,6 +147,7 @@ class Pacer:
             if self._on_gc in gc_.callbacks:
                 gc_.callbacks.remove(self._on_gc)
             self._thresholds = None
+            _COLLECTORS_HELD.remove(gc_)
 
     def _on_gc(self, phase: str, info: dict) -> None:
         """``gc.callbacks``: the time spent in collections."""

@@ -69,6 +69,17 @@ def test_a_paced_run_raises_the_gen0_threshold_and_end_gives_it_back():
     assert gc_.threshold == (700, 10, 10) and gc_.callbacks == []
 
 
+def test_a_second_paced_run_at_the_same_time_leaves_the_collector_to_the_first():
+    first, clock, gc_, _ = paced()
+    second = Pacer(1.0, TICK_S, clock=clock, sleep=clock.sleep, collector=gc_)
+    first.begin()
+    second.begin()
+    assert gc_.threshold == (700 * GC_DEFER, 10, 10) and gc_.callbacks == [first._on_gc]
+    first.end()
+    second.end()
+    assert gc_.threshold == (700, 10, 10) and gc_.callbacks == []
+
+
 def test_an_afap_pacer_leaves_the_collector_alone():
     clock = FakeClock()
     gc_ = FakeCollector(clock)
