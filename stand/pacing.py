@@ -17,7 +17,8 @@ overrun counts as ``gc``; time off the CPU (the process was descheduled) or a sl
 ``stall`` (the operating system, the virtual machine); what is left, the tick's own CPU time over the period, as
 ``work``. A virtual machine's stolen time looks like CPU time from inside, so a ``work`` count is an upper bound:
 ``stand bench pacing`` compares with a bare loop pacing nothing for the same time. The later ticks of the same run
-of overruns are counted under the same cause.
+of overruns are counted under the same cause, and each run once (``overrun_episodes_gc`` and so on): one stall of
+50 ms is 49 overruns but one episode.
 
 Garbage collection in slack time (paced runs the loop hands ``collector=gc``): during the run the automatic
 collector's gen-0 threshold is raised ``GC_DEFER`` times, and the pacer runs the young collection the collector
@@ -116,6 +117,7 @@ class Pacer:
         self._release_gc = 0.0
         self._streak: str | None = None  # the cause of the current run of overruns
         self.causes = dict.fromkeys(CAUSES, 0)
+        self.episodes = dict.fromkeys(CAUSES, 0)  # runs of late ticks, by the cause of their first
         self._late_hist = [0] * (FINE_BINS + COARSE_BINS)
         self._late_n = 0
         self._late_max = 0.0
@@ -179,6 +181,7 @@ class Pacer:
             if self._streak is None:
                 self._streak = self._cause(late, deadline, prev, entered, cpu - self._release_cpu,
                                            self._gc_s - self._release_gc)
+                self.episodes[self._streak] += 1
             self.causes[self._streak] += 1
         else:
             self._streak = None
@@ -255,6 +258,7 @@ class Pacer:
         out = {"paced": self.factor is not None, "speed_factor": self.factor, "overruns": self.overruns}
         if self.factor is not None:
             out.update({f"overruns_{cause}": n for cause, n in self.causes.items()})
+            out.update({f"overrun_episodes_{cause}": n for cause, n in self.episodes.items()})
         if self._late_n:
             out.update({
                 "lateness_ms_p50": round(self._late_percentile_s(50) * 1e3, 4),

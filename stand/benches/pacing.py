@@ -112,9 +112,11 @@ def _slow_rows(quick: bool) -> list[dict]:
 
 
 def causes_text(timing: dict) -> str:
-    """``N from garbage collection, N from the tick's own work, N from stalls`` from a paced run's timing."""
-    return (f"{timing.get('overruns_gc', 0)} from garbage collection, {timing.get('overruns_work', 0)} from the "
-            f"tick's own work over the period, {timing.get('overruns_stall', 0)} from stalls")
+    """``N from garbage collection (E episodes), N from the tick's own work (E), N from stalls (E)`` from a paced
+    run's timing."""
+    words = {"gc": "garbage collection", "work": "the tick's own work over the period", "stall": "stalls"}
+    return ", ".join(f"{timing.get(f'overruns_{c}', 0)} from {w} ({timing.get(f'overrun_episodes_{c}', 0)} "
+                     "episodes)" for c, w in words.items())
 
 
 def limit_of(cost_us: float, p99_ms: float, timing: dict, bare: dict | None = None) -> str:
@@ -159,7 +161,8 @@ def _fast_rows(quick: bool) -> list[dict]:
          "pass": t["overruns"] == 0, "full_only": True,
          "note": f"ticks that started more than one tick (1 ms) late: {causes_text(t)}"},
         {"name": "pacing.1kHz.bare_loop_overruns", "value": bare["overruns"], "unit": "ticks",
-         "note": (f"the control: the same pacer with no work for the same {paced_s:g} s right after (lateness p99 "
+         "note": (f"the control: the same pacer with no work for the same {paced_s:g} s right after, "
+                  f"{bare.get('overrun_episodes_stall', 0)} stall episodes (lateness p99 "
                   f"{bare.get('lateness_ms_p99')} ms, max {bare.get('lateness_ms_max')} ms): overruns the machine "
                   "gives any process that paces at 1 kHz")},
         {"name": "pacing.1kHz.period_std", "value": t.get("period_ms_std"), "unit": "ms"},

@@ -130,6 +130,7 @@ def test_work_over_the_period_on_the_cpu_counts_as_work_and_the_run_of_late_tick
         pacer.wait(k * TICK_S)
     stats = pacer.stats()
     assert (stats["overruns"], stats["overruns_work"], stats["overruns_stall"], stats["overruns_gc"]) == (2, 2, 0, 0)
+    assert stats["overrun_episodes_work"] == 1  # one run of two late ticks
 
 
 def test_time_off_the_cpu_or_a_late_wake_up_counts_as_a_stall():
@@ -139,6 +140,7 @@ def test_time_off_the_cpu_or_a_late_wake_up_counts_as_a_stall():
     clock.now += 2.5e-3  # descheduled: the wall clock moves, the thread's CPU time hardly
     cpu.now += 1e-4
     pacer.wait(1 * TICK_S)
+    pacer.wait(2 * TICK_S)  # half a tick late: the end of that run of late ticks
     late_sleep = clock.sleep
 
     def oversleep(s):
@@ -148,6 +150,7 @@ def test_time_off_the_cpu_or_a_late_wake_up_counts_as_a_stall():
     pacer.wait(5 * TICK_S)
     stats = pacer.stats()
     assert (stats["overruns"], stats["overruns_stall"], stats["overruns_work"], stats["overruns_gc"]) == (2, 2, 0, 0)
+    assert stats["overrun_episodes_stall"] == 2
 
 
 def test_a_paced_run_collects_in_slack_with_its_heap_frozen_and_gives_gc_back(scenario_dict, write_scenario,
