@@ -130,8 +130,10 @@ def limit_of(cost_us: float, p99_ms: float, timing: dict, bare: dict | None = No
     if not overruns and p99_ms < LATENESS_P99_GOAL_MS:
         return f"within the goal: {cost_us:.0f} us of work in a {budget_us:.0f} us tick"
     control = "" if bare is None else f"; the bare loop pacing nothing saw {bare.get('overruns', 0)} overruns"
-    if timing.get("overruns_gc", 0) or timing.get("overruns_work", 0):
-        return (f"the stand: of {overruns} overruns {causes_text(timing)}{control} (the tick's work fits: "
+    own = timing.get("overruns_gc", 0) + timing.get("overruns_work", 0)
+    if own:
+        return (f"the stand for at most {own} of {overruns} overruns, the machine for the rest: {causes_text(timing)}"
+                f"{control} (a virtual machine's stolen time counts as the tick's own work; the work fits: "
                 f"{cost_us:.0f} us of {budget_us:.0f} us on average)")
     return (f"the machine: the tick's work fits ({cost_us:.0f} us of {budget_us:.0f} us on average) and the "
             f"{overruns} overruns are stalls (the process descheduled or woken late){control}: an isolated core and "

@@ -26,8 +26,9 @@ def test_limit_names_the_stand_when_gc_or_its_own_work_overran_and_the_machine_o
     stand = limit_of(300.0, 0.4, {"overruns": 5, "overruns_gc": 1, "overruns_work": 2, "overruns_stall": 2,
                                   "overrun_episodes_gc": 1, "overrun_episodes_work": 1, "overrun_episodes_stall": 2},
                      {"overruns": 3})
-    assert stand.startswith("the stand: of 5 overruns 1 from garbage collection (1 episodes), 2 from the tick's own "
-                            "work over the period (1 episodes), 2 from stalls (2 episodes)")
+    assert stand.startswith("the stand for at most 3 of 5 overruns, the machine for the rest: 1 from garbage "
+                            "collection (1 episodes), 2 from the tick's own work over the period (1 episodes), 2 from "
+                            "stalls (2 episodes)")
     assert "the bare loop pacing nothing saw 3 overruns" in stand
     machine = limit_of(300.0, 0.4, {"overruns": 4, "overruns_gc": 0, "overruns_work": 0, "overruns_stall": 4},
                        {"overruns": 6})
