@@ -379,7 +379,7 @@ class _Flight:
         self.n_steps = seconds_to_ns(self.duration_s) // self.truth.step_ns
         self.events = EventLog(out_dir)
         self.recorder = Recorder(out_dir, self.columns, column_meanings(scene))
-        self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep)
+        self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep, collector=gc)  # collects in slack time
         self.bar = Progress(self.n_steps * sc.step_s, progress)
         self.devs = list(scene.devices.values())
         self.watches = [DeviceWatch(d, self.events) for d in self.devs if d.silent_after_s is not None]
@@ -575,6 +575,7 @@ def _finish(f: _Flight) -> dict:
     """Close the telemetry, log how the run ended; the devices' counters."""
     f.wall_s = f.clock() - f.wall0
     gc.unfreeze()
+    f.pacer.end()  # the collector's thresholds back
     try:
         f.recorder.close()
     except Exception as exc:  # the last rows could not be written (a TelemetryError, one sentence)

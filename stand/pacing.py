@@ -9,6 +9,23 @@ fixed-size form (a lateness histogram, running sums of the tick-to-tick period),
 length holds the same memory: 1 us bins up to 10 ms of lateness, 100 us bins up to 1 s, and the
 worst value exactly.
 
+Why a tick overran (``overruns_gc``, ``overruns_work``, ``overruns_stall`` in the stats): at the first overrun of a
+run of late ticks the pacer looks at the tick's work before it (from the previous tick's start to this wait): time
+the cyclic garbage collector spent inside it (``gc.callbacks``), the thread's own CPU time (``time.thread_time``)
+against its wall time, and whether the work ended before its deadline at all. A collection that explains the
+overrun counts as ``gc``; time off the CPU (the process was descheduled) or a sleep that woke late counts as a
+``stall`` (the operating system, the virtual machine); what is left, the tick's own CPU time over the period, as
+``work``. A virtual machine's stolen time looks like CPU time from inside, so a ``work`` count is an upper bound:
+``stand bench pacing`` compares with a bare loop pacing nothing for the same time. The later ticks of the same run
+of overruns are counted under the same cause, and each run once (``overrun_episodes_gc`` and so on): one stall of
+50 ms is 49 overruns but one episode.
+
+Garbage collection in slack time (paced runs the loop hands ``collector=gc``): during the run the automatic
+collector's gen-0 threshold is raised ``GC_DEFER`` times, and the pacer runs the young collection the collector
+would have run (gen 0, or gen 1 when gen 1 is due) at a tick's start when at least ``GC_SLACK_S`` is left before
+the deadline, so collections happen while the pacer would only have slept. A run without that slack still
+collects, automatically, at the raised threshold; ``end`` puts the thresholds back.
+
 The clock and the sleep are injected (tests drive a fake clock; the stand passes
 ``time.monotonic``); nothing in ``sim`` ever sees them.
 """
@@ -20,7 +37,20 @@ import time
 
 from .errors import shown
 
+#: The last part of a wait spun rather than slept. Measured on a 2-core virtual machine for a bare 1 kHz loop: the
+#: sleep overshoots by 80-90 us at the median and by 1 ms or more at p99 under load in the normal scheduling class
+#: (30 us and 80 us under ``chrt -f``) and beyond 95 us for a tenth of the ticks or more under load: a 100-200 us spin
+#: would leave those ticks late, on any machine that is not idle. At 1 kHz the spin costs half a core.
 SPIN_S = 0.0005
+#: Slack-time collection: at least this much time left before the deadline to start one (gen-0 collections of the
+#: 1 kHz pointing case measured 13-350 us, gen 1 up to 1.3 ms), and how many times the automatic gen-0 threshold is
+#: raised meanwhile (a run that never has the slack still collects, later).
+GC_SLACK_S = 0.0005
+GC_DEFER = 10
+#: Why an overrun happened (module docstring), the keys ``stats`` reports them under.
+CAUSES = ("gc", "work", "stall")
+#: The collectors a pacer has raised the thresholds of, until its ``end``.
+_COLLECTORS_HELD: list = []
 #: A paced run with more overruns than this share of its ticks is not a plain PASS: its verdict says
 #: "PASS, paced with N % overruns" (docs/architecture.md, "Pacing"); a scenario that must fail then gives an
 #: ``overruns`` criterion.
@@ -64,12 +94,30 @@ def parse_speed(text: str) -> float | None:
 
 
 class Pacer:
-    def __init__(self, factor: float | None, tick_s: float, clock=time.monotonic, sleep=time.sleep):
+    """Waits for each tick's deadline and keeps its statistics; ``collector`` (the ``gc`` module, or a stand-in in
+    tests) turns on slack-time collection for the run, ``thread_clock`` is the thread's CPU time for the
+    attribution of overruns."""
+
+    def __init__(self, factor: float | None, tick_s: float, clock=time.monotonic, sleep=time.sleep,
+                 collector=None, thread_clock=time.thread_time):
         self.factor = factor
         self.tick_s = tick_s
         self.clock = clock
         self.sleep = sleep
         self.start = None
+        self.period_s = tick_s / factor if factor is not None else 0.0
+        self.thread_clock = thread_clock
+        self.collector = collector
+        self._thresholds: tuple | None = None  # the collector's own, while raised
+        self._gc_s = 0.0  # time spent in collections since begin()
+        self._gc_t0 = 0.0
+        self.gc_in_slack = 0
+        # The previous tick's start: wall time, CPU time and GC time then (the attribution of an overrun).
+        self._release_cpu = 0.0
+        self._release_gc = 0.0
+        self._streak: str | None = None  # the cause of the current run of overruns
+        self.causes = dict.fromkeys(CAUSES, 0)
+        self.episodes = dict.fromkeys(CAUSES, 0)  # runs of late ticks, by the cause of their first
         self._late_hist = [0] * (FINE_BINS + COARSE_BINS)
         self._late_n = 0
         self._late_max = 0.0
@@ -82,23 +130,86 @@ class Pacer:
         self.overruns = 0
 
     def begin(self) -> None:
+        if self.factor is not None and self.collector is not None and self.collector not in _COLLECTORS_HELD:
+            # One pacer at a time holds a collector (two paced runs in threads of one process: the second leaves
+            # it alone, so the thresholds put back at the end are the collector's own).
+            gc_ = self.collector
+            _COLLECTORS_HELD.append(gc_)
+            self._thresholds = gc_.get_threshold()
+            gc_.callbacks.append(self._on_gc)
+            gc_.set_threshold(self._thresholds[0] * GC_DEFER, *self._thresholds[1:])
         self.start = self.clock()
+        self._release_cpu = self.thread_clock()
+
+    def end(self) -> None:
+        """Give the collector its thresholds back (idempotent; nothing to do for afap)."""
+        if self._thresholds is not None:
+            gc_ = self.collector
+            gc_.set_threshold(*self._thresholds)
+            if self._on_gc in gc_.callbacks:
+                gc_.callbacks.remove(self._on_gc)
+            self._thresholds = None
+            _COLLECTORS_HELD.remove(gc_)
+
+    def _on_gc(self, phase: str, info: dict) -> None:
+        """``gc.callbacks``: the time spent in collections."""
+        if phase == "start":
+            self._gc_t0 = self.clock()
+        else:
+            self._gc_s += self.clock() - self._gc_t0
 
     def wait(self, t_sim_s: float) -> None:
         """Block until the wall-clock deadline of sim time ``t_sim_s`` (no-op for afap)."""
         if self.factor is None:
             return
         deadline = self.start + t_sim_s / self.factor
-        now = self.clock()
+        entered = now = self.clock()
+        cpu = self.thread_clock()
+        if deadline - now > GC_SLACK_S and self._thresholds is not None:
+            self._collect_in_slack()
+            now = self.clock()
         if deadline - now > SPIN_S:
             self.sleep(deadline - now - SPIN_S)
         now = self.clock()
         while now < deadline:
             now = self.clock()
         late = now - deadline
+        prev = self._prev_start
         self._note(late, now)
-        if late > self.tick_s / self.factor:
+        if late > self.period_s:
             self.overruns += 1
+            if self._streak is None:
+                self._streak = self._cause(late, deadline, prev, entered, cpu - self._release_cpu,
+                                           self._gc_s - self._release_gc)
+                self.episodes[self._streak] += 1
+            self.causes[self._streak] += 1
+        else:
+            self._streak = None
+        self._release_cpu, self._release_gc = self.thread_clock(), self._gc_s
+
+    def _collect_in_slack(self) -> None:
+        """The young collection the automatic collector would run next, if enough allocations are pending: gen 1
+        when gen 1 is due, else gen 0."""
+        gc_ = self.collector
+        th0, th1, _ = self._thresholds
+        count0, count1, _ = gc_.get_count()
+        if count0 >= th0:
+            gc_.collect(1 if count1 >= th1 else 0)
+            self.gc_in_slack += 1
+
+    def _cause(self, late: float, deadline: float, prev: float | None, entered: float, work_cpu_s: float,
+               gc_s: float) -> str:
+        """Why a tick ``late`` s after its deadline overran (module docstring). Its work ran from the previous tick's
+        start ``prev`` to ``entered`` (the wait's start) and took ``work_cpu_s`` of the thread's CPU time; ``gc_s``
+        went to collections since ``prev``, in the work or in this wait."""
+        if late - gc_s <= self.period_s:
+            return "gc"
+        if prev is None or entered <= deadline:
+            return "stall"  # the work ended in time: the wake-up was late
+        off_cpu = (entered - prev) - work_cpu_s
+        if late - off_cpu <= self.period_s:
+            return "stall"
+        return "work"
 
     def _note(self, late: float, now: float) -> None:
         """Add one tick's lateness and start time to the fixed-size statistics."""
@@ -145,6 +256,9 @@ class Pacer:
 
     def stats(self) -> dict:
         out = {"paced": self.factor is not None, "speed_factor": self.factor, "overruns": self.overruns}
+        if self.factor is not None:
+            out.update({f"overruns_{cause}": n for cause, n in self.causes.items()})
+            out.update({f"overrun_episodes_{cause}": n for cause, n in self.episodes.items()})
         if self._late_n:
             out.update({
                 "lateness_ms_p50": round(self._late_percentile_s(50) * 1e3, 4),
