@@ -137,12 +137,15 @@ def test_the_bench_runs_every_integrator_a_scenario_may_choose():
 def test_rows_name_the_recommended_step_and_the_figure_is_drawn(tmp_path):
     rows = [{"name": f"x.{m}.{h}", "case": "closed_loop.demo", "method": m, "step_s": h, "value": e, "error": e,
              "wheel_speed_error": e * 1e-3, "wall_s": 1.0 / h}
-            for m, scale in (("rk4", 1.0), ("implicit_midpoint", 1e5)) for h in (0.2, 0.1)
+            for m, scale in (("rk4", 1.0), ("rkmk4", 0.1), ("implicit_midpoint", 1e5)) for h in (0.2, 0.1)
             for e in [scale * h ** 4]]
     rows.append({"name": "x.rk4.0.05", "case": "closed_loop.demo", "method": "rk4", "step_s": 0.05,
                  "value": "refused", "unit": ""})
     best = cl._recommended_row("demo", rows)
-    assert best["value"] == 0.2 and best["note"].startswith("rk4")
+    assert best["value"] == 0.2 and best["note"].startswith("rk4")  # the default, though RKMK4 is more accurate
+    far = [r for r in rows if r.get("method") != "rk4" or r["step_s"] != 0.2]
+    far += [{**r, "error": 1.0, "value": 1.0} for r in rows if r.get("method") == "rk4" and r["step_s"] == 0.2]
+    assert cl._recommended_row("demo", far)["note"].startswith("rkmk4")  # RK4 off target: the most accurate run
     path = tmp_path / "closed.png"
     cl.plot(rows, path)
     assert path.stat().st_size > 10_000
