@@ -24,6 +24,7 @@ flight code's driver.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -61,6 +62,16 @@ class ReactionWheelSpec(CanSpec):
     ideal: bool = False
 
 
+@functools.cache
+def _command_ranges() -> tuple[tuple[float, float], tuple[float, float]]:
+    """The torque (N m) and speed (rad/s) ranges the shipped DBC's commands carry. Cached: building a codec parses
+    the DBC and makes every packer, which a scenario load paid once per wheel only to read these two ranges."""
+    from drivers.reaction_wheel.codec import ReactionWheelCodec
+
+    codec = ReactionWheelCodec(0)
+    return codec.torque_range_Nm, codec.speed_range_rad_s
+
+
 class ReactionWheelKind(DeviceKind):
     name = "reaction_wheel"
     senses = ("wheel_momentum",)
@@ -73,8 +84,7 @@ class ReactionWheelKind(DeviceKind):
     plot_files = {"wheel_{name}.png": "speed, and the torques on the rotor"}
 
     def parse(self, t, base: DeviceSpec, step_s: float) -> ReactionWheelSpec:
-        from drivers.reaction_wheel.codec import ReactionWheelCodec
-        codec = ReactionWheelCodec(0)
+        torque_range_Nm, speed_range_rad_s = _command_ranges()
         interface, channel = can_endpoint(t, base)
         if t.has("spin_axis_B") and t.has("q_SB"):
             raise t.error("spin_axis_B", t.raw("spin_axis_B"), "either spin_axis_B or q_SB (whose z axis is the "
@@ -93,9 +103,9 @@ class ReactionWheelKind(DeviceKind):
                 if t.has(key):
                     raise t.error(key, t.raw(key), "no friction or lag setting with ideal = true; remove it or set "
                                   "ideal = false")
-        max_torque = t.number("max_torque_Nm", 4e-3, lo=0.0, lo_open=True, hi=codec.torque_range_Nm[1])
+        max_torque = t.number("max_torque_Nm", 4e-3, lo=0.0, lo_open=True, hi=torque_range_Nm[1])
         max_speed = t.number("max_speed_rpm", 6000.0, lo=0.0, lo_open=True,
-                             hi=codec.speed_range_rad_s[1] / RPM) * RPM
+                             hi=speed_range_rad_s[1] / RPM) * RPM
         coulomb = 0.0 if ideal else t.number("coulomb_Nm", 0.0, lo=0.0, hi=max_torque)
         static = None if ideal or not t.has("static_Nm") else t.number("static_Nm", lo=coulomb, hi=max_torque)
         spec = ReactionWheelSpec(

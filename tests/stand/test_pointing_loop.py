@@ -251,14 +251,22 @@ def test_pointing_star_tracker_points_within_its_budget(write_scenario, tmp_path
         assert result.counters[name]["host_counters"]["rejected_crc" if name != "rw0" else "rejected_other"] == 0
 
 
+#: Where the acquisition test cuts the shipped 5,800 s orbit. Measured on the whole orbit (seed 11): fine pointing
+#: from 28 s, the Sun blinds the tracker from 2,443 to 3,345 s (the Moon and the Earth enter its field only before
+#: 3,273 s), its solutions are valid again from 3,346 s, and nothing after that is more than a single gyro-only
+#: sample. The criteria over the first 3,600 s: pointing and knowledge p95 54.0 and 54.4 arcsec (<= 60; the blinding
+#: weighs more in the shorter window than the 43.6 and 43.2 of the whole orbit), 3-sigma coverage 0.9994 (>= 0.99).
+ACQUISITION_CUT_S = 3600.0
+
+
 @pytest.mark.slow
 def test_acquisition_goes_through_every_mode_in_order_and_recovers_from_the_sun_blinding(tmp_path):
-    """The shipped ``acquisition`` scenario, whole (an orbit): detumble, sun acquisition, fine pointing, in that
-    order; the tracker blinded by the Sun at least once while pointing, the filter riding it on the gyro and the
+    """The shipped ``acquisition`` scenario up to ACQUISITION_CUT_S: detumble, sun acquisition, fine pointing, in
+    that order; the tracker blinded by the Sun at least once while pointing, the filter riding it on the gyro and the
     tracker's solutions back after it; every criterion of the scenario met."""
     from stand.report import evaluate
 
-    sc = scenario.load(SCENARIO_DIR / "acquisition.toml")
+    sc = scenario.load(SCENARIO_DIR / "acquisition.toml", [f"scenario.duration_s={ACQUISITION_CUT_S}"])
     with build(sc) as scene:
         result = run(scene, tmp_path / "acq")
     assert result.status == "completed"
