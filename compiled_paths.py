@@ -17,7 +17,10 @@ nor ``stand``, and both take their hot paths from here. It imports nothing of th
 from __future__ import annotations
 
 import importlib
+import importlib.machinery
+import importlib.util
 import os
+from pathlib import Path
 from types import ModuleType
 
 #: The modules compiled where a C compiler exists, in the order they are built.
@@ -65,8 +68,25 @@ def is_compiled(module: ModuleType) -> bool:
 
 
 def active() -> dict[str, str]:
-    """Each compiled path and what this process runs for it: ``"compiled"`` or ``"python"``."""
-    return {name: "compiled" if is_compiled(load(name)) else "python" for name in MODULES}
+    """Each compiled path and what this process runs for it: ``"compiled"`` or ``"python"``.
+
+    A path the process has not loaded is reported by what :func:`load` would find, without importing it: its package
+    may be heavy and the run may not need it (a detumble never loads the star tracker's matching, whose package
+    costs 0.3 s to import)."""
+    return {name: "compiled" if (is_compiled(_chosen[name]) if name in _chosen else _twin_installed(name))
+            else "python" for name in MODULES}
+
+
+def _twin_installed(name: str) -> bool:
+    """Whether :func:`load` would take the compiled twin of ``name``: ``STAND_NATIVE`` allows it and its extension
+    file is installed (looked up in the top-level package's folders, so no package is imported)."""
+    if not native_allowed():
+        return False
+    top, *inner = twin(name).split(".")
+    spec = importlib.util.find_spec(top)
+    folders = (spec.submodule_search_locations or []) if spec is not None else []
+    return any(Path(folder, *inner[:-1], inner[-1] + suffix).is_file()
+               for folder in folders for suffix in importlib.machinery.EXTENSION_SUFFIXES)
 
 
 def summary() -> str:

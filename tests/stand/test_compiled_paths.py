@@ -54,3 +54,18 @@ def test_the_summary_records_which_paths_ran_compiled(scenario_dict, write_scena
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["compiled_paths"] == compiled_paths.active()
     assert set(summary["compiled_paths"]) == set(compiled_paths.MODULES)
+
+
+def test_the_record_imports_no_path_the_run_did_not_load_and_says_what_loading_it_would_give() -> None:
+    # A detumble never needs the star tracker's matching; its package took 0.3 s to import when the record loaded
+    # every path, which every run and every campaign case paid.
+    probe = ("import json, sys, compiled_paths; before = compiled_paths.active(); "
+             "unloaded = [n for n in compiled_paths.MODULES if n.split('.')[0] not in sys.modules]; "
+             "[compiled_paths.load(n) for n in compiled_paths.MODULES]; "
+             "print(json.dumps([before, compiled_paths.active(), unloaded]))")
+    for native in ("0", "1"):
+        out = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "STAND_NATIVE": native},
+                             capture_output=True, text=True, check=True, timeout=60)
+        before, after, unloaded = json.loads(out.stdout)
+        assert unloaded == list(compiled_paths.MODULES)  # active() imported none of them
+        assert before == after  # and said what load() then chose
