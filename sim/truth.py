@@ -53,13 +53,6 @@ CHUNK_S = 200.0
 #: Most half-step grid points in one chunk (positions, velocities and field: about 1 KB a point with the
 #: vectorised field model's temporaries). The shipped scenarios' chunks (4001 points at 0.1 s) are under it.
 CHUNK_POINTS = 8192
-#: A chunk is filled inside the tick that first needs it, so at short steps it must take a small part of a step: at
-#: 1 ms steps the 8192 points took 1.8-3.3 ms, one overrun of a 1 kHz paced run every 4.1 s. Measured here (the
-#: 1 kHz pointing case, field included): about 70 us plus 0.22 us a point, rounded up to 0.25 us; a chunk is held to
-#: a quarter of the dynamics step at that rate (1000 points, about 0.3 ms, at 1 ms). Steps of 10 ms and more (all the
-#: shipped scenarios) keep their chunks, and their bits.
-FILL_S_PER_POINT = 0.25e-6
-MIN_CHUNK_POINTS = 256  # below this the fixed cost per chunk dominates
 
 #: The attitude step and the environment's torques: compiled where the install could (compiled_paths).
 _step = compiled_paths.load("sim.body_step")
@@ -90,10 +83,8 @@ def _summed3(readers) -> Callable[[], tuple]:
 
 
 def chunk_points(half_step_s: float) -> int:
-    """Grid points in one chunk of the orbit track for a half-step of ``half_step_s``: ``CHUNK_S`` of sim time, at
-    most ``CHUNK_POINTS``, and at short steps no more than one tick can fill in a quarter of its step."""
-    within_a_tick = max(MIN_CHUNK_POINTS, int(0.25 * 2.0 * half_step_s / FILL_S_PER_POINT))
-    return min(CHUNK_POINTS, within_a_tick, max(2, int(round(CHUNK_S / half_step_s))))
+    """Grid points in one chunk of the orbit track for a half-step of ``half_step_s``."""
+    return min(CHUNK_POINTS, max(2, int(round(CHUNK_S / half_step_s))))
 
 
 #: ``dcm(q) @ v`` on float tuples (v_N -> v_B for q = q_BN), without building the matrix.

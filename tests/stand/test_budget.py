@@ -13,7 +13,6 @@ from stand import compose, scenario
 from stand.cli import main
 from stand.errors import ScenarioError
 from stand.loop import columns
-from stand.scenario.files import shipped
 
 
 def track(half_step_ns):
@@ -36,28 +35,6 @@ def test_orbit_track_memory_does_not_grow_with_a_smaller_step():
     coarse = track(50_000_000)
     p_coarse = coarse.position(2)  # t = 0.1 s on the 0.05 s grid: the same Hermite interpolant
     assert np.allclose(p_fine, p_coarse, rtol=0, atol=1e-6)
-
-
-def test_at_1_ms_steps_a_chunk_fits_a_quarter_tick_and_the_shipped_steps_keep_their_chunks():
-    # The 1 kHz paced case: one chunk is filled inside one tick, so it is held to a quarter of the 1 ms step at the
-    # measured fill rate (8192 points took 1.8-3.3 ms: an overrun every 4.1 s of a paced run).
-    n = truth_mod.chunk_points(0.0005)
-    assert n == 1000 and n * truth_mod.FILL_S_PER_POINT <= 0.25e-3
-    for name in shipped():
-        half = scenario.load(scenario.SCENARIO_DIR / f"{name}.toml").step_s / 2
-        assert truth_mod.chunk_points(half) == min(truth_mod.CHUNK_POINTS, round(truth_mod.CHUNK_S / half)), name
-
-
-def test_the_chunk_length_leaves_positions_and_velocities_unchanged_to_the_bit(monkeypatch):
-    # The orbit nodes carry over from chunk to chunk and the Hermite interpolant is per point, so the same grid
-    # point gets the same bits whether its chunk holds 1000 points or 8192.
-    got = []
-    for cap in (8192, 1000):
-        monkeypatch.setattr(truth_mod, "CHUNK_POINTS", cap)
-        monkeypatch.setattr(truth_mod, "FILL_S_PER_POINT", 1e-12)  # the cap alone decides here
-        t = track(500_000)  # 1 ms steps
-        got.append([(t.position(i), t.velocity(i)) for i in range(0, 30_000, 7)])
-    assert got[0] == got[1]
 
 
 def test_short_chunks_reuse_the_orbit_nodes():
