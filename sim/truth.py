@@ -97,6 +97,20 @@ def compose_floats(q_CB, q_BN):
     return (w, x, y, z) if w >= 0.0 else (-w, -x, -y, -z)
 
 
+class _ChunkBuild:
+    """A chunk of the orbit track under construction: half-step indices ``start`` to ``start + n_points - 1``,
+    sim times ``t_start`` to ``t_end`` (s), the orbit nodes it interpolates, and its first ``done`` points."""
+
+    __slots__ = ("start", "n_points", "t_start", "t_end", "nodes", "done", "pos", "vel", "field")
+
+    def __init__(self, start: int, n_points: int, t_start: float, t_end: float, nodes: tuple):
+        self.start, self.n_points, self.t_start, self.t_end, self.nodes = start, n_points, t_start, t_end, nodes
+        self.done = 0
+        self.pos: list = []
+        self.vel: list = []
+        self.field: list = []
+
+
 class OrbitTrack:
     """Orbit positions and (optionally) the inertial field on the dynamics half-step grid."""
 
@@ -122,21 +136,64 @@ class OrbitTrack:
         self._field: list = []
         self._nodes: tuple | None = None  # (t, r, v) of the latest propagation, reused while they reach far enough
         self.evaluations = 0  # field points evaluated (tests prove left-out models stay at 0)
+        self._ahead: _ChunkBuild | None = None  # the next chunk, built piece by piece in a paced run's slack
+        self._ahead_failed = False  # building ahead raised: the chunks are computed when read, as without pacing
 
     def _fill(self, idx: int) -> None:
-        """Compute the chunk that contains half-step index ``idx``."""
+        """Compute the chunk that contains half-step index ``idx`` (finishing the one built ahead if it is that one)."""
+        per_chunk = chunk_points(self.half_step_ns / NS_PER_S)
+        start = (idx // per_chunk) * per_chunk
+        build = self._ahead
+        self._ahead = None
+        if build is None or build.start != start:
+            build = self._begin(start)
+        self._extend(build, build.n_points)
+        self._commit(build)
+
+    def work_ahead(self, n_points: int) -> int:
+        """Up to ``n_points`` more points of the next chunk, so a paced run computes it in the slack of the ticks
+        before it is needed rather than all in the tick that first reads it (``stand.pacing.Pacer``, which sizes
+        ``n_points`` to the slack). The points are bit-identical to a chunk computed whole. Returns the points done,
+        0 when the next chunk is complete (or building ahead failed: the read that needs the chunk then computes it,
+        and raises what it raises, as in a run that is not paced)."""
+        if self._chunk_len == 0 or self._ahead_failed:
+            return 0  # nothing read yet: the first chunk comes with the first read
+        build = self._ahead
+        if build is not None and build.done == build.n_points:
+            return 0
+        try:
+            if build is None:
+                build = self._ahead = self._begin(self._chunk_start_idx + self._chunk_len - 1)
+            before = build.done
+            self._extend(build, max(1, int(n_points)))
+            return build.done - before
+        except Exception:  # noqa: BLE001 - see the docstring: the same error comes from the read, where it belongs
+            self._ahead, self._ahead_failed = None, True
+            return 0
+
+    def _begin(self, start: int) -> "_ChunkBuild":
+        """The chunk from half-step index ``start``: its orbit nodes, propagated on from the current chunk's last
+        node when the ones kept do not reach its end."""
         h_half = self.half_step_ns / NS_PER_S
         per_chunk = chunk_points(h_half)
-        start = (idx // per_chunk) * per_chunk
         t_start = start * h_half
         t_end = (start + per_chunk) * h_half
-        # Propagate from wherever the orbit state is to cover [t_start, t_end].
         if t_start < self._t0_s - 1e-9:
             raise RuntimeError("the orbit track only runs forward in time.")
-        if self._nodes is None or self._nodes[0][-1] < t_end - 1e-9:
-            self._nodes = self._propagate(t_end)
-        t, r, v = self._nodes
-        ts = (np.arange(start, start + per_chunk + 1) * h_half)
+        nodes = self._nodes
+        if nodes is None or nodes[0][-1] < t_end - 1e-9:
+            nodes = self._propagate(t_end)
+        return _ChunkBuild(start, per_chunk + 1, t_start, t_end, nodes)
+
+    def _extend(self, build: "_ChunkBuild", n: int) -> None:
+        """The chunk's next ``n`` points (or fewer, at its end): Hermite interpolation between the orbit nodes, the
+        field where there is one. Every step is element by element, so the points do not depend on ``n``."""
+        i0 = build.done
+        i1 = min(build.n_points, i0 + n)
+        if i1 <= i0:
+            return
+        t, r, v = build.nodes
+        ts = np.arange(build.start + i0, build.start + i1) * (self.half_step_ns / NS_PER_S)
         k = np.clip(np.searchsorted(t, ts, side="right") - 1, 0, len(t) - 2)
         H = t[k + 1] - t[k]
         s = ((ts - t[k]) / H)[:, None]
@@ -151,17 +208,23 @@ class OrbitTrack:
         d01 = (-6 * s**2 + 6 * s) / Hc
         d11 = 3 * s**2 - 2 * s
         vel = d00 * r[k] + d10 * v[k] + d01 * r[k + 1] + d11 * v[k + 1]
-        # Next chunk continues from the last orbit node at or before t_end (not from the
-        # interpolant), so interpolation error never feeds back into the orbit.
-        last = int(np.searchsorted(t, t_end + 1e-9, side="right") - 1)
-        self._r, self._v, self._t0_s = r[last], v[last], float(t[last])
-        self._chunk_start_idx = start
-        self._chunk_len = per_chunk + 1
-        self._pos = pos.ravel().tolist()
-        self._vel = vel.ravel().tolist()
+        build.pos += pos.ravel().tolist()
+        build.vel += vel.ravel().tolist()
         if self.field_N is not None:
-            self._field = self.field_N(ts, pos).ravel().tolist()
+            build.field += self.field_N(ts, pos, build.t_start).ravel().tolist()
             self.evaluations += len(ts)
+        build.done = i1
+
+    def _commit(self, build: "_ChunkBuild") -> None:
+        """Make a complete chunk the current one."""
+        t, r, v = self._nodes = build.nodes
+        # Next chunk continues from the last orbit node at or before the chunk's end (not from the
+        # interpolant), so interpolation error never feeds back into the orbit.
+        last = int(np.searchsorted(t, build.t_end + 1e-9, side="right") - 1)
+        self._r, self._v, self._t0_s = r[last], v[last], float(t[last])
+        self._chunk_start_idx = build.start
+        self._chunk_len = build.n_points
+        self._pos, self._vel, self._field = build.pos, build.vel, build.field
 
     def _propagate(self, t_end: float) -> tuple:
         """Orbit nodes at the orbit step from the current node to at least ``t_end``."""
@@ -240,12 +303,12 @@ class TruthModel:
                 raise ValueError("a field model in Earth-fixed axes needs an earth_rotation model.")
             rot = earth_rotation
 
-            def field_N(ts, pos):
+            def field_N(ts, pos, t_chunk_s):
                 C = rot.dcm_itrs_gcrs(ts)
                 r_itrs = np.einsum("nij,nj->ni", C, pos)
                 # The field model's slow time dependence (secular variation, ~0.3 nT a day) is
-                # taken at the chunk's start.
-                return np.einsum("nji,nj->ni", C, field_itrs(float(ts[0]), r_itrs))
+                # taken at the chunk's start, whichever piece of the chunk this is.
+                return np.einsum("nji,nj->ni", C, field_itrs(float(t_chunk_s), r_itrs))
 
         self.track = OrbitTrack(r_N, v_N, gravity=gravity, orbit_step_s=orbit_step_s,
                                 half_step_ns=self.step_ns // 2, field_N=field_N, forces=forces)

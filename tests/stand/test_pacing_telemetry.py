@@ -37,14 +37,35 @@ def test_overruns_are_counted_and_do_not_accumulate():
     pacer = Pacer(1.0, 0.1, clock=clock, sleep=clock.sleep)
     pacer.begin()
     pacer.wait(0.0)
+    pacer.wait(0.1)
     clock.now += 0.35  # a stall of 3.5 ticks
-    for k in range(1, 10):
+    for k in range(2, 11):
         pacer.wait(k * 0.1)
         clock.now += 0.001
     stats = pacer.stats()
-    assert stats["overruns"] == 2  # ticks 1 and 2 started more than one tick (0.1 s) late; tick 3 only 0.05 s
-    assert clock.now == pytest.approx(100.9 + 0.001, abs=1e-3)  # back on the absolute schedule
+    assert stats["overruns"] == 2  # ticks 2 and 3 started more than one tick (0.1 s) late; tick 4 only 0.05 s
+    assert clock.now == pytest.approx(101.0 + 0.001, abs=1e-3)  # back on the absolute schedule
     assert stats["lateness_ms_max"] == pytest.approx(250.0, abs=1.0)
+
+
+def test_a_first_tick_over_its_period_moves_the_clock_s_zero_not_the_later_deadlines():
+    """The first tick is the run's start-up: its 0.35 s over a 0.1 s period moves the schedule by 0.25 s and is
+    reported; a later stall does not move it."""
+    clock = FakeClock()
+    pacer = Pacer(1.0, 0.1, clock=clock, sleep=clock.sleep)
+    pacer.begin()
+    pacer.wait(0.0)
+    clock.now += 0.35
+    pacer.wait(0.1)
+    assert pacer.stats()["startup_ms"] == pytest.approx(250.0, abs=0.1)
+    assert pacer.stats()["overruns"] == 0 and pacer.stats()["lateness_ms_max"] < 0.1  # the fake clock's readings
+    t1 = clock.now
+    pacer.wait(0.2)
+    assert clock.now == pytest.approx(t1 + 0.1, abs=1e-3)
+    clock.now += 0.35
+    pacer.wait(0.3)
+    stats = pacer.stats()
+    assert stats["overruns"] == 1 and stats["startup_ms"] == pytest.approx(250.0, abs=0.1)
 
 
 @pytest.mark.parametrize("text, factor", [("afap", None), ("realtime", 1.0), ("2.5", 2.5)])
