@@ -47,8 +47,10 @@ class _Dask:
         # The spec travels once to each worker, as the result of a task (which the scheduler can compute again if
         # the workers holding it die, unlike scattered data); a case's task is its index.
         spec = self.client.submit(Spec.from_json, self.spec.to_json(), key=f"stand-spec-{self.key}")
-        futures = {self.client.submit(_run_case, spec, {**t, **limit}, pure=False,
-                                      key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
+        # All cases in one graph message (``map``): one update for the scheduler, not one per case.
+        keys = [f"stand-case-{self.key}-{t['index']}" for t in tasks]
+        mapped = self.client.map(_run_case, [spec] * len(tasks), [{**t, **limit} for t in tasks], key=keys, pure=False)
+        futures = {f: t["index"] for f, t in zip(mapped, tasks, strict=True)}
         for f in as_completed(list(futures), loop=self.client.loop):
             index = futures.pop(f)
             yield (index, *self._outcome(f))
