@@ -256,10 +256,18 @@ def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_se
 
 
 @pytest.mark.slow
-def test_a_dask_campaign_sends_its_cases_to_the_scheduler_in_one_graph_update(tmp_path):
+@pytest.mark.parametrize("per_message, messages", [(None, 1), (2, 2)])
+def test_a_dask_campaign_sends_its_cases_to_the_scheduler_in_one_graph_update(tmp_path, monkeypatch, per_message,
+                                                                              messages):
     """The client hands the scheduler every case in one message (and the spec in one before), not one per case:
-    what the client and the scheduler do per case is the answer alone. The scheduler sees each update_graph."""
+    what the client and the scheduler do per case is the answer alone; a campaign bigger than CASES_PER_MESSAGE
+    (here made 2) goes in messages of that many, each case in one. The scheduler sees each update_graph."""
     import distributed
+
+    from stand.campaign import dask_executor
+
+    if per_message is not None:
+        monkeypatch.setattr(dask_executor, "CASES_PER_MESSAGE", per_message)
     from distributed.diagnostics.plugin import SchedulerPlugin
 
     class Updates(SchedulerPlugin):
@@ -278,8 +286,9 @@ def test_a_dask_campaign_sends_its_cases_to_the_scheduler_in_one_graph_update(tm
         result = cm.run_campaign(spec, tmp_path / "camp", runs, scheduler=cluster.scheduler_address, plots=False)
     assert result["status"] == "complete" and result["runs"] == runs
     cases = [k for k in updates.keys if any(key.startswith("stand-case-") for key in k)]
-    assert len(cases) == 1, f"the cases came in {len(cases)} graph updates"
-    assert cases[0] == {f"stand-case-{spec.key}-{k}" for k in range(runs)}
+    assert len(cases) == messages, f"the cases came in {len(cases)} graph updates"
+    keys = [key for update in cases for key in update if key.startswith("stand-case-")]
+    assert sorted(keys) == sorted(f"stand-case-{spec.key}-{k}" for k in range(runs))
 
 
 @pytest.mark.slow
