@@ -6,9 +6,9 @@ Rows: runs per minute for each; the overhead one run costs a worker beyond its l
 measured between cases on the same worker so the pool's start is not in it, plus the client's serial work per run
 (receiving the record, handing out the next case, writing), with a limit of 10 ms; the scaling from 1 to 2 workers
 as measured here, and the scaling of a 16-worker pool computed from that overhead and the run time (Amdahl, limit
-0.9); the pool's start and the client's checks before the first run (once per campaign, not per run); whether
-the three campaigns gave identical per-run results (SHA-256 of each case's summary and telemetry), and whether one
-case re-run alone reproduces its record bit for bit.
+0.9); for Dask, the CPU time of the cluster's own process per run; the pool's start and the client's checks
+before the first run (once per campaign, not per run); whether the three campaigns gave identical per-run results
+(SHA-256 of each case's summary and telemetry), and whether one case re-run alone reproduces its record bit for bit.
 
 The full bench is 200 runs of ``STAND_BENCH_CAMPAIGN_DURATION_S`` simulated seconds each (default 600 s: 200
 runs take several minutes on two shared cores); ``--quick`` is 8 runs of the same duration.
@@ -118,10 +118,14 @@ class _ClusterProcess:
                                 name="stand-bench-dask-cluster")
         self.proc.start()
         child.close()
-        if not self.conn.poll(120.0):
+        try:
+            self.address = self.conn.recv() if self.conn.poll(120.0) else None
+        except EOFError:  # the process ended before its cluster answered
+            self.address = None
+        if self.address is None:
             self.close()
-            raise RuntimeError("the bench's Dask LocalCluster did not start within 120 s")
-        self.address = self.conn.recv()
+            raise RuntimeError(f"the bench's Dask LocalCluster did not start within 120 s (its process: "
+                               f"{'still running' if self.proc.is_alive() else f'exit code {self.proc.exitcode}'})")
 
     def cpu_s(self) -> float:
         """The cluster process's CPU time so far (the scheduler's and the nannies'), s."""
