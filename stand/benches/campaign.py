@@ -1,13 +1,14 @@
 """``stand bench campaign``: a detumble campaign with the shipped dispersions, on 1 and 2 local workers and on a
-Dask LocalCluster (2 worker processes on 127.0.0.1).
+Dask LocalCluster (2 worker processes on 127.0.0.1) that runs in a process of its own, as a cluster does for
+``stand campaign --scheduler ADDRESS``: its scheduler and nannies are not counted as the client's work.
 
 Rows: runs per minute for each; the overhead one run costs a worker beyond its loop (the ``stand.loop.run`` call),
 measured between cases on the same worker so the pool's start is not in it, plus the client's serial work per run
 (receiving the record, handing out the next case, writing), with a limit of 10 ms; the scaling from 1 to 2 workers
 as measured here, and the scaling of a 16-worker pool computed from that overhead and the run time (Amdahl, limit
-0.9); the pool's start and the client's checks before the first run (once per campaign, not per run); whether
-the three campaigns gave identical per-run results (SHA-256 of each case's summary and telemetry), and whether one
-case re-run alone reproduces its record bit for bit.
+0.9); for Dask, the CPU time of the cluster's own process per run; the pool's start and the client's checks
+before the first run (once per campaign, not per run); whether the three campaigns gave identical per-run results
+(SHA-256 of each case's summary and telemetry), and whether one case re-run alone reproduces its record bit for bit.
 
 The full bench is 200 runs of ``STAND_BENCH_CAMPAIGN_DURATION_S`` simulated seconds each (default 600 s: 200
 runs take several minutes on two shared cores); ``--quick`` is 8 runs of the same duration.
@@ -83,19 +84,93 @@ def _campaigns(cm, spec, runs: int, tmp: Path) -> tuple[dict, dict, dict]:
         results[label] = cm.run_campaign(spec, tmp / label, runs, plots=False, **kw)
         load[label] = (before, os.getloadavg()[0])
     try:
-        from distributed import LocalCluster
+        import distributed  # noqa: F401 - only whether it is there
     except ImportError:
-        LocalCluster = None
-    if LocalCluster is not None:
+        pass
+    else:
         before = os.getloadavg()[0]
-        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:  # never port 8787
-            results["dask_2"] = cm.run_campaign(spec, tmp / "dask_2", runs, plots=False,
-                                                scheduler=cluster.scheduler_address)
+        with _ClusterProcess(workers=2) as cluster:
+            idle_ms_s = cluster.idle_cpu_ms_per_s()
+            cpu0 = cluster.cpu_s()
+            results["dask_2"] = cm.run_campaign(spec, tmp / "dask_2", runs, plots=False, scheduler=cluster.address)
+            results["dask_2"]["execution"]["cluster_process"] = {"cpu_s": cluster.cpu_s() - cpu0,
+                                                                 "idle_cpu_ms_per_s": idle_ms_s}
         load["dask_2"] = (before, os.getloadavg()[0])
     for label in results:
         records[label] = list(cm.finished(tmp / label).values())
     return results, load, records
+
+
+class _ClusterProcess:
+    """A Dask LocalCluster (``workers`` worker processes of one thread, on 127.0.0.1) in a process of its own, as
+    ``stand campaign --scheduler ADDRESS`` meets a cluster: the scheduler and the workers' nannies are not in the
+    client's process, whose CPU time is then the client's alone (``client_cpu_s``). The cluster's own CPU time is
+    asked for over a pipe; the process ends its cluster when the pipe closes (this process ended, or ``close``)."""
+
+    def __init__(self, workers: int):
+        import multiprocessing
+
+        from stand.campaign import DASK_HTTP_ADDRESS
+
+        ctx = multiprocessing.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_cluster_main, args=(child, workers, DASK_HTTP_ADDRESS),
+                                name="stand-bench-dask-cluster")
+        self.proc.start()
+        child.close()
+        try:
+            self.address = self.conn.recv() if self.conn.poll(120.0) else None
+        except EOFError:  # the process ended before its cluster answered
+            self.address = None
+        if self.address is None:
+            self.close()
+            raise RuntimeError(f"the bench's Dask LocalCluster did not start within 120 s (its process: "
+                               f"{'still running' if self.proc.is_alive() else f'exit code {self.proc.exitcode}'})")
+
+    def cpu_s(self) -> float:
+        """The cluster process's CPU time so far (the scheduler's and the nannies'), s."""
+        self.conn.send("cpu")
+        return self.conn.recv()
+
+    def idle_cpu_ms_per_s(self, wait_s: float = 1.0) -> float:
+        """The cluster process's CPU time per second of wall time while no case runs (its periodic work), ms/s,
+        after as long again for its start to settle."""
+        import time
+
+        time.sleep(wait_s)
+        cpu0, t0 = self.cpu_s(), time.monotonic()
+        time.sleep(wait_s)
+        return 1e3 * (self.cpu_s() - cpu0) / (time.monotonic() - t0)
+
+    def close(self) -> None:
+        self.conn.close()
+        self.proc.join(60.0)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _cluster_main(conn, workers: int, http_address: str) -> None:
+    """The cluster process of ``_ClusterProcess``: answers "cpu" with its CPU time until the pipe closes."""
+    import time
+
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=http_address) as cluster:  # never port 8787
+        conn.send(cluster.scheduler_address)
+        while True:
+            try:
+                conn.recv()
+            except (EOFError, OSError):
+                return
+            conn.send(time.process_time())
 
 
 def _steady_rate(records: list[dict]) -> float:
@@ -186,6 +261,7 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
            "case.json (0 where the client writes it), transfer runs from the worker's end to the client's receipt, "
            "write is the client's (the rename alone where the worker wrote the case))"},
     ]
+    rows += _cluster_row(label, r)
     if label.startswith("local"):
         rows.append({"name": f"campaign.{label}.pool_start", "value": round(first - _campaign_start(r), 2),
                      "unit": "s", "note": "from the executor's start to the first case's start: spawned worker "
@@ -194,15 +270,33 @@ def _overhead_rows(label: str, r: dict, records: list[dict]) -> list[dict]:
 
 
 def _client_threads(ex: dict) -> str:
-    """For Dask: how much of the client's CPU time per run is its own thread's, how much the event loop thread's
-    (the Dask client's, and a LocalCluster's scheduler runs in it too)."""
+    """For Dask: how much of the client's CPU time per run is its own thread's, how much its event loop thread's."""
     if ex["executor"] != "dask":
         return ""
     n = max(1, ex["runs_this_session"])
     own, loop = ex["client_thread_cpu_s"] / n, (ex["client_cpu_s"] - ex["client_thread_cpu_s"]) / n
-    return (f". Of the client's: its own thread {own * 1e3:.2f} ms, the event loop thread {loop * 1e3:.2f} ms (the "
-            "Dask client's, and this LocalCluster's scheduler, which runs in the client's process); the worker's "
-            "beyond the local pool's is Dask's own handling of a task in the worker process")
+    return (f". Of the client's: its own thread {own * 1e3:.2f} ms, the Dask client's event loop thread "
+            f"{loop * 1e3:.2f} ms (the scheduler and the nannies run in the cluster's own process: the "
+            "cluster_process_cpu row); the worker's beyond the local pool's is Dask's own handling of a task in the "
+            "worker process")
+
+
+def _cluster_row(label: str, r: dict) -> list[dict]:
+    """The CPU time of the Dask cluster's own process (scheduler and nannies) per run, and how much of it is its
+    periodic work, which runs whether cases run or not."""
+    cluster = r["execution"].get("cluster_process")
+    if cluster is None:
+        return []
+    n = max(1, r["execution"]["runs_this_session"])
+    per_run_s = cluster["cpu_s"] / n
+    periodic_s = cluster["idle_cpu_ms_per_s"] * r["execution"]["wall_s"] / n / 1e3
+    note = (f"CPU time of the LocalCluster's own process (the Dask scheduler and the {r['execution']['workers']} "
+            "workers' nannies) during the campaign, per run, the workers' warming included; not the client's. Its "
+            f"periodic work alone is {cluster['idle_cpu_ms_per_s']:.1f} ms per second of wall time (measured for 1 s "
+            f"before the campaign), {periodic_s * 1e3:.1f} ms per run at this campaign's pace. A deployment runs the "
+            "scheduler apart from the client and each nanny beside its worker")
+    return [{"name": f"campaign.{label}.cluster_process_cpu_per_run", "value": round(per_run_s * 1e3, 2),
+             "unit": "ms", "note": note}]
 
 
 def _campaign_start(result: dict) -> float:

@@ -12,6 +12,9 @@ from .spec import Spec
 #: The HTTP address of the scheduler of a Dask LocalCluster the stand starts (bench, tests): loopback, any free port.
 #: ``dashboard_address=None`` is not "none": the scheduler still serves HTTP on 8787 and warns when it is taken.
 DASK_HTTP_ADDRESS = "127.0.0.1:0"
+#: Cases per graph message to the scheduler: a case's task is about 135 bytes, so a message stays near 0.5 MB, under
+#: Dask's large-graph warning (10 MB, which 100 000 cases in one message would pass).
+CASES_PER_MESSAGE = 4096
 
 class _Dask:
     """Tasks on a Dask distributed scheduler (``--scheduler ADDRESS``) or a cluster object handed in."""
@@ -47,8 +50,11 @@ class _Dask:
         # The spec travels once to each worker, as the result of a task (which the scheduler can compute again if
         # the workers holding it die, unlike scattered data); a case's task is its index.
         spec = self.client.submit(Spec.from_json, self.spec.to_json(), key=f"stand-spec-{self.key}")
-        futures = {self.client.submit(_run_case, spec, {**t, **limit}, pure=False,
-                                      key=f"stand-case-{self.key}-{t['index']}"): t["index"] for t in tasks}
+        # The cases in as few graph messages as fit (``map``): one update for the scheduler, not one per case.
+        keys = [f"stand-case-{self.key}-{t['index']}" for t in tasks]
+        mapped = self.client.map(_run_case, [spec] * len(tasks), [{**t, **limit} for t in tasks], key=keys, pure=False,
+                                 batch_size=CASES_PER_MESSAGE)
+        futures = {f: t["index"] for f, t in zip(mapped, tasks, strict=True)}
         for f in as_completed(list(futures), loop=self.client.loop):
             index = futures.pop(f)
             yield (index, *self._outcome(f))

@@ -253,3 +253,59 @@ def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_se
     assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002"]
     assert _files(cm.case_dir(out, 2)) == CASE_FILES
     assert (cm.case_dir(out, 2) / "telemetry/rows.f64").read_bytes() == sent["files"]["telemetry/rows.f64"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("per_message, messages", [(None, 1), (2, 2)])
+def test_a_dask_campaign_sends_its_cases_to_the_scheduler_in_one_graph_update(tmp_path, monkeypatch, per_message,
+                                                                              messages):
+    """The client hands the scheduler every case in one message (and the spec in one before), not one per case:
+    what the client and the scheduler do per case is the answer alone; a campaign bigger than CASES_PER_MESSAGE
+    (here made 2) goes in messages of that many, each case in one. The scheduler sees each update_graph."""
+    import distributed
+
+    from stand.campaign import dask_executor
+
+    if per_message is not None:
+        monkeypatch.setattr(dask_executor, "CASES_PER_MESSAGE", per_message)
+    from distributed.diagnostics.plugin import SchedulerPlugin
+
+    class Updates(SchedulerPlugin):
+        def __init__(self):
+            self.keys: list[set] = []
+
+        def update_graph(self, scheduler, *, keys, **kwargs):
+            self.keys.append({str(k) for k in keys})
+
+    runs = 4
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    updates = Updates()
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
+        cluster.scheduler.add_plugin(updates, name="stand-test-updates")
+        result = cm.run_campaign(spec, tmp_path / "camp", runs, scheduler=cluster.scheduler_address, plots=False)
+    assert result["status"] == "complete" and result["runs"] == runs
+    cases = [k for k in updates.keys if any(key.startswith("stand-case-") for key in k)]
+    assert len(cases) == messages, f"the cases came in {len(cases)} graph updates"
+    keys = [key for update in cases for key in update if key.startswith("stand-case-")]
+    assert sorted(keys) == sorted(f"stand-case-{spec.key}-{k}" for k in range(runs))
+
+
+@pytest.mark.slow
+def test_the_campaign_bench_runs_its_dask_cluster_in_a_process_of_its_own():
+    """The bench's LocalCluster runs apart from the client, as a cluster met with ``--scheduler ADDRESS`` does, so
+    the client's CPU time per run is the client's alone: its scheduler answers on 127.0.0.1 from another process,
+    whose CPU time the bench reads, and the process ends when the bench closes it."""
+    import distributed
+
+    from stand.benches.campaign import _ClusterProcess
+
+    with _ClusterProcess(workers=1) as cluster:
+        assert cluster.address.startswith("tcp://127.0.0.1:")
+        with distributed.Client(cluster.address, timeout=30, set_as_default=False) as client:
+            assert client.run_on_scheduler(os.getpid) not in (os.getpid(), None)
+            assert len(client.scheduler_info()["workers"]) == 1
+        cpu0 = cluster.cpu_s()
+        assert cluster.idle_cpu_ms_per_s(wait_s=0.2) >= 0.0 and cluster.cpu_s() >= cpu0 > 0.0
+        proc = cluster.proc
+    assert not proc.is_alive() and proc.exitcode == 0
