@@ -21,6 +21,7 @@ from ..compose import build
 from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
+from ..telemetry import load_with_bytes
 from .errors import CampaignError
 from .fault_groups import started
 from .spec import Spec, dispersions_of, parse_case
@@ -154,18 +155,20 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
         t_ran, cpu_ran = time.time(), time.process_time()
     if interruptible and result.status == "stopped":
         raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
-    summary = write_summary(scene, result, out, plots=False)
+    # The telemetry read once: the summary judges its columns, the digest hashes the same bytes.
+    try:
+        tel, rows = load_with_bytes(out)
+    except FileNotFoundError:  # no telemetry at all: the summary says so (load raises the same again there)
+        tel, rows = None, b""
+    summary = write_summary(scene, result, out, plots=False, tel=tel)
     files: dict[str, bytes] = {}
     if task.get("dest"):
         _keep_only_run_files(out)
-        with open(out / "telemetry" / "rows.f64", "rb") as f:  # just written: read from the page cache
-            rows = f.read()
     else:
         for name in RUN_FILES:
             p = out / name
             if p.exists():
                 files[name] = p.read_bytes()
-        rows = files.get("telemetry/rows.f64", b"")
     rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
            "host": os.uname().nodename, "pid": os.getpid(),
            "faults": started(task.get("faults", []), summary),

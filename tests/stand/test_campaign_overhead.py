@@ -253,3 +253,91 @@ def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_se
     assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002"]
     assert _files(cm.case_dir(out, 2)) == CASE_FILES
     assert (cm.case_dir(out, 2) / "telemetry/rows.f64").read_bytes() == sent["files"]["telemetry/rows.f64"]
+
+
+def _count_reads_of(monkeypatch, name: str) -> list[str]:
+    """Every read of a file called ``name`` from now on: opened by Python (open, pathlib) or by numpy.fromfile."""
+    import builtins
+    import io
+
+    import numpy as np
+
+    reads: list[str] = []
+    real_open, real_fromfile = io.open, np.fromfile
+
+    def counted_open(file, mode="r", *a, **kw):
+        if str(file).endswith(name) and "r" in mode:
+            reads.append(f"open {file}")
+        return real_open(file, mode, *a, **kw)
+
+    def counted_fromfile(file, *a, **kw):
+        if str(file).endswith(name):
+            reads.append(f"fromfile {file}")
+        return real_fromfile(file, *a, **kw)
+
+    monkeypatch.setattr(io, "open", counted_open)
+    monkeypatch.setattr(builtins, "open", counted_open)
+    monkeypatch.setattr(np, "fromfile", counted_fromfile)
+    return reads
+
+
+def test_a_case_reads_its_telemetry_once_for_its_summary_and_its_digest(tmp_path, monkeypatch):
+    """The summary judges the columns and the digest hashes the bytes of one read of rows.f64 (two reads were a
+    copy of the whole telemetry per case); the digest is still that of the file's bytes."""
+    import hashlib
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "case.part"
+    reads = _count_reads_of(monkeypatch, "rows.f64")
+    result = cm.run_case({**spec.case(2), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert len(reads) == 1, reads
+    monkeypatch.undo()
+    summary = json.loads((dest / "summary.json").read_text())
+    h = hashlib.sha256(json.dumps(cm.comparable(summary), sort_keys=True, default=float).encode())
+    h.update((dest / "telemetry" / "rows.f64").read_bytes())
+    assert result["record"]["digest"] == h.hexdigest()
+
+
+def test_load_with_bytes_gives_load_s_columns_and_the_file_s_bytes(tmp_path):
+    """The same columns, value for value, as ``load``; a trailing partial row (a run killed mid-write) is left out
+    of the columns as ``load`` leaves it out, and the bytes are the file's, whole."""
+    import numpy as np
+
+    from stand import telemetry
+
+    with telemetry.Recorder(tmp_path, [("t_s", 1, "s"), ("omega_BN_B", 3, "rad/s")]) as rec:
+        for k in range(7):
+            rec.record((0.1 * k, 1.0 + k, -2.0 * k, 3.5))
+    path = tmp_path / "telemetry" / "rows.f64"
+    with open(path, "ab") as f:
+        f.write(np.float64(9.0).tobytes() + b"\x01\x02\x03")  # a row cut after one float and three bytes
+    tel, data = telemetry.load_with_bytes(tmp_path)
+    assert data == path.read_bytes()
+    want = telemetry.load(tmp_path)
+    assert tel.keys() == want.keys() and len(tel["t_s"]) == 7
+    for name in want:
+        assert np.array_equal(tel[name], want[name]) and tel[name].shape == want[name].shape
+        assert not tel[name].flags.writeable  # the fingerprinted bytes cannot change under the digest
+
+
+def test_a_summary_computes_the_body_rate_of_the_telemetry_once(tmp_path, monkeypatch):
+    """The rate checkpoints and the rate criteria read one body-rate array (each computed its own over every row),
+    and the criterion's value is that array's last row."""
+    import numpy as np
+
+    from stand import report
+
+    calls = []
+    real = report._rate_deg_s
+    monkeypatch.setattr(report, "_rate_deg_s", lambda tel: calls.append(1) or real(tel))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "case.part"
+    result = cm.run_case({**spec.case(3), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert len(calls) == 1
+    from stand import telemetry
+
+    omega = telemetry.load(dest)["omega_BN_B"]
+    final = [c for c in result["record"]["criteria"] if c["metric"] == "final_rate_deg_s"]
+    assert final and final[0]["value"] == float(np.degrees(np.linalg.norm(omega, axis=1))[-1])
