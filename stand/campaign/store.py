@@ -93,7 +93,8 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
     final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
-    folder = Path(result["dir"]) if _beside(result.get("dir"), part) else None
+    # The worker names its folder from the absolute campaign folder (``--out`` may be relative to this directory).
+    folder = Path(result["dir"]) if _beside(result.get("dir"), part.absolute()) else None
     if folder is None or not result.get("written"):
         if folder is None:
             folder = part

@@ -341,3 +341,17 @@ def test_a_summary_computes_the_body_rate_of_the_telemetry_once(tmp_path, monkey
     omega = telemetry.load(dest)["omega_BN_B"]
     final = [c for c in result["record"]["criteria"] if c["metric"] == "final_rate_deg_s"]
     assert final and final[0]["value"] == float(np.degrees(np.linalg.norm(omega, axis=1))[-1])
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_a_campaign_in_a_relative_folder_keeps_each_run_s_files(tmp_path, monkeypatch, workers):
+    """``--out camp`` (relative to the working directory): the worker writes the run in the case's folder named from
+    the absolute path, and the client renames that folder as it is (it took the two names for two folders, removed
+    the run's files and kept the record alone)."""
+    monkeypatch.chdir(tmp_path)
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    result = cm.run_campaign(spec, "camp", 2, workers=workers, plots=False)
+    assert result["finished"] == 2 and result["errors"] == 0
+    for k in range(2):
+        assert _files(cm.case_dir(tmp_path / "camp", k)) == CASE_FILES
+    assert sorted(p.name for p in (tmp_path / "camp" / "cases").iterdir()) == ["00000", "00001"]
