@@ -184,15 +184,20 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
     return rec, files
 
 
-def _keep_only_run_files(out: Path) -> None:
-    """Leave the campaign's files of a run (RUN_FILES) and nothing else, as the files sent back would be."""
-    keep = {out / name for name in RUN_FILES}
-    for p in sorted(out.rglob("*"), reverse=True):  # files before their folders
-        if p.is_dir():
-            if not any(k.is_relative_to(p) for k in keep):
-                shutil.rmtree(p, ignore_errors=True)
-        elif p not in keep:
-            p.unlink()
+def _keep_only_run_files(out: Path, prefix: str = "") -> None:
+    """Leave the campaign's files of a run (RUN_FILES) and nothing else, as the files sent back would be. One
+    directory listing per folder that holds a kept file (``prefix``: the folder's path in RUN_FILES' terms); a
+    folder that holds none goes whole."""
+    with os.scandir(out) as entries:
+        for entry in entries:
+            name = prefix + entry.name
+            if entry.is_dir(follow_symlinks=False):
+                if any(k.startswith(name + "/") for k in RUN_FILES):
+                    _keep_only_run_files(Path(entry.path), name + "/")
+                else:
+                    shutil.rmtree(entry.path, ignore_errors=True)
+            elif name not in RUN_FILES:
+                os.unlink(entry.path)
 
 
 def _watchdog(task: dict) -> threading.Timer | None:

@@ -355,3 +355,16 @@ def test_a_campaign_in_a_relative_folder_keeps_each_run_s_files(tmp_path, monkey
     for k in range(2):
         assert _files(cm.case_dir(tmp_path / "camp", k)) == CASE_FILES
     assert sorted(p.name for p in (tmp_path / "camp" / "cases").iterdir()) == ["00000", "00001"]
+
+
+def test_a_case_folder_keeps_the_run_files_and_nothing_else(tmp_path):
+    """What a run leaves beyond RUN_FILES goes: its log, a temporary file beside a kept one, a folder of its own."""
+    from stand.campaign.case import _keep_only_run_files
+
+    for name in (*cm.RUN_FILES, "stand.log", "summary.json.tmp", "telemetry/rows.f64.tmp", "plots/deep/a.png"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(name)
+    _keep_only_run_files(tmp_path)
+    assert _files(tmp_path) == set(cm.RUN_FILES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["events.jsonl", "summary.json", "telemetry"]
+    assert all((tmp_path / name).read_text() == name for name in cm.RUN_FILES)
