@@ -90,7 +90,8 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
     ``dir`` and ``written``), then the rename that makes it count."""
     rec = result["record"]
     t0, cpu0 = time.time(), time.process_time()
-    final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
+    final = case_dir(out, rec["index"])
+    part = final.with_name(final.name + ".part")  # part_dir's
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
     # The worker names its folder from the absolute campaign folder (``--out`` may be relative to this directory).
@@ -106,9 +107,11 @@ def _write_case(out: Path, result: dict, received: float) -> dict:
         timing["write_s"] = time.time() - t0
         timing["write_cpu_s"] = time.process_time() - cpu0
         write_record(folder, rec)
-    if final.exists():
+    try:
+        os.replace(folder, final)  # a folder renames over a missing or empty one
+    except OSError:  # a case written before (a resume that runs it again): the new one replaces it
         shutil.rmtree(final, ignore_errors=True)
-    os.replace(folder, final)
+        os.replace(folder, final)
     return rec
 
 
