@@ -149,7 +149,8 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
     """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
     # A case of a spec: the parse is its validation, and a value the scenario refuses names its dispersion.
     sc = parse_case(task["spec"], task) if "spec" in task else parse(task["data"], task["source"])
-    with build(sc, None, Path(task["base"])) as scene:
+    # out_dir: the estimate before t = 0 checks the free space where this case's telemetry goes (not ./runs).
+    with build(sc, None, Path(task["base"]), out_dir=out) as scene:
         t_built, cpu_built = time.time(), time.process_time()
         result = run(scene, out, progress=False)
         t_ran, cpu_ran = time.time(), time.process_time()

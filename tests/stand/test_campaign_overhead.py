@@ -368,3 +368,18 @@ def test_a_case_folder_keeps_the_run_files_and_nothing_else(tmp_path):
     assert _files(tmp_path) == set(cm.RUN_FILES)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["events.jsonl", "summary.json", "telemetry"]
     assert all((tmp_path / name).read_text() == name for name in cm.RUN_FILES)
+
+
+def test_a_case_s_estimate_checks_the_disk_its_telemetry_goes_to(tmp_path, monkeypatch):
+    """The free space a case's telemetry needs is looked for where the case is written, not in ./runs (which a
+    campaign does not write, and which may be on another disk or not exist)."""
+    from stand import compose
+
+    asked = []
+    real = compose.free_disk_bytes
+    monkeypatch.setattr(compose, "free_disk_bytes", lambda folder: asked.append(folder) or real(folder))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "camp" / "cases" / "00001.part"
+    result = cm.run_case({**spec.case(1), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert asked == [dest]
