@@ -343,18 +343,21 @@ def test_a_summary_computes_the_body_rate_of_the_telemetry_once(tmp_path, monkey
     assert final and final[0]["value"] == float(np.degrees(np.linalg.norm(omega, axis=1))[-1])
 
 
-@pytest.mark.parametrize("workers", [0, 1])
-def test_a_campaign_in_a_relative_folder_keeps_each_run_s_files(tmp_path, monkeypatch, workers):
+@pytest.mark.parametrize("workers, out", [(0, "camp"), (1, "camp"), (1, "../up/./camp")])
+def test_a_campaign_in_a_relative_folder_keeps_each_run_s_files(tmp_path, monkeypatch, workers, out):
     """``--out camp`` (relative to the working directory): the worker writes the run in the case's folder named from
     the absolute path, and the client renames that folder as it is (it took the two names for two folders, removed
     the run's files and kept the record alone)."""
-    monkeypatch.chdir(tmp_path)
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
     spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
-    result = cm.run_campaign(spec, "camp", 2, workers=workers, plots=False)
+    result = cm.run_campaign(spec, out, 2, workers=workers, plots=False)
     assert result["finished"] == 2 and result["errors"] == 0
+    folder = (here / out).resolve()
     for k in range(2):
-        assert _files(cm.case_dir(tmp_path / "camp", k)) == CASE_FILES
-    assert sorted(p.name for p in (tmp_path / "camp" / "cases").iterdir()) == ["00000", "00001"]
+        assert _files(cm.case_dir(folder, k)) == CASE_FILES
+    assert sorted(p.name for p in (folder / "cases").iterdir()) == ["00000", "00001"]
 
 
 def test_a_case_folder_keeps_the_run_files_and_nothing_else(tmp_path):
@@ -383,3 +386,22 @@ def test_a_case_s_estimate_checks_the_disk_its_telemetry_goes_to(tmp_path, monke
     result = cm.run_case({**spec.case(1), "dest": str(dest)})
     assert result["record"]["status"] == "completed"
     assert asked == [dest]
+
+
+def test_the_client_reads_an_answer_without_polling_its_pipe_again(monkeypatch):
+    """The wait that woke the client says which pipes have an answer: it reads them without a poll of each (a poll
+    is a wait of its own, which the client paid once per answer); every case still comes back, in order."""
+    from multiprocessing.connection import Connection
+
+    polls = []
+    real = Connection.poll
+    monkeypatch.setattr(Connection, "poll", lambda self, *a: polls.append(1) or real(self, *a))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    pool = _LocalPool(1)
+    try:
+        answers = list(pool.results([spec.case(k) for k in range(3)]))
+    finally:
+        pool.close(cancel=True)
+    assert [i for i, _, _ in answers] == [0, 1, 2]
+    assert all(reason is None and result["record"]["status"] == "completed" for _, result, reason in answers)
+    assert polls == []
