@@ -112,7 +112,8 @@ class _Signal:
 
 
 class _Message:
-    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message", "packer")
+    __slots__ = ("name", "frame_id", "length", "signals", "signal_names", "fast", "cantools_message", "packer",
+                 "_packers")
 
     def __init__(self, msg: Any, fast: bool) -> None:
         self.name: str = msg.name
@@ -124,6 +125,16 @@ class _Message:
         #: The fast path in DBC order (values -> payload or None; payload -> values), None through cantools.
         self.packer = _packer(self, tuple(s.name for s in self.signals)) if fast else None
         self.fast = self.packer is not None
+        self._packers: dict[tuple[str, ...], Any] = {}
+
+    def packer_in(self, order: tuple[str, ...]) -> Any:
+        """``_packer(self, order)``, made once per signal order: a packer holds nothing but this message's signals
+        (fixed with the file version this message was compiled from), so every codec of the file shares it (each
+        built its own: a twelfth of a scene's build)."""
+        try:
+            return self._packers[order]
+        except KeyError:
+            return self._packers.setdefault(order, _packer(self, order))
 
 
 def _is_literal(x: Any) -> bool:
@@ -164,7 +175,7 @@ class MessagePacker:
 
     def __init__(self, codec: DbcCodec, entry: _Message, order: tuple[str, ...]) -> None:
         self.name, self.frame_id, self.length, self.order = entry.name, entry.frame_id, entry.length, order
-        packer = _packer(entry, order) if entry.fast else None
+        packer = entry.packer_in(order) if entry.fast else None
         if packer is not None:
             self.pack, self.unpack = packer.pack, packer.unpack
         else:

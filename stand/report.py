@@ -32,19 +32,22 @@ def _rate_deg_s(tel) -> np.ndarray:
     return np.degrees(np.linalg.norm(tel["omega_BN_B"], axis=1))
 
 
-def metric_value(c: Criterion, tel, result: RunResult, scene_devices=(), faults: dict | None = None) -> float:
-    """``faults``: fault name -> (start s, clearing s or None), from the run's events (:func:`run_faults`)."""
+def metric_value(c: Criterion, tel, result: RunResult, scene_devices=(), faults: dict | None = None,
+                 rate_deg_s: np.ndarray | None = None) -> float:
+    """``faults``: fault name -> (start s, clearing s or None), from the run's events (:func:`run_faults`);
+    ``rate_deg_s``: the body rate of every row (``_rate_deg_s(tel)``) where the caller has it already."""
     t = tel["t_s"]
     if c.metric in FAULT_METRICS:
         return fault_value(c.metric, c.fault, tel, faults or {}, c.within_deg)
-    if c.metric == "final_rate_deg_s":
-        return float(_rate_deg_s(tel)[-1]) if len(t) else math.nan
-    if c.metric == "rate_deg_s_at":
-        i = int(np.searchsorted(t, c.at_s - 1e-9))
-        return float(_rate_deg_s(tel)[i]) if i < len(t) else math.nan
-    if c.metric == "max_rate_deg_s_after":
+    if c.metric in RATE_METRICS:
+        rate = _rate_deg_s(tel) if rate_deg_s is None else rate_deg_s
+        if c.metric == "final_rate_deg_s":
+            return float(rate[-1]) if len(t) else math.nan
+        if c.metric == "rate_deg_s_at":
+            i = int(np.searchsorted(t, c.at_s - 1e-9))
+            return float(rate[i]) if i < len(t) else math.nan
         sel = t >= c.at_s - 1e-9
-        return float(_rate_deg_s(tel)[sel].max()) if np.any(sel) else math.nan
+        return float(rate[sel].max()) if np.any(sel) else math.nan
     if c.metric == "frames_rejected":
         return float(_rejected(result.counters))
     if c.metric in POINTING_METRICS:
@@ -121,13 +124,15 @@ def run_faults(out_dir: Path) -> dict:
     return fault_windows(events)
 
 
-def evaluate(criteria, tel, result: RunResult, scene_devices=(), faults: dict | None = None) -> list[dict]:
-    """Each criterion's value against its limits; one that cannot be computed fails with a ``reason``."""
+def evaluate(criteria, tel, result: RunResult, scene_devices=(), faults: dict | None = None,
+             rate_deg_s: np.ndarray | None = None) -> list[dict]:
+    """Each criterion's value against its limits; one that cannot be computed fails with a ``reason``.
+    ``rate_deg_s``: as :func:`metric_value` takes it."""
     out = []
     for c in criteria:
         reason = None
         try:
-            v = float(metric_value(c, tel, result, scene_devices, faults))
+            v = float(metric_value(c, tel, result, scene_devices, faults, rate_deg_s))
         except MetricUnavailable as exc:
             v, reason = math.nan, str(exc)
         except (ArithmeticError, IndexError, KeyError, TypeError) as exc:
@@ -225,23 +230,25 @@ def verdict_text(passed: bool, status: str, timing: dict) -> str:
 
 
 def write_summary(scene: Scene, result: RunResult, out_dir, plots: bool = True,
-                  duration_s: float | None = None) -> dict:
+                  duration_s: float | None = None, tel: dict | None = None) -> dict:
     """summary.json, and with ``plots`` the PNG plots and report.md (a campaign's runs leave them out).
 
     ``duration_s``: the simulated time the run was asked for (default the scenario's). The summary says PASS only
     when the stand can vouch for the record (``unvouched``) and every criterion holds; a run whose record is not
-    whole although the loop called it completed is reported aborted."""
+    whole although the loop called it completed is reported aborted. ``tel``: the run's telemetry as
+    ``stand.telemetry.load`` reads it from ``out_dir`` after the run (default: read here), for a caller that
+    needs the file's bytes too (``stand.telemetry.load_with_bytes``)."""
     out_dir = Path(out_dir)
     sc = scene.scenario
-    tel = load(out_dir)
-    criteria = evaluate(sc.criteria, tel, result, sc.devices, run_faults(out_dir))
+    tel = load(out_dir) if tel is None else tel
+    rate = _rate_deg_s(tel)  # once: the checkpoints below and the rate criteria read it
+    criteria = evaluate(sc.criteria, tel, result, sc.devices, run_faults(out_dir), rate)
     problems = unvouched(scene, result, tel, out_dir, duration_s)
     # A run with nothing to judge is not a success the stand can vouch for: no criteria, no PASS.
     passed = not problems and bool(criteria) and all(c["pass"] for c in criteria)
     status, error = result.status, result.error
     if status == "completed" and problems:
         status, error = "aborted", "the record is not whole: " + "; ".join(problems)
-    rate = _rate_deg_s(tel)
     checkpoints = {}
     for ts in (0.0, 600.0, 1800.0, 3600.0, sc.duration_s):
         i = int(np.searchsorted(tel["t_s"], ts - 1e-9))

@@ -21,6 +21,7 @@ from ..compose import build
 from ..loop import run
 from ..report import write_summary
 from ..scenario import parse
+from ..telemetry import load_with_bytes
 from .errors import CampaignError
 from .fault_groups import started
 from .spec import Spec, dispersions_of, parse_case
@@ -148,24 +149,27 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
     """Parse, build, run and summarise the case into ``out``; its record and (without ``dest``) its files."""
     # A case of a spec: the parse is its validation, and a value the scenario refuses names its dispersion.
     sc = parse_case(task["spec"], task) if "spec" in task else parse(task["data"], task["source"])
-    with build(sc, None, Path(task["base"])) as scene:
+    # out_dir: the estimate before t = 0 checks the free space where this case's telemetry goes (not ./runs).
+    with build(sc, None, Path(task["base"]), out_dir=out) as scene:
         t_built, cpu_built = time.time(), time.process_time()
         result = run(scene, out, progress=False)
         t_ran, cpu_ran = time.time(), time.process_time()
     if interruptible and result.status == "stopped":
         raise KeyboardInterrupt  # the operator's Ctrl-C reached the loop: stop, do not record
-    summary = write_summary(scene, result, out, plots=False)
+    # The telemetry read once: the summary judges its columns, the digest hashes the same bytes.
+    try:
+        tel, rows = load_with_bytes(out)
+    except FileNotFoundError:  # no telemetry at all: the summary says so (load raises the same again there)
+        tel, rows = None, b""
+    summary = write_summary(scene, result, out, plots=False, tel=tel)
     files: dict[str, bytes] = {}
     if task.get("dest"):
         _keep_only_run_files(out)
-        with open(out / "telemetry" / "rows.f64", "rb") as f:  # just written: read from the page cache
-            rows = f.read()
     else:
         for name in RUN_FILES:
             p = out / name
             if p.exists():
                 files[name] = p.read_bytes()
-        rows = files.get("telemetry/rows.f64", b"")
     rec = {"index": task["index"], "seed": task["seed"], "values": task["values"], "scalars": task["scalars"],
            "host": os.uname().nodename, "pid": os.getpid(),
            "faults": started(task.get("faults", []), summary),
@@ -181,15 +185,20 @@ def _run_into(task: dict, out: Path, interruptible: bool, t_start: float, t_lock
     return rec, files
 
 
-def _keep_only_run_files(out: Path) -> None:
-    """Leave the campaign's files of a run (RUN_FILES) and nothing else, as the files sent back would be."""
-    keep = {out / name for name in RUN_FILES}
-    for p in sorted(out.rglob("*"), reverse=True):  # files before their folders
-        if p.is_dir():
-            if not any(k.is_relative_to(p) for k in keep):
-                shutil.rmtree(p, ignore_errors=True)
-        elif p not in keep:
-            p.unlink()
+def _keep_only_run_files(out: Path, prefix: str = "") -> None:
+    """Leave the campaign's files of a run (RUN_FILES) and nothing else, as the files sent back would be. One
+    directory listing per folder that holds a kept file (``prefix``: the folder's path in RUN_FILES' terms); a
+    folder that holds none goes whole."""
+    with os.scandir(out) as entries:
+        for entry in entries:
+            name = prefix + entry.name
+            if entry.is_dir(follow_symlinks=False):
+                if any(k.startswith(name + "/") for k in RUN_FILES):
+                    _keep_only_run_files(Path(entry.path), name + "/")
+                else:
+                    shutil.rmtree(entry.path, ignore_errors=True)
+            elif name not in RUN_FILES:
+                os.unlink(entry.path)
 
 
 def _watchdog(task: dict) -> threading.Timer | None:

@@ -140,7 +140,8 @@ class _LocalPool:
         while pending or any(s.task is not None for s in self.slots):
             self._hand_out(pending)
             watched = [s for s in self.slots if s.task is not None or not s.ready]
-            outcomes = [o for s in self._wait(watched) if (o := self._check(s, died, pending)) is not None]
+            outcomes = [o for s, answered in self._wait(watched)
+                        if (o := self._check(s, died, pending, answered)) is not None]
             self._hand_out(pending)  # before the client writes what came back
             yield from outcomes
 
@@ -156,10 +157,11 @@ class _LocalPool:
                 if not s.queue(task):
                     pending.appendleft(task)
 
-    def _wait(self, watched: list[_Slot]) -> list[_Slot]:
+    def _wait(self, watched: list[_Slot]) -> list[tuple[_Slot, bool]]:
         """The slots with something to look at: an answer, an ended process, or a case over its limit (only these
         are checked: with many workers, polling every one after each answer would be the client's work per case
-        growing with the pool)."""
+        growing with the pool), each with whether its pipe has something to read (then it need not be polled
+        again: a poll is a wait of its own)."""
         from multiprocessing.connection import wait
 
         timeout = None
@@ -169,11 +171,11 @@ class _LocalPool:
             timeout = max(0.0, min(s.since + self.case_timeout_s - now for s in busy))
         ready = set(wait([s.conn for s in watched] + [s.proc.sentinel for s in watched], timeout))
         now = time.monotonic()
-        return [s for s in watched if s.conn in ready or s.proc.sentinel in ready
+        return [(s, s.conn in ready) for s in watched if s.conn in ready or s.proc.sentinel in ready
                 or (self.case_timeout_s and s.task is not None and now - s.since >= self.case_timeout_s)]
 
-    def _check(self, s: _Slot, died: dict, pending) -> tuple | None:
-        if s.conn.poll():  # an answer waits (even if the process ended right after sending it)
+    def _check(self, s: _Slot, died: dict, pending, answered: bool = False) -> tuple | None:
+        if answered or s.conn.poll():  # an answer waits (even if the process ended right after sending it)
             try:
                 kind, result = s.conn.recv()
             except (EOFError, OSError):

@@ -87,37 +87,44 @@ def write_record(folder: Path, rec: dict) -> None:
 
 def _write_case(out: Path, result: dict, received: float) -> dict:
     """Make a case's folder whole: its files and its ``case.json`` (unless the worker wrote both there already:
-    ``dir`` and ``written``), then the rename that makes it count."""
+    ``dir`` and ``written``), then the rename that makes it count. Paths as plain strings: this is the client's
+    work per case, which no worker shares (a pathlib path costs several times a string join)."""
     rec = result["record"]
     t0, cpu0 = time.time(), time.process_time()
-    final, part = case_dir(out, rec["index"]), part_dir(out, rec["index"])
+    final = os.path.join(out, "cases", f"{rec['index']:0{CASE_DIGITS}d}")  # case_dir's
+    part = final + ".part"  # part_dir's
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
-    folder = Path(result["dir"]) if _beside(result.get("dir"), part) else None
+    folder = result.get("dir") if _beside(result.get("dir"), part) else None
     if folder is None or not result.get("written"):
         if folder is None:
             folder = part
             shutil.rmtree(part, ignore_errors=True)
-            part.mkdir(parents=True)
+            os.makedirs(part)
             for name, data in result["files"].items():
-                (part / name).parent.mkdir(parents=True, exist_ok=True)
-                (part / name).write_bytes(data)
+                (Path(part) / name).parent.mkdir(parents=True, exist_ok=True)
+                (Path(part) / name).write_bytes(data)
         timing["write_s"] = time.time() - t0
         timing["write_cpu_s"] = time.process_time() - cpu0
         write_record(folder, rec)
-    if final.exists():
+    try:
+        os.replace(folder, final)  # a folder renames over a missing or empty one
+    except OSError:  # a case written before (a resume that runs it again): the new one replaces it
         shutil.rmtree(final, ignore_errors=True)
-    os.replace(folder, final)
+        os.replace(folder, final)
     return rec
 
 
-def _beside(folder: str | None, part: Path) -> bool:
+def _beside(folder: str | None, part: str) -> bool:
     """Is ``folder`` where a worker wrote this case: its ``.part`` folder, or one of the worker's own beside it
-    (``NNNNN.part.*``: a Dask worker, which the scheduler may run twice at once)?"""
+    (``NNNNN.part.*``: a Dask worker, which the scheduler may run twice at once)? The worker names it from the
+    absolute campaign folder; ``part`` may be relative to the working directory (``--out camp``): both are compared
+    absolute and normalised."""
     if folder is None:
         return False
-    p = Path(folder)
-    return p.parent == part.parent and (p.name == part.name or p.name.startswith(part.name + "."))
+    where, name = os.path.split(os.path.normpath(folder))
+    want_where, want = os.path.split(os.path.abspath(part))
+    return where == want_where and (name == want or name.startswith(want + "."))
 
 
 def _prepare(out: Path, spec: Spec) -> None:

@@ -5,6 +5,7 @@ signal table they could misread. `.ci/run` runs this file a second time with ``S
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -176,3 +177,20 @@ def test_the_codec_runs_the_build_compiled_paths_chose(codecs) -> None:
     if expected == "compiled":
         require_compiled("drivers.bitpack")
     assert compiled_paths.active()["drivers.bitpack"] == expected
+
+
+def test_codecs_of_one_dbc_file_share_each_message_s_packer(tmp_path):
+    """A packer holds only its message's signals: the codecs of one file version share it (each scene built its own
+    for every device), one per signal order; another version of the file gets its own."""
+    a, b = DbcCodec(MTQ_DBC), DbcCodec(MTQ_DBC)
+    name = next(n for n in a.names if a.is_fast(n))
+    order = a.signal_names(name)
+    first, second = a.packer(name, order), b.packer(name, order)
+    assert first is not second and first.pack is not None
+    assert first.pack.__self__ is second.pack.__self__  # one packer behind both
+    if len(order) > 1:
+        turned = a.packer(name, order[::-1])
+        assert turned.pack.__self__ is not first.pack.__self__
+    copy = tmp_path / "copy.dbc"
+    copy.write_bytes(Path(MTQ_DBC).read_bytes())
+    assert DbcCodec(copy).packer(name, order).pack.__self__ is not first.pack.__self__

@@ -309,3 +309,155 @@ def test_the_campaign_bench_runs_its_dask_cluster_in_a_process_of_its_own():
         assert cluster.idle_cpu_ms_per_s(wait_s=0.2) >= 0.0 and cluster.cpu_s() >= cpu0 > 0.0
         proc = cluster.proc
     assert not proc.is_alive() and proc.exitcode == 0
+
+
+def _count_reads_of(monkeypatch, name: str) -> list[str]:
+    """Every read of a file called ``name`` from now on: opened by Python (open, pathlib) or by numpy.fromfile."""
+    import builtins
+    import io
+
+    import numpy as np
+
+    reads: list[str] = []
+    real_open, real_fromfile = io.open, np.fromfile
+
+    def counted_open(file, mode="r", *a, **kw):
+        if str(file).endswith(name) and "r" in mode:
+            reads.append(f"open {file}")
+        return real_open(file, mode, *a, **kw)
+
+    def counted_fromfile(file, *a, **kw):
+        if str(file).endswith(name):
+            reads.append(f"fromfile {file}")
+        return real_fromfile(file, *a, **kw)
+
+    monkeypatch.setattr(io, "open", counted_open)
+    monkeypatch.setattr(builtins, "open", counted_open)
+    monkeypatch.setattr(np, "fromfile", counted_fromfile)
+    return reads
+
+
+def test_a_case_reads_its_telemetry_once_for_its_summary_and_its_digest(tmp_path, monkeypatch):
+    """The summary judges the columns and the digest hashes the bytes of one read of rows.f64 (two reads were a
+    copy of the whole telemetry per case); the digest is still that of the file's bytes."""
+    import hashlib
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "case.part"
+    reads = _count_reads_of(monkeypatch, "rows.f64")
+    result = cm.run_case({**spec.case(2), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert len(reads) == 1, reads
+    monkeypatch.undo()
+    summary = json.loads((dest / "summary.json").read_text())
+    h = hashlib.sha256(json.dumps(cm.comparable(summary), sort_keys=True, default=float).encode())
+    h.update((dest / "telemetry" / "rows.f64").read_bytes())
+    assert result["record"]["digest"] == h.hexdigest()
+
+
+def test_load_with_bytes_gives_load_s_columns_and_the_file_s_bytes(tmp_path):
+    """The same columns, value for value, as ``load``; a trailing partial row (a run killed mid-write) is left out
+    of the columns as ``load`` leaves it out, and the bytes are the file's, whole."""
+    import numpy as np
+
+    from stand import telemetry
+
+    with telemetry.Recorder(tmp_path, [("t_s", 1, "s"), ("omega_BN_B", 3, "rad/s")]) as rec:
+        for k in range(7):
+            rec.record((0.1 * k, 1.0 + k, -2.0 * k, 3.5))
+    path = tmp_path / "telemetry" / "rows.f64"
+    with open(path, "ab") as f:
+        f.write(np.float64(9.0).tobytes() + b"\x01\x02\x03")  # a row cut after one float and three bytes
+    tel, data = telemetry.load_with_bytes(tmp_path)
+    assert data == path.read_bytes()
+    want = telemetry.load(tmp_path)
+    assert tel.keys() == want.keys() and len(tel["t_s"]) == 7
+    for name in want:
+        assert np.array_equal(tel[name], want[name]) and tel[name].shape == want[name].shape
+        assert not tel[name].flags.writeable  # the fingerprinted bytes cannot change under the digest
+
+
+def test_a_summary_computes_the_body_rate_of_the_telemetry_once(tmp_path, monkeypatch):
+    """The rate checkpoints and the rate criteria read one body-rate array (each computed its own over every row),
+    and the criterion's value is that array's last row."""
+    import numpy as np
+
+    from stand import report
+
+    calls = []
+    real = report._rate_deg_s
+    monkeypatch.setattr(report, "_rate_deg_s", lambda tel: calls.append(1) or real(tel))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "case.part"
+    result = cm.run_case({**spec.case(3), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert len(calls) == 1
+    from stand import telemetry
+
+    omega = telemetry.load(dest)["omega_BN_B"]
+    final = [c for c in result["record"]["criteria"] if c["metric"] == "final_rate_deg_s"]
+    assert final and final[0]["value"] == float(np.degrees(np.linalg.norm(omega, axis=1))[-1])
+
+
+@pytest.mark.parametrize("workers, out", [(0, "camp"), (1, "camp"), (1, "../up/./camp")])
+def test_a_campaign_in_a_relative_folder_keeps_each_run_s_files(tmp_path, monkeypatch, workers, out):
+    """``--out camp`` (relative to the working directory): the worker writes the run in the case's folder named from
+    the absolute path, and the client renames that folder as it is (it took the two names for two folders, removed
+    the run's files and kept the record alone)."""
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    result = cm.run_campaign(spec, out, 2, workers=workers, plots=False)
+    assert result["finished"] == 2 and result["errors"] == 0
+    folder = (here / out).resolve()
+    for k in range(2):
+        assert _files(cm.case_dir(folder, k)) == CASE_FILES
+    assert sorted(p.name for p in (folder / "cases").iterdir()) == ["00000", "00001"]
+
+
+def test_a_case_folder_keeps_the_run_files_and_nothing_else(tmp_path):
+    """What a run leaves beyond RUN_FILES goes: its log, a temporary file beside a kept one, a folder of its own."""
+    from stand.campaign.case import _keep_only_run_files
+
+    for name in (*cm.RUN_FILES, "stand.log", "summary.json.tmp", "telemetry/rows.f64.tmp", "plots/deep/a.png"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(name)
+    _keep_only_run_files(tmp_path)
+    assert _files(tmp_path) == set(cm.RUN_FILES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["events.jsonl", "summary.json", "telemetry"]
+    assert all((tmp_path / name).read_text() == name for name in cm.RUN_FILES)
+
+
+def test_a_case_s_estimate_checks_the_disk_its_telemetry_goes_to(tmp_path, monkeypatch):
+    """The free space a case's telemetry needs is looked for where the case is written, not in ./runs (which a
+    campaign does not write, and which may be on another disk or not exist)."""
+    from stand import compose
+
+    asked = []
+    real = compose.free_disk_bytes
+    monkeypatch.setattr(compose, "free_disk_bytes", lambda folder: asked.append(folder) or real(folder))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    dest = tmp_path / "camp" / "cases" / "00001.part"
+    result = cm.run_case({**spec.case(1), "dest": str(dest)})
+    assert result["record"]["status"] == "completed"
+    assert asked == [dest]
+
+
+def test_the_client_reads_an_answer_without_polling_its_pipe_again(monkeypatch):
+    """The wait that woke the client says which pipes have an answer: it reads them without a poll of each (a poll
+    is a wait of its own, which the client paid once per answer); every case still comes back, in order."""
+    from multiprocessing.connection import Connection
+
+    polls = []
+    real = Connection.poll
+    monkeypatch.setattr(Connection, "poll", lambda self, *a: polls.append(1) or real(self, *a))
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    pool = _LocalPool(1)
+    try:
+        answers = list(pool.results([spec.case(k) for k in range(3)]))
+    finally:
+        pool.close(cancel=True)
+    assert [i for i, _, _ in answers] == [0, 1, 2]
+    assert all(reason is None and result["record"]["status"] == "completed" for _, result, reason in answers)
+    assert polls == []

@@ -166,3 +166,20 @@ def test_the_shipped_files_hold_no_unused_key():
     for name in scenario.shipped():
         data = tomllib.loads((DIR / f"{name}.toml").read_text())
         assert "era0_deg" not in data.get("environment", {}), name
+
+
+def test_a_criterion_asks_the_kinds_for_their_timed_metrics_once(scenario_dict, write_scenario, monkeypatch):
+    """Which metrics take ``at_s`` is asked of every controller and device kind once per criterion (it was asked
+    twice, in every run's and every campaign case's parse); a missing at_s and an unused one are still refused."""
+    from stand.scenario import loader
+
+    calls = []
+    real = loader._metrics_at
+    monkeypatch.setattr(loader, "_metrics_at", lambda: calls.append(1) or real())
+    data = copy.deepcopy(scenario_dict)
+    n = len(data["criteria"])
+    scenario.load(write_scenario(data))
+    assert len(calls) == n
+    data["criteria"][0] = {"name": "later", "metric": "rate_deg_s_at", "max": 1.0}
+    with pytest.raises(ScenarioError, match=r"criteria\[0\]\.at_s"):
+        scenario.load(write_scenario(data))
