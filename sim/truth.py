@@ -171,7 +171,7 @@ class OrbitTrack:
             self._ahead, self._ahead_failed = None, True
             return 0
 
-    def _begin(self, start: int) -> "_ChunkBuild":
+    def _begin(self, start: int) -> _ChunkBuild:
         """The chunk from half-step index ``start``: its orbit nodes, propagated on from the current chunk's last
         node when the ones kept do not reach its end."""
         h_half = self.half_step_ns / NS_PER_S
@@ -185,7 +185,7 @@ class OrbitTrack:
             nodes = self._propagate(t_end)
         return _ChunkBuild(start, per_chunk + 1, t_start, t_end, nodes)
 
-    def _extend(self, build: "_ChunkBuild", n: int) -> None:
+    def _extend(self, build: _ChunkBuild, n: int) -> None:
         """The chunk's next ``n`` points (or fewer, at its end): Hermite interpolation between the orbit nodes, the
         field where there is one. Every step is element by element, so the points do not depend on ``n``."""
         i0 = build.done
@@ -215,7 +215,7 @@ class OrbitTrack:
             self.evaluations += len(ts)
         build.done = i1
 
-    def _commit(self, build: "_ChunkBuild") -> None:
+    def _commit(self, build: _ChunkBuild) -> None:
         """Make a complete chunk the current one."""
         t, r, v = self._nodes = build.nodes
         # Next chunk continues from the last orbit node at or before the chunk's end (not from the

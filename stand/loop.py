@@ -380,7 +380,8 @@ class _Flight:
         self.events = EventLog(out_dir)
         self.recorder = Recorder(out_dir, self.columns, column_meanings(scene))
         # Collects garbage and computes the orbit track's next chunk in slack time.
-        self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep, collector=gc, ahead=[self.truth.track.work_ahead])
+        self.pacer = Pacer(speed, sc.step_s, clock=clock, sleep=sleep, collector=gc,
+                           ahead=[self.truth.track.work_ahead])
         self.bar = Progress(self.n_steps * sc.step_s, progress)
         self.devs = list(scene.devices.values())
         self.watches = [DeviceWatch(d, self.events) for d in self.devs if d.silent_after_s is not None]

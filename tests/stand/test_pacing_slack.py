@@ -1,5 +1,5 @@
-"""Issue 26 item 6: the pacer collects garbage and works ahead in slack time and says why each overrun happened (fake clocks, a fake
-collector: nothing here is timed)."""
+"""Issue 26 item 6: the pacer collects garbage and works ahead in slack time and says why each overrun happened
+(fake clocks, a fake collector: nothing here is timed)."""
 
 import gc
 
@@ -8,7 +8,7 @@ import numpy as np
 from stand import telemetry
 from stand.compose import build
 from stand.loop import run
-from stand.pacing import AHEAD_FIRST, AHEAD_PIECE_S, AHEAD_MIN_S, GC_DEFER, GC_SLACK_S, SPIN_S, Pacer
+from stand.pacing import AHEAD_FIRST, AHEAD_MIN_S, AHEAD_PIECE_S, GC_DEFER, GC_SLACK_S, SPIN_S, Pacer
 from tests.stand.test_pacing_telemetry import FakeClock
 from tests.stand.test_run import short
 
