@@ -337,8 +337,14 @@ class _Watchdog:
                 self._done.set()
                 if self._thread is not None:
                     self._thread.join()
-                if self._async_sent:  # drop one sent but not yet raised (NULL clears it)
-                    ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(self._ident), None)
+                if self._async_sent:
+                    # One sent but not raised yet is raised here, where it is caught: the loop's backward jumps
+                    # look for it. Clearing it instead (SetAsyncExc with NULL) leaves CPython 3.11's eval breaker
+                    # set for the whole interpreter, as the flag is only taken back when an exception is raised,
+                    # and a profiled or traced call made later in the process then never returns.
+                    self._async_sent = False
+                    for _ in range(64):
+                        pass
                 break
             except OverBudget:
                 continue

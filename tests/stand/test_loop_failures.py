@@ -328,6 +328,41 @@ def test_flight_code_that_loops_is_interrupted_on_another_thread(tmp_path):
     assert box["result"].error.endswith("controller.budget_s = 0.2 s, and was interrupted")
 
 
+PROFILED_AFTER_AN_INTERRUPT = """
+import cProfile, signal, sys, threading
+from pathlib import Path
+from stand import scenario
+from stand.compose import build
+from stand.loop import run
+
+tmp = Path(sys.argv[1])
+box = {}
+with build(scenario.load(tmp / "s.toml"), base=tmp) as scene:
+    worker = threading.Thread(target=lambda: box.setdefault("result", run(scene, tmp / "out")))
+    worker.start()
+    worker.join(timeout=120)
+print(box["result"].status, flush=True)
+
+
+def f():  # a Python function: its frame's first instruction is where the profiled call stuck
+    return sum(range(10))
+
+
+signal.alarm(20)  # the hang ends the process instead
+print("profiled", cProfile.Profile().runcall(f), flush=True)
+"""
+
+
+def test_a_process_whose_flight_code_was_interrupted_on_another_thread_can_still_profile(tmp_path):
+    """The asynchronous exception is taken back by raising it, never cleared: clearing it left CPython 3.11's eval
+    breaker set for the interpreter, and a profiled call (cProfile, coverage, a debugger) made later in the same
+    process never returned (seen in the suite)."""
+    _scenario(tmp_path, "busy loop", budget_s=0.2)
+    proc = subprocess.run([sys.executable, "-c", PROFILED_AFTER_AN_INTERRUPT, str(tmp_path)], cwd=tmp_path,
+                          env=stand_env(), capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0 and proc.stdout.split() == ["aborted", "profiled", "45"], proc.stdout + proc.stderr
+
+
 def test_the_default_budget_ends_a_paced_run_whose_plugin_stalls_3_s(tmp_path):
     sc = scenario.load(_scenario(tmp_path, "sleep 3 s"))
     with build(sc, 10.0, base=tmp_path) as scene:
