@@ -70,3 +70,20 @@ def pty_pair(tmp_path):
     yield str(a), str(b)
     proc.terminate()
     proc.wait(timeout=5)
+
+
+def run_shipped_without_plots(name: str, duration_s: float, out: Path) -> dict:
+    """``stand run NAME --duration DURATION_S --out OUT`` without the PNG plots and report.md; returns the summary.
+
+    For a reference run whose telemetry and summary a test compares against and whose plots it never looks at: on
+    a 3,600 s detumble the plots take as long as a third of the run. The same build and loop as the command
+    (``stand.cli._prepare``), so the telemetry is the command's, bit for bit, and the same summary.json."""
+    from stand import scenario
+    from stand.compose import build
+    from stand.loop import run
+    from stand.report import write_summary
+
+    path = scenario.find(name)
+    with build(scenario.load(path), None, path.parent, duration_s=duration_s, out_dir=out) as scene:
+        result = run(scene, out, duration_s=duration_s)
+        return write_summary(scene, result, out, plots=False, duration_s=duration_s)
