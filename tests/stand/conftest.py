@@ -1,3 +1,4 @@
+import contextlib
 import itertools
 import subprocess
 import time
@@ -57,19 +58,28 @@ def write_scenario(tmp_path):
     return write
 
 
+@contextlib.contextmanager
+def socat_pty_pair(where: Path, prefix: str = ""):
+    """A socat pty pair (the stand's end, the peer's end) linked in ``where``; socat stops on leaving."""
+    require_tool("socat", "socat")
+    a, b = where / f"{prefix}stand", where / f"{prefix}peer"
+    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 5
+        while not (a.exists() and b.exists()) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        yield str(a), str(b)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+
+
 @pytest.fixture
 def pty_pair(tmp_path):
     """A socat pty pair (the stand's end, the peer's end) for cross-process serial tests; skipped without socat."""
-    require_tool("socat", "socat")
-    a, b = tmp_path / "stand", tmp_path / "peer"
-    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 5
-    while not (a.exists() and b.exists()) and time.monotonic() < deadline:
-        time.sleep(0.02)
-    yield str(a), str(b)
-    proc.terminate()
-    proc.wait(timeout=5)
+    with socat_pty_pair(tmp_path) as pair:
+        yield pair
 
 
 def run_shipped_without_plots(name: str, duration_s: float, out: Path) -> dict:
