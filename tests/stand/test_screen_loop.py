@@ -240,6 +240,7 @@ def test_the_tracker_in_another_process_solves_the_screen_and_pre_distortion_rem
         assert 0.1 < e2s["median"] <= f2s["median"] < 1.0 and f2s["p95"] < 2.0
 
 
+@pytest.mark.slow
 def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_when_it_is_lit(
         pty_pair, tmp_path, monkeypatch):
     monkeypatch.setenv("PYGAME_HIDE_SUPPORT_PROMPT", "1")
