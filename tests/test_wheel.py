@@ -33,7 +33,9 @@ def installed(tmp_path_factory):
     assert build.returncode == 0, build.stderr
     wheel = next(dist.glob("adcs_stand-*.whl"))
     env_dir = root / "venv"
-    venv.create(env_dir, with_pip=True)
+    # No pip of its own (ensurepip takes 5-15 s): this environment's pip installs into it with --python, the same
+    # files a pip inside would write.
+    venv.create(env_dir, with_pip=False)
     py = env_dir / "bin" / "python"
     site = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                           capture_output=True, text=True, check=True).stdout.strip()
@@ -41,8 +43,8 @@ def installed(tmp_path_factory):
     # editable install of this checkout, are not processed from it).
     (Path(site) / "_deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     # Without PYTHONPATH: a checkout on it (with the egg-info a build leaves there) reads as adcs-stand installed.
-    subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-deps", "--no-index", str(wheel)], check=True,
-                   timeout=300, env=_env())
+    subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-deps", "--no-index",
+                    str(wheel)], check=True, timeout=300, env=_env())
     work = root / "work"
     work.mkdir()
     return env_dir / "bin", work

@@ -1,3 +1,4 @@
+import contextlib
 import itertools
 import subprocess
 import time
@@ -57,16 +58,43 @@ def write_scenario(tmp_path):
     return write
 
 
+@contextlib.contextmanager
+def socat_pty_pair(where: Path, prefix: str = ""):
+    """A socat pty pair (the stand's end, the peer's end) linked in ``where``; socat stops on leaving."""
+    require_tool("socat", "socat")
+    a, b = where / f"{prefix}stand", where / f"{prefix}peer"
+    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 5
+        while not (a.exists() and b.exists()) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        yield str(a), str(b)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+
+
 @pytest.fixture
 def pty_pair(tmp_path):
     """A socat pty pair (the stand's end, the peer's end) for cross-process serial tests; skipped without socat."""
-    require_tool("socat", "socat")
-    a, b = tmp_path / "stand", tmp_path / "peer"
-    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.monotonic() + 5
-    while not (a.exists() and b.exists()) and time.monotonic() < deadline:
-        time.sleep(0.02)
-    yield str(a), str(b)
-    proc.terminate()
-    proc.wait(timeout=5)
+    with socat_pty_pair(tmp_path) as pair:
+        yield pair
+
+
+def run_shipped_without_plots(name: str, duration_s: float, out: Path) -> dict:
+    """``stand run NAME --duration DURATION_S --out OUT`` without the PNG plots and report.md; returns the summary.
+
+    For a reference run whose telemetry and summary a test compares against and whose plots it never looks at: on
+    3,600 s of detumble_igrf the plots took 19 s against the loop's 30 s (one loaded sitting). The same build and
+    loop as the command (``stand.cli._prepare``), so the telemetry is the command's, bit for bit (compared column by
+    column on detumble and detumble_igrf), and the same summary.json."""
+    from stand import scenario
+    from stand.compose import build
+    from stand.loop import run
+    from stand.report import write_summary
+
+    path = scenario.find(name)
+    with build(scenario.load(path), None, path.parent, duration_s=duration_s, out_dir=out) as scene:
+        result = run(scene, out, duration_s=duration_s)
+        return write_summary(scene, result, out, plots=False, duration_s=duration_s)

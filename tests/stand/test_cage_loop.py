@@ -11,6 +11,8 @@ import pytest
 from stand import telemetry
 from stand.cli import main
 
+from .conftest import run_shipped_without_plots
+
 CHECKPOINTS_S = (600, 1800, 3600)
 
 
@@ -22,8 +24,8 @@ def _rates(run_dir) -> dict[int, float]:
 
 @pytest.mark.slow
 def test_detumble_through_the_cage_lands_within_15_percent_of_detumble_igrf(tmp_path):
-    assert main(["run", "detumble_igrf", "--duration", "3600", "--out", str(tmp_path / "igrf"), "--no-progress"]) \
-        in (0, 1)
+    # The reference: completed (passed or not), as `stand run` exiting 0 or 1; its plots are not compared.
+    assert run_shipped_without_plots("detumble_igrf", 3600, tmp_path / "igrf")["status"] == "completed"
     code = main(["run", "detumble_cage", "--duration", "3600", "--out", str(tmp_path / "cage"), "--no-progress"])
     summary = json.loads((tmp_path / "cage" / "summary.json").read_text())
     assert summary["status"] == "completed", summary["error"]

@@ -128,6 +128,7 @@ def test_reaction_wheel_serves_a_flight_program_over_serial_line_can_in_another_
     assert report["rejected_frames"] == 0
 
 
+@pytest.mark.slow
 def test_magnetometer_serves_a_flight_program_over_serial_line_can_in_another_process(pty_pair):
     from drivers.magnetometer.host import MagnetometerHost
 
@@ -209,6 +210,7 @@ def test_a_kind_of_an_installed_package_is_served_through_its_own_declaration(mo
     assert "--scenario is not available for 'probe-sensor'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_gyro_closed_loop_serves_the_scenarios_true_rate_with_scenario_and_name(pty_pair, tmp_path):
     import numpy as np
 

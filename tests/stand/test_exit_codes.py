@@ -22,6 +22,7 @@ def _events(out: Path) -> list[dict]:
     return [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
 
 
+@pytest.mark.slow
 def test_exit_0_when_the_criteria_hold_and_1_when_one_fails(tmp_path, capsys):
     assert main(["run", "--duration", "5677", "--out", str(tmp_path / "pass"), "--no-progress"]) == 0
     out = capsys.readouterr().out
@@ -73,6 +74,7 @@ def _wait_for_rows(out: Path, timeout_s: float = 60.0) -> None:
     assert rows.exists() and rows.stat().st_size > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_mid_run_exits_130_with_a_summary_and_an_end_event(tmp_path, sig):
     out = tmp_path / "run"
@@ -160,6 +162,7 @@ sys.exit(main(["run", "--duration", "2", "--no-progress"]))
 """
 
 
+@pytest.mark.slow
 def test_two_runs_started_in_the_same_second_get_a_folder_each(tmp_path):
     go = tmp_path / "go"
     procs = [subprocess.Popen([sys.executable, "-c", SAME_SECOND, str(go)], cwd=tmp_path, env=stand_env(),

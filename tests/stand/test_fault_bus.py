@@ -17,6 +17,8 @@ import pytest
 from stand.cli import main
 from stand.telemetry import load
 
+#: Every test here reads the one 600 s run of the module's fixture (27 s on a loaded machine).
+pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):

@@ -91,6 +91,7 @@ def _run_against_node(tmp_path, pty_pair, node_key: bytes, **tracker):
     return code, screen, node.stats, frames
 
 
+@pytest.mark.slow
 def test_a_run_signs_with_the_environment_key_and_the_keyed_node_accepts_every_frame(
         tmp_path, pty_pair, monkeypatch):
     monkeypatch.setenv(KEY_ENV, NODE_KEY.decode())

@@ -218,6 +218,7 @@ def test_served_gyro_counts_each_bad_datagram_once_and_applies_the_commands_betw
     assert emu["rejected_undecodable"] == 3 and emu["rejected_other"] == 1 and emu["commands_applied"] == 4
 
 
+@pytest.mark.slow
 def test_served_sun_sensor_counts_each_bad_datagram_once_and_answers_the_requests_between(pty_pair, tmp_path):
     from drivers.sun_sensor.codec import RequestSample, SunSensorCodec
 

@@ -131,6 +131,7 @@ def test_emulated_link_carries_the_models_readings_to_within_one_lsb_and_is_inva
         assert np.array_equal(emu[column], again[column], equal_nan=True)
 
 
+@pytest.mark.slow
 def test_served_link_streams_to_a_host_in_another_process(pty_pair, tmp_path):
     from drivers.sun_sensor.host import SunSensorHost
 
