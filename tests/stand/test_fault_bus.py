@@ -17,7 +17,7 @@ import pytest
 from stand.cli import main
 from stand.telemetry import load
 
-#: Every test here reads the one 600 s run of the module's fixture (27 s on a loaded machine).
+#: Every test here reads the one 600 s run of the module's fixture (27 s on a loaded machine): run first, as a group.
 pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
