@@ -87,12 +87,10 @@ def write_record(folder: Path, rec: dict) -> None:
 
 def _write_case(out: Path, result: dict, received: float) -> dict:
     """Make a case's folder whole: its files and its ``case.json`` (unless the worker wrote both there already:
-    ``dir`` and ``written``), then the rename that makes it count. Paths as plain strings: this is the client's
-    work per case, which no worker shares (a pathlib path costs several times a string join)."""
+    ``dir`` and ``written``), then the rename that makes it count."""
     rec = result["record"]
     t0, cpu0 = time.time(), time.process_time()
-    final = os.path.join(out, "cases", f"{rec['index']:0{CASE_DIGITS}d}")  # case_dir's
-    part = final + ".part"  # part_dir's
+    final, part = str(case_dir(out, rec["index"])), str(part_dir(out, rec["index"]))
     timing = rec.setdefault("timing", {})
     timing["transfer_s"] = max(0.0, received - timing.get("worker_end", received))
     folder = result.get("dir") if _beside(result.get("dir"), part) else None
