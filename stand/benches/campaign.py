@@ -91,10 +91,16 @@ def _campaigns(cm, spec, runs: int, tmp: Path) -> tuple[dict, dict, dict]:
         before = os.getloadavg()[0]
         with _ClusterProcess(workers=2) as cluster:
             idle_ms_s = cluster.idle_cpu_ms_per_s()
-            cpu0 = cluster.cpu_s()
+            # The workers warmed as the campaign warms them, twice: the second time measures what the campaign's own
+            # warming (already warm workers: one scene each) adds to the workers' CPU time, which is not per run.
+            cluster.ask("warm", spec)
+            warm_s = cluster.ask("warm", spec)
+            cpu0, workers0 = cluster.cpu_s(), cluster.ask("workers_cpu")
             results["dask_2"] = cm.run_campaign(spec, tmp / "dask_2", runs, plots=False, scheduler=cluster.address)
-            results["dask_2"]["execution"]["cluster_process"] = {"cpu_s": cluster.cpu_s() - cpu0,
-                                                                 "idle_cpu_ms_per_s": idle_ms_s}
+            workers1 = cluster.ask("workers_cpu")
+            results["dask_2"]["execution"]["cluster_process"] = {
+                "cpu_s": cluster.cpu_s() - cpu0, "idle_cpu_ms_per_s": idle_ms_s,
+                "workers_cpu_s": [b - a - w for a, b, w in zip(workers0, workers1, warm_s, strict=True)]}
         load["dask_2"] = (before, os.getloadavg()[0])
     for label in results:
         records[label] = list(cm.finished(tmp / label).values())
@@ -129,7 +135,13 @@ class _ClusterProcess:
 
     def cpu_s(self) -> float:
         """The cluster process's CPU time so far (the scheduler's and the nannies'), s."""
-        self.conn.send("cpu")
+        return self.ask("cpu")
+
+    def ask(self, what: str, *args):
+        """``cpu``: as ``cpu_s``; ``workers_cpu``: the CPU time so far of the worker processes and of their event loop
+        threads, s; ``warm`` (a spec): the workers warmed as a campaign of it warms them, and what that cost them
+        (the same two), s."""
+        self.conn.send((what, *args))
         return self.conn.recv()
 
     def idle_cpu_ms_per_s(self, wait_s: float = 1.0) -> float:
@@ -157,20 +169,47 @@ class _ClusterProcess:
 
 
 def _cluster_main(conn, workers: int, http_address: str) -> None:
-    """The cluster process of ``_ClusterProcess``: answers "cpu" with its CPU time until the pipe closes."""
+    """The cluster process of ``_ClusterProcess``: answers its questions (``ask``) until the pipe closes. Its workers
+    run with the settings docs/campaigns.md recommends for a campaign's workers (``WORKER_CONFIG``)."""
     import time
 
-    from distributed import LocalCluster
+    import dask
+    from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=http_address) as cluster:  # never port 8787
+    from stand.campaign.dask_executor import WORKER_CONFIG, _warm
+
+    with dask.config.set(WORKER_CONFIG), \
+            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                         dashboard_address=http_address) as cluster, \
+            Client(cluster, set_as_default=False) as client:  # never port 8787
         conn.send(cluster.scheduler_address)
         while True:
             try:
-                conn.recv()
+                what, *args = conn.recv()
             except (EOFError, OSError):
                 return
-            conn.send(time.process_time())
+            if what == "workers_cpu":
+                conn.send(_workers_cpu_s(client))
+            elif what == "warm":
+                before = _workers_cpu_s(client)
+                client.run(_warm, args[0], 0)
+                conn.send([b - a for a, b in zip(before, _workers_cpu_s(client), strict=True)])
+            else:
+                conn.send(time.process_time())
+
+
+def _workers_cpu_s(client) -> list[float]:
+    """The CPU time so far of all the cluster's worker processes and of their event loop threads, s."""
+    cpu = client.run(_worker_cpu_s).values()
+    return [sum(c[0] for c in cpu), sum(c[1] for c in cpu)]
+
+
+def _worker_cpu_s() -> tuple[float, float]:
+    """On a Dask worker, by ``Client.run`` (which calls it on the worker's event loop thread): the process's CPU time
+    and that thread's, s."""
+    import time
+
+    return time.process_time(), time.thread_time()
 
 
 def _steady_rate(records: list[dict]) -> float:
@@ -295,8 +334,22 @@ def _cluster_row(label: str, r: dict) -> list[dict]:
             f"periodic work alone is {cluster['idle_cpu_ms_per_s']:.1f} ms per second of wall time (measured for 1 s "
             f"before the campaign), {periodic_s * 1e3:.1f} ms per run at this campaign's pace. A deployment runs the "
             "scheduler apart from the client and each nanny beside its worker")
-    return [{"name": f"campaign.{label}.cluster_process_cpu_per_run", "value": round(per_run_s * 1e3, 2),
+    rows = [{"name": f"campaign.{label}.cluster_process_cpu_per_run", "value": round(per_run_s * 1e3, 2),
              "unit": "ms", "note": note}]
+    if "workers_cpu_s" in cluster:
+        process_s, event_loop_s = (x / n for x in cluster["workers_cpu_s"])
+        from stand.campaign.dask_executor import WORKER_CONFIG
+
+        settings = ", ".join(f"{k.removeprefix('distributed.')} {v}" for k, v in WORKER_CONFIG.items())
+        rows.append({"name": f"campaign.{label}.worker_process_cpu_per_run", "value": round(process_s * 1e3, 1),
+                     "unit": "ms", "note": f"CPU time of the Dask worker processes per run, everything included (the "
+                     f"loop's {r['loop_cpu_s']['mean'] * 1e3:.1f} ms, the overhead row's worker part; the workers' "
+                     f"warming left out): {(process_s - r['loop_cpu_s']['mean']) * 1e3:.2f} ms beyond the loop. Of it "
+                     f"the workers' event loop threads {event_loop_s * 1e3:.2f} ms (Dask's handling of each task and "
+                     "its periodic work), part of it while the case's loop runs, which the case's own measure counts "
+                     f"as loop. The workers run the settings docs/campaigns.md recommends ({settings}), which the "
+                     "overhead row measures too"})
+    return rows
 
 
 def _campaign_start(result: dict) -> float:

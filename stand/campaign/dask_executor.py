@@ -15,6 +15,22 @@ DASK_HTTP_ADDRESS = "127.0.0.1:0"
 #: Cases per graph message to the scheduler: a case's task is about 135 bytes, so a message stays near 0.5 MB, under
 #: Dask's large-graph warning (10 MB, which 100 000 cases in one message would pass).
 CASES_PER_MESSAGE = 4096
+#: The Dask settings a campaign's workers should run with: a worker's periodic work runs on its event loop thread, in
+#: the process that runs the case, and costs CPU time whether a case runs or not. Measured with Dask's defaults on
+#: 600 s detumble cases (docs/campaigns.md, "Measured"), that thread took 18 to 26 ms of CPU per case, most of it the
+#: statistical profiler (10 ms sampling, for the dashboard's profile page), the memory monitor (100 ms), the system
+#: monitor (500 ms) and the event loop's health tick (20 ms); with these, about 6 ms. The memory monitor and the
+#: tick stay on at a longer interval (the worker still pauses near its memory limit and warns of a blocked event
+#: loop); the profiler is off. Environment variables for ``dask worker``: ``dask_worker_env()``.
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
+                 "distributed.admin.system-monitor.interval": "5s", "distributed.admin.tick.interval": "1s"}
+#: The periodic callback (by its name in a Dask worker) each setting of ``WORKER_CONFIG`` starts, and the interval
+#: the setting gives it (ms; None: not run).
+_CALLBACKS = {"profile": ("distributed.worker.profile.enabled", None),
+              "memory_monitor": ("distributed.worker.memory.monitor-interval", 1000.0),
+              "monitor": ("distributed.admin.system-monitor.interval", 5000.0),
+              "tick": ("distributed.admin.tick.interval", 1000.0)}
+
 
 class _Dask:
     """Tasks on a Dask distributed scheduler (``--scheduler ADDRESS``) or a cluster object handed in."""
@@ -37,6 +53,8 @@ class _Dask:
         self.workers = max(1, sum(w.get("nthreads", 1) for w in
                                   self.client.scheduler_info().get("workers", {}).values()))
         self.address = self.client.scheduler.address
+        # What the workers run beside the cases (campaign.json), and a warning where it costs the cases CPU time.
+        self.execution = worker_settings(self.client.run(_periodic_ms))
 
     def results(self, tasks: list[dict]):
         from distributed import as_completed
@@ -79,6 +97,44 @@ class _Dask:
 
     def close(self, cancel: bool = False):
         self.client.close(timeout=30)
+
+
+def dask_worker_env() -> dict[str, str]:
+    """``WORKER_CONFIG`` as the environment variables a ``dask worker`` command reads."""
+    return {_env_name(key): str(value) for key, value in WORKER_CONFIG.items()}
+
+
+def _periodic_ms(dask_worker) -> dict[str, float]:
+    """The intervals (ms) of the periodic callbacks a Dask worker runs (on the worker, by ``Client.run``)."""
+    return {name: pc.callback_time for name, pc in dask_worker.periodic_callbacks.items() if pc.is_running()}
+
+
+def worker_settings(periodic_ms: dict[str, dict[str, float]]) -> dict:
+    """What campaign.json records of the workers' periodic work (``periodic_ms``: each worker's ``_periodic_ms``):
+    for each periodic callback a setting of ``WORKER_CONFIG`` starts, the shortest interval (ms) a worker runs it at
+    (None: none runs it), and
+    ``dask_worker_advice``, a sentence naming the settings that run more often than ``WORKER_CONFIG`` says (a
+    worker's periodic work is CPU time taken from its cases), else absent."""
+    settings: dict[str, float | None] = {}
+    costly: list[str] = []
+    for name, (key, wanted_ms) in _CALLBACKS.items():
+        running = [w[name] for w in periodic_ms.values() if name in w]
+        settings[name] = min(running) if running else None
+        if running and (wanted_ms is None or min(running) < wanted_ms):
+            costly.append(key)
+    out: dict = {"dask_worker_periodic_ms": settings}
+    if costly:
+        env = " ".join(f"{_env_name(k)}={WORKER_CONFIG[k]}" for k in costly)
+        out["dask_worker_advice"] = (f"the Dask workers run {', '.join(costly)} more often than a campaign needs, "
+                                     "which takes CPU time from the process that runs each case (docs/campaigns.md, "
+                                     f"\"Local pool and Dask\"); start them with {env}")
+    return out
+
+
+def _env_name(key: str) -> str:
+    """The environment variable Dask reads for a dotted config ``key``."""
+    return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
+
 
 
 def _warm(spec: Spec, index: int | None) -> None:

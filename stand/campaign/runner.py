@@ -99,7 +99,10 @@ def run_campaign(spec: Spec, out: str | Path, runs: int, *, workers: int = 1, sc
     execution = {"executor": executor.name, "workers": executor.workers, "case_timeout_s": case_timeout_s,
                  "resumed": resumed, "validate_s": round(t_ready - t0, 3),
                  "validate_cpu_s": round(validate_cpu_s, 4), "started_at": t_ready, "lost": [],
-                 **({"scheduler": executor.address} if scheduler is not None else {})}
+                 **({"scheduler": executor.address} if scheduler is not None else {}),
+                 **getattr(executor, "execution", {})}
+    if "dask_worker_advice" in execution:
+        log.warning("campaign %s: %s", out, execution["dask_worker_advice"])
     stopped = True
     cpu_collect, thread_collect = time.process_time(), time.thread_time()
     log.info("campaign %s: %d case(s) to run on %s (%s worker(s))", out, len(todo), executor.name, executor.workers)
