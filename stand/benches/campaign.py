@@ -46,7 +46,7 @@ def bench_campaign(quick: bool = False) -> list[dict]:
             ex = r["execution"]
             rows.append({"name": f"campaign.{label}.runs_per_min", "value": ex["runs_per_min"], "unit": "runs/min",
                          "note": f"{what}; {ex['executor']} x{ex['workers']}, {ex['wall_s']:.1f} s wall "
-                                 f"(pool start included); machine load {load[label][0]:.1f} -> {load[label][1]:.1f} "
+                                 f"({_start_included(ex)}); machine load {load[label][0]:.1f} -> {load[label][1]:.1f} "
                                  f"on {os.cpu_count()} cores"})
         rows += _scaling_rows(results, records)
         for label, r in results.items():
@@ -212,6 +212,13 @@ def _worker_cpu_s() -> tuple[float, float]:
     return time.process_time(), time.thread_time()
 
 
+def _start_included(ex: dict) -> str:
+    if ex["executor"] != "dask":
+        return "pool start included"
+    return ("the cluster started and its workers warmed before: the bench measures the workers' CPU time from a warm "
+            "start, the worker_process_cpu row")
+
+
 def _steady_rate(records: list[dict]) -> float:
     """Runs per minute from the first case's start to the last one's end (the pool's start left out)."""
     t = [r["timing"] for r in records]
@@ -317,7 +324,9 @@ def _client_threads(ex: dict) -> str:
     return (f". Of the client's: its own thread {own * 1e3:.2f} ms, the Dask client's event loop thread "
             f"{loop * 1e3:.2f} ms (the scheduler and the nannies run in the cluster's own process: the "
             "cluster_process_cpu row); the worker's beyond the local pool's is Dask's own handling of a task in the "
-            "worker process")
+            "worker process. The workers run the settings docs/campaigns.md recommends (profiler off, slower "
+            "monitors: the worker_process_cpu row), and what their event loop does while a case's loop runs is "
+            "counted there, not here")
 
 
 def _cluster_row(label: str, r: dict) -> list[dict]:
@@ -329,8 +338,9 @@ def _cluster_row(label: str, r: dict) -> list[dict]:
     n = max(1, r["execution"]["runs_this_session"])
     per_run_s = cluster["cpu_s"] / n
     periodic_s = cluster["idle_cpu_ms_per_s"] * r["execution"]["wall_s"] / n / 1e3
-    note = (f"CPU time of the LocalCluster's own process (the Dask scheduler and the {r['execution']['workers']} "
-            "workers' nannies) during the campaign, per run, the workers' warming included; not the client's. Its "
+    note = (f"CPU time of the LocalCluster's own process (the Dask scheduler, the {r['execution']['workers']} "
+            "workers' nannies and the idle client that asks the workers their CPU times) during the campaign, per "
+            "run, the workers' warming included; not the client's. Its "
             f"periodic work alone is {cluster['idle_cpu_ms_per_s']:.1f} ms per second of wall time (measured for 1 s "
             f"before the campaign), {periodic_s * 1e3:.1f} ms per run at this campaign's pace. A deployment runs the "
             "scheduler apart from the client and each nanny beside its worker")
