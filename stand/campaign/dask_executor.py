@@ -57,7 +57,7 @@ class _Dask:
         self.execution = worker_settings(self.client.run(_periodic_ms))
 
     def results(self, tasks: list[dict]):
-        from distributed import as_completed
+        import queue
 
         limit = {"exit_after_s": self.case_timeout_s or None, "client_pid": os.getpid()}
         # Every worker builds one scene before the first case.
@@ -72,18 +72,24 @@ class _Dask:
         keys = [f"stand-case-{self.key}-{t['index']}" for t in tasks]
         mapped = self.client.map(_run_case, [spec] * len(tasks), [{**t, **limit} for t in tasks], key=keys, pure=False,
                                  batch_size=CASES_PER_MESSAGE)
-        futures = {f: t["index"] for f, t in zip(mapped, tasks, strict=True)}
-        for f in as_completed(list(futures), loop=self.client.loop):
-            index = futures.pop(f)
-            yield (index, *self._outcome(f))
+        # Each case's answer is fetched on the client's event loop as soon as its task ends, and handed to this
+        # thread through a queue: one hand-over per case (``as_completed`` and ``Future.result`` each took one).
+        answers: queue.SimpleQueue = queue.SimpleQueue()
+        for f, t in zip(mapped, tasks, strict=True):
+            self.client.loop.add_callback(_answer, f, t["index"], answers)
+        for _ in mapped:
+            index, result, raised = answers.get()
+            yield (index, *self._outcome(result, raised))
 
-    def _outcome(self, f) -> tuple:
+    def _outcome(self, result, raised: BaseException | None) -> tuple:
         import asyncio
 
         from distributed.scheduler import KilledWorker
 
+        if raised is None:
+            return result, None
         try:
-            return f.result(), None
+            raise raised
         except KilledWorker as exc:  # the scheduler gave up after the case ended its workers again and again
             limit = f", or over the per-case limit of {self.case_timeout_s:g} s" if self.case_timeout_s else ""
             return None, (f"its Dask worker died each time it ran it (killed, crashed{limit}); not run again: "
@@ -135,6 +141,15 @@ def _env_name(key: str) -> str:
     """The environment variable Dask reads for a dotted config ``key``."""
     return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
 
+
+
+async def _answer(future, index: int, answers) -> None:
+    """On the client's event loop: ``(index, result, None)``, or ``(index, None, what it raised)``, into ``answers``
+    once the case's task has ended and its result is here (whatever happens, so the client never waits forever)."""
+    try:
+        answers.put((index, await future._result(), None))  # what Future.result runs on the event loop
+    except BaseException as exc:  # noqa: BLE001 - the client's thread sorts it out (_outcome)
+        answers.put((index, None, exc))
 
 
 def _warm(spec: Spec, index: int | None) -> None:

@@ -70,3 +70,32 @@ def test_workers_on_the_recommended_settings_get_no_advice_and_one_costly_settin
 
     read = dask.config.collect_env(dask_worker_env())
     assert {key: dask.config.get(key, config=read) for key in WORKER_CONFIG} == WORKER_CONFIG
+
+
+@pytest.mark.slow
+def test_the_dask_client_s_own_thread_waits_on_no_dask_call_per_case(tmp_path, monkeypatch):
+    """Each case's answer is fetched on the Dask client's event loop and handed to the client's thread through a
+    queue: the thread makes as many blocking calls into the event loop (``Client.sync``: ``Future.result``,
+    ``Client.run``, ...) for a campaign of 4 cases as for one of 1 (it made one more per case)."""
+    import distributed
+    from distributed.client import Client
+
+    calls: list[str] = []
+    real_sync = Client.sync
+
+    def counted(self, func, *args, **kwargs):
+        calls.append(getattr(func, "__name__", repr(func)))
+        return real_sync(self, func, *args, **kwargs)
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    counts = []
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
+        monkeypatch.setattr(Client, "sync", counted)
+        for runs in (1, 4):
+            calls.clear()
+            result = cm.run_campaign(spec, tmp_path / f"camp{runs}", runs, scheduler=cluster.scheduler_address,
+                                     plots=False)
+            assert result["status"] == "complete" and result["finished"] == runs
+            counts.append(list(calls))
+    assert len(counts[0]) == len(counts[1]), counts
