@@ -17,11 +17,12 @@ DASK_HTTP_ADDRESS = "127.0.0.1:0"
 CASES_PER_MESSAGE = 4096
 #: The Dask settings a campaign's workers should run with: a worker's periodic work runs on its event loop thread, in
 #: the process that runs the case, and costs CPU time whether a case runs or not. Measured with Dask's defaults on
-#: 600 s detumble cases (docs/campaigns.md, "Measured"), that thread took 18 to 26 ms of CPU per case, most of it the
-#: statistical profiler (10 ms sampling, for the dashboard's profile page), the memory monitor (100 ms), the system
-#: monitor (500 ms) and the event loop's health tick (20 ms); with these, about 6 ms. The memory monitor and the
-#: tick stay on at a longer interval (the worker still pauses near its memory limit and warns of a blocked event
-#: loop); the profiler is off. Environment variables for ``dask worker``: ``dask_worker_env()``.
+#: 600 s detumble cases (docs/campaigns.md, "Measured"), the threads of two workers took 18 to 25 ms of CPU per
+#: case, the statistical profiler (10 ms sampling, for the dashboard's profile page) the largest part, then the
+#: memory monitor (100 ms), the system monitor (500 ms) and the event loop's health tick (20 ms); with these, 6 to
+#: 8.5 ms. The memory monitor and the tick stay on at a longer interval (the worker still pauses near its memory
+#: limit and warns of a blocked event loop); the profiler is off. Environment variables for ``dask worker``:
+#: ``dask_worker_env()``.
 WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
                  "distributed.admin.system-monitor.interval": "5s", "distributed.admin.tick.interval": "1s"}
 #: The periodic callback (by its name in a Dask worker) each setting of ``WORKER_CONFIG`` starts, and the interval
