@@ -148,7 +148,9 @@ async def _answer(future, index: int, answers) -> None:
     """On the client's event loop: ``(index, result, None)``, or ``(index, None, what it raised)``, into ``answers``
     once the case's task has ended and its result is here (whatever happens, so the client never waits forever)."""
     try:
-        answers.put((index, await future._result(), None))  # what Future.result runs on the event loop
+        # Future._result is the coroutine Future.result runs on the event loop: private, so pyproject.toml pins
+        # distributed to the versions the Dask tests ran (test_campaign_dask_settings counts the hand-overs).
+        answers.put((index, await future._result(), None))
     except BaseException as exc:  # noqa: BLE001 - the client's thread sorts it out (_outcome)
         answers.put((index, None, exc))
 
