@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.signal import lfilter
 
 __all__ = ["CoarseSunSensors", "DelayLine", "FineSunSensor", "Gyro", "GyroState", "gauss_markov_adev"]
 
@@ -259,6 +258,10 @@ class Gyro:
             out += rrw
         gm = np.asarray(state.gauss_markov, dtype=float)
         if self.bias_instability_rad_s > 0:
+            # scipy.signal takes about half a second to import: only a batch of samples with bias instability
+            # needs it, not a run's one sample per tick
+            from scipy.signal import lfilter
+
             phi, c = self._gm
             # b_k = phi b_(k-1) + c w_k, the exact discretisation of the continuous process
             series, _ = lfilter([c], [1.0, -phi], w[:, 2, :], axis=0, zi=(phi * gm)[None, :])

@@ -282,7 +282,7 @@ def _cmd_run(args, held: dict) -> int:
                     if live is not None:
                         live.finish(held["status"])
                 signals.defer()
-            summary = write_summary(scene, result, out, duration_s=args.duration)
+            summary = write_summary(scene, result, out, plots=args.plots, duration_s=args.duration)
             if live is not None:
                 live.summary_ready()
     except OSError as exc:
@@ -423,6 +423,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, help="random seed (default: the scenario's)")
     r.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show a progress bar (default: when stderr is a terminal)")
+    # A short run spends most of its wall time drawing (about 2 s of matplotlib whatever the run's length): a
+    # pipeline that reads only summary.json and the telemetry leaves the drawing out.
+    r.add_argument("--plots", action=argparse.BooleanOptionalAction, default=True,
+                   help="draw the PNG plots and report.md after the run (default); --no-plots writes only "
+                   "summary.json, the telemetry, events and log")
     r.add_argument("--view", nargs="?", const="", metavar="HOST:PORT",
                    help="serve the operator page live while the run goes (default 127.0.0.1 and a free port, "
                    "printed); another address needs --view-token")

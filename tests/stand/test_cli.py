@@ -77,3 +77,24 @@ def test_out_dir_is_never_overwritten(capsys, tmp_path):
     (tmp_path / "o" / "summary.json").write_text("{}")
     code, _, err = run_cli(["run", "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and "--out" in err
+
+
+def test_no_plots_writes_the_record_and_the_summary_but_no_drawing(scenario_dict, write_scenario, capsys, tmp_path):
+    """``--no-plots``: the same verdict, summary and telemetry as a run with its plots, and no PNG nor report.md."""
+    scenario_dict["scenario"]["duration_s"] = 5.0
+    scenario_dict["criteria"][0]["max"] = 100.0
+    path = write_scenario(scenario_dict)
+    code_plots, _, _ = run_cli(["run", str(path), "--out", str(tmp_path / "plots")], capsys)
+    code, out, err = run_cli(["run", str(path), "--no-plots", "--out", str(tmp_path / "bare")], capsys)
+    assert code == code_plots == 0 and "PASS" in out and "Traceback" not in err
+    drawn = {p.name for p in (tmp_path / "plots").iterdir()}
+    bare = {p.name for p in (tmp_path / "bare").iterdir()}
+    assert "report.md" in drawn and any(n.endswith(".png") for n in drawn)
+    assert "report.md" not in bare and not any(n.endswith(".png") for n in bare)
+    assert {"summary.json", "telemetry", "events.jsonl", "stand.log"} <= bare
+    a = json.loads((tmp_path / "plots" / "summary.json").read_text())
+    b = json.loads((tmp_path / "bare" / "summary.json").read_text())
+    for key in ("pass", "status", "criteria", "checkpoints", "sim_duration_s"):
+        assert a.get(key) == b.get(key), key
+    for f in (tmp_path / "plots" / "telemetry").iterdir():
+        assert f.read_bytes() == (tmp_path / "bare" / "telemetry" / f.name).read_bytes(), f.name
