@@ -154,6 +154,7 @@ import sys, time
 from pathlib import Path
 time.strftime = lambda *a, **k: "20260101-000000"  # both runs start in the same second
 go = Path(sys.argv[1])
+Path(sys.argv[2]).touch()  # started: waiting at the line below
 deadline = time.monotonic() + 60
 while not go.exists() and time.monotonic() < deadline:
     time.sleep(0.005)
@@ -165,10 +166,14 @@ sys.exit(main(["run", "--duration", "2", "--no-progress"]))
 @pytest.mark.slow
 def test_two_runs_started_in_the_same_second_get_a_folder_each(tmp_path):
     go = tmp_path / "go"
-    procs = [subprocess.Popen([sys.executable, "-c", SAME_SECOND, str(go)], cwd=tmp_path, env=stand_env(),
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    ready = [tmp_path / f"ready{k}" for k in range(2)]
+    procs = [subprocess.Popen([sys.executable, "-c", SAME_SECOND, str(go), str(r)], cwd=tmp_path, env=stand_env(),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for r in ready]
     try:
-        time.sleep(3.0)  # both have imported the stand and wait at the same line
+        # Both wait at the same line (each says so by its file; was a fixed 3 s sleep): released together.
+        deadline = time.monotonic() + 60
+        while not all(r.exists() for r in ready) and time.monotonic() < deadline:
+            time.sleep(0.005)
         go.touch()
         outputs = [p.communicate(timeout=120) for p in procs]
     finally:

@@ -66,6 +66,10 @@ def test_external_bdot_closes_the_detumble_through_a_served_board_on_a_serial_li
         code = main(["run", "detumble_external", "--set", f"devices.mtq.channel={stand_end}", "--speed", str(SPEED),
                      "--duration", str(EXTERNAL_S), "--out", str(out), "--no-progress"])
     finally:
+        # The run is over (its summary and plots written, seconds after its last sample): SIGTERM ends the flight
+        # program at once with its counters, where it would otherwise sit out its 10 s idle limit first. The idle
+        # limit stays 10 s: it also bounds the wait for the stand's first sample, which a loaded machine delays.
+        fc.terminate()
         fc_out, _ = fc.communicate(timeout=60)
     assert code == 1  # completed, not yet detumbled: the pass criterion is at the end of a whole orbit
     summary = json.loads((out / "summary.json").read_text())

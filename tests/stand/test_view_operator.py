@@ -95,7 +95,12 @@ def test_a_finished_run_keeps_its_page_until_the_operator_stops_it(tmp_path, sig
     """`stand run --view` at the default speed ends in about a second: from a terminal its page stays served, with
     the verdict, until Ctrl-C or SIGTERM; the exit code stays the run's."""
     out = tmp_path / "run"
-    proc, master = _start(["--out", str(out)], tmp_path, interactive=True)  # the whole default detumble
+    # The default detumble cut at 600 s, its 'detumbled' limit raised from 0.5 to 10 deg/s so the cut run passes
+    # (the rate falls from 17 to about 7 deg/s by then): a passing verdict and exit code 0 as the whole orbit gives,
+    # without the whole orbit's loop and plots (about a tenth of them). The page of the whole default run is
+    # test_view_page_browser.py's.
+    proc, master = _start(["--out", str(out), "--duration", "600", "--set", "criteria.detumbled.max=10"], tmp_path,
+                          interactive=True)
     try:
         m, _ = _read_until(proc, r"live view at (http://127\.0\.0\.1:\d+/)")
         url = m.group(1)
