@@ -64,9 +64,9 @@ def test_external_bdot_closes_the_detumble_through_a_served_board_on_a_serial_li
     out = tmp_path / "ext"
     try:
         code = main(["run", "detumble_external", "--set", f"devices.mtq.channel={stand_end}", "--speed", str(SPEED),
-                     "--duration", str(EXTERNAL_S), "--out", str(out), "--no-progress"])
+                     "--duration", str(EXTERNAL_S), "--out", str(out), "--no-progress", "--no-plots"])
     finally:
-        # The run is over (its summary and plots written, seconds after its last sample): SIGTERM ends the flight
+        # The run is over (its summary written, without the plots nothing here reads): SIGTERM ends the flight
         # program at once with its counters, where it would otherwise sit out its 10 s idle limit first. The idle
         # limit stays 10 s: it also bounds the wait for the stand's first sample, which a loaded machine delays.
         fc.terminate()
@@ -95,7 +95,7 @@ def test_external_bdot_closes_the_detumble_over_can_udp_multicast_in_a_private_n
         f"> {tmp_path}/fc.log 2>&1 &) && "
         f"{sys.executable} -m stand.cli run detumble_external --set devices.mtq.interface=udp_multicast "
         f"--set devices.mtq.channel={group} --allow-remote {group} --speed {SPEED} --duration {EXTERNAL_S} --out {out} "
-        "--no-progress; "
+        "--no-progress --no-plots; "
         "rc=$?; sleep 1; exit $rc"
     )
     proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=stand_env(), cwd=tmp_path, capture_output=True,
@@ -114,7 +114,7 @@ def test_hardware_tracker_served_by_stand_emulate_in_another_process(pty_pair, t
     out = tmp_path / "hw"
     try:
         code = main(["run", "star_tracker_hardware", "--set", f"devices.st1.port={stand_end}", "--speed", "4",
-                     "--duration", "20", "--out", str(out), "--no-progress"])
+                     "--duration", "20", "--out", str(out), "--no-progress", "--no-plots"])
     finally:
         emu.terminate()
         emu.communicate(timeout=20)
