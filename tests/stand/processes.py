@@ -56,7 +56,7 @@ def run_beside_device(script: str, device_port: str, scenario_path: Path, out: P
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert emu.stdout.readline().strip() == "ready"
-        code = main(["run", str(scenario_path), "--speed", "4", "--out", str(out), "--no-progress"])
+        code = main(["run", str(scenario_path), "--speed", "4", "--out", str(out), "--no-progress", "--no-plots"])
     finally:
         emu_out, _ = emu.communicate(timeout=30)
     return code, emu_out

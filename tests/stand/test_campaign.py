@@ -336,7 +336,8 @@ def test_stand_run_re_runs_one_case_bit_for_bit(scenario_dict, write_scenario, t
     spec = _fast_spec(scenario_dict, write_scenario, tmp_path)
     camp = tmp_path / "camp"
     cm.run_campaign(spec, camp, 3, workers=0, plots=False)
-    rc = main(["run", "--campaign", str(camp), "--case", "2", "--out", str(tmp_path / "again"), "--no-progress"])
+    rc = main(["run", "--campaign", str(camp), "--case", "2", "--out", str(tmp_path / "again"), "--no-progress",
+               "--no-plots"])
     out = capsys.readouterr().out
     rec = json.loads((cm.case_dir(camp, 2) / "case.json").read_text())
     assert rc == (0 if rec["passed"] else 1)
@@ -349,7 +350,8 @@ def test_stand_run_re_runs_one_case_bit_for_bit(scenario_dict, write_scenario, t
     # A record that does not match is reported as different.
     rec["digest"] = "0" * 64
     (cm.case_dir(camp, 2) / "case.json").write_text(json.dumps(rec))
-    main(["run", "--campaign", str(camp), "--case", "2", "--out", str(tmp_path / "third"), "--no-progress"])
+    main(["run", "--campaign", str(camp), "--case", "2", "--out", str(tmp_path / "third"), "--no-progress",
+          "--no-plots"])
     assert "DIFFERS from campaign case 2" in capsys.readouterr().err
 
 

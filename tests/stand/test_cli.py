@@ -49,11 +49,12 @@ def test_port_that_cannot_be_opened_exits_2(scenario_dict, write_scenario, capsy
 
 def test_run_passes_and_fails_by_criteria(scenario_dict, write_scenario, capsys, tmp_path):
     scenario_dict["scenario"]["duration_s"] = 5.0
-    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "a")], capsys)
+    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict)), "--no-plots", "--out", str(tmp_path / "a")],
+                           capsys)
     assert code == 1 and "FAIL  detumbled" in out  # still spinning after 5 s
     scenario_dict["criteria"][0]["max"] = 100.0
-    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict, "b.toml")), "--out", str(tmp_path / "b")],
-                           capsys)
+    code, out, _ = run_cli(["run", str(write_scenario(scenario_dict, "b.toml")), "--no-plots", "--out",
+                            str(tmp_path / "b")], capsys)
     assert code == 0
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
     for key in ("scenario", "sim_duration_s", "wall_time_s", "realtime_factor", "criteria", "pass", "models",

@@ -49,7 +49,8 @@ def test_only_listed_modules_load() -> None:
 
 def test_the_summary_records_which_paths_ran_compiled(scenario_dict, write_scenario, capsys, tmp_path) -> None:
     scenario_dict["scenario"]["duration_s"] = 2.0
-    code, _, _ = run_cli(["run", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "o")], capsys)
+    code, _, _ = run_cli(["run", "--no-plots", str(write_scenario(scenario_dict)), "--out", str(tmp_path / "o")],
+                         capsys)
     assert code in (0, 1)
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["compiled_paths"] == compiled_paths.active()

@@ -141,7 +141,7 @@ def test_a_full_disk_ends_the_run_aborted_and_keeps_a_whole_summary(tmp_path, mo
     monkeypatch.setattr(tel_mod.Recorder, "_writer", writer)
     monkeypatch.setattr(tel_mod, "BATCH_ROWS", 64)
     out = tmp_path / "full"
-    assert main(["run", "--duration", "600", "--out", str(out), "--no-progress"]) == 3
+    assert main(["run", "--duration", "600", "--out", str(out), "--no-progress", "--no-plots"]) == 3
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "aborted" and "telemetry" in summary["error"] and not summary["pass"]
     rows = telemetry.load(out)["t_s"]
@@ -160,7 +160,7 @@ deadline = time.monotonic() + 60
 while not go.exists() and time.monotonic() < deadline:
     time.sleep(0.005)
 from stand.cli import main
-sys.exit(main(["run", "--duration", "2", "--no-progress"]))
+sys.exit(main(["run", "--duration", "2", "--no-progress", "--no-plots"]))
 """
 
 
@@ -292,6 +292,6 @@ def test_no_exit_0_without_the_summary_on_disk(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(report, "write_summary", lose_it)
     out = tmp_path / "lost"
     lenient = ["--set", "criteria.detumbled.max=100"]
-    assert main(["run", "--duration", "30", "--out", str(out), "--no-progress", *lenient]) == 3
+    assert main(["run", "--duration", "30", "--out", str(out), "--no-progress", "--no-plots", *lenient]) == 3
     captured = capsys.readouterr()
     assert "PASS: detumble" not in captured.out and "does not hold this run's summary" in captured.err

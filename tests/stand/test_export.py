@@ -88,7 +88,7 @@ def test_parquet_carries_units_meanings_and_the_schema(run_dir):
 def test_a_real_run_with_a_tracker_exports_to_the_bit(tmp_path):
     """A shipped scenario's telemetry (a tracker: NaN before its first solution, flags, quaternions)."""
     run = tmp_path / "run"
-    assert main(["run", "detumble_star_tracker", "--duration", "20", "--out", str(run)]) in (0, 1)
+    assert main(["run", "--no-plots", "detumble_star_tracker", "--duration", "20", "--out", str(run)]) in (0, 1)
     tel = telemetry.load(run)
     assert np.isnan(tel["st1.err_cross"]).any()
     for fmt in ("csv", "parquet"):
@@ -170,7 +170,7 @@ def test_a_recorded_tracker_flags_byte_agrees_with_its_valid_column(tmp_path):
     """In a run: the flags byte's bit 0 is the valid column, and a tumbling tracker's invalid solutions carry the
     ICD's rate bit (16), not the old 8."""
     run = tmp_path / "run"
-    assert main(["run", "detumble_star_tracker", "--duration", "20", "--out", str(run)]) in (0, 1)
+    assert main(["run", "--no-plots", "detumble_star_tracker", "--duration", "20", "--out", str(run)]) in (0, 1)
     tel = telemetry.load(run)
     ok = np.isfinite(tel["st1.t_exposure_s"])
     flags, valid = tel["st1.flags"][ok].astype(int), tel["st1.valid"][ok]

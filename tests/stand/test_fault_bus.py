@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("fault_bus") / "run"
-    code = main(["run", "fault_bus", "--out", str(out), "--no-progress"])
+    code = main(["run", "fault_bus", "--out", str(out), "--no-progress", "--no-plots"])
     return code, json.loads((out / "summary.json").read_text()), load(out)
 
 

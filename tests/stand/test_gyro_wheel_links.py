@@ -51,8 +51,8 @@ def test_served_gyro_streams_the_true_rate_to_a_host_in_another_process(pty_pair
             if s is not None:
                 samples.append(s)
 
-        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"],
-                                      tmp_path, take)
+        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress",
+                                       "--no-plots"], tmp_path, take)
         host.poll()
         counters = dict(host.counters)
     assert code == 0, log
@@ -182,7 +182,7 @@ def test_served_wheel_is_driven_by_a_flight_computer_in_another_process_over_can
     (tmp_path / "served.toml").write_text(to_toml(data))
     out = tmp_path / "out"
     _, log = _in_private_namespace(tmp_path, WHEEL_FLIGHT_COMPUTER, f"{GROUP} 12", [
-        "run", str(tmp_path / "served.toml"), "--speed", "4", "--out", str(out), "--no-progress",
+        "run", str(tmp_path / "served.toml"), "--speed", "4", "--out", str(out), "--no-progress", "--no-plots",
         "--allow-remote", GROUP])
     fc = json.loads(log.strip().splitlines()[-1])
     rw0 = json.loads((out / "summary.json").read_text())["device_counters"]["rw0"]
@@ -217,7 +217,8 @@ def test_hardware_wheel_drives_the_truth_by_the_torque_a_wheel_in_another_proces
     (tmp_path / "hw.toml").write_text(to_toml(data))
     out = tmp_path / "out"
     _, log = _in_private_namespace(tmp_path, WHEEL_DEVICE, f"{GROUP} 12", [
-        "run", str(tmp_path / "hw.toml"), "--speed", "4", "--out", str(out), "--no-progress", "--allow-remote", GROUP])
+        "run", str(tmp_path / "hw.toml"), "--speed", "4", "--out", str(out), "--no-progress", "--no-plots",
+        "--allow-remote", GROUP])
     device = json.loads(log.strip().splitlines()[-1])
     host = json.loads((out / "summary.json").read_text())["device_counters"]["rw0"]["host_counters"]
     assert host["samples"] >= 30 and device["counters"]["sent"] >= host["samples"]

@@ -87,5 +87,5 @@ def test_a_bus_that_raises_on_shutdown_does_not_take_the_summary_down(tmp_path):
 
         bus.shutdown = broken
     assert scene.closed and scene.close_errors and "peer closed" in scene.close_errors[0]
-    summary = write_summary(scene, result, out)
+    summary = write_summary(scene, result, out, plots=False)
     assert json.loads((out / "summary.json").read_text())["status"] == summary["status"] == "completed"

@@ -33,7 +33,8 @@ def _stand_handlers() -> int:
 def test_each_run_logs_to_its_own_stand_log_and_leaves_no_handler(tmp_path, capsys):
     before = _stand_handlers()
     for k in (1, 2, 3):  # three runs in one process, as a campaign's worker does
-        assert main(["run", "detumble", "--duration", "2", "--out", str(tmp_path / f"r{k}"), "--no-progress"]) == 1
+        assert main(["run", "detumble", "--duration", "2", "--out", str(tmp_path / f"r{k}"), "--no-progress",
+                     "--no-plots"]) == 1
         assert _stand_handlers() == before
     for k in (1, 2, 3):
         lines = (tmp_path / f"r{k}" / "stand.log").read_text().splitlines()
@@ -61,7 +62,8 @@ def test_verbose_and_quiet_set_the_console_and_leave_no_handler(tmp_path, capsys
         return [h for h in logging.getLogger().handlers if getattr(h, logs._MARK, False)]
 
     def run(name, before=(), after=()):
-        argv = [*before, "run", "detumble", "--duration", "1", "--out", str(tmp_path / name), "--no-progress", *after]
+        argv = [*before, "run", "detumble", "--duration", "1", "--out", str(tmp_path / name), "--no-progress",
+                "--no-plots", *after]
         assert main(argv) == 1
         assert not marked()  # the console handler lives as long as the command
         return capsys.readouterr().err
@@ -137,7 +139,7 @@ def test_a_served_tracker_with_nothing_on_its_port_warns_on_the_console(pty_pair
     stand_end, _peer_end = pty_pair
     served = {"name": "st1", "kind": "star_tracker", "link": "served", "port": stand_end}
     path = _scenario(tmp_path, [served], duration_s=2.0)
-    assert main(["run", path, "--speed", "1", "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert main(["run", path, "--speed", "1", "--out", str(tmp_path / "out"), "--no-progress", "--no-plots"]) == 0
     err = capsys.readouterr().err
     assert err.count("no flight computer talks to this served device") == 1, err
     assert "WARNING stand.devices: st1: nothing received from outside" in err

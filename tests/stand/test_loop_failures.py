@@ -114,7 +114,8 @@ def _events(out) -> list[dict]:
 def _run_cli(tmp_path, path, *args, timeout_s: float = 120.0):
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "stand.cli", "run", str(path), "--out", str(out), "--no-progress",
-                           *args], cwd=tmp_path, env=stand_env(), capture_output=True, text=True, timeout=timeout_s)
+                           "--no-plots", *args], cwd=tmp_path, env=stand_env(), capture_output=True, text=True,
+                          timeout=timeout_s)
     return proc, out
 
 

@@ -40,7 +40,7 @@ def test_telemetry_observes_the_bus_beside_a_flight_code_that_never_reads_its_dr
     out = tmp_path / "out"
     extra = MAGNETOMETER if "mag" in names else ""
     code = main(["run", _scenario(tmp_path, 'kind = "none"\n', extra), "--duration", "5", "--out", str(out),
-                 "--no-progress"])
+                 "--no-progress", "--no-plots"])
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed", code
     tel = telemetry.load(out)
@@ -61,7 +61,7 @@ def test_telemetry_observes_the_bus_beside_a_flight_code_that_never_reads_its_dr
 
 def test_the_shipped_detumble_with_a_standalone_magnetometer_passes(tmp_path):
     out = tmp_path / "out"
-    code = main(["run", "detumble_magnetometer", "--out", str(out), "--no-progress"])
+    code = main(["run", "detumble_magnetometer", "--out", str(out), "--no-progress", "--no-plots"])
     summary = json.loads((out / "summary.json").read_text())
     assert code == 0 and all(c["pass"] for c in summary["criteria"]), summary["criteria"]
     counters = summary["device_counters"]

@@ -137,7 +137,7 @@ def check_fix_time(week, tow_s, t_fix_s, t_s):
 def test_a_scenario_runs_with_the_installed_kind_emulated_and_its_fixes_follow_the_truth(gnss_python, tmp_path):
     out = tmp_path / "run"
     done = in_env(gnss_python, "-m", "stand.cli", "run", str(SCENARIO), "--out", str(out), "--no-progress",
-                  cwd=tmp_path)
+                  "--no-plots", cwd=tmp_path)
     assert done.returncode == 0, done.stdout + done.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["pass"] and summary["status"] == "completed", summary

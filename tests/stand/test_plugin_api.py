@@ -60,7 +60,7 @@ def _summary(out: Path) -> dict:
 
 def test_the_wheel_pointing_plugin_written_from_the_docs_runs_and_is_scored(tmp_path):
     out = tmp_path / "run"
-    assert main(["run", str(FIXTURE), "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", str(FIXTURE), "--out", str(out), "--no-progress", "--no-plots"]) == 0
     summary = _summary(out)
     assert summary["status"] == "completed" and summary["pass"] is True
     by_metric = {c["metric"]: c for c in summary["criteria"]}
@@ -78,7 +78,7 @@ def test_the_wheel_pointing_plugin_written_from_the_docs_runs_and_is_scored(tmp_
 def test_the_template_itself_runs_on_the_same_scenario_and_is_scored(tmp_path):
     out = tmp_path / "run"
     code = main(["run", str(FIXTURE), "--set", "controller.module=pointing_template:PointingTemplate", "--set",
-                 f"controller.path={REPO / 'examples'}", "--out", str(out), "--no-progress"])
+                 f"controller.path={REPO / 'examples'}", "--out", str(out), "--no-progress", "--no-plots"])
     summary = _summary(out)
     assert summary["status"] == "completed" and code in (0, 1)
     values = {c["metric"]: c["value"] for c in summary["criteria"]}
@@ -175,7 +175,7 @@ def test_a_positive_command_torque_spins_the_wheel_up_and_the_body_the_other_way
     path.write_text(_scenario_text(_plugin_controller("torquer:Torquer", f"{{ torque_Nm = {tau} }}"),
                                    devices=ONE_WHEEL, criteria="", duration_s=10.0, omega="[0.0, 0.0, 0.0]"))
     out = tmp_path / "run"
-    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", str(path), "--out", str(out), "--no-progress", "--no-plots"]) == 0
     tel = load(out)
     t, omega, speed = tel["t_s"], tel["omega_BN_B"], tel["rw.speed_rad_s"]
     # The command given at t = 0 acts over the step that follows (docs/adcs.md): the torque acted for all of t.

@@ -145,7 +145,7 @@ def test_duty_cycled_board_with_corrupting_coils_still_detumbles(tmp_path):
     sc = scenario.load(scenario.SCENARIO_DIR / "detumble_duty_cycled.toml")
     with build(sc) as scene:
         result = run(scene, tmp_path / "out")
-        summary = write_summary(scene, result, tmp_path / "out")
+        summary = write_summary(scene, result, tmp_path / "out", plots=False)
         skipped, used = scene.controller.samples_skipped, scene.controller.samples_used
     assert summary["pass"], summary["criteria"]
     tel = telemetry.load(tmp_path / "out")
@@ -343,7 +343,7 @@ def test_a_plugin_row_of_the_wrong_width_aborts_the_run_and_keeps_the_rows_befor
 
     path = write_scenario(with_plugin(scenario_dict, tmp_path, "Wide", bad_after_s=5.0))
     out = tmp_path / "out"
-    assert main(["run", str(path), "--duration", "30", "--out", str(out), "--no-progress"]) == 3
+    assert main(["run", str(path), "--duration", "30", "--out", str(out), "--no-progress", "--no-plots"]) == 3
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "aborted" and not summary["pass"]
     # The sentence names the row's count, the columns' count and the plug-in's column.

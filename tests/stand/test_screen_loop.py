@@ -166,7 +166,7 @@ def _start_run(tmp_path, stand_end, emu: subprocess.Popen, pre_distortion: str) 
     run = subprocess.Popen(
         [sys.executable, "-m", "stand.cli", "run", "detumble_star_tracker_screen",
          "--set", f"devices.st1.port={stand_end}", "--set", f"devices.st1.screen_port=udp://127.0.0.1:{found.group(1)}",
-         "--speed", "1", "--duration", str(DURATION_S), "--out", str(out), "--no-progress"],
+         "--speed", "1", "--duration", str(DURATION_S), "--out", str(out), "--no-progress", "--no-plots"],
         env=stand_env(), cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     return run, out
 
@@ -268,7 +268,8 @@ def test_a_window_screen_is_rendered_by_the_stand_every_tick_time_tagged_for_whe
     out = tmp_path / "run"
     try:
         assert "star tracker at address" in emu.stdout.readline()
-        code = main(["run", str(path), "--speed", "1", "--duration", "3", "--out", str(out), "--no-progress"])
+        code = main(["run", str(path), "--speed", "1", "--duration", "3", "--out", str(out), "--no-progress",
+                     "--no-plots"])
     finally:
         emu.terminate()
         emu.communicate(timeout=20)

@@ -80,7 +80,8 @@ def _run_against_node(tmp_path, pty_pair, node_key: bytes, **tracker):
     out = tmp_path / "run"
     try:
         assert "star tracker at address" in emu.stdout.readline()
-        code = main(["run", path, "--speed", "1", "--duration", str(RUN_S), "--out", str(out), "--no-progress"])
+        code = main(["run", path, "--speed", "1", "--duration", str(RUN_S), "--out", str(out), "--no-progress",
+                     "--no-plots"])
     finally:
         emu.terminate()
         emu.communicate(timeout=20)

@@ -68,8 +68,8 @@ def _run(tmp_path, pty_pair, device: dict, steps: list[bytes], duration_s: float
     out = tmp_path / "out"
     peer = ScriptedPeer(peer_end, steps, hello)
     try:
-        code, log = run_stand_polling(["run", str(path), "--speed", "2", "--out", str(out), "--no-progress"],
-                                      tmp_path, peer, timeout_s=120)
+        code, log = run_stand_polling(["run", str(path), "--speed", "2", "--out", str(out), "--no-progress",
+                                       "--no-plots"], tmp_path, peer, timeout_s=120)
     finally:
         peer.close()
     assert peer.sent == len(steps), f"the run ended before the script did ({peer.sent} of {len(steps)} steps)\n{log}"
@@ -292,8 +292,8 @@ def _run_unread(device: dict, tmp_path) -> dict:
     path = tmp_path / "served.toml"
     path.write_text(to_toml(data))
     out = tmp_path / "out"
-    code, log = run_stand_polling(["run", str(path), "--speed", "8", "--out", str(out), "--no-progress"], tmp_path,
-                                  lambda: None, timeout_s=120)
+    code, log = run_stand_polling(["run", str(path), "--speed", "8", "--out", str(out), "--no-progress",
+                                   "--no-plots"], tmp_path, lambda: None, timeout_s=120)
     assert code == 0, log
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "completed", log

@@ -27,7 +27,7 @@ def test_idle_wheels_on_the_magnetorquer_bus_reject_nothing_and_are_not_rejected
     path = tmp_path / "shared.toml"
     path.write_text(_with_wheels_on_the_mtq_bus(DEFAULT_SCENARIO.read_text()))
     out = tmp_path / "out"
-    code = main(["run", str(path), "--duration", str(RUN_S), "--out", str(out), "--no-progress"])
+    code = main(["run", str(path), "--duration", str(RUN_S), "--out", str(out), "--no-progress", "--no-plots"])
     summary = json.loads((out / "summary.json").read_text())
     assert code == 1 and summary["status"] == "completed"  # completed; 5 s cannot detumble
     (check,) = [c for c in summary["criteria"] if c["name"] == "no rejected frames"]

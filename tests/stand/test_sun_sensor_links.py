@@ -152,8 +152,8 @@ def test_served_link_streams_to_a_host_in_another_process(pty_pair, tmp_path):
                 answered.append(host.request_sun(timeout_s=5.0))
                 samples.append(answered[0])
 
-        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress"],
-                                      tmp_path, take)
+        code, log = run_stand_polling(["run", str(path), "--speed", "4", "--out", str(out), "--no-progress",
+                                       "--no-plots"], tmp_path, take)
         host.poll()
         counters = dict(host.counters)
     assert code == 0, log

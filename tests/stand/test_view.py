@@ -266,7 +266,8 @@ def test_view_command_exports_and_refuses_bad_input(run_dir, tmp_path, capsys):
 
 def test_a_run_folder_without_view_json_is_described_from_its_scenario(tmp_path):
     out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--duration", "2", "--no-progress"]) == 1  # not detumbled in 2 s
+    # not detumbled in 2 s
+    assert main(["run", "--out", str(out), "--duration", "2", "--no-progress", "--no-plots"]) == 1
     written = json.loads((out / "view.json").read_text())
     (out / "view.json").unlink()
     assert state.load_meta(out) == written  # the summary names the shipped scenario

@@ -71,7 +71,7 @@ def browser():
 def run_dir(tmp_path_factory):
     base = tmp_path_factory.mktemp("viewb")
     out = base / "run"
-    assert main(["run", write_scenario(base / "sweep.toml"), "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", write_scenario(base / "sweep.toml"), "--out", str(out), "--no-progress", "--no-plots"]) == 0
     return out
 
 
@@ -239,7 +239,7 @@ def live_run(scenario, out: Path, speed: float):
     """``stand run SCENARIO --view`` in its own process: yields (the process, the page's URL it printed first); the
     process is killed if still running at the end, and its pipes closed."""
     cmd = [sys.executable, "-m", "stand.cli", "run", str(scenario), "--out", str(out), "--view",
-           "--speed", f"{speed:g}", "--no-progress"]
+           "--speed", f"{speed:g}", "--no-progress", "--no-plots"]
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()
@@ -314,7 +314,8 @@ def nan_run(tmp_path_factory):
     summary.json, each with the stand's ``reason``) and the tracker's first rows are NaN. One criterion is given a
     bare NaN instead, as a summary written by an older stand holds it, which the page must take too."""
     out = tmp_path_factory.mktemp("viewnan") / "run"
-    assert main(["run", "detumble_star_tracker", "--duration", "60", "--out", str(out), "--no-progress"]) == 1
+    assert main(["run", "detumble_star_tracker", "--duration", "60", "--out", str(out), "--no-progress",
+                 "--no-plots"]) == 1
     summary = json.loads((out / "summary.json").read_text())
     empty = [c for c in summary["criteria"] if c["value"] is None]
     assert len(empty) == 3 and all(c.get("reason") for c in empty), summary["criteria"]

@@ -66,7 +66,8 @@ def _http(url, body=None, headers=None, method=None):
 def run_dir(tmp_path_factory):
     base = tmp_path_factory.mktemp("viewf")
     out = base / "run"
-    assert main(["run", write_scenario(base / "sweep.toml", duration_s=5.0), "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", write_scenario(base / "sweep.toml", duration_s=5.0), "--out", str(out), "--no-progress",
+                 "--no-plots"]) == 0
     return out
 
 
@@ -400,7 +401,7 @@ def test_a_scenarios_own_faults_are_listed_with_what_happened(tmp_path, capsys):
     path.write_text(path.read_text() + '\n[[faults]]\ndevice = "fss"\ntype = "bias_step"\nbias_rad = [0.05, 0.0]\n'
                     'at_s = 2.0\nduration_s = 1.0\n')
     out = tmp_path / "run"
-    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", str(path), "--out", str(out), "--no-progress", "--no-plots"]) == 0
     with server.ViewServer(server.ReplaySource(out)) as view:
         status, body = _http(view.url + "api/faults", headers={})
     assert status == 200 and body["live"] is False

@@ -112,7 +112,7 @@ def test_a_replay_has_no_frames_and_says_so(tmp_path):
     out = tmp_path / "run"
     from stand.cli import main
 
-    assert main(["run", SCENARIO, "--duration", "3", "--out", str(out), "--no-progress"]) in (0, 1)
+    assert main(["run", SCENARIO, "--duration", "3", "--out", str(out), "--no-progress", "--no-plots"]) in (0, 1)
     meta = state.load_meta(out)
     layer = {d["name"]: d.get("image") for d in meta["devices"]}
     assert layer["st1"] == {"renders": True, "size_px": [1024, 768], "delay_s": 0.1}

@@ -34,8 +34,8 @@ def test_the_live_page_shows_the_trackers_newest_frame(browser, tmp_path):  # no
     """A live run of the image tracker at 5 x real time: the panel shows decoded frames whose sim time advances,
     with the stars extracted and the solution's validity; the page still fits 1280 pixels."""
     out = tmp_path / "run"
-    proc, master = _start(["detumble_star_tracker_image", "--duration", "120", "--speed", "5", "--out", str(out)],
-                          tmp_path, interactive=False)
+    proc, master = _start(["detumble_star_tracker_image", "--duration", "120", "--speed", "5", "--out", str(out),
+                           "--no-plots"], tmp_path, interactive=False)
     size = browser.get_window_size()
     try:
         m, _ = _read_until(proc, r"live view at (http://127\.0\.0\.1:\d+/)")
@@ -85,7 +85,8 @@ def test_the_live_page_shows_the_trackers_newest_frame(browser, tmp_path):  # no
 
 def test_a_truth_tracker_shows_no_image(browser, tmp_path):  # noqa: F811
     out = tmp_path / "run"
-    assert main(["run", "detumble_star_tracker", "--duration", "5", "--out", str(out), "--no-progress"]) in (0, 1)
+    assert main(["run", "detumble_star_tracker", "--duration", "5", "--out", str(out), "--no-progress",
+                 "--no-plots"]) in (0, 1)
     with server.ViewServer(server.ReplaySource(out)) as view:
         _open(browser, view.url)
         assert not browser.find_element("id", "trackimg").get_attribute("hidden")
@@ -97,7 +98,7 @@ def test_a_truth_tracker_shows_no_image(browser, tmp_path):  # noqa: F811
 
 def test_a_run_without_a_tracker_has_no_image_panel(browser, tmp_path):  # noqa: F811
     out = tmp_path / "run"
-    assert main(["run", "detumble_igrf", "--duration", "2", "--out", str(out), "--no-progress"]) in (0, 1)
+    assert main(["run", "detumble_igrf", "--duration", "2", "--out", str(out), "--no-progress", "--no-plots"]) in (0, 1)
     with server.ViewServer(server.ReplaySource(out)) as view:
         _open(browser, view.url)
         assert browser.find_element("id", "trackimg").get_attribute("hidden")

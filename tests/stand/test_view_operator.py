@@ -28,7 +28,8 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_stand_view_elsewhere_names_its_own_token_flag(tmp_path, capsys):
     """`stand view --bind 0.0.0.0` used to tell the user to pass --view-token, which `stand view` refuses."""
     out = tmp_path / "run"
-    assert main(["run", "--out", str(out), "--duration", "1", "--no-progress"]) == 1  # too short to detumble
+    # too short to detumble
+    assert main(["run", "--out", str(out), "--duration", "1", "--no-progress", "--no-plots"]) == 1
     capsys.readouterr()
     assert main(["view", str(out), "--bind", "127.0.0.2:0"]) == 2
     err = capsys.readouterr().err
@@ -126,14 +127,14 @@ def test_a_finished_run_keeps_its_page_until_the_operator_stops_it(tmp_path, sig
 def test_outside_a_terminal_the_page_lingers_as_long_as_asked(tmp_path):
     """Not from a terminal (a script, CI) nobody can press Ctrl-C: no linger unless --view-linger-s asks, and then
     the stand ends by itself."""
-    proc, master = _start(["--out", str(tmp_path / "a"), "--duration", "30"], tmp_path, interactive=False)
+    proc, master = _start(["--out", str(tmp_path / "a"), "--duration", "30", "--no-plots"], tmp_path, interactive=False)
     try:
         _read_until(proc, r"page's server stops \(not run from a terminal\): pass --view-linger-s SECONDS")
         assert proc.wait(timeout=30) == 1  # the run's own exit code: 30 s do not detumble
     finally:
         _end(proc, master)
-    proc, master = _start(["--out", str(tmp_path / "b"), "--duration", "30", "--view-linger-s", "2"], tmp_path,
-                          interactive=False)
+    proc, master = _start(["--out", str(tmp_path / "b"), "--duration", "30", "--view-linger-s", "2", "--no-plots"],
+                          tmp_path, interactive=False)
     try:
         m, _ = _read_until(proc, r"its page stays at (http://\S+) for 2 s")
         assert _get(m.group(1) + "api/meta")[0] == 200
@@ -159,7 +160,8 @@ def test_the_3d_views_momentum_and_torques_follow_the_scenario(tmp_path):
     from stand.view import state
 
     out = tmp_path / "run"
-    assert main(["run", "pointing_star_tracker", "--duration", "20", "--out", str(out), "--no-progress"]) in (0, 1)
+    assert main(["run", "pointing_star_tracker", "--duration", "20", "--out", str(out), "--no-progress",
+                 "--no-plots"]) in (0, 1)
     s = state.replay_samples(out, state.load_meta(out))
     tel = load(out)
     axes = {"rw0": [0.81649658, 0.0, 0.57735027], "rw1": [0.0, 0.81649658, 0.57735027],

@@ -26,7 +26,8 @@ def pointing_run(tmp_path_factory):
     """A minute of the wheel-pointing scenario: the tracker acquires (its first solutions are not valid, with errors
     recorded all the same), the controller records its commanded attitude and estimate."""
     out = tmp_path_factory.mktemp("page") / "run"
-    assert main(["run", "pointing_star_tracker", "--duration", "60", "--out", str(out), "--no-progress"]) in (0, 1)
+    assert main(["run", "pointing_star_tracker", "--duration", "60", "--out", str(out), "--no-progress",
+                 "--no-plots"]) in (0, 1)
     tel = load(out)
     invalid = tel["st.valid"] < 0.5
     assert invalid.any() and np.isfinite(tel["st.err_cross"][invalid]).any()  # what the panel must leave out
