@@ -538,15 +538,16 @@ def serve_live(conn, run_dir: str, meta: dict, host: str, port: int, token: str 
         return
     conn.send_bytes(b"ready " + url.encode())
     try:
-        _relay(conn, source, lambda: control({"pages": source.pages}))
+        _relay(conn, source, lambda: control({"pages": source.pages}), lambda: control({"summary": "shown"}))
     except (EOFError, OSError):
         pass
     finally:
         view.close(linger_s=0.5 if view.sockets else 0.0)
 
 
-def _relay(conn, source, heartbeat) -> None:
-    """serve_live's loop: rows and statuses in, a heartbeat out every HEARTBEAT_S, until told to end."""
+def _relay(conn, source, heartbeat, shown) -> None:
+    """serve_live's loop: rows and statuses in, a heartbeat out every HEARTBEAT_S, until told to end; ``shown()``
+    once the pages have the finished run's verdict (the run's side waits for it before it says the run ended)."""
     width = None
     beat = 0.0
     while True:
@@ -568,6 +569,7 @@ def _relay(conn, source, heartbeat) -> None:
             source.answered(json.loads(data))
         elif tag == b"V":
             source.summary_ready()
+            shown()
         elif tag == b"I":
             _frame(source, data)
         elif tag == b"C":
@@ -693,13 +695,23 @@ class LiveSession:
         except (OSError, EOFError, ValueError):
             pass  # the server process already went away
 
-    def summary_ready(self) -> None:
-        """``summary.json`` is written: the pages may show the verdict."""
+    def summary_ready(self, timeout_s: float = START_TIMEOUT_S) -> None:
+        """``summary.json`` is written: the pages may show the verdict. Returns once the server has taken in the
+        run's end and its summary (at most ``timeout_s``), so whatever the console says next (the verdict, that the
+        page stays) is already what the page serves; a run whose drawing was left out gets here milliseconds after
+        its last sample."""
         try:
-            if self.feed is not None:
-                self.conn.send_bytes(b"V")
+            if self.feed is None:
+                return
+            self.conn.send_bytes(b"V")
+            deadline = time.monotonic() + timeout_s
+            while self.conn.poll(max(0.0, deadline - time.monotonic())):
+                if self.conn.recv() == {"summary": "shown"}:  # heartbeats and late commands: dropped, the run is over
+                    return
+                if time.monotonic() >= deadline:
+                    return
         except (OSError, EOFError, ValueError):
-            pass
+            pass  # the server process went away: nothing to wait for
 
     def linger(self, seconds: float | None, say=print) -> str:
         """Keep serving the finished run's page for ``seconds`` (None or infinity: until SIGINT or SIGTERM), saying
