@@ -426,8 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     # A short run spends most of its wall time drawing (about 2 s of matplotlib whatever the run's length): a
     # pipeline that reads only summary.json and the telemetry leaves the drawing out.
     r.add_argument("--plots", action=argparse.BooleanOptionalAction, default=True,
-                   help="draw the PNG plots and report.md after the run (default); --no-plots writes only "
-                   "summary.json, the telemetry, events and log")
+                   help="draw the PNG plots and report.md after the run (default); --no-plots leaves them out (the "
+                   "summary, telemetry, events and log are the same)")
     r.add_argument("--view", nargs="?", const="", metavar="HOST:PORT",
                    help="serve the operator page live while the run goes (default 127.0.0.1 and a free port, "
                    "printed); another address needs --view-token")
