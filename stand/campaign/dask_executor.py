@@ -25,12 +25,11 @@ CASES_PER_MESSAGE = 4096
 #: ``dask_worker_env()``.
 WORKER_CONFIG = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
                  "distributed.admin.system-monitor.interval": "5s", "distributed.admin.tick.interval": "1s"}
-#: The periodic callback (by its name in a Dask worker) each setting of ``WORKER_CONFIG`` starts, and the interval
-#: the setting gives it (ms; None: not run).
-_CALLBACKS = {"profile": ("distributed.worker.profile.enabled", None),
-              "memory_monitor": ("distributed.worker.memory.monitor-interval", 1000.0),
-              "monitor": ("distributed.admin.system-monitor.interval", 5000.0),
-              "tick": ("distributed.admin.tick.interval", 1000.0)}
+#: The periodic callback (by its name in a Dask worker) each setting of ``WORKER_CONFIG`` starts.
+_CALLBACKS = {"profile": "distributed.worker.profile.enabled",
+              "memory_monitor": "distributed.worker.memory.monitor-interval",
+              "monitor": "distributed.admin.system-monitor.interval",
+              "tick": "distributed.admin.tick.interval"}
 
 
 class _Dask:
@@ -122,9 +121,13 @@ def worker_settings(periodic_ms: dict[str, dict[str, float]]) -> dict:
     (None: none runs it), and
     ``dask_worker_advice``, a sentence naming the settings that run more often than ``WORKER_CONFIG`` says (a
     worker's periodic work is CPU time taken from its cases), else absent."""
+    from dask.utils import parse_timedelta
+
     settings: dict[str, float | None] = {}
     costly: list[str] = []
-    for name, (key, wanted_ms) in _CALLBACKS.items():
+    for name, key in _CALLBACKS.items():
+        wanted = WORKER_CONFIG[key]  # an interval, or False: not run at all
+        wanted_ms = None if wanted is False else parse_timedelta(wanted) * 1e3
         running = [w[name] for w in periodic_ms.values() if name in w]
         settings[name] = min(running) if running else None
         if running and (wanted_ms is None or min(running) < wanted_ms):
@@ -141,7 +144,6 @@ def worker_settings(periodic_ms: dict[str, dict[str, float]]) -> dict:
 def _env_name(key: str) -> str:
     """The environment variable Dask reads for a dotted config ``key``."""
     return "DASK_" + key.upper().replace(".", "__").replace("-", "_")
-
 
 
 async def _answer(future, index: int, answers) -> None:
