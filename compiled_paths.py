@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
+    "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)
 )
 
 _chosen: dict[str, ModuleType] = {}

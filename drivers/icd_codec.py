@@ -17,7 +17,10 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+import compiled_paths
 from drivers.errors import EncodeError
+
+_plan = compiled_paths.load("drivers.icd_plan")
 
 __all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "load_icd",
            "wire_value", "wire_values"]
@@ -96,8 +99,7 @@ class MessageSpec:
 
     @cached_property  # built once: the per-frame loops of wire_values and decode_fields read only this
     def plan(self) -> tuple[tuple[Any, ...], ...]:
-        """Per field, in payload order, what encoding and decoding a frame need, as a plain tuple
-        ``(kind, attr, index, scale, lo, hi, extra, field)`` (:func:`field_plan`)."""
+        """Per field, in payload order, what encoding and decoding a frame need (:func:`field_plan`)."""
         return tuple(field_plan(f) for f in self.fields)
 
     @cached_property
@@ -110,29 +112,29 @@ class MessageSpec:
         return tuple(lengths.items())
 
 
-#: A field's kind in its plan (:func:`field_plan`).
-_BITS, _ENUM, _INT, _I24, _F32 = range(5)
 _FLOAT_MAX = 1.7976931348623157e308
 
 
-def field_plan(f: FieldSpec) -> tuple[Any, ...]:
-    """``(kind, attr, index, scale, lo, hi, extra, f)`` of one field, built once per message.
-
-    ``extra`` is ``((bit, mask), ...)`` for flags, and for an enumeration the table and a dict of the names a
-    value may be given as exactly (name -> wire index). An f32 field's ``lo``/``hi`` are clipped to the finite
-    floats, so one range test also says a value is finite (NaN and inf fail it, as the checks require)."""
+def field_plan(f: FieldSpec) -> Any:
+    """What the per-frame loops (:mod:`drivers.icd_plan`) need of field ``f``, built once per message: a
+    ``FieldPlan``. An f32 field's bounds are clipped to the finite floats, so one range test also says a value is
+    finite (NaN and inf fail it, as the checks require); an enumeration's names are those a value may be given as
+    exactly (the checks compare the upper-cased value with the table)."""
+    index = -1 if f.index is None else f.index
     if f.bits is not None:
-        return (_BITS, f.attr, f.index, f.scale, f.lo, f.hi, tuple((bit, 1 << i) for i, bit in enumerate(f.bits)), f)
+        return _plan.FieldPlan(_plan.BITS, f.attr, index, f.scale, f.lo, f.hi,
+                               tuple((bit, 1 << i) for i, bit in enumerate(f.bits)), (), {}, f)
     if f.enum is not None:
         names: dict[str, int] = {}
         for i, n in enumerate(f.enum):
-            if n.upper() == n:  # a name found as it is given (the checks compare the upper-cased value)
+            if n.upper() == n:
                 names.setdefault(n, i)
-        return (_ENUM, f.attr, f.index, f.scale, f.lo, f.hi, (f.enum, names), f)
+        return _plan.FieldPlan(_plan.ENUM, f.attr, index, f.scale, f.lo, f.hi, (), f.enum, names, f)
     if f.is_float:
-        lo, hi = max(f.lo, -_FLOAT_MAX), min(f.hi, _FLOAT_MAX)
-        return (_F32, f.attr, f.index, f.scale, lo, hi, None, f)
-    return (_I24 if f.type == "i24" else _INT, f.attr, f.index, f.scale, f.lo, f.hi, None, f)
+        return _plan.FieldPlan(_plan.F32, f.attr, index, f.scale, max(f.lo, -_FLOAT_MAX), min(f.hi, _FLOAT_MAX),
+                               (), (), {}, f)
+    return _plan.FieldPlan(_plan.I24 if f.type == "i24" else _plan.INT, f.attr, index, f.scale, f.lo, f.hi, (), (),
+                           {}, f)
 
 
 def load_icd(path: str | Path) -> dict[str, Any]:
@@ -176,58 +178,18 @@ def field_specs(m: dict[str, Any], enums: dict[str, tuple[str, ...]], where: str
 def wire_values(spec: MessageSpec, msg: Any, message: str, byte_order: str = "little") -> list[Any]:
     """The wire values of every field of ``msg`` (a ``spec.cls``), in payload order (:func:`wire_value`).
 
-    Every frame of every device passes here, so the common case is taken straight from the message's plan
-    (:attr:`MessageSpec.plan`): True/False flags, a name or index in its enumeration, a plain float or int
-    (a tuple element for indexed fields) whose wire value lies inside its field. Anything else, and every
-    refusal, goes to :func:`wire_value`, which converts it or says what is wrong: the same wire values and
-    the same errors, with the checks' calls made only where they are needed."""
-    out = []
-    for kind, attr, index, scale, lo, hi, extra, f in spec.plan:
-        wire: Any = None
-        if kind == _BITS:
-            wire = _plain_flags(extra, msg)
-        else:
-            value = getattr(msg, attr)
-            if index is not None:
-                value = value[index] if type(value) is tuple and index < len(value) else None
-            t = type(value)
-            if kind == _F32:
-                if t is float:
-                    x = value / scale  # x / 1.0 is x: the same bits as without the scale
-                    if lo <= x <= hi:  # lo and hi are finite (field_plan): a NaN or inf fails here
-                        wire = x
-            elif kind == _ENUM:
-                wire = _plain_enum(extra, value, t)
-            elif t is int or t is float:
-                x = value if t is int and scale == 1.0 else value / scale
-                n = x if type(x) is int else round(x) if math.isfinite(x) else None
-                if n is not None and lo <= n <= hi:
-                    wire = n if kind == _INT else n.to_bytes(3, byte_order, signed=True)
-        if wire is None:  # not the plain case: converted, or refused with its sentence
-            wire = wire_value(f, msg, message, byte_order)
-        out.append(wire)
+    Every frame of every device passes here, so the plain case (True/False flags, an enumeration name or index, a
+    float or int whose wire value lies inside its field) is taken straight from the message's plan
+    (:mod:`drivers.icd_plan`), field after field; the first field that is not plain goes to :func:`wire_value`,
+    which converts it or says what is wrong, and the plan goes on after it: the same values and the same errors,
+    field by field in payload order, with the checks' calls made only where they are needed."""
+    out: list[Any] = []
+    plan = spec.plan
+    i = _plan.plain_wire_values(plan, msg, byte_order, out, 0)
+    while i >= 0:
+        out.append(wire_value(spec.fields[i], msg, message, byte_order))
+        i = _plan.plain_wire_values(plan, msg, byte_order, out, i + 1)
     return out
-
-
-def _plain_flags(bits: tuple[tuple[str, int], ...], msg: Any) -> int | None:
-    """The flags word when every flag is True or False, else None (:func:`_flags` checks the others)."""
-    v = 0
-    for bit, mask in bits:
-        flag = getattr(msg, bit)
-        if flag is True:
-            v |= mask
-        elif flag is not False:
-            return None
-    return v
-
-
-def _plain_enum(extra: tuple[tuple[str, ...], dict[str, int]], value: Any, t: type) -> int | None:
-    """The wire index of a name given as in the table or of an index inside it, else None (:func:`_enum_index`)."""
-    if t is str:
-        return extra[1].get(value)
-    if t is int and 0 <= value < len(extra[0]):
-        return value
-    return None
 
 
 def wire_value(f: FieldSpec, msg: Any, message: str, byte_order: str = "little") -> Any:
@@ -380,27 +342,14 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
     """
     kw: dict[str, Any] = {}
     tuple_attrs = spec.tuple_attrs
-    for attr, n in tuple_attrs:  # filled element by element below, made tuples at the end
+    for attr, n in tuple_attrs:  # filled element by element, made tuples at the end
         kw[attr] = [None] * n
-    for (kind, attr, index, scale, lo, hi, extra, f), v in zip(spec.plan, raw, strict=True):
-        if kind == _BITS:
-            if v < 0 or v > hi:  # a bit past the ICD's flags (hi: every defined bit set)
-                raise _value_refused(spec, f, v, exc, frame, prefix)
-            for bit, mask in extra:
-                kw[bit] = v & mask != 0
-            continue
-        if kind == _ENUM:
-            if v > hi:  # hi: the last entry of the table
-                raise _value_refused(spec, f, v, exc, frame, prefix)
-            val: Any = extra[0][v]
-        elif lo <= v <= hi:  # an f32 field's lo and hi are finite (field_plan): NaN and inf fail here
-            val = v * scale if scale != 1.0 else v
-        else:
-            raise _value_refused(spec, f, v, exc, frame, prefix)
-        if index is None:
-            kw[attr] = val
-        else:
-            kw[attr][index] = val
+    i = _plan.decode_plain(spec.plan, raw, kw)
+    if i >= 0:
+        raise _value_refused(spec, spec.fields[i], raw[i], exc, frame, prefix)
+    if len(raw) != len(spec.fields):
+        for _ in zip(spec.fields, raw, strict=True):  # zip's own ValueError, as ever
+            pass
     for attr, _ in tuple_attrs:
         kw[attr] = tuple(kw[attr])
     if spec.norms:
