@@ -213,7 +213,13 @@ class PipePort:
 
     def write(self, data: bytes) -> int:
         data = bytes(data)
-        view, tx, cond = memoryview(data), self._tx, self._cond
+        tx, cond = self._tx, self._cond
+        with cond:
+            if self.is_open and self.capacity - len(tx) >= len(data):  # the usual case: room for all of it
+                tx += data
+                cond.wake()
+                return len(data)
+        view = memoryview(data)
         deadline = None  # the write timeout runs from the first wait for room
         with cond:
             while view:
