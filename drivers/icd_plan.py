@@ -69,11 +69,38 @@ class FieldPlan:
 
 def plain_wire_values(plan: tuple, msg: object, byte_order: str, out: list, start: cython.Py_ssize_t) -> int:
     """Append to ``out`` the wire values of ``msg``'s fields from position ``start`` on, as long as they are the
-    plain case; the position of the first field that is not (the codec's checks take it), or -1 after the last."""
+    plain case; the position of the first field that is not (the codec's checks take it), or -1 after the last.
+    (One loop without a call per field: in plain Python too, a frame costs a few calls, not a few per field.)"""
     n: cython.Py_ssize_t = len(plan)
     i: cython.Py_ssize_t
+    p: FieldPlan
     for i in range(start, n):
-        wire: object = _plain_wire(plan[i], msg, byte_order)
+        p = plan[i]
+        wire: object = None
+        if p.kind == BITS:
+            wire = _plain_flags(p.bits, msg)
+        elif p.kind == ENUM:
+            wire = _plain_enum(p, getattr(msg, p.attr))
+        else:
+            value: object = getattr(msg, p.attr)
+            if p.index >= 0:  # an element of a tuple (anything else: the checks)
+                try:
+                    value = value[p.index] if type(value) is tuple else None
+                except IndexError:
+                    value = None
+            t: object = type(value)
+            if p.kind == F32:
+                if t is float and p.scale != 0.0:  # a zero scale: the checks raise Python's own ZeroDivisionError
+                    x: cython.double = value
+                    x = x / p.scale  # x / 1.0 is x: the same bits as without the scale
+                    if p.flo <= x <= p.fhi:  # finite bounds: a NaN or inf fails here
+                        wire = x
+            elif t is int or t is float:
+                # a Python float (or Python's own error) when scaled: round is Python's, half to even
+                w: object = value if t is int and p.unscaled else value / p.scale
+                rounded: object = w if type(w) is int else round(w) if isfinite(w) else None
+                if rounded is not None and p.lo <= rounded <= p.hi:
+                    wire = rounded if p.kind == INT else rounded.to_bytes(3, byte_order, signed=True)
         if wire is None:
             return i
         out.append(wire)
@@ -81,43 +108,13 @@ def plain_wire_values(plan: tuple, msg: object, byte_order: str, out: list, star
 
 
 @cython.cfunc
-def _plain_wire(p: FieldPlan, msg: object, byte_order: str) -> object:
-    if p.kind == BITS:
-        return _plain_flags(p.bits, msg)
-    value: object = getattr(msg, p.attr)
-    if p.index >= 0:
-        if type(value) is not tuple or p.index >= len(value):
-            return None
-        value = value[p.index]
+def _plain_enum(p: FieldPlan, value: object) -> object:
     t: object = type(value)
-    if p.kind == F32:
-        if t is float and p.scale != 0.0:  # a zero scale: the checks raise Python's own ZeroDivisionError
-            x: cython.double = value
-            x = x / p.scale  # x / 1.0 is x: the same bits as without the scale
-            if p.flo <= x <= p.fhi:  # finite bounds: a NaN or inf fails here
-                return x
-        return None
-    if p.kind == ENUM:
-        if t is str:
-            return p.names.get(value)
-        if t is int and 0 <= value < len(p.table):
-            return value
-        return None
-    n: object
-    if t is int and p.unscaled:
-        n = value
-    elif t is int or t is float:
-        w: object = value / p.scale  # a Python float (or Python's own error): round below is Python's, half to even
-        if not isfinite(w):
-            return None
-        n = round(w)
-    else:
-        return None
-    if not p.lo <= n <= p.hi:
-        return None
-    if p.kind == I24:
-        return n.to_bytes(3, byte_order, signed=True)
-    return n
+    if t is str:
+        return p.names.get(value)
+    if t is int and 0 <= value < len(p.table):
+        return value
+    return None
 
 
 @cython.cfunc
