@@ -165,5 +165,9 @@ def in_field(direction: Sequence[float] | None, radius: float, exclusion: float)
     norm = math.sqrt(x * x + y * y + z * z)
     if not norm > 0:
         return False
-    angle = math.acos(max(-1.0, min(1.0, z / norm)))
-    return angle - radius < exclusion
+    c = z / norm
+    if not c < 1.0:  # clipped to acos's domain as min(1.0, max(-1.0, c)) would, a NaN to 1.0
+        c = 1.0
+    elif c < -1.0:
+        c = -1.0
+    return math.acos(c) - radius < exclusion
