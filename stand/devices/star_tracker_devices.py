@@ -8,6 +8,7 @@ built) is in ``star_tracker``; a hardware tracker looking at the stand's star sc
 from __future__ import annotations
 
 import math
+import operator
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,6 +49,8 @@ ICD_FLAG_BITS = _icd_flag_bits()
 FLAG_BITS = {f: ICD_FLAG_BITS[f] for f in ("sun_in_field", "moon_in_field", "earth_in_field", "rate_too_high")}
 #: (flag, its bit, whether the summary counts it) in the ICD's order: what scoring a solution walks.
 _FLAG_ORDER = tuple((flag, bit, flag in FLAG_BITS) for flag, bit in ICD_FLAG_BITS.items())
+#: A solution's flags in that order, read in one call.
+_FLAGS_OF = operator.attrgetter(*ICD_FLAG_BITS)
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
 #: The telemetry fragment before the first solution arrives (widths of the columns).
 NO_SOLUTION = (math.nan,) * 10
@@ -134,8 +137,8 @@ class TrackerDevice(SerialDevice):
         self.last_solution = sol
         self.solutions += 1
         bits = 0  # the ICD's flags byte; the flags that make a solution invalid are counted
-        for flag, bit, counted in _FLAG_ORDER:
-            if getattr(sol, flag):
+        for (flag, bit, counted), on in zip(_FLAG_ORDER, _FLAGS_OF(sol), strict=True):
+            if on:
                 bits |= bit
                 if counted:
                     self.flags[flag] += 1
