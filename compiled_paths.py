@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
+    "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
 )
 
 _chosen: dict[str, ModuleType] = {}

@@ -104,6 +104,7 @@ from drivers.star_tracker.measurement import (
     EmulatorConfig,
     MeasurementSource,
     TrackerTruth,
+    checked_truth,
     hamilton,
     in_field,
     small_rotation,
@@ -311,7 +312,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         """Take one exposure at mid-exposure time ``t_e``: the solution and the state-machine step."""
         p = self.params
         truth = self.source(t_e)
-        q, rate = _checked_truth(truth, t_e)
+        q, rate = checked_truth(truth, t_e)
         sigma_cross, sigma_roll = truth.sigma_cross_rad, truth.sigma_roll_rad
         sun = in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
         moon = in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
@@ -729,33 +730,6 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
 
     def _wants_write(self) -> bool:
         return bool(self._tx)
-
-
-def _checked_truth(truth: TrackerTruth, t_e: float) -> tuple[tuple[float, float, float, float], float]:
-    """(q_TN normalised, |omega_TN_T| rad/s) of what the measurement source returned at ``t_e``; ValueError naming
-    what is allowed when it is not a TrackerTruth with a unit quaternion, a finite rate and sigmas in [0, pi]."""
-    try:
-        qw, qx, qy, qz = truth.q_TN
-        qw, qx, qy, qz = float(qw), float(qx), float(qy), float(qz)
-        n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        if not 0.5 <= n < math.inf:  # a NaN fails the comparison too
-            raise ValueError
-        wx, wy, wz = truth.omega_TN_T
-        wx, wy, wz = float(wx), float(wy), float(wz)
-        rate = math.sqrt(wx * wx + wy * wy + wz * wz)
-        if not rate < math.inf:
-            raise ValueError
-        sigma_cross, sigma_roll = truth.sigma_cross_rad, truth.sigma_roll_rad
-        if sigma_cross is not None and not 0.0 <= float(sigma_cross) <= math.pi:
-            raise ValueError
-        if sigma_roll is not None and not 0.0 <= float(sigma_roll) <= math.pi:
-            raise ValueError
-    except (TypeError, ValueError, AttributeError):
-        raise ValueError(
-            f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers), "
-            f"a finite omega_TN_T (3 numbers, rad/s) and sigmas from 0 to pi rad (or None); got {truth!r}."
-        ) from None
-    return (qw / n, qx / n, qy / n, qz / n), rate
 
 
 #: Command dataclass -> the emulator's handler of it.
