@@ -29,6 +29,7 @@ MODULES: tuple[str, ...] = (
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
     "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)
+    "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
 )
 
 _chosen: dict[str, ModuleType] = {}

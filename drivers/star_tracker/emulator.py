@@ -104,6 +104,7 @@ from drivers.star_tracker.measurement import (
     EmulatorConfig,
     MeasurementSource,
     TrackerTruth,
+    checked_truth,
     hamilton,
     in_field,
     small_rotation,
@@ -174,6 +175,14 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
             self.params[ps.attr] = value_si
         self._params0 = dict(self.params)  # what a power-up starts from
         self._bias = tuple(float(b) * ARCSEC for b in cfg.bias_arcsec)
+        # What each exposure reads of the (frozen) config, looked up once: the noise sigmas (rad), the sigmas a
+        # solution reports when the truth does not give its own, the star draws' parameters, the temperature.
+        self._noise_rad = (cfg.noise_cross_arcsec * ARCSEC, cfg.noise_roll_arcsec * ARCSEC)
+        self._reported_sigma = self._noise_rad if cfg.reported_sigma else (0.0, 0.0)
+        self._mean_stars = cfg.mean_stars
+        self._match_probability = cfg.match_probability
+        self._temperature_C = cfg.temperature_C
+        self._clock_rate = 1.0 + cfg.clock_drift_ppm * 1e-6  # device seconds per sim second
         self._decoder = SlipDecoder(codec.max_body)
         self.counters: dict[str, int] = {
             "bytes_received": 0, "frames_received": 0, "sent": 0, "rejected_crc": 0, "rejected_address": 0,
@@ -225,7 +234,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
 
     def device_time_s(self, t_s: float) -> float:
         """The device clock at sim time ``t_s``, s (with any clock fault)."""
-        rate = 1.0 + self.config.clock_drift_ppm * 1e-6
+        rate = self._clock_rate
         if self._clock_ref is None:
             s = self.config.clock_offset_s + t_s * rate
         else:
@@ -237,7 +246,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
 
     def sim_time_s(self, time_us: int) -> float:
         """The sim time at which the device clock read ``time_us`` (the inverse of :meth:`device_time_s`)."""
-        rate = 1.0 + self.config.clock_drift_ppm * 1e-6
+        rate = self._clock_rate
         if self._clock_fault is not None:  # the clock is affine in sim time: invert it about now
             t_a = self._now
             return t_a + (time_us * 1e-6 - self.device_time_s(t_a)) / (rate + self._clock_fault.drift)
@@ -301,29 +310,10 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
 
     def expose(self, t_e: float) -> Solution:
         """Take one exposure at mid-exposure time ``t_e``: the solution and the state-machine step."""
-        cfg = self.config
         p = self.params
         truth = self.source(t_e)
-        try:
-            qw, qx, qy, qz = truth.q_TN
-            qw, qx, qy, qz = float(qw), float(qx), float(qy), float(qz)
-            n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            if not math.isfinite(n) or n < 0.5:
-                raise ValueError
-            q = (qw / n, qx / n, qy / n, qz / n)
-            wx, wy, wz = truth.omega_TN_T
-            wx, wy, wz = float(wx), float(wy), float(wz)
-            rate = math.sqrt(wx * wx + wy * wy + wz * wz)
-            if not math.isfinite(rate):
-                raise ValueError
-            for sigma in (truth.sigma_cross_rad, truth.sigma_roll_rad):
-                if sigma is not None and not (math.isfinite(float(sigma)) and 0.0 <= float(sigma) <= math.pi):
-                    raise ValueError
-        except (TypeError, ValueError, AttributeError):
-            raise ValueError(
-                f"measurement_source({t_e!r}) must return a TrackerTruth with a unit quaternion q_TN (4 numbers), "
-                f"a finite omega_TN_T (3 numbers, rad/s) and sigmas from 0 to pi rad (or None); got {truth!r}."
-            ) from None
+        q, rate = checked_truth(truth, t_e)
+        sigma_cross, sigma_roll = truth.sigma_cross_rad, truth.sigma_roll_rad
         sun = in_field(truth.sun_T, truth.sun_radius_rad, p["sun_exclusion_rad"])
         moon = in_field(truth.moon_T, truth.moon_radius_rad, p["moon_exclusion_rad"])
         earth = in_field(truth.earth_T, truth.earth_radius_rad, p["earth_exclusion_rad"])
@@ -332,34 +322,35 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         if faulted and self._blinded:
             sun = True
         rng = self.rng
-        n_stars = truth.stars_in_field if truth.stars_in_field is not None else int(rng.poisson(cfg.mean_stars))
+        n_stars = truth.stars_in_field
+        if n_stars is None:
+            n_stars = int(rng.poisson(self._mean_stars))
         n_stars = min(max(int(n_stars), 0), 255)
         if sun or (faulted and self._lost):
             matched = 0  # the Sun blinds the detector; a lost tracker identifies no star
         elif truth.stars_matched is not None:
             matched = min(max(int(truth.stars_matched), 0), n_stars)
         else:
-            matched = int(rng.binomial(n_stars, cfg.match_probability))
+            matched = int(rng.binomial(n_stars, self._match_probability))
         good = not (sun or moon or earth or rate_high) and matched >= p["min_stars_matched"]
+        mode = self.mode
         if good:
             self.stable_count += 1
             self._bad_run = 0
-            if self.mode == "LOST_IN_SPACE" and self.stable_count >= p["stable_count"]:
-                self.mode = "TRACKING"
+            if mode == "LOST_IN_SPACE" and self.stable_count >= p["stable_count"]:
+                mode = "TRACKING"
         else:
             self.stable_count = 0
             self._bad_run += 1
-            if self.mode == "TRACKING" and self._bad_run >= p["track_loss_count"]:
-                self.mode = "LOST_IN_SPACE"
+            if mode == "TRACKING" and self._bad_run >= p["track_loss_count"]:
+                mode = "LOST_IN_SPACE"
         if faulted and self._lost:
-            self.mode = "LOST_IN_SPACE"
-        valid = good and self.mode == "TRACKING"
-        sc = cfg.noise_cross_arcsec * ARCSEC
-        sr = cfg.noise_roll_arcsec * ARCSEC
+            mode = "LOST_IN_SPACE"
+        self.mode = mode
+        sc, sr = self._noise_rad
         n1, n2, n3 = rng.standard_normal(3).tolist()
-        b = self._bias
-        dq = small_rotation((b[0] + sc * n1, b[1] + sc * n2, b[2] + sr * n3))
-        qm = hamilton(q, dq)
+        bx, by, bz = self._bias
+        qm = hamilton(q, small_rotation((bx + sc * n1, by + sc * n2, bz + sr * n3)))
         if faulted:
             qm = self._faulty_attitude(qm)
         if qm[0] < 0:
@@ -368,24 +359,23 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         self._dev["solutions"] += 1
         seq = self._seq
         self._seq = (seq + 1) & 0xFFFF
+        reported_cross, reported_roll = self._reported_sigma
         return Solution(
             time_us=self.device_time_us(t_e),
             q_TN=qm,
-            sigma_cross_rad=truth.sigma_cross_rad if truth.sigma_cross_rad is not None
-            else (sc if cfg.reported_sigma else 0.0),
-            sigma_roll_rad=truth.sigma_roll_rad if truth.sigma_roll_rad is not None
-            else (sr if cfg.reported_sigma else 0.0),
+            sigma_cross_rad=reported_cross if sigma_cross is None else sigma_cross,
+            sigma_roll_rad=reported_roll if sigma_roll is None else sigma_roll,
             stars_centroided=n_stars,
             stars_matched=matched,
-            mode=self.mode,
-            valid=valid,
+            mode=mode,
+            valid=good and mode == "TRACKING",
             sun_in_field=sun,
             moon_in_field=moon,
             earth_in_field=earth,
             rate_too_high=rate_high,
             time_synced=self.time_synced,
             stable_count=self.stable_count,
-            temperature_C=cfg.temperature_C,
+            temperature_C=self._temperature_C,
             seq=seq,
         )
 

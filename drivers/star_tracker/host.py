@@ -185,12 +185,14 @@ class StarTrackerHost(SerialHost):
 
     def _feed(self, data: bytes) -> int:
         dec = self._decoder
-        oversize, bad_escape = dec.counters["oversize"], dec.counters["bad_escape"]
+        slip = dec.counters
+        oversize, bad_escape = slip["oversize"], slip["bad_escape"]
         bodies = dec.feed(data)
-        for k, v in (("oversize", oversize), ("bad_escape", bad_escape)):
-            if dec.counters[k] != v:
-                self.counters[f"rejected_{k}"] += dec.counters[k] - v
-                self.last_rejected = f"{dec.counters[k] - v} SLIP chunk(s) dropped as {k.replace('_', ' ')}."
+        if slip["oversize"] != oversize or slip["bad_escape"] != bad_escape:  # rare: only then name them
+            for k, v in (("oversize", oversize), ("bad_escape", bad_escape)):
+                if slip[k] != v:
+                    self.counters[f"rejected_{k}"] += slip[k] - v
+                    self.last_rejected = f"{slip[k] - v} SLIP chunk(s) dropped as {k.replace('_', ' ')}."
         n = 0
         for body in bodies:
             try:

@@ -1,6 +1,7 @@
 """How the star-tracker emulator measures: what it is given (the truth at an exposure, :class:`TrackerTruth`,
 from the stand's measurement source), its realism knobs (:class:`EmulatorConfig`, checked when made), the
-attitude noise (a small rotation composed onto the truth) and the exclusion test of a bright body."""
+attitude noise (a small rotation composed onto the truth) and the exclusion test of a bright body, whose float math
+is :mod:`drivers.star_tracker.exposure_math` (compiled where the install could)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ARCSEC", "DEG", "EmulatorConfig", "MeasurementSource", "TrackerTruth", "hamilton", "in_field",
-           "small_rotation"]
+import compiled_paths
+
+__all__ = ["ARCSEC", "DEG", "EmulatorConfig", "MeasurementSource", "TrackerTruth", "checked_truth", "hamilton",
+           "in_field", "small_rotation"]
 
 ARCSEC = math.pi / 180.0 / 3600.0
 DEG = math.pi / 180.0
@@ -133,37 +136,9 @@ class EmulatorConfig:
             raise ValueError(f"EmulatorConfig.address must be an int from 0 to 255; got {self.address!r}.")
 
 
-def hamilton(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
-    """The Hamilton product ``p (x) q`` of scalar-first quaternions, on floats."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
-
-
-def small_rotation(v: Sequence[float]) -> tuple[float, float, float, float]:
-    """The quaternion of the rotation vector ``v`` (rad)."""
-    x, y, z = v
-    angle = math.sqrt(x * x + y * y + z * z)
-    if angle < 1e-300:
-        return (1.0, 0.0, 0.0, 0.0)
-    s = math.sin(0.5 * angle) / angle
-    return (math.cos(0.5 * angle), x * s, y * s, z * s)
-
-
-def in_field(direction: Sequence[float] | None, radius: float, exclusion: float) -> bool:
-    """Is a body of angular radius ``radius`` (rad) at ``direction`` (tracker axes) within ``exclusion`` (rad) of
-    the boresight (+z)? A body the stand left out (None) never is."""
-    if direction is None:
-        return False
-    x, y, z = direction
-    x, y, z = float(x), float(y), float(z)
-    norm = math.sqrt(x * x + y * y + z * z)
-    if not norm > 0:
-        return False
-    angle = math.acos(max(-1.0, min(1.0, z / norm)))
-    return angle - radius < exclusion
+#: The exposure's float math: compiled where the install could (compiled_paths), the same to the bit.
+_math = compiled_paths.load("drivers.star_tracker.exposure_math")
+hamilton = _math.hamilton
+small_rotation = _math.small_rotation
+in_field = _math.in_field
+checked_truth = _math.checked_truth

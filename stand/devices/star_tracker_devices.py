@@ -8,6 +8,7 @@ built) is in ``star_tracker``; a hardware tracker looking at the stand's star sc
 from __future__ import annotations
 
 import math
+import operator
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,9 +26,9 @@ from stand.devices import (
     BuildContext,
     DeviceSpec,
     SerialDevice,
-    frames_in,
     line_faulted,
     take_in_arrived,
+    taken_in,
 )
 from stand.devices.star_tracker_source import ARCSEC, measure_source
 
@@ -46,6 +47,10 @@ def _icd_flag_bits() -> dict[str, int]:
 ICD_FLAG_BITS = _icd_flag_bits()
 #: The flags that say why a solution is not valid: counted in the summary, drawn by the plots and the view.
 FLAG_BITS = {f: ICD_FLAG_BITS[f] for f in ("sun_in_field", "moon_in_field", "earth_in_field", "rate_too_high")}
+#: (flag, its bit, whether the summary counts it) in the ICD's order: what scoring a solution walks.
+_FLAG_ORDER = tuple((flag, bit, flag in FLAG_BITS) for flag, bit in ICD_FLAG_BITS.items())
+#: A solution's flags in that order, read in one call.
+_FLAGS_OF = operator.attrgetter(*ICD_FLAG_BITS)
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
 #: The telemetry fragment before the first solution arrives (widths of the columns).
 NO_SOLUTION = (math.nan,) * 10
@@ -132,10 +137,10 @@ class TrackerDevice(SerialDevice):
         self.last_solution = sol
         self.solutions += 1
         bits = 0  # the ICD's flags byte; the flags that make a solution invalid are counted
-        for flag, bit in ICD_FLAG_BITS.items():
-            if getattr(sol, flag):
+        for (flag, bit, counted), on in zip(_FLAG_ORDER, _FLAGS_OF(sol), strict=True):
+            if on:
                 bits |= bit
-                if flag in FLAG_BITS:
+                if counted:
                     self.flags[flag] += 1
         q_true = self.truth_at.pop(round(t_exp * 1e6), None)
         cross = roll = math.nan
@@ -234,7 +239,7 @@ class EmulatedTracker(TrackerDevice):
         faulted = line_faulted(emu)  # frames lost or held on purpose: take what arrived, wait for nothing
         sent = host.counters["sent"]
         if sent != self._commands_in and not faulted:  # the host sent commands since the emulator last had all
-            if sent > frames_in(emu.counters):
+            if not taken_in(sent, emu.counters):
                 self._settle(lambda: emu.port.in_waiting > 0, emu.port)
             else:
                 self._commands_in = sent  # counts only grow: nothing to check until the host sends again
@@ -243,11 +248,11 @@ class EmulatedTracker(TrackerDevice):
             take_in_arrived(host)
         else:
             host.poll()  # what a pipe line holds is there at once; settling then only checks the counts
-            if emu.counters["sent"] > frames_in(host.counters):
-                self._settle(lambda: frames_in(host.counters) >= emu.counters["sent"], host.port)
+            if not taken_in(emu.counters["sent"], host.counters):
+                self._settle(lambda: taken_in(emu.counters["sent"], host.counters), host.port)
         sol = self._new_solution(poll=faulted)  # unfaulted, the host has taken in everything sent
         if sol is not None:
-            self._score(sol, self.emulator.sim_time_s(sol.time_us))
+            self._score(sol, emu.sim_time_s(sol.time_us))
 
 
 class HardwareTracker(TrackerDevice):

@@ -4,6 +4,7 @@ noised and solved (:class:`ImageSolver`). The kind and its devices are in :mod:`
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -23,22 +24,20 @@ ATMOSPHERE_M = 100e3
 def measure_source(spec, ctx, dev):
     """The emulator's measurement source for tracker ``spec`` built in ``ctx``: the truth (or the image solver's
     solution) at an exposure; the true attitudes go to ``dev.truth_at`` and the image solver to ``dev.image``."""
-    from drivers.star_tracker.emulator import TrackerTruth
-
-    fields = sky_truth(spec, ctx.truth, ctx.tracks, dev)
+    sky = sky_truth(spec, ctx.truth, ctx.tracks, dev)
     if spec.source != "image":
-        return lambda t_s: TrackerTruth(**fields(t_s))
+        return sky
     # The camera's own stream, spawned from the tracker's seed, so the emulator's draws are unchanged.
     dev.image = solver = ImageSolver(spec.optics, spec.camera, ctx.epoch, ctx.rng.spawn(1)[0])
     truth = ctx.truth
 
-    def measure(t_s: float) -> TrackerTruth:
-        out = fields(t_s)
-        out.update(solver.solve(t_s, out["q_TN"], out["omega_TN_T"], truth.v_N))
+    def measure(t_s: float):
+        out = sky(t_s)
+        out = dataclasses.replace(out, **solver.solve(t_s, out.q_TN, out.omega_TN_T, truth.v_N))
         take = solver.on_frame  # set when the operator page asked for this exposure's image (stand.view.frames)
         if take is not None:
-            take(t_s, out)
-        return TrackerTruth(**out)
+            take(t_s, dataclasses.asdict(out))
+        return out
 
     return measure
 
@@ -139,33 +138,47 @@ class ImageSolver:
 
 
 def sky_truth(spec, truth, tracks: dict, link):
-    """``fields(t_s)``: the TrackerTruth fields at an exposure (true q_TN, rate, Sun, Moon and Earth in
-    tracker axes), logging the true attitude in ``link.truth_at``; shared by every source."""
-    q_SB = link.q_SB
-    bodies: dict[int, dict] = {}  # Sun and Moon per whole second: from LEO they move < 5 arcsec/s
+    """``sky(t_s)``: the :class:`~drivers.star_tracker.measurement.TrackerTruth` at an exposure (true q_TN, rate,
+    Sun, Moon and Earth in tracker axes), logging the true attitude in ``link.truth_at``; shared by every source.
+    Built at once from its fields (no dict between), as the emulator takes one per exposure."""
+    from drivers.star_tracker.emulator import TrackerTruth
 
-    def fields(t_s: float) -> dict:
+    q_SB = link.q_SB
+    truth_at = link.truth_at
+    has_sun, has_moon = "sun" in tracks, "moon" in tracks
+    # Sun and Moon positions of the whole second (from LEO they move < 5 arcsec/s): [second, sun, moon].
+    bodies: list = [None, None, None]
+    # A body the stand left out is None, its radius the TrackerTruth default (never in the field either way).
+    absent = TrackerTruth(q_TN=(1.0, 0.0, 0.0, 0.0))
+
+    def toward(q_TN, body, r_N, radius: float):
+        """(direction in T, angular radius) of ``body`` (its GCRS position, floats) seen from ``r_N``."""
+        bx, by, bz = body
+        rx, ry, rz = r_N
+        d = (bx - rx, by - ry, bz - rz)
+        return rotate_to_body(q_TN, d), math.asin(radius / math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2))
+
+    def sky(t_s: float):
         if abs(t_s - truth.t_s) > 1e-6:
             raise ValueError(f"{spec.name}: exposure at t = {t_s:.6f} s but the truth is at {truth.t_s:.6f} s; "
                              "the output interval and boot time must be whole dynamics steps.")
         q_TN = compose_floats(q_SB, truth.q)
-        link.truth_at[round(t_s * 1e6)] = q_TN
-        rx, ry, rz = truth.r_N
+        truth_at[round(t_s * 1e6)] = q_TN
+        r_N = truth.r_N
+        rx, ry, rz = r_N
         rn = math.sqrt(rx * rx + ry * ry + rz * rz)
-        out = {"q_TN": q_TN, "omega_TN_T": rotate_to_body(q_SB, truth.w),
-               "earth_T": rotate_to_body(q_TN, (-rx, -ry, -rz)),
-               "earth_radius_rad": math.asin(min(1.0, (R_EARTH + ATMOSPHERE_M) / rn))}
         second = int(t_s)
-        if second not in bodies:
-            bodies.clear()
-            bodies[second] = {b: tracks[b].position_gcrs_floats(float(second)) for b in ("sun", "moon")
-                              if b in tracks}  # floats: the same values, float arithmetic each exposure
-        for body, radius in (("sun", R_SUN), ("moon", R_MOON)):
-            if body in bodies[second]:
-                bx, by, bz = bodies[second][body]
-                d = (bx - rx, by - ry, bz - rz)
-                out[f"{body}_T"] = rotate_to_body(q_TN, d)
-                out[f"{body}_radius_rad"] = math.asin(radius / math.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2))
-        return out
+        if bodies[0] != second:  # floats: the same values, float arithmetic each exposure
+            bodies[0] = second
+            bodies[1] = tracks["sun"].position_gcrs_floats(float(second)) if has_sun else None
+            bodies[2] = tracks["moon"].position_gcrs_floats(float(second)) if has_moon else None
+        sun_T, sun_r = absent.sun_T, absent.sun_radius_rad
+        if bodies[1] is not None:
+            sun_T, sun_r = toward(q_TN, bodies[1], r_N, R_SUN)
+        moon_T, moon_r = absent.moon_T, absent.moon_radius_rad
+        if bodies[2] is not None:
+            moon_T, moon_r = toward(q_TN, bodies[2], r_N, R_MOON)
+        return TrackerTruth(q_TN, rotate_to_body(q_SB, truth.w), sun_T, moon_T, rotate_to_body(q_TN, (-rx, -ry, -rz)),
+                            sun_r, moon_r, math.asin(min(1.0, (R_EARTH + ATMOSPHERE_M) / rn)))
 
-    return fields
+    return sky
