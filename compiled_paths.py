@@ -28,6 +28,7 @@ MODULES: tuple[str, ...] = (
     "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
+    "sim.wheel_step",  # a reaction wheel's motor and rotor step (friction, lag, limits)
 )
 
 _chosen: dict[str, ModuleType] = {}
