@@ -146,3 +146,41 @@ def motor_step(inertia: cython.double, coulomb: cython.double, viscous: cython.d
     if abs(w1) > cap and tau_mean * w1 > 0.0:
         w1 = copysign(cap, w1)  # the back-EMF allows no more within this step
     return w1, tau_end, -inertia * (w1 - w0) / h, friction
+
+
+@cython.cclass
+class Gyrostat:
+    """The torque the body's equations take at each stage of one step of a spacecraft with wheels
+    (:meth:`sim.wheels.WheeledBody.step`): ``torque(ts, q, w)`` (the environment's, None for none) minus the wheels'
+    gyroscopic torque ``w x (h0 + tau s)`` and their reaction ``tau``, in body axes, ``s = ts - t`` into the step.
+
+    ``h`` = ``A h_abs`` and ``u`` = ``A tau`` (N m s, N m: the wheels' absolute momentum and net rotor torque summed on
+    the body axes at the step's start), ``t`` (s) the step's start as the stepper passes it."""
+
+    hx: cython.double
+    hy: cython.double
+    hz: cython.double
+    ux: cython.double
+    uy: cython.double
+    uz: cython.double
+    t: cython.double
+    torque: object
+
+    def __init__(self, hx: cython.double, hy: cython.double, hz: cython.double, ux: cython.double, uy: cython.double,
+                 uz: cython.double, torque: object, t: cython.double):
+        self.hx, self.hy, self.hz = hx, hy, hz
+        self.ux, self.uy, self.uz = ux, uy, uz
+        self.torque = torque
+        self.t = t
+
+    @cython.locals(wx=cython.double, wy=cython.double, wz=cython.double, tx=cython.double, ty=cython.double,
+                   tz=cython.double)
+    def __call__(self, ts: cython.double, qs, ws):
+        s: cython.double = ts - self.t  # time into the step: h(s) = h0 + tau s exactly
+        bx: cython.double = self.hx + self.ux * s
+        by: cython.double = self.hy + self.uy * s
+        bz: cython.double = self.hz + self.uz * s
+        wx, wy, wz = ws
+        tx, ty, tz = self.torque(ts, qs, ws) if self.torque is not None else (0.0, 0.0, 0.0)
+        return (tx - (wy * bz - wz * by) - self.ux, ty - (wz * bx - wx * bz) - self.uy,
+                tz - (wx * by - wy * bx) - self.uz)

@@ -92,3 +92,29 @@ def test_the_motor_clips_rolls_off_and_caps_the_speed(build) -> None:
     # started beyond the rated speed (a spin-up by the body), driving further gets no torque: the speed stays
     w1, _, _, _ = build.motor_step(0.1, 0.0, 0.0, 0.0, 0.2, 100.0, 200.0, 0.0, 0.0, 120.0, 0.0, 0.2, 1.0)
     assert w1 == 120.0
+
+
+def test_compiled_and_plain_gyrostat_stage_torques_agree_to_the_bit(compiled) -> None:
+    rng = random.Random(43)
+
+    def environment(ts, qs, ws):  # any torque callable, as sim.truth passes one
+        return (1e-6 * ts + qs[0] * 1e-7, -2e-6 * ws[1], 3e-7 * qs[3] - ws[2] * 1e-9)
+
+    for _ in range(2000):
+        h = [rng.uniform(-50, 50) for _ in range(3)]
+        u = [rng.choice((0.0, -0.0, rng.uniform(-0.2, 0.2))) for _ in range(3)]
+        t = rng.choice((0.0, rng.uniform(0, 1e4)))
+        ts = t + rng.choice((0.0, 0.05, 0.1))
+        qs = tuple(rng.uniform(-1, 1) for _ in range(4))
+        ws = tuple(rng.choice((0.0, -0.0, rng.uniform(-0.1, 0.1))) for _ in range(3))
+        for torque in (None, environment):
+            a = compiled.Gyrostat(*h, *u, torque, t)(ts, qs, ws)
+            b = plain.Gyrostat(*h, *u, torque, t)(ts, qs, ws)
+            assert _bits(a) == _bits(b), (h, u, t, ts, qs, ws, torque)
+
+
+def test_the_gyrostat_stage_torque_is_the_environments_minus_the_wheels(build) -> None:
+    # h = (0, 0, 2) N m s on the body z axis, spinning about x at 0.1 rad/s: w x h = (0, -0.2, 0); tau = (0, 0, 0.1)
+    # held 0.5 s into the step adds 0.05 N m s to h and takes its reaction -0.1 N m off z.
+    g = build.Gyrostat(0.0, 0.0, 2.0, 0.0, 0.0, 0.1, lambda ts, q, w: (1.0, 2.0, 3.0), 10.0)
+    assert g(10.5, (1.0, 0.0, 0.0, 0.0), (0.1, 0.0, 0.0)) == pytest.approx((1.0, 2.0 + 0.1 * 2.05, 3.0 - 0.1))
