@@ -148,6 +148,26 @@ def motor_step(inertia: cython.double, coulomb: cython.double, viscous: cython.d
     return w1, tau_end, -inertia * (w1 - w0) / h, friction
 
 
+@cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double,
+               ax=cython.double, ay=cython.double, az=cython.double, v=cython.double)
+def axes_sum(axes: tuple, values) -> tuple:
+    """``A @ values`` on floats: ``axes`` the wheels' spin axes (a tuple of ``(ax, ay, az)`` in body axes, one per
+    wheel), ``values`` one number per wheel; summed from 0.0 in the wheels' order. ValueError when the counts differ."""
+    if type(values) is not tuple:
+        values = tuple(values)  # a list or an array: a copy that cannot change while it is read
+    n = len(axes)
+    if len(values) != n:
+        raise ValueError(f"{len(values)} values for {n} wheels; give one per wheel.")
+    x = y = z = 0.0
+    for i in range(n):
+        ax, ay, az = axes[i]
+        v = values[i]
+        x += ax * v
+        y += ay * v
+        z += az * v
+    return x, y, z
+
+
 @cython.cclass
 class Gyrostat:
     """The torque the body's equations take at each stage of one step of a spacecraft with wheels

@@ -123,13 +123,8 @@ class WheeledBody:
         self._nutation_per_rate = _nutation_per_rate(self.hub.inertia)
 
     def axes_sum(self, values) -> tuple:
-        """``A @ values`` on floats (3 components)."""
-        x = y = z = 0.0
-        for (ax, ay, az), v in zip(self._A, values, strict=True):
-            x += ax * v
-            y += ay * v
-            z += az * v
-        return x, y, z
+        """``A @ values`` on floats (3 components); ValueError unless one value per wheel."""
+        return _wheel_step.axes_sum(self._A, values)
 
     def step(self, q, w, h_abs, tau, dt: float, torque: Callable | None = None, t: float = 0.0):
         """One step of length ``dt`` (s) with net wheel torques ``tau`` (N m per wheel) held.

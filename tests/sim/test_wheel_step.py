@@ -118,3 +118,22 @@ def test_the_gyrostat_stage_torque_is_the_environments_minus_the_wheels(build) -
     # held 0.5 s into the step adds 0.05 N m s to h and takes its reaction -0.1 N m off z.
     g = build.Gyrostat(0.0, 0.0, 2.0, 0.0, 0.0, 0.1, lambda ts, q, w: (1.0, 2.0, 3.0), 10.0)
     assert g(10.5, (1.0, 0.0, 0.0, 0.0), (0.1, 0.0, 0.0)) == pytest.approx((1.0, 2.0 + 0.1 * 2.05, 3.0 - 0.1))
+
+
+def test_compiled_and_plain_axes_sums_agree_to_the_bit(compiled) -> None:
+    rng = random.Random(44)
+    for n in (1, 3, 4, 6):
+        for _ in range(300):
+            axes = tuple(tuple(rng.choice((0.0, -0.0, 1.0, rng.uniform(-1, 1))) for _ in range(3)) for _ in range(n))
+            values = tuple(rng.choice((0.0, -0.0, rng.uniform(-100, 100), 1e-300)) for _ in range(n))
+            assert _bits(compiled.axes_sum(axes, values)) == _bits(plain.axes_sum(axes, values)), (axes, values)
+            assert _bits(compiled.axes_sum(axes, list(values))) == _bits(plain.axes_sum(axes, values))
+
+
+def test_axes_sum_is_a_times_values_and_wants_one_value_per_wheel(build) -> None:
+    axes = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.6, 0.8))
+    assert build.axes_sum(axes, (2.0, 3.0, 5.0)) == (2.0, 6.0, 4.0)
+    # every component starts from +0.0, as Python's sum does: a lone -0.0 product gives +0.0
+    assert [math.copysign(1.0, c) for c in build.axes_sum(((-1.0, -1.0, -1.0),), (0.0,))] == [1.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="2 values for 3 wheels"):
+        build.axes_sum(axes, (1.0, 2.0))
