@@ -12,6 +12,7 @@ the step guard of a scene that would put the model into an explicit integrator.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -139,6 +140,11 @@ class WheelState(NamedTuple):
 
     omega_rad_s: float
     motor_torque_Nm: float
+
+
+#: ``WheelState`` of a (speed, torque) pair without the Python-level ``__new__`` namedtuple generates (once a tick
+#: per wheel).
+_wheel_state = functools.partial(tuple.__new__, WheelState)
 
 
 class WheelMotor:
@@ -296,13 +302,13 @@ class WheelMotor:
             raise ValueError(f"state = {tuple(state)!r}, u_cmd_Nm = {u_cmd_Nm!r}; all must be finite.")
         if self._faulty:
             return self._step_faulty(w0, tau0, u_cmd_Nm, h)
-        decay, mean = self._lag_factors(h)
+        decay, mean = self._lag.get(h) or self._lag_factors(h)  # cached per step length: one look-up a step
         # The command clipped and rolled off, the lag, the rotor with its friction, the speed cap: one call.
         r = self.wheel
         w1, tau_end, body, friction = _wheel_step.motor_step(
             r.inertia, r.coulomb, r.viscous, r.static, self.max_torque_Nm, self.max_speed_rad_s, self.rolloff_rad_s,
             decay, mean, w0, tau0, float(u_cmd_Nm), h)
-        return WheelState(w1, tau_end), body, friction
+        return _wheel_state((w1, tau_end)), body, friction
 
     def step_speed(self, state: tuple[float, float], omega_cmd_rad_s: float,
                    h_s: float) -> tuple[WheelState, float, float]:
