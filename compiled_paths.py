@@ -26,9 +26,9 @@ from types import ModuleType
 #: The modules compiled where a C compiler exists, in the order they are built.
 MODULES: tuple[str, ...] = (
     "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
+    "sim.wheel_step",  # the reaction wheels' motor and rotor step, their stage torque in the gyrostat equations
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
-    "sim.wheel_step",  # a reaction wheel's motor and rotor step (friction, lag, limits)
 )
 
 _chosen: dict[str, ModuleType] = {}
