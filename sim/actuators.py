@@ -12,11 +12,17 @@ the step guard of a scene that would put the model into an explicit integrator.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
+
+import compiled_paths
+
+#: The wheel's float arithmetic (compiled where the install built it; the plain module otherwise, the same bits).
+_wheel_step = compiled_paths.load("sim.wheel_step")
 
 #: RK4's stability interval on the negative real axis (|lambda h| <= 2.785).
 RK4_REAL_LIMIT = 2.785
@@ -108,32 +114,6 @@ class ReactionWheel:
         """
         return math.inf if self.viscous == 0.0 else RK4_REAL_LIMIT * self.inertia / self.viscous
 
-    def _segment(self, w0: float, s: float, u: float, t: float):
-        """Speed and integral of speed after time t slipping with sign s (no crossing inside)."""
-        # Omega(t) = w0 e^(-kt) + b phi(t), phi = (1 - e^(-kt)) / k, k = c / J, b = (u - tau_c s) / J;
-        # series for small kt, so no 0/0 or inf/inf for negligible (even subnormal) viscosity.
-        k = self.viscous / self.inertia
-        b = (u - self.coulomb * s) / self.inertia
-        kt = k * t
-        if kt < 1e-5:
-            phi = t * (1.0 - kt / 2.0 + kt * kt / 6.0)
-            psi = t * t * (0.5 - kt / 6.0 + kt * kt / 24.0)  # integral of phi from 0 to t
-        else:
-            phi = -math.expm1(-kt) / k
-            psi = (t - phi) / k
-        return w0 * math.exp(-kt) + b * phi, w0 * phi + b * psi
-
-    def _time_to_zero(self, w0: float, s: float, u: float) -> float:
-        """Time (s) for a slipping wheel to reach Omega = 0, or inf if it does not decelerate to 0."""
-        k = self.viscous / self.inertia
-        b = (u - self.coulomb * s) / self.inertia
-        if w0 * b >= 0.0:
-            return math.inf  # accelerating (or coasting without friction): never reaches zero
-        x = -k * w0 / b  # > 0
-        if x < 1e-5:
-            return (-w0 / b) * (1.0 - x / 2.0 + x * x / 3.0)
-        return math.log1p(x) / k
-
     def step(self, omega_rad_s: float, u_nm: float, h_s: float):
         """Advance the wheel ``h_s`` seconds with motor torque ``u_nm`` held.
 
@@ -149,36 +129,10 @@ class ReactionWheel:
         return self._advance(w, u, h)
 
     def _advance(self, w: float, u: float, h: float) -> tuple[float, float, float]:
-        """:meth:`step` on values already checked: finite floats, ``h`` > 0 (a motor steps its rotor this way)."""
-        J = self.inertia
-        w_start = w
-        remaining = h
-        motor_work = 0.0
-        for _ in range(3):  # at most: slip to zero, then stick or slip the other way
-            if remaining <= 0.0:
-                break
-            if w == 0.0:
-                if abs(u) <= self.static:
-                    break  # stuck: friction balances the motor; the wheel stays at exactly 0
-                s = 1.0 if u > 0.0 else -1.0
-            else:
-                s = 1.0 if w > 0.0 else -1.0
-            t0 = self._time_to_zero(w, s, u) if w != 0.0 else math.inf
-            if t0 < remaining:
-                _, integral = self._segment(w, s, u, t0)
-                motor_work += u * integral
-                w = 0.0  # land exactly on zero: the stick test decides what happens next
-                remaining -= t0
-            else:
-                w_new, integral = self._segment(w, s, u, remaining)
-                if w_new * s < 0.0:
-                    w_new = 0.0  # round-off at the crossing: never overshoot through zero
-                motor_work += u * integral
-                w = w_new
-                remaining = 0.0
-        d_energy = 0.5 * J * (w * w - w_start * w_start)
-        friction = max(motor_work - d_energy, 0.0)
-        return w, -J * (w - w_start) / h, friction
+        """:meth:`step` on values already checked: finite floats, ``h`` > 0 (a motor steps its rotor this way).
+        Between sign changes the motion is solved in closed form, a zero crossing is located exactly inside the step
+        and the stick test applied there (:func:`sim.wheel_step.rotor_advance`)."""
+        return _wheel_step.rotor_advance(self.inertia, self.coulomb, self.viscous, self.static, w, u, h)
 
 
 class WheelState(NamedTuple):
@@ -186,6 +140,11 @@ class WheelState(NamedTuple):
 
     omega_rad_s: float
     motor_torque_Nm: float
+
+
+#: ``WheelState`` of a (speed, torque) pair without the Python-level ``__new__`` namedtuple generates (once a tick
+#: per wheel).
+_wheel_state = functools.partial(tuple.__new__, WheelState)
 
 
 class WheelMotor:
@@ -298,12 +257,9 @@ class WheelMotor:
 
     def available_torque(self, omega_rad_s: float, u_nm: float) -> float:
         """The torque the motor can give for command ``u_nm`` at speed ``omega_rad_s`` (clipped, rolled off)."""
-        u = min(max(float(u_nm), -self.max_torque_Nm), self.max_torque_Nm)
-        w = float(omega_rad_s)
-        if u * w > 0.0:  # driving the speed up: the back-EMF limits the torque near w_max
-            room = (self.max_speed_rad_s - abs(w)) / self.rolloff_rad_s
-            u *= min(max(room, 0.0), 1.0)
-        return u
+        u = float(u_nm)
+        return _wheel_step.available_torque(u, float(omega_rad_s), self.max_torque_Nm, self.max_speed_rad_s,
+                                            self.rolloff_rad_s)
 
     def speed_loop_torque(self, state: tuple[float, float], omega_cmd_rad_s: float, h_s: float) -> float:
         """The torque command of the wheel's speed loop for the next ``h_s`` (before the motor's limits).
@@ -346,16 +302,13 @@ class WheelMotor:
             raise ValueError(f"state = {tuple(state)!r}, u_cmd_Nm = {u_cmd_Nm!r}; all must be finite.")
         if self._faulty:
             return self._step_faulty(w0, tau0, u_cmd_Nm, h)
-        u = self.available_torque(w0, u_cmd_Nm)
-        decay, mean = self._lag_factors(h)
-        tau_end = u + (tau0 - u) * decay
-        tau_mean = u + (tau0 - u) * mean
-        w1, _, friction = self.wheel._advance(w0, tau_mean, h)
-        cap = max(self.max_speed_rad_s, abs(w0))
-        if abs(w1) > cap and tau_mean * w1 > 0.0:
-            w1 = math.copysign(cap, w1)  # the back-EMF allows no more within this step
-        J = self.wheel.inertia
-        return WheelState(w1, tau_end), -J * (w1 - w0) / h, friction
+        decay, mean = self._lag.get(h) or self._lag_factors(h)  # cached per step length: one look-up a step
+        # The command clipped and rolled off, the lag, the rotor with its friction, the speed cap: one call.
+        r = self.wheel
+        w1, tau_end, body, friction = _wheel_step.motor_step(
+            r.inertia, r.coulomb, r.viscous, r.static, self.max_torque_Nm, self.max_speed_rad_s, self.rolloff_rad_s,
+            decay, mean, w0, tau0, float(u_cmd_Nm), h)
+        return _wheel_state((w1, tau_end)), body, friction
 
     def step_speed(self, state: tuple[float, float], omega_cmd_rad_s: float,
                    h_s: float) -> tuple[WheelState, float, float]:

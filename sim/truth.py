@@ -417,9 +417,13 @@ class TruthModel:
                 truth_step(dipole(), None if rotors is None else rotors())
 
             return step_with_body_torque
-        if rotors is not None:
+        if rotors is not None:  # wheels: what step() calls for them, one call less a tick
+            wheels_step = self._step_wheels
+            if not dipoles:  # a wheel-only spacecraft: the zero dipole without a reader
+                zero = (0.0, 0.0, 0.0)
+                return lambda: wheels_step(zero, rotors())
             dipole = _summed3(dipoles)
-            return lambda: truth_step(dipole(), rotors())
+            return lambda: wheels_step(dipole(), rotors())
         if not dipoles:  # no actuator: the truth's own step with a zero dipole, through one C-level call
             return functools.partial(truth_step, (0.0, 0.0, 0.0))
         if len(dipoles) == 1:  # the usual magnetic spacecraft: one call less per step

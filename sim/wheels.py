@@ -37,11 +37,16 @@ from collections.abc import Callable
 
 import numpy as np
 
+import compiled_paths
+
 from .integrators import check_method, max_angle_rad, stepper
 from .rigid_body import RigidBody, check_inertia, check_step, check_step_value, max_step_s
 from .rotations import check_unit
 
 __all__ = ["WheelCluster", "WheeledBody", "angular_momentum_B", "kinetic_energy", "propagate"]
+
+#: The wheels' stage torque (and the motor and rotor step of sim.actuators): compiled where the install built it.
+_wheel_step = compiled_paths.load("sim.wheel_step")
 
 
 class WheelCluster:
@@ -118,13 +123,8 @@ class WheeledBody:
         self._nutation_per_rate = _nutation_per_rate(self.hub.inertia)
 
     def axes_sum(self, values) -> tuple:
-        """``A @ values`` on floats (3 components)."""
-        x = y = z = 0.0
-        for (ax, ay, az), v in zip(self._A, values, strict=True):
-            x += ax * v
-            y += ay * v
-            z += az * v
-        return x, y, z
+        """``A @ values`` on floats (3 components); ValueError unless one value per wheel."""
+        return _wheel_step.axes_sum(self._A, values)
 
     def step(self, q, w, h_abs, tau, dt: float, torque: Callable | None = None, t: float = 0.0):
         """One step of length ``dt`` (s) with net wheel torques ``tau`` (N m per wheel) held.
@@ -133,19 +133,10 @@ class WheeledBody:
         stepper passes it (``t`` at the step start plus the stage offset). Returns float tuples
         ``(q, w, h_abs)``.
         """
-        hx, hy, hz = self.axes_sum(h_abs)
-        ux, uy, uz = self.axes_sum(tau)
-
-        def gyrostat(ts, qs, ws):
-            s = ts - t  # time into the step: h(s) = h0 + tau s exactly
-            bx, by, bz = hx + ux * s, hy + uy * s, hz + uz * s
-            wx, wy, wz = ws
-            tx, ty, tz = torque(ts, qs, ws) if torque is not None else (0.0, 0.0, 0.0)
-            return (tx - (wy * bz - wz * by) - ux, ty - (wz * bx - wx * bz) - uy,
-                    tz - (wx * by - wy * bx) - uz)
-
+        # The stage torque: the environment's minus the wheels' gyroscopic torque and reaction (compiled where built).
+        gyrostat = _wheel_step.Gyrostat(*self.axes_sum(h_abs), *self.axes_sum(tau), torque, t)
         qn, wn = self._step(q, w, dt, gyrostat, t)
-        hn = tuple(h + u * dt for h, u in zip(h_abs, tau, strict=True))
+        hn = tuple([h + u * dt for h, u in zip(h_abs, tau, strict=True)])
         return qn, wn, hn
 
     def fastest_rate(self, w, h_abs) -> float:

@@ -33,6 +33,7 @@ Behaviour (times are sim seconds passed in by the caller; the emulator never rea
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -65,6 +66,13 @@ class WheelCommand(NamedTuple):
     mode: str
     torque_Nm: float
     speed_rad_s: float
+
+
+#: A :class:`WheelCommand` of (mode, torque, speed) without the Python-level ``__new__`` namedtuple generates (the
+#: stand reads the command once a tick per wheel).
+_command = functools.partial(tuple.__new__, WheelCommand)
+#: What a wheel holds after a command's timeout: motor off.
+_IDLE = WheelCommand("IDLE", 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -165,8 +173,8 @@ class ReactionWheelEmulator(CanDevice):
     def command_at(self, t_s: float) -> WheelCommand:
         """The command the wheel holds at ``t_s`` (after a command's timeout: IDLE, motor off)."""
         if t_s >= self._expires_s:
-            return WheelCommand("IDLE", 0.0, 0.0)
-        return WheelCommand(self.mode, self._torque, self._speed)
+            return _IDLE
+        return _command((self.mode, self._torque, self._speed))
 
     def torque_command_Nm(self, t_s: float) -> float:
         """The held motor torque at ``t_s`` in mode TORQUE, else 0."""

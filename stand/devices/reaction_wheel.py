@@ -228,7 +228,9 @@ class _Wheel(Device):
                 (f"{n}.motor_torque_Nm", 1, "N m"), (f"{n}.net_torque_Nm", 1, "N m")]
 
     def row(self):
-        return (self.speed_rad_s(), self._mode, self._cmd, self._motor_tau, self._tau)
+        # The truth's tuple read directly (speed_rad_s() is the same read one call further away; every wheel reads
+        # its speed three times a tick: telemetry, motor, row).
+        return (self.truth.wheel_speeds_rad_s[self.wheel_index], self._mode, self._cmd, self._motor_tau, self._tau)
 
     def wheel_torque_Nm(self) -> float:
         return self._tau
@@ -237,11 +239,11 @@ class _Wheel(Device):
         return (Effect("momentum_exchange", self.wheel_torque_Nm, self.wheel_index),)
 
     def _source(self, _t_s):
-        return self.speed_rad_s(), self._motor_tau
+        return self.truth.wheel_speeds_rad_s[self.wheel_index], self._motor_tau
 
     def _step_motor(self, cmd) -> None:
         """One dynamics step of the motor under the held command, from the truth's wheel speed."""
-        w0 = self.speed_rad_s()
+        w0 = self.truth.wheel_speeds_rad_s[self.wheel_index]
         mode = cmd.mode
         self._mode = MODE_CODES.get(mode, -1.0)
         # The motor's state (sim.actuators.WheelState) as a plain pair: speed, motor torque now.
