@@ -347,9 +347,8 @@ def decode_fields(spec: MessageSpec, raw: Sequence[Any], exc: Callable[..., Exce
     i = _plan.decode_plain(spec.plan, raw, kw)
     if i >= 0:
         raise _value_refused(spec, spec.fields[i], raw[i], exc, frame, prefix)
-    if len(raw) != len(spec.fields):
-        for _ in zip(spec.fields, raw, strict=True):  # zip's own ValueError, as ever
-            pass
+    if len(raw) != len(spec.fields):  # the caller's struct gave another count: a defect, not a bad frame
+        raise ValueError(f"{prefix}{spec.name}: {len(raw)} wire values for {len(spec.fields)} fields.")
     for attr, _ in tuple_attrs:
         kw[attr] = tuple(kw[attr])
     if spec.norms:
