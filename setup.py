@@ -54,4 +54,4 @@ def _extensions():
     return compiled
 
 
-setup(ext_modules=_extensions(), py_modules=["compiled_paths"])
+setup(ext_modules=_extensions(), py_modules=["compiled_paths", "quat_floats"])

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
+import quat_floats
+
 #: How far from unit norm an input quaternion may be. Renormalised integrator output is within
 #: 1e-15; anything beyond 1e-6 is a bug upstream (or a scenario typo), not round-off.
 UNIT_NORM_TOLERANCE = 1e-6
@@ -73,20 +75,9 @@ def canonical(q) -> np.ndarray:
     return np.where(q[..., :1] < 0.0, -q, q)
 
 
-def hamilton_floats(p, q) -> tuple:
-    """Hamilton product ``p (x) q`` of scalar-first quaternions given as 4 floats (or 4 arrays) each.
-
-    The one written-out product in ``sim``: :func:`hamilton` and the float-tuple steppers and
-    compositions call it (a numpy call on one quaternion costs more than the arithmetic).
-    """
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
+# The Hamilton product written out on floats (or arrays): the one copy, shared with drivers (quat_floats). The
+# float-tuple steppers and compositions call it, and :func:`hamilton` below.
+hamilton_floats = quat_floats.hamilton
 
 
 def hamilton(p, q) -> np.ndarray:

@@ -1,14 +1,15 @@
 """The float math of one star-tracker exposure: the check of the truth the stand hands the emulator, the exclusion
-test of a bright body, the attitude noise as a small rotation and the Hamilton product that composes it. The one
-source of this part of the tracker's hot path (:mod:`drivers.star_tracker.measurement` exports it).
+test of a bright body and the attitude noise as a small rotation (composed onto the truth by the Hamilton product
+of ``quat_floats``, the copy ``sim`` shares). The one source of this part of the tracker's hot path
+(:mod:`drivers.star_tracker.measurement` exports it).
 
 Plain Python, and compiled by Cython in pure-Python mode where the install has a C compiler (``compiled_paths``
 lists it; docs/fast_paths.md): the ``cython.*`` declarations give the compiled build C doubles and do nothing in
 plain Python. Both builds do the same IEEE-754 operations in the same order with the same C library functions
 (setup.py compiles without contraction and fast-math), so they agree to the bit and raise the same errors; the
 tests run both. The checks convert with ``float()`` as before (a numpy scalar, an int or a numeric
-string is taken), so the value that reaches a C double is Python's float of it; :func:`hamilton` and
-:func:`small_rotation` take floats (the emulator hands them nothing else).
+string is taken), so the value that reaches a C double is Python's float of it; :func:`small_rotation` takes
+floats (the emulator hands them nothing else).
 """
 
 from __future__ import annotations
@@ -19,20 +20,6 @@ import cython
 from cython.cimports.libc.math import acos, cos, sin, sqrt  # C's when compiled, Python's math otherwise: the same
 
 _INF = cython.declare(cython.double, math.inf)
-
-
-@cython.locals(pw=cython.double, px=cython.double, py=cython.double, pz=cython.double, qw=cython.double,
-               qx=cython.double, qy=cython.double, qz=cython.double)
-def hamilton(p, q) -> tuple:
-    """The Hamilton product ``p (x) q`` of scalar-first quaternions, on floats."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
 
 
 @cython.locals(x=cython.double, y=cython.double, z=cython.double, angle=cython.double, s=cython.double)

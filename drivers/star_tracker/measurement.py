@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 import compiled_paths
+from quat_floats import hamilton
 
 __all__ = ["ARCSEC", "DEG", "EmulatorConfig", "MeasurementSource", "TrackerTruth", "checked_truth", "hamilton",
            "in_field", "small_rotation"]
@@ -138,7 +139,6 @@ class EmulatorConfig:
 
 #: The exposure's float math: compiled where the install could (compiled_paths), the same to the bit.
 _math = compiled_paths.load("drivers.star_tracker.exposure_math")
-hamilton = _math.hamilton
 small_rotation = _math.small_rotation
 in_field = _math.in_field
 checked_truth = _math.checked_truth
