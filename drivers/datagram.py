@@ -225,8 +225,9 @@ def take_datagram(buf: bytes | bytearray, lengths: dict[int, int], byte_order: s
         return len(buf), None
     if len(buf) < n:
         return 0, None
-    if int.from_bytes(buf[n - 2:n], byte_order) == crc16(memoryview(buf)[:n - 2]):
-        return n, bytes(buf[:n])
+    datagram = bytes(buf[:n])
+    if int.from_bytes(datagram[-2:], byte_order) == crc16(datagram[:-2]):
+        return n, datagram
     return 1, None
 
 
@@ -374,16 +375,21 @@ class DatagramHost(SerialHost):
 
     def _read(self, block: bool) -> int:
         data = self._read_port(block)
-        if not data:
-            return 0
-        self.counters["bytes_received"] += len(data)
-        dec = self._decoder
-        before = dict(dec.counters)
-        messages = dec.feed(data)
+        if data:
+            self._take_in(data)
+        return len(data)
+
+    def _take_in(self, data: bytes) -> None:
+        """Decode ``data`` read from the port: count it, hand every good datagram to the device and the observers."""
         c = self.counters
-        c["rejected_crc"] += dec.counters["crc_errors"] - before["crc_errors"]
-        c["rejected_other"] += dec.counters["value_errors"] - before["value_errors"]
-        c["bytes_dropped"] += dec.counters["bytes_dropped"] - before["bytes_dropped"]
+        c["bytes_received"] += len(data)
+        dec = self._decoder
+        dc = dec.counters
+        crc_errors, value_errors, dropped = dc["crc_errors"], dc["value_errors"], dc["bytes_dropped"]
+        messages = dec.feed(data)
+        c["rejected_crc"] += dc["crc_errors"] - crc_errors
+        c["rejected_other"] += dc["value_errors"] - value_errors
+        c["bytes_dropped"] += dc["bytes_dropped"] - dropped
         observers = self._observers
         for msg in messages:
             c["frames_received"] += 1
@@ -394,7 +400,6 @@ class DatagramHost(SerialHost):
             self._accept_message(msg)
             for observer in observers:  # the stand's tap beside the driver (drivers.endpoint)
                 observer(msg)
-        return len(data)
 
     def _accept_message(self, msg: Any) -> None:  # pragma: no cover - every device overrides it
         """Store one decoded message (the device's hook)."""
@@ -404,8 +409,10 @@ class DatagramHost(SerialHost):
         self._check_open()
         before = self.counters["frames_received"]
         for _ in range(256):  # bounded: a babbling port cannot hold the caller here
-            if not self._read(block=False):
+            data = self._read_port(False)
+            if not data:
                 break
+            self._take_in(data)
         return self.counters["frames_received"] - before
 
     def _wait(self, ready: Callable[[], bool], awaited: str, timeout_s: float | None) -> None:

@@ -89,9 +89,11 @@ def take_frame(buf: bytes | bytearray, max_body: int) -> tuple[int, bytes | None
         return 0, None, None
     if i == 0:
         return 1, None, None
-    body = unescape(buf[:i])
-    if body is None:
-        return i + 1, None, "bad_escape"
+    body = bytes(buf[:i])
+    if ESC in body:  # only then is there anything to unescape (most frames have no END or ESC byte in them)
+        body = unescape(body)
+        if body is None:
+            return i + 1, None, "bad_escape"
     if len(body) > max_body:
         return i + 1, None, "oversize"
     return i + 1, body, None

@@ -177,13 +177,13 @@ class StarTrackerHost(SerialHost):
         """Read what is there, at most ``limit`` bytes (``block``: wait up to one poll slice for the
         first byte); decode it. Returns the number of bytes read."""
         data = self._read_port(block, max(1, min(limit, _READ_CHUNK)))
-        if not data:
-            return 0
-        self.counters["bytes_received"] += len(data)
-        self._feed(data)
+        if data:
+            self._feed(data)
         return len(data)
 
     def _feed(self, data: bytes) -> int:
+        """Take in ``data`` read from the port (counted in ``bytes_received``); the good frames decoded."""
+        self.counters["bytes_received"] += len(data)
         dec = self._decoder
         slip = dec.counters
         oversize, bad_escape = slip["oversize"], slip["bad_escape"]
@@ -237,10 +237,11 @@ class StarTrackerHost(SerialHost):
         before = self.counters["frames_received"]
         budget = self.max_read_bytes  # bounded: a babbling port cannot hold the caller here
         while budget > 0:
-            n = self._read(block=False, limit=budget)
-            if not n:
+            data = self._read_port(False, min(budget, _READ_CHUNK))  # what _read(block=False) reads
+            if not data:
                 break
-            budget -= n
+            self._feed(data)
+            budget -= len(data)
         self._inbox.clear()
         return self.counters["frames_received"] - before
 
