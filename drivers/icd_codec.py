@@ -23,8 +23,8 @@ from drivers.errors import EncodeError
 
 _plan = compiled_paths.load("drivers.icd_plan")
 
-__all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "frozen_maker", "load_icd",
-           "wire_value", "wire_values"]
+__all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "frozen_maker",
+           "load_icd", "wire_value", "wire_values"]
 
 HOST_TO_DEVICE = "host->device"
 DEVICE_TO_HOST = "device->host"
