@@ -274,7 +274,8 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
             self._t_on = t_s
             if self.config.auto_boot:
                 self._start_boot(t_s)
-        self._flush()
+        if self._tx:  # what the line did not take at the last call
+            self._flush()
         self._advance(t_s)
         self._receive(t_s)
         self._publish(t_s)

@@ -141,6 +141,7 @@ def sky_truth(spec, truth, tracks: dict, link):
     """``sky(t_s)``: the :class:`~drivers.star_tracker.measurement.TrackerTruth` at an exposure (true q_TN, rate,
     Sun, Moon and Earth in tracker axes), logging the true attitude in ``link.truth_at``; shared by every source.
     Built at once from its fields (no dict between), as the emulator takes one per exposure."""
+    from drivers.icd_codec import frozen_maker
     from drivers.star_tracker.emulator import TrackerTruth
 
     q_SB = link.q_SB
@@ -150,6 +151,7 @@ def sky_truth(spec, truth, tracks: dict, link):
     bodies: list = [None, None, None]
     # A body the stand left out is None, its radius the TrackerTruth default (never in the field either way).
     absent = TrackerTruth(q_TN=(1.0, 0.0, 0.0, 0.0))
+    make_truth = frozen_maker(TrackerTruth)
 
     def toward(q_TN, body, r_N, radius: float):
         """(direction in T, angular radius) of ``body`` (its GCRS position, floats) seen from ``r_N``."""
@@ -178,7 +180,10 @@ def sky_truth(spec, truth, tracks: dict, link):
         moon_T, moon_r = absent.moon_T, absent.moon_radius_rad
         if bodies[2] is not None:
             moon_T, moon_r = toward(q_TN, bodies[2], r_N, R_MOON)
-        return TrackerTruth(q_TN, rotate_to_body(q_SB, truth.w), sun_T, moon_T, rotate_to_body(q_TN, (-rx, -ry, -rz)),
-                            sun_r, moon_r, math.asin(min(1.0, (R_EARTH + ATMOSPHERE_M) / rn)))
+        return make_truth({  # TrackerTruth(**these), with fewer calls
+            "q_TN": q_TN, "omega_TN_T": rotate_to_body(q_SB, truth.w), "sun_T": sun_T, "moon_T": moon_T,
+            "earth_T": rotate_to_body(q_TN, (-rx, -ry, -rz)), "sun_radius_rad": sun_r, "moon_radius_rad": moon_r,
+            "earth_radius_rad": math.asin(min(1.0, (R_EARTH + ATMOSPHERE_M) / rn)), "stars_in_field": None,
+            "stars_matched": None, "sigma_cross_rad": None, "sigma_roll_rad": None})
 
     return sky
