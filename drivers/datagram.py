@@ -109,6 +109,7 @@ class DatagramCodec:
         self.ids_to_device = frozenset(s.id for s in self.messages.values() if s.direction == HOST_TO_DEVICE)
         self.max_length = max(s.length for s in self.messages.values())
         self._prefix_text = f"{device} "  # how a refused value's sentence starts
+        self._message_text = {s.id: f"{device} {s.name}" for s in self.messages.values()}  # how encode names one
         self._i24 = {s.id: tuple(i for i, f in enumerate(s.fields) if f.type == "i24") for s in self.messages.values()}
 
     def _message_spec(self, m: dict[str, Any]) -> MessageSpec:
@@ -140,8 +141,8 @@ class DatagramCodec:
 
     def encode(self, msg: Any) -> bytes:
         """The whole datagram of ``msg``: identifier, payload, CRC."""
-        spec = self.spec_of(msg)
-        values = wire_values(spec, msg, f"{self.device} {spec.name}", self.byte_order)
+        spec = self._by_cls.get(type(msg)) or self.spec_of(msg)  # spec_of says what is wrong
+        values = wire_values(spec, msg, self._message_text[spec.id], self.byte_order)
         head = bytes((spec.id,)) + spec.packer.pack(*values)
         return head + crc16(head).to_bytes(2, self.byte_order)
 

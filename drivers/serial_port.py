@@ -206,8 +206,12 @@ class PipePort:
                         break
                     self._cond.wait_counted(left)
         with self._cond:
-            out = bytes(rx[:size])
-            del rx[:size]
+            if size >= len(rx):  # all of it: the usual read of what in_waiting said, without a slice
+                out = bytes(rx)
+                rx.clear()
+            else:
+                out = bytes(rx[:size])
+                del rx[:size]
             self._cond.wake()
         return out
 

@@ -389,7 +389,7 @@ class StarTrackerCodec:
         address = self.default_address if address is None else address
         if not (isinstance(address, int) and 0 <= address <= 0xFF):
             raise EncodeError(f"Star tracker address = {address!r} is not allowed; allowed: 0 to 255.")
-        spec = self.spec_of(msg)
+        spec = self._by_cls.get(type(msg)) or self.spec_of(msg)  # spec_of says what is wrong
         head = bytes((address, spec.id)) + self._payload(spec, msg)
         return head + crc16(head).to_bytes(2, "little")
 

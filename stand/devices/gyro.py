@@ -209,7 +209,7 @@ class _GyroDevice(SerialDevice):
         return self.observer.latest(GyroRate)
 
     def row(self):
-        s = self._latest()
+        s = self.observer.latest(GyroRate)  # _latest(), read every tick
         return (*s.omega_rad_s, float(s.valid)) if s is not None else NAN4
 
     def activity(self):

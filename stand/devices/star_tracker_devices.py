@@ -235,7 +235,7 @@ class EmulatedTracker(TrackerDevice):
                 return  # the emulator reads in service(); it only had to be readable
 
     def publish(self, t_s: float) -> None:
-        emu, host = self.emulator, self.host
+        emu, host = self.emulator, self._host
         faulted = line_faulted(emu)  # frames lost or held on purpose: take what arrived, wait for nothing
         sent = host.counters["sent"]
         if sent != self._commands_in and not faulted:  # the host sent commands since the emulator last had all
