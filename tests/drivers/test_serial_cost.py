@@ -94,3 +94,41 @@ def test_slip_unescape_reads_every_short_chunk_as_rfc1055_says():
         framed = escape(body)
         assert framed[0] == framed[-1] == END and END not in framed[1:-1]
         assert unescape(framed[1:-1]) == body
+
+
+def test_frozen_maker_makes_what_the_dataclass_makes():
+    """Every serial message (and the tracker's truth) made through its slots equals, hashes, prints and refuses
+    assignment like the one its ``__init__`` makes; a class without slots or with a ``__post_init__`` is made by
+    its ``__init__``."""
+    import dataclasses
+
+    from drivers.icd_codec import frozen_maker
+    from drivers.star_tracker.measurement import TrackerTruth
+    from drivers.sun_sensor.codec import SunSensorCodec
+
+    classes = [spec.cls for codec in (StarTrackerCodec(), GyroCodec(), SunSensorCodec())
+               for spec in codec.messages.values()]
+    assert Solution in classes and GyroRate in classes
+    for cls in [*classes, TrackerTruth]:
+        kw = {f.name: (i, f"v{i}", (i, -i)) for i, f in enumerate(dataclasses.fields(cls))}
+        made, init = frozen_maker(cls)(kw), cls(**kw)
+        assert type(made) is cls and made == init and hash(made) == hash(init) and repr(made) == repr(init)
+        for f in dataclasses.fields(cls)[:1]:  # (a message without fields has nothing to assign)
+            with pytest.raises(dataclasses.FrozenInstanceError):
+                setattr(made, f.name, 0)
+
+    calls = []
+
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Checked:
+        x: int
+
+        def __post_init__(self):
+            calls.append(self.x)
+
+    @dataclasses.dataclass(frozen=True)
+    class Plain:
+        x: int
+
+    assert frozen_maker(Checked)({"x": 3}) == Checked(3) and calls == [3, 3]
+    assert frozen_maker(Plain)({"x": 4}) == Plain(4)
