@@ -407,13 +407,9 @@ def _check_norms(spec: MessageSpec, kw: dict[str, Any], exc: Callable[..., Excep
                            f"1 within {tol:g}", f"{norm:.9g}")
 
 
-def norm2(values: Sequence[Any]) -> float:
-    """The Euclidean norm of a few numbers, summed in order (a unit-norm check on a decoded or encoded tuple)."""
-    total = 0.0
-    for x in values:
-        x = float(x)
-        total += x * x
-    return math.sqrt(total)
+#: The Euclidean norm of a few numbers, summed in order (a unit-norm check on a decoded or encoded tuple): one
+#: typed loop in :mod:`drivers.icd_plan`.
+norm2 = _plan.norm2
 
 
 def _refused(exc: Callable[..., Exception], frame: str | bytes, reason: str, expected: str, computed: Any) -> Exception:

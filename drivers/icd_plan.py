@@ -17,7 +17,7 @@ source. ``drivers.icd_codec`` takes this module through ``compiled_paths.load("d
 from __future__ import annotations
 
 import cython
-from cython.cimports.libc.math import isfinite  # C's when compiled, Python's math otherwise: the same
+from cython.cimports.libc.math import isfinite, sqrt  # C's when compiled, Python's math otherwise: the same
 
 #: A field's kind in its plan.
 BITS = 0
@@ -161,3 +161,15 @@ def decode_plain(plan: tuple, raw: object, kw: dict) -> int:
         else:
             kw[p.attr][p.index] = val
     return -1
+
+
+@cython.locals(total=cython.double, x=cython.double)
+def norm2(values: object) -> float:
+    """The Euclidean norm of a few numbers, summed in order (the unit-norm check of a quaternion a frame carries, on
+    encoding and on decoding). Each is converted with ``float()`` (an int, a numpy scalar or a numeric string is
+    taken; anything else raises what ``float()`` raises)."""
+    total = 0.0
+    for v in values:
+        x = float(v)
+        total += x * x
+    return sqrt(total)

@@ -117,3 +117,19 @@ def test_a_half_past_the_field_is_refused_in_both_builds(build, monkeypatch):
     msg = GyroRate((0.0, 0.0, 0.0), True, False, False, False, False, False, 255.5, 0.0, 0)
     with pytest.raises(EncodeError, match=r"gyro RATE.counter = 255.5 is outside the field: allowed 0 to 255 \(u8\)"):
         gyro.encode(msg)
+
+
+def test_norm2_is_the_same_in_both_builds(compiled):
+    """The unit-norm check's norm: the same bits, and the same refusal, in both builds, for quaternions near unit
+    norm, huge, tiny and non-finite values, and values float() converts (ints, bools, numpy scalars, strings)."""
+    import drivers.icd_plan as plain
+
+    rng = random.Random(26)
+    cases = [tuple(rng.uniform(-1.0, 1.0) for _ in range(rng.randint(0, 6))) for _ in range(2000)]
+    cases += [(1e200, 1e200), (1e-200, 3e-200), (math.nan, 1.0), (math.inf, 0.0), (-0.0,), (1, True, 2),
+              (np.float64(0.5), np.float32(0.25), np.int64(3)), ("0.5", "-1e3"), [0.5, 0.5, 0.5, 0.5],
+              ("x",), (None,), 5, (1.0, [1.0])]
+    for values in cases:
+        got, want = _outcome(lambda v=values: compiled.norm2(v)), _outcome(lambda v=values: plain.norm2(v))
+        assert got == want, values
+    assert icd_codec.norm2 in (compiled.norm2, plain.norm2)
