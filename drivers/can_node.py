@@ -53,6 +53,12 @@ def _same(value: Any) -> Any:
     return value
 
 
+def _message(frame: Any) -> can.Message:
+    """A frame popped from a loopback bus's queue as a :class:`can.Message` (a ``send_data`` tuple is a standard-id
+    data frame), for the rare paths that name or sort a refused frame."""
+    return data_frame(frame[0], frame[1]) if type(frame) is tuple else frame
+
+
 def _routes(codec: Any, accept: frozenset[int]) -> dict[int, tuple[int, Any, Any]]:
     """For each id the node takes: (ICD payload length, unpack, build), ``build(unpack(data))`` being the codec's
     ``decode`` for a payload of that length. A codec that offers ``payload_decoders()`` (id -> (unpack, build)) is
@@ -121,25 +127,30 @@ class CanNode(BusEndpoint):
             return 0
         # The in-process bus's queue, popped here: the same frames in the same order as its recv(0) would give (it
         # offers the queue only while it has no filters and is open). The loop is _handle written inline, which
-        # saves two calls per frame on the stand's tick; a test feeds both the same frames.
+        # saves two calls per frame on the stand's tick; a test feeds both the same frames. A frame sent with
+        # send_data is a tuple (id, payload, timestamp, is_rx) of a standard-id data frame (drivers.can_loopback).
         popleft, counters, routes, take = queue.popleft, self.counters, self._routes, self._take
         n = 0
         while queue:
             try:
-                msg = popleft()
+                frame = popleft()
             except IndexError:  # another reader of this bus took the last frame
                 break
             n += 1
             counters["received"] += 1
-            route = routes.get(msg.arbitration_id)
-            if (route is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
-                    or len(msg.data) != route[0]):
-                self._refuse(msg, route)
+            if type(frame) is tuple:
+                frame_id, data, plain = frame[0], frame[1], True
+            else:
+                frame_id, data = frame.arbitration_id, frame.data
+                plain = not (frame.is_extended_id or frame.is_remote_frame or frame.is_error_frame)
+            route = routes.get(frame_id)
+            if route is None or not plain or len(data) != route[0]:
+                self._refuse(_message(frame), route)
                 continue
             try:
-                decoded = route[2](route[1](msg.data))
+                decoded = route[2](route[1](data))
             except (ValueError, ProtocolError):  # an enum value outside its table
-                self._reject("rejected_other", msg)
+                self._reject("rejected_other", _message(frame))
                 continue
             take(decoded, t_s)
         return n
