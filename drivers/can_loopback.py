@@ -44,6 +44,8 @@ from typing import Any
 import can
 from can.bus import BusABC, CanProtocol
 
+import compiled_paths
+
 __all__ = ["INTERFACE_NAME", "LoopbackBus"]
 
 #: The python-can interface name under which this bus is registered.
@@ -66,6 +68,10 @@ class _Channel:
 _channels: dict[Any, _Channel] = {}
 _channels_lock = threading.Lock()
 
+#: The per-frame work (send_data), compiled where the install could (compiled_paths), the same either way.
+_frames = compiled_paths.load("drivers.can_frames")
+_data_message = _frames.data_message
+
 _new_message = object.__new__
 _Message = can.Message
 
@@ -73,26 +79,8 @@ _Message = can.Message
 #: A standard-id data frame as :meth:`LoopbackBus.send_data` queues it for a receiver without filters:
 #: ``(frame_id, payload, timestamp, is_rx)``, the payload ``bytes``. ``recv`` turns it into the
 #: :class:`can.Message` that :meth:`LoopbackBus.send` of ``drivers.can_bus.data_frame(frame_id, payload)`` would
-#: have queued (:func:`_data_message`); a reader of ``rx_ready`` may read the tuple itself.
+#: have queued (:func:`drivers.can_frames.data_message`); a reader of ``rx_ready`` may read the tuple itself.
 DataFrame = tuple
-
-
-def _data_message(frame_id: int, payload: bytes, timestamp: float, is_rx: bool, channel: Any) -> can.Message:
-    """The :class:`can.Message` of a :data:`DataFrame` on ``channel``, each field as :func:`_copy_for` sets it."""
-    m = _new_message(_Message)
-    m.timestamp = timestamp
-    m.arbitration_id = frame_id
-    m.is_extended_id = False
-    m.is_remote_frame = False
-    m.is_error_frame = False
-    m.channel = channel
-    m.dlc = len(payload)
-    m.data = bytearray(payload)
-    m.is_fd = False
-    m.is_rx = is_rx
-    m.bitrate_switch = False
-    m.error_state_indicator = False
-    return m
 
 
 def _copy_for(msg: can.Message, timestamp: float, channel: Any, is_rx: bool) -> can.Message:
@@ -216,45 +204,11 @@ class LoopbackBus(BusABC):
             if rx._waiting:
                 rx._wake.set()
 
-    def send_data(self, frame_id: int, payload: bytes) -> None:
-        """``send(drivers.can_bus.data_frame(frame_id, payload))``: the same frames delivered to the same queues,
-        without a :class:`can.Message` per frame where none is needed. A CAN node sends this way, several frames per
-        tick.
-
-        A receiver without filters is given the frame as a :data:`DataFrame` tuple, one shared by every such
-        receiver (it is immutable); its ``recv`` makes the :class:`can.Message` when it reads the frame, and a reader
-        of ``rx_ready`` takes the tuple as it is. A receiver with filters gets its own :class:`can.Message`, which
-        its filters are tested on, as from :meth:`send`."""
-        if self._is_shutdown:
-            raise can.CanOperationError(f"Cannot send on {self.channel_info}: the bus is shut down.")
-        # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
-        timestamp = 0.0 if self.preserve_timestamps else time.time()
-        if type(payload) is not bytes:  # the frame keeps what was sent, whatever the sender does with its buffer
-            payload = bytes(payload)
-        shared = None  # the tuple every other receiver without filters is given
-        for rx in self._channel.members:
-            own = rx is self
-            if own and not self.receive_own_messages:
-                continue
-            ids = rx.accept_ids
-            if ids is not None and frame_id not in ids:
-                continue
-            if rx._filters is not None:
-                frame = _data_message(frame_id, payload, timestamp, not own, self.channel_id)
-                if not rx._matches_filters(frame):
-                    continue
-            elif own:
-                frame = (frame_id, payload, timestamp, False)
-            else:
-                if shared is None:
-                    shared = (frame_id, payload, timestamp, True)
-                frame = shared
-            queue = rx._queue
-            if len(queue) == rx._maxlen:
-                rx.rx_overflow += 1
-            queue.append(frame)
-            if rx._waiting:
-                rx._wake.set()
+    #: ``send_data(frame_id, payload)``: ``send(drivers.can_bus.data_frame(frame_id, payload))``, the same frames
+    #: delivered to the same queues, without a :class:`can.Message` per frame where none is needed (a receiver without
+    #: filters is given one shared :data:`DataFrame` tuple). How a CAN node sends, several frames per tick.
+    #: :func:`drivers.can_frames.send_data`, compiled where the install can.
+    send_data = _frames.send_data
 
     # -- receiving ------------------------------------------------------------------------------
 
