@@ -20,9 +20,9 @@ import can
 import cython
 
 from drivers.can_bus import data_frame
-from drivers.errors import DriverError, ProtocolError
+from drivers.errors import DriverError, EncodeError, ProtocolError
 
-__all__ = ["data_message", "drain", "send", "send_data"]
+__all__ = ["data_message", "drain", "encode", "host_take", "send", "send_data", "take_observed"]
 
 _new_message = object.__new__
 _Message = can.Message
@@ -103,6 +103,53 @@ def drain(node, t_s=None):
             continue
         take(decoded, t_s)
     return n
+
+
+def host_take(host, decoded, t_s):
+    """``CanHost._take``: a message the device sent kept as the newest of its kind (``host._latest`` names the
+    attribute); the periodic sample (most of the traffic) also counted in ``counters["samples"]``."""
+    kind = type(decoded)
+    if kind is host._sample_type:
+        setattr(host, host._sample_attr, decoded)
+        host.counters["samples"] += 1
+        return
+    attr = host._latest.get(kind)
+    if attr is None:  # pragma: no cover - accept only holds the device's messages
+        host._reject("rejected_other")
+        return
+    setattr(host, attr, decoded)
+
+
+def take_observed(node, take, decoded, t_s):
+    """A node's ``_take`` once it has observers (``CanNode.add_observer``): ``take(decoded, t_s)``, then each of
+    ``node._observers`` sees the message."""
+    take(decoded, t_s)
+    for each in node._observers:
+        each(decoded)
+
+
+def encode(codec, msg):
+    """``CanCodec.encode``: one message of ``codec`` encoded, as ``(frame id, 8-byte payload)``.
+
+    The message's type picks its DBC packer and the function giving its values in the packer's order; a value the
+    packer does not cover (out of range, not a number) takes the DBC codec's full checks, whose error names the field,
+    the value and the DBC's range. Every failure is an EncodeError naming the message (and ``codec.where``); a type
+    the codec does not know is ``codec.UNKNOWN_TYPE_ERROR`` listing the types it knows."""
+    entry = codec._encoders.get(type(msg))
+    if entry is None:
+        raise codec.UNKNOWN_TYPE_ERROR(f"Cannot encode {type(msg).__name__}: expected one of "
+                                       f"{', '.join(t.__name__ for t in codec._encoders)}.")
+    packer, values_of, frame_id = entry
+    try:
+        values = values_of(msg)
+        payload = packer.pack(*values)
+        if payload is None:  # the DBC codec's full checks, and their error messages
+            _, payload = codec.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
+    except EncodeError as exc:
+        raise EncodeError(f"Cannot encode {msg!r}{codec.where}: {exc}") from exc
+    except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
+        raise EncodeError(f"Cannot encode {msg!r}{codec.where}: {type(exc).__name__}: {exc}") from exc
+    return frame_id, payload
 
 
 def send(node, msg):

@@ -183,14 +183,8 @@ class CanNode(BusEndpoint):
         super().add_observer(observer)
         if "_take" in self.__dict__:
             return
-        take = self._take
-
-        def take_observed(decoded: Any, t_s: float | None) -> None:
-            take(decoded, t_s)
-            for each in self._observers:
-                each(decoded)
-
-        self._take = take_observed  # type: ignore[method-assign]
+        # _take(decoded, t_s) then each observer: drivers.can_frames.take_observed(self, the class's _take, ...).
+        self._take = functools.partial(_frames.take_observed, self, self._take)  # type: ignore[method-assign]
 
     @property
     def rejected_frames(self) -> int:
@@ -261,17 +255,9 @@ class CanHost(CanNode):
     #: raised.
     poll = CanNode._drain
 
-    def _take(self, decoded: Any, t_s: float | None) -> None:
-        kind = type(decoded)
-        if kind is self._sample_type:  # the periodic sample: most of the traffic
-            setattr(self, self._sample_attr, decoded)
-            self.counters["samples"] += 1
-            return
-        attr = self._latest.get(kind)
-        if attr is None:  # pragma: no cover - accept only holds the device's messages
-            self._reject("rejected_other")
-            return
-        setattr(self, attr, decoded)
+    #: ``_take(decoded, t_s)``: keep a message the device sent as the newest of its kind (the periodic sample counted
+    #: in ``counters["samples"]``). :func:`drivers.can_frames.host_take`, compiled where the install can.
+    _take = _frames.host_take
 
     def _newest_unseen(self) -> Any:
         """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the

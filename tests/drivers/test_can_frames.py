@@ -6,6 +6,8 @@ No timing is measured."""
 
 from __future__ import annotations
 
+import functools
+import math
 import uuid
 
 import can
@@ -14,7 +16,8 @@ import pytest
 import compiled_paths
 import drivers.can_frames as plain
 from drivers.can_loopback import LoopbackBus
-from drivers.can_node import CanNode
+from drivers.can_messages import CanCodec
+from drivers.can_node import CanHost, CanNode
 from drivers.errors import DriverError
 from tests.drivers.test_can_node_paths import BATCH, NODES, _frames, _plain, _state
 from tests.oracles import build_fixtures, require_compiled
@@ -37,8 +40,13 @@ def _run_node(module, name: str) -> tuple[dict, list]:
     bus_class = _bus_class(module)
     sender, bus = bus_class(channel), bus_class(channel)
     node = make(bus)
-    node._drain = module.drain.__get__(node)  # this build's drain and send, on this instance only
+    node._drain = module.drain.__get__(node)  # this build's drain, send and encode, on this instance only
     node._send = module.send.__get__(node)
+    node._encode = functools.partial(module.encode, node.codec)
+    seen: list = []
+    if isinstance(node, CanHost):  # and its take, observed
+        node._take = functools.partial(module.take_observed, node, functools.partial(module.host_take, node))
+        node._observers = (seen.append,)
     try:
         for k in range(0, len(frames), BATCH):
             for msg in frames[k:k + BATCH]:
@@ -53,7 +61,7 @@ def _run_node(module, name: str) -> tuple[dict, list]:
         else:
             node.set_mode(1, reset_counters=True)
         answered = [(m.arbitration_id, bytes(m.data), m.is_rx, m.dlc) for m in iter(lambda: sender.recv(0.0), None)]
-        return _state(node), answered
+        return _state(node), answered, seen
     finally:
         node.close()
         bus.shutdown()
@@ -62,8 +70,9 @@ def _run_node(module, name: str) -> tuple[dict, list]:
 
 @pytest.mark.parametrize("name", list(NODES))
 def test_a_node_drains_and_sends_the_same_on_both_builds(name, compiled):
-    expected, answered = _run_node(plain, name)
-    assert _run_node(compiled, name) == (expected, answered)
+    expected, answered, seen = _run_node(plain, name)
+    assert _run_node(compiled, name) == (expected, answered, seen)
+    assert ("host" in name) == bool(seen)
     counted = expected["counters"]
     assert counted["foreign"] > 0 and counted["rejected_length"] > 0 and counted["rejected_other"] > 0
     assert answered and counted["sent"] == len(answered)
@@ -133,9 +142,34 @@ def test_both_builds_raise_the_same_errors(build):
         bus.send_data(0x100, b"\x00")
 
 
+def _encode_errors(module) -> list[str]:
+    from drivers.magnetorquer.codec import MagnetorquerCodec
+    from drivers.reaction_wheel.codec import ReactionWheelCodec, Status, TorqueCommand
+
+    out = []
+    wheel, mtq = ReactionWheelCodec(2), MagnetorquerCodec()
+    for codec, msg in ((wheel, TorqueCommand(5.0, 1, 0.0)), (wheel, TorqueCommand("x", 1, 0.0)),
+                       (wheel, TorqueCommand(1e-3, 300, 0.0)), (wheel, TorqueCommand(1e-3, 2**80, 0.0)),
+                       (wheel, Status("IDLE", temperature_C=math.nan)), (wheel, 1.0), (mtq, "not a message"),
+                       (wheel, TorqueCommand(1e-3, 1, 0.25))):
+        try:
+            out.append(module.encode(codec, msg))
+        except Exception as exc:  # noqa: BLE001 - the type and the sentence are what is compared
+            out.append((type(exc).__name__, str(exc)))
+    return out
+
+
+def test_both_builds_encode_and_refuse_the_same(compiled):
+    expected = _encode_errors(plain)
+    assert _encode_errors(compiled) == expected
+    assert [x[0] for x in expected[:-1]] == ["EncodeError"] * 5 + ["TypeError", "EncodeError"]
+    assert expected[-1][0] == 0x0B2 and len(expected[-1][1]) == 8
+
+
 def test_the_node_and_the_bus_run_the_build_compiled_paths_chose():
     chosen = compiled_paths.load("drivers.can_frames")
     assert CanNode._drain is chosen.drain and CanNode._send is chosen.send and LoopbackBus.send_data is chosen.send_data
+    assert CanHost._take is chosen.host_take and CanCodec.encode is chosen.encode
     expected = "compiled" if compiled_paths.native_allowed() else "python"
     if expected == "compiled":
         require_compiled("drivers.can_frames")
