@@ -31,6 +31,7 @@ MODULES: tuple[str, ...] = (
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
     "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)
     "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
+    "drivers.can_frames",  # the CAN nodes' drain and send, the in-process bus's delivery of a data frame
 )
 
 _chosen: dict[str, ModuleType] = {}

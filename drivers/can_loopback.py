@@ -10,6 +10,10 @@ Buses opened on the same channel name in one process see each other's frames, as
   seeing the other's edits) on a ``collections.deque``, whose ``append`` and ``popleft`` are
   atomic in CPython. Sending and non-blocking receiving take no lock at all; a receive with a
   timeout sleeps on an event that a sender sets only when someone is waiting.
+* a data frame sent with ``send_data(frame_id, payload)`` (how the stand's CAN nodes send) is queued
+  as one immutable tuple shared by the receivers without filters, and becomes a
+  :class:`can.Message` only when ``recv`` returns it: a node that pops ``rx_ready`` itself reads
+  the id and payload without a message object per frame.
 
 Semantics, chosen to match a real controller rather than an unbounded queue:
 
@@ -40,6 +44,8 @@ from typing import Any
 import can
 from can.bus import BusABC, CanProtocol
 
+import compiled_paths
+
 __all__ = ["INTERFACE_NAME", "LoopbackBus"]
 
 #: The python-can interface name under which this bus is registered.
@@ -62,8 +68,19 @@ class _Channel:
 _channels: dict[Any, _Channel] = {}
 _channels_lock = threading.Lock()
 
+#: The per-frame work (send_data), compiled where the install could (compiled_paths), the same either way.
+_frames = compiled_paths.load("drivers.can_frames")
+_data_message = _frames.data_message
+
 _new_message = object.__new__
 _Message = can.Message
+
+
+#: A standard-id data frame as :meth:`LoopbackBus.send_data` queues it for a receiver without filters:
+#: ``(frame_id, payload, timestamp, is_rx)``, the payload ``bytes``. ``recv`` turns it into the
+#: :class:`can.Message` that :meth:`LoopbackBus.send` of ``drivers.can_bus.data_frame(frame_id, payload)`` would
+#: have queued (:func:`drivers.can_frames.data_message`); a reader of ``rx_ready`` may read the tuple itself.
+DataFrame = tuple
 
 
 def _copy_for(msg: can.Message, timestamp: float, channel: Any, is_rx: bool) -> can.Message:
@@ -106,7 +123,9 @@ class LoopbackBus(BusABC):
         rx_overflow: frames dropped because this bus's receive queue was full.
         rx_ready: the receive queue while the bus has no filters and is open, else None: a reader may pop frames
             from it itself (``popleft`` until it is empty gives what ``recv(0)`` would, frame for frame, without a
-            call per frame); when None, use ``recv``.
+            call per frame); when None, use ``recv``. Each frame popped is a :class:`can.Message` or, for a frame
+            sent with :meth:`send_data`, a :data:`DataFrame` tuple ``(frame_id, payload, timestamp, is_rx)``, which
+            ``recv`` would have returned as the :class:`can.Message` of that standard-id data frame.
     """
 
     def __init__(
@@ -185,54 +204,11 @@ class LoopbackBus(BusABC):
             if rx._waiting:
                 rx._wake.set()
 
-    def send_data(self, frame_id: int, payload: bytes) -> None:
-        """``send(drivers.can_bus.data_frame(frame_id, payload))``: the same frames delivered to the same queues,
-        without the sender's :class:`can.Message` (each receiver's is made from the id and payload directly). A CAN
-        node sends this way, several frames per tick."""
-        if self._is_shutdown:
-            raise can.CanOperationError(f"Cannot send on {self.channel_info}: the bus is shut down.")
-        # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
-        timestamp = 0.0 if self.preserve_timestamps else time.time()
-        name = self.channel_id
-        given = None  # the frame made for a receiver of this send, which a listen-only receiver may share
-        for rx in self._channel.members:
-            own = rx is self
-            if own and not self.receive_own_messages:
-                continue
-            ids = rx.accept_ids
-            if ids is not None and frame_id not in ids:
-                continue
-            if given is not None and rx.listen_only and not own:
-                queue = rx._queue
-                if len(queue) == rx._maxlen:
-                    rx.rx_overflow += 1
-                queue.append(given)
-                if rx._waiting:
-                    rx._wake.set()
-                continue
-            m = _new_message(_Message)
-            m.timestamp = timestamp
-            m.arbitration_id = frame_id
-            m.is_extended_id = False
-            m.is_remote_frame = False
-            m.is_error_frame = False
-            m.channel = name
-            m.data = bytearray(payload)
-            m.dlc = len(payload)
-            m.is_fd = False
-            m.is_rx = not own
-            m.bitrate_switch = False
-            m.error_state_indicator = False
-            if rx._filters is not None and not rx._matches_filters(m):
-                continue
-            if not own:
-                given = m
-            queue = rx._queue
-            if len(queue) == rx._maxlen:
-                rx.rx_overflow += 1
-            queue.append(m)
-            if rx._waiting:
-                rx._wake.set()
+    #: ``send_data(frame_id, payload)``: ``send(drivers.can_bus.data_frame(frame_id, payload))``, the same frames
+    #: delivered to the same queues, without a :class:`can.Message` per frame where none is needed (a receiver without
+    #: filters is given one shared :data:`DataFrame` tuple). How a CAN node sends, several frames per tick.
+    #: :func:`drivers.can_frames.send_data`, compiled where the install can.
+    send_data = _frames.send_data
 
     # -- receiving ------------------------------------------------------------------------------
 
@@ -244,6 +220,8 @@ class LoopbackBus(BusABC):
                 msg = queue.popleft()
             except IndexError:  # another thread reading this bus took the last one
                 return None
+            if type(msg) is tuple:  # a DataFrame (send_data)
+                msg = _data_message(*msg, self.channel_id)
             if self._filters is None or self._matches_filters(msg):
                 return msg
         return None

@@ -5,11 +5,16 @@ only its messages, their SI conversions and its ids)."""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import compiled_paths
 from drivers.errors import EncodeError, ProtocolError, frame_hex
+
+#: The per-frame work (encode), compiled where the install could (compiled_paths), the same either way.
+_frames = compiled_paths.load("drivers.can_frames")
 
 __all__ = ["HEARTBEAT_STATES", "CanCodec", "Heartbeat", "ModeCommand", "ModeStatus", "enum_name"]
 
@@ -30,6 +35,28 @@ def enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
         return names[value]
     allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
     raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
+
+
+def stored_as_given(cls: type) -> Callable[[Any, Any, Any], Any]:
+    """``cls(a, b, c)`` for a frozen slots dataclass of three fields whose ``__init__`` only stores them (no
+    ``__post_init__``), without that generated ``__init__``'s Python frame: each slot set by its own setter. For
+    the messages built on every frame (a wheel's torque command: sent, then decoded, every tick)."""
+    fields = dataclasses.fields(cls)
+    if len(fields) != 3 or hasattr(cls, "__post_init__") or "__slots__" not in cls.__dict__:
+        raise TypeError(f"{cls.__name__}: stored_as_given takes a slots dataclass of three fields without "
+                        "__post_init__.")
+    new = object.__new__
+    set_a, set_b, set_c = (getattr(cls, f.name).__set__ for f in fields)
+
+    def build(a: Any, b: Any, c: Any) -> Any:
+        obj = new(cls)
+        set_a(obj, a)
+        set_b(obj, b)
+        set_c(obj, c)
+        return obj
+
+    build.__doc__ = f"{cls.__name__}(a, b, c), each field stored as given."
+    return build
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,23 +145,10 @@ class CanCodec:
             kind: (self._packers[name], values, self._packers[name].frame_id + self.id_offset)
             for kind, (name, values) in encoders.items()}
 
-    def encode(self, msg: Any) -> tuple[int, bytes]:
-        """Encode one message: returns (frame id, 8-byte payload)."""
-        entry = self._encoders.get(type(msg))
-        if entry is None:
-            raise self.UNKNOWN_TYPE_ERROR(f"Cannot encode {type(msg).__name__}: expected one of "
-                                          f"{', '.join(t.__name__ for t in self._encoders)}.")
-        packer, values_of, frame_id = entry
-        try:
-            values = values_of(msg)
-            payload = packer.pack(*values)
-            if payload is None:  # the DBC codec's full checks, and their error messages
-                _, payload = self.dbc.encode(packer.name, dict(zip(packer.order, values, strict=True)))
-        except EncodeError as exc:
-            raise EncodeError(f"Cannot encode {msg!r}{self.where}: {exc}") from exc
-        except (TypeError, ValueError, ArithmeticError) as exc:  # a 2-vector, a string or a huge int for a number
-            raise EncodeError(f"Cannot encode {msg!r}{self.where}: {type(exc).__name__}: {exc}") from exc
-        return frame_id, payload
+    #: ``encode(msg) -> (frame id, 8-byte payload)``: one message through its DBC packer (EncodeError naming the
+    #: message, the field, the value and the DBC's range). :func:`drivers.can_frames.encode`, compiled where the
+    #: install can.
+    encode = _frames.encode
 
     # The mode command and the heartbeat are the same messages in every ICD.
     @staticmethod

@@ -33,7 +33,8 @@ from typing import Any
 
 import can
 
-from drivers.can_bus import data_frame, loops_back
+import compiled_paths
+from drivers.can_bus import loops_back
 from drivers.device_faults import DeviceFaults
 from drivers.endpoint import BusEndpoint
 from drivers.errors import DeviceTimeoutError, DriverError, ProtocolError, frame_hex
@@ -46,6 +47,9 @@ _WHY = {"rejected_unknown_id": "a frame with an id of {name}'s range that it doe
         "rejected_other": "a frame that does not decode (a value outside its table, an error or remote frame)"}
 
 #: The counters every node keeps; a device adds its own after these.
+#: The per-frame work (drain, send), compiled where the install could (compiled_paths), the same either way.
+_frames = compiled_paths.load("drivers.can_frames")
+
 NODE_COUNTERS = ("sent", "received", "rejected_unknown_id", "rejected_length", "rejected_other", "foreign", "echoes")
 
 
@@ -110,39 +114,9 @@ class CanNode(BusEndpoint):
 
     # -- receiving --------------------------------------------------------------------------------
 
-    def _drain(self, t_s: float | None = None) -> int:
-        """Read every pending frame without blocking and sort each (module docstring); returns how many."""
-        if self._closed:
-            self._check_open()
-        queue = self.bus.rx_ready if self._has_rx_ready else None
-        if queue is None:  # any bus: one recv(0) per frame
-            return self._drain_bus(t_s)
-        if not queue:  # most drains of a tick: nothing new
-            return 0
-        # The in-process bus's queue, popped here: the same frames in the same order as its recv(0) would give (it
-        # offers the queue only while it has no filters and is open). The loop is _handle written inline, which
-        # saves two calls per frame on the stand's tick; a test feeds both the same frames.
-        popleft, counters, routes, take = queue.popleft, self.counters, self._routes, self._take
-        n = 0
-        while queue:
-            try:
-                msg = popleft()
-            except IndexError:  # another reader of this bus took the last frame
-                break
-            n += 1
-            counters["received"] += 1
-            route = routes.get(msg.arbitration_id)
-            if (route is None or msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame
-                    or len(msg.data) != route[0]):
-                self._refuse(msg, route)
-                continue
-            try:
-                decoded = route[2](route[1](msg.data))
-            except (ValueError, ProtocolError):  # an enum value outside its table
-                self._reject("rejected_other", msg)
-                continue
-            take(decoded, t_s)
-        return n
+    #: ``_drain(t_s=None) -> int``: read every pending frame without blocking and sort each (module docstring);
+    #: returns how many. :func:`drivers.can_frames.drain`, compiled where the install can.
+    _drain = _frames.drain
 
     def _drain_bus(self, t_s: float | None) -> int:
         recv = self.bus.recv
@@ -209,14 +183,8 @@ class CanNode(BusEndpoint):
         super().add_observer(observer)
         if "_take" in self.__dict__:
             return
-        take = self._take
-
-        def take_observed(decoded: Any, t_s: float | None) -> None:
-            take(decoded, t_s)
-            for each in self._observers:
-                each(decoded)
-
-        self._take = take_observed  # type: ignore[method-assign]
+        # _take(decoded, t_s) then each observer: drivers.can_frames.take_observed(self, the class's _take, ...).
+        self._take = functools.partial(_frames.take_observed, self, self._take)  # type: ignore[method-assign]
 
     @property
     def rejected_frames(self) -> int:
@@ -236,24 +204,9 @@ class CanNode(BusEndpoint):
 
     # -- sending ----------------------------------------------------------------------------------
 
-    def _send(self, msg: Any) -> None:
-        """Encode ``msg`` and send it as one data frame (DriverError naming the bus if that fails)."""
-        if self._closed:
-            self._check_open()
-        frame_id, payload = self._encode(msg)
-        try:
-            if self._send_data is not None:
-                self._send_data(frame_id, payload)
-            else:
-                self.bus.send(data_frame(frame_id, payload))
-        except can.CanError as exc:
-            raise DriverError(
-                f"{self.name}: cannot send {type(msg).__name__} on {self.bus.channel_info}: {exc}"
-            ) from exc
-        self.counters["sent"] += 1
-        if self._sent_observers:
-            for observer in self._sent_observers:
-                observer(frame_id, payload)
+    #: ``_send(msg)``: encode ``msg`` and send it as one data frame (DriverError naming the bus if that fails); the
+    #: sent-frame observers see it. :func:`drivers.can_frames.send`, compiled where the install can.
+    _send = _frames.send
 
 
 class CanHost(CanNode):
@@ -302,17 +255,9 @@ class CanHost(CanNode):
     #: raised.
     poll = CanNode._drain
 
-    def _take(self, decoded: Any, t_s: float | None) -> None:
-        kind = type(decoded)
-        if kind is self._sample_type:  # the periodic sample: most of the traffic
-            setattr(self, self._sample_attr, decoded)
-            self.counters["samples"] += 1
-            return
-        attr = self._latest.get(kind)
-        if attr is None:  # pragma: no cover - accept only holds the device's messages
-            self._reject("rejected_other")
-            return
-        setattr(self, attr, decoded)
+    #: ``_take(decoded, t_s)``: keep a message the device sent as the newest of its kind (the periodic sample counted
+    #: in ``counters["samples"]``). :func:`drivers.can_frames.host_take`, compiled where the install can.
+    _take = _frames.host_take
 
     def _newest_unseen(self) -> Any:
         """Poll, then the newest sample if it has not been returned yet, else None (when several arrived since the

@@ -56,6 +56,12 @@ class CanObserver(BusEndpoint):
             n = len(ready)
             while ready:
                 msg = ready.popleft()
+                if type(msg) is tuple:  # a send_data frame (drivers.can_loopback): a standard-id data frame
+                    frame_id = msg[0]
+                    if frame_id in ids:
+                        raw[frame_id] = msg[1]
+                        seen[frame_id] += 1
+                    continue
                 frame_id = msg.arbitration_id
                 if frame_id in ids and not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame):
                     raw[frame_id] = msg.data

@@ -84,6 +84,12 @@ class SpeedCommand:
     timeout_s: float = 0.0
 
 
+#: ``TorqueCommand(torque_Nm, seq, timeout_s)`` and ``SpeedCommand(...)`` without the dataclass ``__init__``'s Python
+#: frame (a test checks they give what the constructors give): the host builds one and the wheel decodes one a tick.
+new_torque_command = can_messages.stored_as_given(TorqueCommand)
+new_speed_command = can_messages.stored_as_given(SpeedCommand)
+
+
 class ModeCommand(can_messages.ModeCommand):
     """Set the mode: a name from :data:`MODES` or its number (stored as the name)."""
 
@@ -101,14 +107,14 @@ class WheelSpeed(float):
 
     def __new__(cls, speed_rad_s: float, torque_Nm: float, valid: bool, speed_limited: bool,
                 torque_limited: bool, seq: int) -> WheelSpeed:
-        obj = super().__new__(cls, speed_rad_s)
-        # Past the refusing __setattr__; one call per field (a sample is built twice a tick per wheel: sent, taken).
-        set_field = object.__setattr__
-        set_field(obj, "torque_Nm", torque_Nm)
-        set_field(obj, "valid", valid)
-        set_field(obj, "speed_limited", speed_limited)
-        set_field(obj, "torque_limited", torque_limited)
-        set_field(obj, "seq", seq)
+        obj = _float_new(cls, speed_rad_s)
+        # Past the refusing __setattr__ by each slot's own setter, without object.__setattr__'s look-up of the name
+        # (a sample is built twice a tick per wheel: sent, taken).
+        _set_torque(obj, torque_Nm)
+        _set_valid(obj, valid)
+        _set_speed_limited(obj, speed_limited)
+        _set_torque_limited(obj, torque_limited)
+        _set_seq(obj, seq)
         return obj
 
     @property
@@ -138,6 +144,12 @@ class WheelSpeed(float):
 
     def __reduce__(self):
         return (WheelSpeed, self._fields())
+
+
+_float_new = float.__new__
+#: The setters of WheelSpeed's slots (member descriptors), in __slots__ order.
+_set_torque, _set_valid, _set_speed_limited, _set_torque_limited, _set_seq = (
+    getattr(WheelSpeed, name).__set__ for name in WheelSpeed.__slots__)
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,8 +206,8 @@ class ReactionWheelCodec(CanCodec):
                 raise ValueError(f"{d.path.name}: {name} has id 0x{d.frame_id(name):03X}; wheel 0's ids must end in "
                                  "a zero hex digit (the wheel number is added to them).")
         builders = {
-            "RW_TORQUE_CMD": lambda v: TorqueCommand(v[0], v[1], v[2] * _MS),
-            "RW_SPEED_CMD": lambda v: SpeedCommand(v[0], v[1], v[2] * _MS),
+            "RW_TORQUE_CMD": lambda v: new_torque_command(v[0], v[1], v[2] * _MS),
+            "RW_SPEED_CMD": lambda v: new_speed_command(v[0], v[1], v[2] * _MS),
             "RW_MODE_CMD": lambda v: ModeCommand(v[0], v[1] == 1, v[2]),
             "RW_SPEED_TLM": lambda v: WheelSpeed(v[0], v[1], v[3] == 1, v[4] == 1, v[5] == 1, v[2]),
             "RW_STATUS": lambda v: Status(*v),

@@ -27,10 +27,10 @@ from drivers.reaction_wheel.codec import (
     Heartbeat,
     ModeCommand,
     ReactionWheelCodec,
-    SpeedCommand,
     Status,
-    TorqueCommand,
     WheelSpeed,
+    new_speed_command,
+    new_torque_command,
 )
 
 __all__ = ["ReactionWheelHost"]
@@ -90,13 +90,13 @@ class ReactionWheelHost(CanHost):
         beyond what the field carries (+-1 N m); the wheel itself clips at its rating.
         """
         seq = self._next_seq()
-        self.send(TorqueCommand(float(torque_Nm), seq, float(timeout_s)))
+        self.send(new_torque_command(float(torque_Nm), seq, float(timeout_s)))
         return seq
 
     def command_speed(self, speed_rad_s: float, timeout_s: float = 0.0) -> int:
         """Send RW_SPEED_CMD (mode SPEED): wheel speed about the spin axis, rad/s; returns the seq."""
         seq = self._next_seq()
-        self.send(SpeedCommand(float(speed_rad_s), seq, float(timeout_s)))
+        self.send(new_speed_command(float(speed_rad_s), seq, float(timeout_s)))
         return seq
 
     # -- receiving ------------------------------------------------------------------------------

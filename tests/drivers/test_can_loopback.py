@@ -232,6 +232,27 @@ def test_sender_and_receivers_never_share_a_mutable_frame(buses):
     assert got1 is not got2 and got1.data is not got2.data
 
 
+def test_send_data_frames_share_nothing_mutable_and_obey_a_later_filter(buses):
+    """send_data queues one immutable tuple for the receivers without filters: a sender's buffer changed after the
+    send, or a receiver editing the message recv made of it, changes nothing for the others; a filter set after the
+    frames were queued still applies."""
+    ch = _name()
+    tx, r1, r2, r3 = (buses(INTERFACE_NAME, ch) for _ in range(4))
+    payload = bytearray(b"\x01\x02\x03")
+    tx.send_data(0x10, payload)
+    payload[0] = 0xFF  # a sender reusing its buffer after the send
+    tx.send_data(0x20, b"\x04")
+    assert r1.rx_ready[0] is r2.rx_ready[0] and type(r1.rx_ready[0]) is tuple
+    r3.set_filters([{"can_id": 0x20, "can_mask": 0x7FF}])
+    got1, got2 = r1.recv(0.0), r2.recv(0.0)
+    assert bytes(got1.data) == bytes(got2.data) == b"\x01\x02\x03"
+    got1.data[1] = 0xEE  # one receiver editing what it got
+    assert bytes(got2.data) == b"\x01\x02\x03" and got1 is not got2
+    frame_id, data, _, is_rx = r2.rx_ready.popleft()  # what a node popping the queue itself reads
+    assert (frame_id, data, is_rx) == (0x20, b"\x04", True) and type(data) is bytes
+    assert [(m.arbitration_id, bytes(m.data)) for m in iter(lambda: r3.recv(0.0), None)] == [(0x20, b"\x04")]
+
+
 def test_fd_and_remote_flags_survive_the_trip(buses):
     ch = _name()
     tx, rx = buses(INTERFACE_NAME, ch), buses(INTERFACE_NAME, ch)

@@ -75,15 +75,23 @@ NODES = {
 }
 
 
-def _drive(make, frames, interface: str, **bus_kwargs) -> tuple[dict, object]:
-    """Send ``frames`` in batches to a new node on its own channel, draining after each batch; the node's state."""
+def _plain(msg: can.Message) -> bool:
+    return not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame)
+
+
+def _drive(make, frames, interface: str, via_send_data: bool = False, **bus_kwargs) -> tuple[dict, object]:
+    """Send ``frames`` in batches to a new node on its own channel, draining after each batch; the node's state.
+    ``via_send_data``: the standard-id data frames go through the loopback bus's ``send_data`` (queued as tuples)."""
     channel = _channel()
     sender, bus = open_bus(interface, channel), open_bus(interface, channel, **bus_kwargs)
     node = make(bus)
     try:
         for k in range(0, len(frames), BATCH):
             for msg in frames[k:k + BATCH]:
-                sender.send(msg)
+                if via_send_data and _plain(msg):
+                    sender.send_data(msg.arbitration_id, bytes(msg.data))
+                else:
+                    sender.send(msg)
             n = node._drain(0.01 * k)
             assert n == len(frames[k:k + BATCH])
         return _state(node), getattr(bus, "rx_ready", None)
@@ -95,11 +103,12 @@ def _drive(make, frames, interface: str, **bus_kwargs) -> tuple[dict, object]:
 
 @pytest.mark.parametrize("name", list(NODES))
 @pytest.mark.parametrize("general", ["stand_loopback with a filter", "virtual"])
-def test_the_inline_drain_of_a_loopback_queue_sorts_and_applies_as_the_general_path(name, general):
+@pytest.mark.parametrize("sent", ["send", "send_data"])
+def test_the_inline_drain_of_a_loopback_queue_sorts_and_applies_as_the_general_path(name, general, sent):
     make, ids, codec = NODES[name]
     c = codec()
     frames = _frames(ids(c), c.lengths, seed=sum(map(ord, name)))
-    fast, ready = _drive(make, frames, "stand_loopback")
+    fast, ready = _drive(make, frames, "stand_loopback", via_send_data=sent == "send_data")
     assert ready is not None  # the node popped the ready queue
     if general == "virtual":
         slow, ready = _drive(make, frames, "virtual")
