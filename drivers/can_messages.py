@@ -5,7 +5,6 @@ only its messages, their SI conversions and its ids)."""
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -35,28 +34,6 @@ def enum_name(value: str | int, names: tuple[str, ...], field: str) -> str:
         return names[value]
     allowed = ", ".join(f"{n!r} ({i})" for i, n in enumerate(names))
     raise ValueError(f"{field} must be one of {allowed}; got {value!r}.")
-
-
-def stored_as_given(cls: type) -> Callable[[Any, Any, Any], Any]:
-    """``cls(a, b, c)`` for a frozen slots dataclass of three fields whose ``__init__`` only stores them (no
-    ``__post_init__``), without that generated ``__init__``'s Python frame: each slot set by its own setter. For
-    the messages built on every frame (a wheel's torque command: sent, then decoded, every tick)."""
-    fields = dataclasses.fields(cls)
-    if len(fields) != 3 or hasattr(cls, "__post_init__") or "__slots__" not in cls.__dict__:
-        raise TypeError(f"{cls.__name__}: stored_as_given takes a slots dataclass of three fields without "
-                        "__post_init__.")
-    new = object.__new__
-    set_a, set_b, set_c = (getattr(cls, f.name).__set__ for f in fields)
-
-    def build(a: Any, b: Any, c: Any) -> Any:
-        obj = new(cls)
-        set_a(obj, a)
-        set_b(obj, b)
-        set_c(obj, c)
-        return obj
-
-    build.__doc__ = f"{cls.__name__}(a, b, c), each field stored as given."
-    return build
 
 
 @dataclass(frozen=True, slots=True)

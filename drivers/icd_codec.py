@@ -13,17 +13,17 @@ import struct
 import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
-from dataclasses import fields as dataclass_fields
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import compiled_paths
 from drivers.errors import EncodeError
+from drivers.frozen_build import keyword_maker
 
 _plan = compiled_paths.load("drivers.icd_plan")
 
-__all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs", "frozen_maker",
+__all__ = ["HOST_TO_DEVICE", "DEVICE_TO_HOST", "TYPES", "FieldSpec", "MessageSpec", "field_specs",
            "load_icd", "wire_value", "wire_values"]
 
 HOST_TO_DEVICE = "host->device"
@@ -105,8 +105,8 @@ class MessageSpec:
 
     @cached_property  # built once: every decoded frame is made with it
     def make(self) -> Callable[[dict[str, Any]], Any]:
-        """``make(kw)``: the message ``cls(**kw)`` from a dict holding every field (:func:`frozen_maker`)."""
-        return frozen_maker(self.cls)
+        """``make(kw)``: the message ``cls(**kw)`` from a dict holding every field (drivers.frozen_build)."""
+        return keyword_maker(self.cls)
 
     @cached_property
     def tuple_attrs(self) -> tuple[tuple[str, int], ...]:
@@ -119,30 +119,6 @@ class MessageSpec:
 
 
 _FLOAT_MAX = 1.7976931348623157e308
-
-
-def frozen_maker(cls: type) -> Callable[[dict[str, Any]], Any]:
-    """``make(kw)``: the same object as ``cls(**kw)`` for a dict ``kw`` that holds every field of the dataclass
-    ``cls``, made with fewer calls when ``cls`` has ``__slots__`` (the serial messages: frozen and slotted).
-
-    A frozen dataclass's ``__init__`` sets each field with ``object.__setattr__`` (a global look-up, an attribute
-    look-up and a call per field: most of what making a decoded SOLUTION costs); here each field's slot descriptor
-    sets it, which is what ``object.__setattr__`` does in the end. A class without slots, or with a
-    ``__post_init__``, is made by ``cls(**kw)``."""
-    names = tuple(f.name for f in dataclass_fields(cls))
-    slots = cls.__dict__.get("__slots__")
-    if slots is None or set(slots) != set(names) or hasattr(cls, "__post_init__"):
-        return lambda kw: cls(**kw)
-    setters = tuple((name, cls.__dict__[name].__set__) for name in names)
-    new = object.__new__
-
-    def make(kw: dict[str, Any]) -> Any:
-        obj = new(cls)
-        for name, set_slot in setters:
-            set_slot(obj, kw[name])
-        return obj
-
-    return make
 
 
 def field_plan(f: FieldSpec) -> Any:

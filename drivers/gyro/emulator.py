@@ -181,7 +181,7 @@ class GyroEmulator(DatagramEmulator):
         seq = self._seq
         self._seq = (seq + 1) & 0xFF
         self.counters["samples"] += 1
-        msg = self._make_rate({  # GyroRate(**these), with fewer calls (icd_codec.frozen_maker)
+        msg = self._make_rate({  # GyroRate(**these), with fewer calls (drivers.frozen_build)
             "omega_rad_s": (round(wx / lsb) * lsb, round(wy / lsb) * lsb, round(wz / lsb) * lsb),
             "valid": not (startup or saturated),
             "saturated_x": sat_x, "saturated_y": sat_y, "saturated_z": sat_z,

@@ -29,6 +29,7 @@ from drivers import can_messages
 from drivers.can_messages import HEARTBEAT_STATES, CanCodec, Heartbeat
 from drivers.dbc import DbcCodec
 from drivers.errors import ProtocolError, frame_hex
+from drivers.frozen_build import positional_maker3
 
 __all__ = [
     "HEARTBEAT_STATES",
@@ -86,8 +87,8 @@ class SpeedCommand:
 
 #: ``TorqueCommand(torque_Nm, seq, timeout_s)`` and ``SpeedCommand(...)`` without the dataclass ``__init__``'s Python
 #: frame (a test checks they give what the constructors give): the host builds one and the wheel decodes one a tick.
-new_torque_command = can_messages.stored_as_given(TorqueCommand)
-new_speed_command = can_messages.stored_as_given(SpeedCommand)
+new_torque_command = positional_maker3(TorqueCommand)
+new_speed_command = positional_maker3(SpeedCommand)
 
 
 class ModeCommand(can_messages.ModeCommand):

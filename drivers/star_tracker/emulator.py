@@ -362,7 +362,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         seq = self._seq
         self._seq = (seq + 1) & 0xFFFF
         reported_cross, reported_roll = self._reported_sigma
-        return self._make_solution({  # Solution(**these), with fewer calls (icd_codec.frozen_maker)
+        return self._make_solution({  # Solution(**these), with fewer calls (drivers.frozen_build)
             "time_us": self.device_time_us(t_e),
             "q_TN": qm,
             "sigma_cross_rad": reported_cross if sigma_cross is None else sigma_cross,

@@ -21,7 +21,7 @@ ARCSEC = math.pi / 180.0 / 3600.0
 DEG = math.pi / 180.0
 
 
-@dataclass(frozen=True, slots=True)  # slotted: the stand makes one per exposure (icd_codec.frozen_maker)
+@dataclass(frozen=True, slots=True)  # slotted: the stand makes one per exposure (drivers.frozen_build)
 class TrackerTruth:
     """What the stand knows at one instant, in tracker axes (T: +z boresight).
 

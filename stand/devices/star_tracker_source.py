@@ -141,7 +141,7 @@ def sky_truth(spec, truth, tracks: dict, link):
     """``sky(t_s)``: the :class:`~drivers.star_tracker.measurement.TrackerTruth` at an exposure (true q_TN, rate,
     Sun, Moon and Earth in tracker axes), logging the true attitude in ``link.truth_at``; shared by every source.
     Built at once from its fields (no dict between), as the emulator takes one per exposure."""
-    from drivers.icd_codec import frozen_maker
+    from drivers.frozen_build import keyword_maker
     from drivers.star_tracker.emulator import TrackerTruth
 
     q_SB = link.q_SB
@@ -151,7 +151,7 @@ def sky_truth(spec, truth, tracks: dict, link):
     bodies: list = [None, None, None]
     # A body the stand left out is None, its radius the TrackerTruth default (never in the field either way).
     absent = TrackerTruth(q_TN=(1.0, 0.0, 0.0, 0.0))
-    make_truth = frozen_maker(TrackerTruth)
+    make_truth = keyword_maker(TrackerTruth)
 
     def toward(q_TN, body, r_N, radius: float):
         """(direction in T, angular radius) of ``body`` (its GCRS position, floats) seen from ``r_N``."""

@@ -288,7 +288,8 @@ def test_take_speed_is_a_number_in_rad_s_with_the_telemetry_as_attributes():
 
 @pytest.mark.parametrize("values", [(1.5e-3, 7, 0.25), (-0.0, 0, 0.0), (math.nan, 255, 1e300), ("x", None, [1])])
 def test_the_per_frame_command_builders_give_what_the_constructors_give(values):
-    from drivers.can_messages import Heartbeat, stored_as_given
+    from drivers.can_messages import Heartbeat
+    from drivers.frozen_build import positional_maker3
     from drivers.reaction_wheel.codec import new_speed_command, new_torque_command
 
     for build, cls in ((new_torque_command, TorqueCommand), (new_speed_command, SpeedCommand)):
@@ -297,5 +298,5 @@ def test_the_per_frame_command_builders_give_what_the_constructors_give(values):
         assert all(getattr(got, f) is getattr(want, f) for f in cls.__slots__)
         with pytest.raises(AttributeError):  # still frozen
             got.seq = 1
-    with pytest.raises(TypeError, match="Heartbeat: stored_as_given takes"):
-        stored_as_given(Heartbeat)  # its __post_init__ checks the state: not a class to build around it
+    with pytest.raises(TypeError, match="Heartbeat: positional_maker3 takes"):
+        positional_maker3(Heartbeat)  # its __post_init__ checks the state: not a class to build around it
