@@ -31,6 +31,7 @@ MODULES: tuple[str, ...] = (
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
     "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)
     "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
+    "star_screen.tracking.lis_steps",  # the star tracker's lost-in-space decisions: cone, pattern keys, pair attitude
 )
 
 _chosen: dict[str, ModuleType] = {}

@@ -62,6 +62,9 @@ __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "ver
 #: The radius matching's sweep: compiled where the install could (compiled_paths), else the same Python.
 _nearest = compiled_paths.load("star_screen.tracking.nearest")
 _NEAREST_COMPILED = compiled_paths.is_compiled(_nearest)
+#: The lost-in-space decision steps (cone, image pattern keys, the attitude of a few pairs): likewise.
+_lis = compiled_paths.load("star_screen.tracking.lis_steps")
+_LIS_COMPILED = compiled_paths.is_compiled(_lis)
 
 
 def _chord(angle_rad: float) -> float:
@@ -207,28 +210,82 @@ class Match:
 _NO_MATCH = Match(None, np.empty(0, np.int64), np.empty(0, np.int64), 0, 1.0, 0)
 
 
-class _SkyIndex:
-    """Cone queries over one places table: a k-d tree over the unit vectors stored in the tree's own
-    leaf order, so the stars of one cone lie in a few contiguous runs of memory (a frame's query
-    then touches a few hundred cache lines instead of one per star)."""
+#: Cells per edge of a cube face in the cone index: 8 x 8 x 6 cells of about 11 deg, so a 12.6 deg cone reads ten or
+#: so of them (about a thousand stars to Hp 8 looked at for the five hundred it holds).
+CONE_CELLS_PER_FACE = 8
 
-    __slots__ = ("places", "perm", "u", "tree")
+
+class _SkyIndex:
+    """Cone queries over one places table: the unit vectors bucketed in the cells of a cube map (each star in the cell
+    its direction passes through), stored cell by cell, rows ascending within a cell. A query reads the cells the cone
+    can reach and keeps the stars within its chord (:func:`star_screen.tracking.lis_steps.cone_rows`, compiled where
+    the install could): a thousand or so stars looked at, no tree walked. Built in a few milliseconds per table."""
+
+    __slots__ = ("places", "cells", "stars", "size")
 
     def __init__(self, places: StarPlaces):
         self.places = places
-        self.perm = np.ascontiguousarray(cKDTree(places.u_N).indices, dtype=np.int64)
-        self.u = np.ascontiguousarray(places.u_N[self.perm])
-        self.tree = cKDTree(self.u)
+        u = np.ascontiguousarray(places.u_N, dtype=float)
+        n = CONE_CELLS_PER_FACE
+        axis = np.argmax(np.abs(u), axis=1)
+        major = u[np.arange(len(u)), axis]
+        face = 2 * axis + (major < 0)
+        a = np.take_along_axis(u, ((axis + 1) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+        b = np.take_along_axis(u, ((axis + 2) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+        i = np.clip(np.floor((a + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+        j = np.clip(np.floor((b + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+        cell = (face * n + i) * n + j
+        order = np.argsort(cell, kind="stable")
+        starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
+        centre, cos_rho, sin_rho = _cube_cells(n)
+        self.cells = _native_args(centre.ravel(), cos_rho, sin_rho, starts)
+        self.stars = _native_args(u[order].ravel(), order.astype(np.int64))
+        self.size = len(u)
 
     def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the places within the cone (sorted: brightest first) and their unit vectors."""
         chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
-        # Unsorted (the rows are sorted below): the tree's own sort of the indices is work thrown away.
-        k = np.asarray(self.tree.query_ball_point(boresight, chord, return_sorted=False), dtype=np.int64)
-        rows = self.perm[k]
-        o = np.argsort(rows)
-        k = k[o]
-        return rows[o], self.u[k]
+        bx, by, bz = boresight.tolist()
+        sin_cone = math.sqrt(max(1.0 - cos_cull * cos_cull, 0.0))
+        out = np.empty(self.size, np.int64) if _LIS_COMPILED else [0] * self.size
+        m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, out)
+        rows = np.sort(np.asarray(out[:m], np.int64))
+        return rows, self.places.u_N[rows]
+
+
+def _cube_cells(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre directions (6 n n, 3) of the cells of a cube map with ``n`` x ``n`` cells a face (face ``2 axis +
+    (negative)``, cell ``(face n + i) n + j`` along the next two axes) and the cosine and sine of each cell's angular
+    radius (its farthest corner from the centre, plus 1e-6 rad)."""
+    edges = np.linspace(-1.0, 1.0, n + 1)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    centre, rho = np.empty((6, n, n, 3)), np.empty((6, n, n))
+
+    def direction(axis, sign, s, t):
+        v = np.zeros(np.broadcast(s, t).shape + (3,))
+        v[..., axis], v[..., (axis + 1) % 3], v[..., (axis + 2) % 3] = sign, s, t
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    for face in range(6):
+        axis, sign = face // 2, -1.0 if face % 2 else 1.0
+        c = direction(axis, sign, mid[:, None], mid[None, :])
+        centre[face] = c
+        worst = np.zeros((n, n))
+        for di in (0, 1):
+            for dj in (0, 1):
+                corner = direction(axis, sign, edges[di : n + di][:, None], edges[dj : n + dj][None, :])
+                cosang = np.clip(np.einsum("ijk,ijk->ij", c, corner), -1.0, 1.0)
+                worst = np.maximum(worst, np.arccos(cosang))
+        rho[face] = worst + 1e-6
+    return centre.reshape(-1, 3), np.cos(rho).ravel(), np.sin(rho).ravel()
+
+
+def _native_args(*arrays: np.ndarray) -> tuple:
+    """Arrays as :mod:`star_screen.tracking.lis_steps` reads them fastest: C-contiguous numpy arrays for the compiled
+    build (typed memoryviews), lists for the plain one."""
+    if _LIS_COMPILED:
+        return tuple(np.ascontiguousarray(a) for a in arrays)
+    return tuple(a.tolist() for a in arrays)
 
 
 _INDEXES: dict[int, _SkyIndex] = {}
