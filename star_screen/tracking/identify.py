@@ -378,7 +378,7 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
     entry = _QUADS.get(n)
     if entry is None:
         q = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
-        q = q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))]
+        q = np.ascontiguousarray(q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))])
         entry = _QUADS[n] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
     return entry
 
@@ -394,24 +394,28 @@ def _image_patterns(u: np.ndarray, max_edge_cos: float):
     """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
 
     Every 4-subset whose six separations all pass ``max_edge_cos``, ordered by its faintest member,
-    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (directions (k, 4, 3)
+    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (star indices (k, 4)
     in canonical order, keys (k, 5), largest separation (k,)). The separations of all pairs are
-    computed once per frame, with the arithmetic of :func:`_edges`, so the keys are those the
-    database uses."""
+    computed once per frame with the arithmetic of :func:`_edges`, and the canonical order and keys
+    with that of :func:`_canonical` and :func:`_keys_of_edges` (:func:`lis_steps.pattern_keys`), so the
+    keys are those the database uses, to the bit."""
     n = len(u)
-    quads, pairs = _quads_brightest_first(n)
-    fits = np.flatnonzero(((u @ u.T) >= max_edge_cos).ravel()[pairs].all(axis=1))
-    if len(fits) == 0:
-        return
+    quads = _quads_brightest_first(n)[0].ravel()
+    fits = ((u @ u.T) >= max_edge_cos).ravel().view(np.uint8)
     sep = _angle_of_chord(_row_norm(u[:, None, :] - u[None, :, :])).ravel()
-    start, size = 0, FIRST_BATCH
-    while start < len(fits):
-        q = quads[fits[start : start + size]]
-        q = q[np.arange(len(q))[:, None], _canonical(u[q])]  # np.take_along_axis's result, without its overhead
-        keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
-        yield u[q], keys, largest
-        start += size
-        size = start
+    u_flat = np.ascontiguousarray(u).ravel()
+    scratch, cursor = np.empty(10), np.zeros(1, np.int64)
+    start, done, size = 0, 0, FIRST_BATCH
+    while True:
+        out_quad, out_key, out_largest = np.empty(4 * size, np.int64), np.empty(5 * size), np.empty(size)
+        w = _lis.pattern_keys(n, quads, start, fits, sep, u_flat, size, out_quad, out_key, out_largest, scratch,
+                              cursor)
+        if w == 0:
+            return
+        yield out_quad[: 4 * w].reshape(w, 4), out_key[: 5 * w].reshape(w, 5), out_largest[:w]
+        start = int(cursor[0])
+        done += w
+        size = done
 
 
 def identify_lis(
@@ -446,28 +450,32 @@ def identify_lis(
     cos_cull = cull_cos(optics)
     n_ver = min(n_verify, len(img_xy))
     hyp = 0
-    for uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
+    dcm = np.empty(9)
+    scratch = np.empty(32)
+    for quads, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
         hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
         for q, cand in enumerate(hits):
             if not cand:
                 continue
             cand = np.asarray(cand)
             cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
+            b4 = b_S[quads[q]].ravel()
             for p in cand:
                 hyp += 1
                 if hyp > max_hypotheses:
                     return _NO_MATCH
-                r_N = db.u_N[db.patterns[p]]
-                b4 = uc[q]
-                C4 = wahba_dcm(b4, r_N, np.ones(4))
-                if np.max(_row_norm(b4 - r_N @ C4.T)) > fit_tolerance_rad:
+                # The 4-pair attitude only decides (whether the pattern fits, which stars verification matches):
+                # Davenport's q-method, the SVD solution's to rounding.
+                if _lis.fit_pairs(b4, db.u_N[db.patterns[p]].ravel(), b4, True, dcm, scratch) > fit_tolerance_rad:
                     continue  # mirror image or wrong correspondence
+                C4 = dcm.reshape(3, 3).copy()
                 ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)
                 if len(ii) < min_matches or pf > max_false_prob:
                     continue
                 # Re-estimate from the verified pairs before matching all stars at the tight radius.
-                C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
-                est2, ii2, ci2 = _refine(C1, img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
+                _lis.fit_pairs(b_S[ii].ravel(), places.u_N[ci].ravel(), 1.0 / sigma_rad[ii] ** 2, False, dcm,
+                               scratch)
+                est2, ii2, ci2 = _refine(dcm.reshape(3, 3), img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
                 if est2 is None or len(ii2) < min_matches:
                     continue
                 return Match(est2, ii2, ci2, n_ver, pf, hyp)
