@@ -227,14 +227,7 @@ class _SkyIndex:
         self.places = places
         u = np.ascontiguousarray(places.u_N, dtype=float)
         n = CONE_CELLS_PER_FACE
-        axis = np.argmax(np.abs(u), axis=1)
-        major = u[np.arange(len(u)), axis]
-        face = 2 * axis + (major < 0)
-        a = np.take_along_axis(u, ((axis + 1) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
-        b = np.take_along_axis(u, ((axis + 2) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
-        i = np.clip(np.floor((a + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
-        j = np.clip(np.floor((b + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
-        cell = (face * n + i) * n + j
+        cell = _cube_cell_of(u, n)
         order = np.argsort(cell, kind="stable")
         starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
         centre, cos_rho, sin_rho = _cube_cells(n)
@@ -251,6 +244,17 @@ class _SkyIndex:
         m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, out)
         rows = np.sort(np.asarray(out[:m], np.int64))
         return rows, self.places.u_N[rows]
+
+
+def _cube_cell_of(u: np.ndarray, n: int) -> np.ndarray:
+    """The cube-map cell (:func:`_cube_cells`' numbering) each unit vector of ``u (S, 3)`` passes through."""
+    axis = np.argmax(np.abs(u), axis=1)
+    major = u[np.arange(len(u)), axis]
+    a = np.take_along_axis(u, ((axis + 1) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+    b = np.take_along_axis(u, ((axis + 2) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+    i = np.clip(np.floor((a + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+    j = np.clip(np.floor((b + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+    return ((2 * axis + (major < 0)) * n + i) * n + j
 
 
 def _cube_cells(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -389,6 +393,9 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
 #: alone solves 867 of 1000 (the first two 941), so a second key up front is mostly thrown away.
 FIRST_BATCH = 1
 
+#: The weights of a 4-pair attitude (read only when the pairs are weighted; these are not).
+_ONES4 = np.ones(4)
+
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
     """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
@@ -466,7 +473,7 @@ def identify_lis(
                     return _NO_MATCH
                 # The 4-pair attitude only decides (whether the pattern fits, which stars verification matches):
                 # Davenport's q-method, the SVD solution's to rounding.
-                if _lis.fit_pairs(b4, db.u_N[db.patterns[p]].ravel(), b4, True, dcm, scratch) > fit_tolerance_rad:
+                if _lis.fit_pairs(b4, db.u_N[db.patterns[p]].ravel(), _ONES4, True, dcm, scratch) > fit_tolerance_rad:
                     continue  # mirror image or wrong correspondence
                 C4 = dcm.reshape(3, 3).copy()
                 ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)

@@ -140,7 +140,7 @@ def pattern_keys(n: cython.Py_ssize_t, quads: cython.longlong[:], start: cython.
 
 
 @cython.cfunc
-@cython.locals(sweep=cython.int, p=cython.int, q=cython.int, k=cython.int, off=cython.double, scale=cython.double,
+@cython.locals(_sweep=cython.int, p=cython.int, q=cython.int, k=cython.int, off=cython.double, scale=cython.double,
                apq=cython.double, theta=cython.double, t=cython.double, c=cython.double, s=cython.double,
                x=cython.double, y=cython.double)
 def _jacobi4(a: cython.double[:]) -> cython.void:
@@ -150,7 +150,7 @@ def _jacobi4(a: cython.double[:]) -> cython.void:
     for k in range(16):
         a[16 + k] = 1.0 if k % 5 == 0 else 0.0
     scale = fabs(a[0]) + fabs(a[5]) + fabs(a[10]) + fabs(a[15])
-    for sweep in range(MAX_SWEEPS):
+    for _sweep in range(MAX_SWEEPS):
         off = fabs(a[1]) + fabs(a[2]) + fabs(a[3]) + fabs(a[6]) + fabs(a[7]) + fabs(a[11])
         if off <= 1e-30 * scale or off == 0.0:
             break

@@ -235,11 +235,11 @@ def test_image_patterns_are_every_4_subset_brightest_first_with_the_database_key
                 c = u[list(quad)].sum(axis=0)
                 c /= np.linalg.norm(c)
                 want.append(sorted(quad, key=lambda i: np.linalg.norm(u[i] - c)))
-    got_u, got_keys, got_largest = (np.concatenate(a) for a in zip(*_image_patterns(u, math.cos(max_edge)),
+    got_q, got_keys, got_largest = (np.concatenate(a) for a in zip(*_image_patterns(u, math.cos(max_edge)),
                                                                     strict=True))
     assert 50 < len(want) < math.comb(14, 4)  # both kinds occur: patterns that fit and ones that do not
-    np.testing.assert_array_equal(got_u, u[np.array(want)])
-    keys, largest = _keys(got_u)
+    np.testing.assert_array_equal(got_q, np.array(want))
+    keys, largest = _keys(u[got_q])
     np.testing.assert_array_equal(got_keys, keys)
     np.testing.assert_array_equal(got_largest, largest)
     sep = [sorted(_angle(u[i], u[j]) for i, j in itertools.combinations(q, 2)) for q in want]
