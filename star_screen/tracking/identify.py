@@ -508,16 +508,18 @@ class _Field:
         """Pixels ``(x, y)`` of directions ``u_N`` seen at ``C`` (dcm_SN) that land on the detector
         grown by ``margin`` px, the kept indices into ``u_N`` (order kept), at most ``limit`` of them."""
         if self.pinhole:
-            # One product with the camera matrix times the attitude: homogeneous pixels.
-            h = u_N @ (self.K @ C).T
-            z = h[:, 2]
-            front = z > 1e-9
-            iz = 1.0 / np.where(front, z, 1.0)
-            x = h[:, 0] * iz
-            y = h[:, 1] * iz
-        else:
-            px, front = self.optics.project(u_N @ C.T)
-            x, y = px[:, 0], px[:, 1]
+            # Homogeneous pixels through the camera matrix times the attitude, in one loop (lis_steps): where the
+            # catalog falls only decides which stars pair up.
+            m = len(u_N) if limit is None else min(limit, len(u_N))
+            u, kc = _native_args(np.ravel(u_N), (self.K @ C).ravel())
+            if _LIS_COMPILED:
+                keep, x, y = np.empty(m, np.int64), np.empty(m), np.empty(m)
+            else:
+                keep, x, y = [0] * m, [0.0] * m, [0.0] * m
+            w = _lis.project_pinhole(u, kc, float(margin), self.width, self.height, m, keep, x, y)
+            return np.asarray(keep[:w], np.int64), np.asarray(x[:w], float), np.asarray(y[:w], float)
+        px, front = self.optics.project(u_N @ C.T)
+        x, y = px[:, 0], px[:, 1]
         ok = front & (x >= -margin) & (x < self.width + margin) & (y >= -margin) & (y < self.height + margin)
         keep = np.flatnonzero(ok)
         if limit is not None:

@@ -262,3 +262,37 @@ def fit_pairs(b: cython.double[:], r: cython.double[:], weight: cython.double[:]
         if e2 > worst:
             worst = e2
     return sqrt(worst)
+
+
+@cython.locals(m=cython.Py_ssize_t, i=cython.Py_ssize_t, w=cython.Py_ssize_t, ux=cython.double, uy=cython.double,
+               uz=cython.double, hx=cython.double, hy=cython.double, z=cython.double, iz=cython.double,
+               x=cython.double, y=cython.double)
+def project_pinhole(u: cython.double[:], kc: cython.double[:], margin: cython.double, width: cython.double,
+                    height: cython.double, limit: cython.Py_ssize_t, out_keep: cython.longlong[:],
+                    out_x: cython.double[:], out_y: cython.double[:]) -> cython.Py_ssize_t:
+    """Pixels of the directions ``u`` (flat x, y, z) through the pinhole camera ``kc`` (the camera matrix times the
+    attitude, flat row-major): homogeneous ``h = kc u``, pixel ``(h_x / h_z, h_y / h_z)`` for ``h_z > 1e-9``. The
+    first ``limit`` directions (in order) that land on the ``width`` x ``height`` detector grown by ``margin`` px are
+    written as (index into ``u``, x, y) to ``out_keep``, ``out_x``, ``out_y``; returns how many."""
+    m = len(u) // 3
+    w = 0
+    for i in range(m):
+        if w >= limit:
+            break
+        ux = u[3 * i]
+        uy = u[3 * i + 1]
+        uz = u[3 * i + 2]
+        z = kc[6] * ux + kc[7] * uy + kc[8] * uz
+        if not z > 1e-9:
+            continue
+        hx = kc[0] * ux + kc[1] * uy + kc[2] * uz
+        hy = kc[3] * ux + kc[4] * uy + kc[5] * uz
+        iz = 1.0 / z
+        x = hx * iz
+        y = hy * iz
+        if x >= -margin and x < width + margin and y >= -margin and y < height + margin:
+            out_keep[w] = i
+            out_x[w] = x
+            out_y[w] = y
+            w += 1
+    return w
