@@ -221,7 +221,7 @@ class _SkyIndex:
     can reach and keeps the stars within its chord (:func:`star_screen.tracking.lis_steps.cone_rows`, compiled where
     the install could): a thousand or so stars looked at, no tree walked. Built in a few milliseconds per table."""
 
-    __slots__ = ("places", "cells", "stars", "size")
+    __slots__ = ("places", "cells", "stars", "size", "u")
 
     def __init__(self, places: StarPlaces):
         self.places = places
@@ -232,7 +232,10 @@ class _SkyIndex:
         starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
         centre, cos_rho, sin_rho = _cube_cells(n)
         self.cells = _native_args(centre.ravel(), cos_rho, sin_rho, starts)
-        self.stars = _native_args(u[order].ravel(), order.astype(np.int64))
+        #: The unit vectors in cell order: a cone's vectors are taken from here, where the query has just read them
+        #: (from the places table they would be one cache miss per star, the catalog being sorted by magnitude).
+        self.u = np.ascontiguousarray(u[order])
+        self.stars = _native_args(self.u.ravel(), order.astype(np.int64))
         self.size = len(u)
 
     def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
@@ -240,10 +243,14 @@ class _SkyIndex:
         chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
         bx, by, bz = boresight.tolist()
         sin_cone = math.sqrt(max(1.0 - cos_cull * cos_cull, 0.0))
-        out = np.empty(self.size, np.int64) if _LIS_COMPILED else [0] * self.size
-        m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, out)
-        rows = np.sort(np.asarray(out[:m], np.int64))
-        return rows, self.places.u_N[rows]
+        if _LIS_COMPILED:
+            rows, at = np.empty(self.size, np.int64), np.empty(self.size, np.int64)
+        else:
+            rows, at = [0] * self.size, [0] * self.size
+        m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, rows, at)
+        rows = np.asarray(rows[:m], np.int64)
+        o = np.argsort(rows)
+        return rows[o], self.u[np.asarray(at[:m], np.int64)[o]]
 
 
 def _cube_cell_of(u: np.ndarray, n: int) -> np.ndarray:

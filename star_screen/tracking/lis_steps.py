@@ -32,9 +32,11 @@ MAX_SWEEPS = 30
 def cone_rows(cell_xyz: cython.double[:], cell_cos: cython.double[:], cell_sin: cython.double[:],
               starts: cython.longlong[:], star_xyz: cython.double[:], star_row: cython.longlong[:],
               bx: cython.double, by: cython.double, bz: cython.double, cos_cone: cython.double,
-              sin_cone: cython.double, chord2: cython.double, out_rows: cython.longlong[:]) -> cython.Py_ssize_t:
+              sin_cone: cython.double, chord2: cython.double, out_rows: cython.longlong[:],
+              out_at: cython.longlong[:]) -> cython.Py_ssize_t:
     """Rows of the stars whose squared chord ``|u - b|^2`` from the boresight ``b`` is at most ``chord2``, unsorted, in
-    ``out_rows[:m]``; returns ``m``.
+    ``out_rows[:m]``, and their positions in ``star_xyz`` (star ``i`` at ``star_xyz[3i:3i + 3]``) in ``out_at[:m]``;
+    returns ``m``.
 
     The stars are bucketed in cells (``starts[c]:starts[c + 1]`` of ``star_xyz`` (flat x, y, z) and ``star_row``);
     cell ``c`` has centre ``cell_xyz[3c:3c + 3]`` and angular radius ``rho`` with ``cell_cos[c] = cos(rho)``,
@@ -57,6 +59,7 @@ def cone_rows(cell_xyz: cython.double[:], cell_cos: cython.double[:], cell_sin: 
             dz = star_xyz[3 * i + 2] - bz
             if dx * dx + dy * dy + dz * dz <= chord2:
                 out_rows[m] = star_row[i]
+                out_at[m] = i
                 m += 1
     return m
 

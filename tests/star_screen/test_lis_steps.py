@@ -45,12 +45,15 @@ def _cone(module, index_u: np.ndarray, b: np.ndarray, cos_cone: float) -> list[i
     order = np.argsort(cell, kind="stable")
     starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
     centre, cos_rho, sin_rho = identify._cube_cells(n)
-    out = np.zeros(len(index_u), np.int64) if compiled_paths.is_compiled(module) else [0] * len(index_u)
+    out, at = (np.zeros(len(index_u), np.int64), np.zeros(len(index_u), np.int64)) if compiled_paths.is_compiled(
+        module) else ([0] * len(index_u), [0] * len(index_u))
     chord = math.sqrt(max(2.0 - 2.0 * cos_cone, 0.0))
     bx, by, bz = b.tolist()
     m = module.cone_rows(*_as_args(module, centre.ravel(), cos_rho, sin_rho, starts),
                          *_as_args(module, index_u[order].ravel(), order.astype(np.int64)), bx, by, bz, cos_cone,
-                         math.sqrt(1.0 - cos_cone * cos_cone), chord * chord, out)
+                         math.sqrt(1.0 - cos_cone * cos_cone), chord * chord, out, at)
+    # Each row's position holds its own direction.
+    assert all(np.array_equal(index_u[order][int(at[i])], index_u[int(out[i])]) for i in range(m))
     return sorted(int(r) for r in out[:m])
 
 
