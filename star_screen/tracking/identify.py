@@ -562,10 +562,10 @@ def _match_radius(img_x: np.ndarray, img_y: np.ndarray, cat_x: np.ndarray, cat_y
     order = np.argsort(img_x, kind="stable")
     xs, ys = img_x[order], img_y[order]
     k = len(cat_x)
-    if _NEAREST_COMPILED:  # typed memoryviews: C-contiguous float64 and int64 arrays
-        args = (np.ascontiguousarray(xs, float), np.ascontiguousarray(ys, float), order,
-                np.ascontiguousarray(cat_x, float), np.ascontiguousarray(cat_y, float))
-        out = (np.zeros(n, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k))
+    if _NEAREST_COMPILED:  # typed memoryviews (any strides) of float64 and int64 arrays; the integer outputs in one
+        args = (np.asarray(xs, float), np.asarray(ys, float), order, np.asarray(cat_x, float), np.asarray(cat_y, float))
+        ints = np.zeros(n + 2 * k, np.int64)
+        out = (ints[:n], ints[n : n + k], ints[n + k :], np.empty(k))
     else:  # plain Python reads and writes lists far faster than numpy scalars
         args = (xs.tolist(), ys.tolist(), order.tolist(), cat_x.tolist(), cat_y.tolist())
         out = ([0] * n, [0] * k, [0] * k, [0.0] * k)
