@@ -38,7 +38,12 @@ star within the radius, and an image star that several catalog stars take is a b
 out (its centroid lies between them, and its small photometric sigma would weight that bias).
 The final estimate leaves out pairs whose residual exceeds ``OUTLIER_GATE`` robust sigmas.
 Matching sorts the image stars by x and sweeps (no k-d tree per frame); the cone of catalog stars
-around the boresight comes from a k-d tree over the places built once per places table.
+around the boresight comes from a cube-map index over the places built once per places table.
+
+The steps that only choose (the cone, the image patterns and their keys, the attitude of a few pairs that
+predicts where catalog stars fall, the projection) run as typed loops in :mod:`star_screen.tracking.lis_steps`
+(compiled where the install could); the attitude and covariance a solution reports are computed by numpy
+from the chosen pairs, as before, so the choices being the same gives the same bits.
 """
 
 from __future__ import annotations
@@ -55,7 +60,7 @@ from scipy.special import betainc
 import compiled_paths
 from star_screen.catalog import StarPlaces
 from star_screen.geometry import TrackerOptics
-from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust, wahba_dcm
+from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust
 
 __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "verify", "false_match_probability"]
 
@@ -326,7 +331,7 @@ def verify(
 
     Returns (image indices, catalog rows, the catalog stars predicted on the detector as (rows,
     unit vectors), false-match bound). The cone and the projection are the tracking path's (one
-    k-d tree query, one product with the camera matrix times ``C``), so both modes see the same field.
+    cube-map query, one projection through the camera matrix times ``C``), so both modes see the same field.
     """
     n = min(n_verify, len(img_xy))
     cone, U = _sky_index(places).cone(C[2], cos_cull)
@@ -599,10 +604,11 @@ def identify_tracking(
     about 0.27 deg); the result is then the lost-in-space result of the same stars (same tight pass,
     same outlier gate).
 
-    Per call: one cone query of a k-d tree over the places (built once per places table), one
+    Per call: one cone query of the cube-map index over the places (built once per places table), one
     projection of the cone's brightest stars with the prior (vote) and one of the cone with the
-    first estimate (tight match), a column-sorted nearest-neighbour match, one SVD for the first
-    estimate and one or two for the final (two when the outlier gate drops pairs).
+    first estimate (tight match), a column-sorted nearest-neighbour match, a q-method fit for the
+    first estimate (it only decides the matches) and one or two SVDs for the final (two when the
+    outlier gate drops pairs).
     """
     if len(img_xy) < 3:
         return _NO_MATCH
@@ -650,9 +656,11 @@ def identify_tracking(
     ii, cj = ii[single], cj[single]
     if len(ii) < 3:
         return _NO_MATCH
-    bi_ = b_S[ii]
-    w = 1.0 / sigma_rad[ii] ** 2
-    C1 = wahba_dcm(bi_, U[kv[cj]], w)
+    # The first attitude only decides which stars the tight pass matches: Davenport's q-method (lis_steps), the SVD
+    # solution's to rounding.
+    C1 = np.empty(9)
+    _lis.fit_pairs(b_S[ii].ravel(), U[kv[cj]].ravel(), 1.0 / sigma_rad[ii] ** 2, False, C1, np.empty(32))
+    C1 = C1.reshape(3, 3)
     # One tight matching pass, the rule of the lost-in-space refinement (:func:`_refine`): the
     # brightest ``max_stars`` image stars against every catalog star predicted on the detector (grown
     # by the match radius), so tracking and lost in space agree on the same frame. The chance-alignment
