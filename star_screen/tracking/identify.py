@@ -10,12 +10,12 @@ Pattern database (built once per field size from the catalog, in memory, determi
   ``max_edge`` (about half the short side of the field, so a pattern fits anywhere in the image
   and no "pattern per field centre" bookkeeping can miss one);
 * key: the six separations sorted, divided by the largest (5 numbers, invariant to rotation and to
-  the plate scale), stored in a ``cKDTree`` and looked up with a max-norm tolerance;
+  the plate scale), bucketed on a grid over three of them and looked up with a max-norm tolerance;
 * the 4 stars of a pattern are ordered by their distance from the pattern's centroid, the same
   rule on both sides, so a key hit gives the star correspondence.
 
 Lost in space: 4-star combinations of the brightest image stars, brightest combinations first,
-keyed and looked up in small doubling batches (one tree query per batch): most frames are solved
+keyed and looked up in small doubling batches (a grid over the keys, one typed loop a key): most frames are solved
 by their first pattern, and the first verified hypothesis ends the search, so the keys of the
 hundreds of fainter combinations are never built. Each catalog hit whose largest separation also
 agrees gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
@@ -138,7 +138,8 @@ class PatternDatabase:
     u_N: np.ndarray  #: (S, 3) pattern-star directions at the build epoch
     patterns: np.ndarray  #: (P, 4) pattern-star indices in canonical order
     largest_edge_rad: np.ndarray  #: (P,)
-    tree: cKDTree  #: over the (P, 5) keys
+    #: The keys on a grid (:func:`_key_grid`): (cell starts, keys (flat), pattern indices, largest separations)
+    key_grid: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
     @classmethod
     def build(
@@ -190,10 +191,24 @@ class PatternDatabase:
         perm = _canonical(up)
         P = np.take_along_axis(P, perm, axis=1)
         keys, largest = _keys(u[P])
-        return cls(D, float(pattern_mag_limit), rows, u, P, largest, cKDTree(keys))
+        return cls(D, float(pattern_mag_limit), rows, u, P, largest, _key_grid(keys, largest))
 
     def __len__(self) -> int:
         return len(self.patterns)
+
+
+def _key_grid(keys: np.ndarray, largest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pattern keys (P, 5) bucketed for :func:`star_screen.tracking.lis_steps.lookup_key`: cells of
+    ``GRID_CELL`` along key components ``GRID_COMPONENTS`` (``GRID_SIZE`` a component), the patterns of a cell
+    contiguous and in index order. Returns (cell starts, keys flat, pattern indices, largest separations), the last
+    three in cell order; numpy arrays for both builds (as lists they would take some 50 MB)."""
+    g = _lis.GRID_SIZE
+    comp = np.clip(np.floor(keys[:, list(_lis.GRID_COMPONENTS)] / _lis.GRID_CELL), 0, g - 1).astype(np.int64)
+    cell = (comp[:, 0] * g + comp[:, 1]) * g + comp[:, 2]
+    order = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[order], np.arange(g**3 + 1)).astype(np.int64)
+    return (starts, np.ascontiguousarray(keys[order], dtype=float).ravel(), order.astype(np.int64),
+            np.ascontiguousarray(largest[order], dtype=float))
 
 
 @dataclass(frozen=True)
@@ -401,8 +416,8 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 #: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
 #: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
-#: One: a tree query costs about 5 us plus 5 us a key, and on ``stand bench tracker``'s frames the first pattern
-#: alone solves 867 of 1000 (the first two 941), so a second key up front is mostly thrown away.
+#: One: on ``stand bench tracker``'s frames the first pattern alone solves 867 of 1000 (the first two 941), so a
+#: second key up front is mostly thrown away.
 FIRST_BATCH = 1
 
 #: The weights of a 4-pair attitude (read only when the pairs are weighted; these are not).
@@ -471,15 +486,18 @@ def identify_lis(
     hyp = 0
     dcm = np.empty(9)
     scratch = np.empty(32)
+    # A key's hits beyond the first max_hypotheses + 1 are never tried: the search ends before.
+    cap = max_hypotheses + 1
+    hits = np.empty(cap, np.int64)
     for quads, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
-        hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
-        for q, cand in enumerate(hits):
-            if not cand:
+        for q in range(len(keys)):
+            # The catalog patterns with the key within key_tolerance (max-norm) and the largest separation within
+            # edge_tolerance, ascending.
+            m = _lis.lookup_key(keys[q], key_tolerance, *db.key_grid, float(largest[q]), edge_tolerance, cap, hits)
+            if m == 0:
                 continue
-            cand = np.asarray(cand)
-            cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
             b4 = b_S[quads[q]].ravel()
-            for p in cand:
+            for p in hits[: min(m, cap)].tolist():
                 hyp += 1
                 if hyp > max_hypotheses:
                     return _NO_MATCH

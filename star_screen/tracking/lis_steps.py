@@ -299,3 +299,72 @@ def project_pinhole(u: cython.double[:], kc: cython.double[:], margin: cython.do
             out_y[w] = y
             w += 1
     return w
+
+
+#: The key components the lookup grid is cut along (of the five; the three that spread the patterns best) and its
+#: cell width: a query box of +-0.01 spans at most two cells a component.
+GRID_COMPONENTS = (0, 1, 3)
+GRID_CELL = 0.02
+GRID_SIZE = 50
+
+
+@cython.locals(a0=cython.Py_ssize_t, a1=cython.Py_ssize_t, b0=cython.Py_ssize_t, b1=cython.Py_ssize_t,
+               c0=cython.Py_ssize_t, c1=cython.Py_ssize_t, a=cython.Py_ssize_t, b=cython.Py_ssize_t,
+               c=cython.Py_ssize_t, cell=cython.Py_ssize_t, i=cython.Py_ssize_t, t=cython.Py_ssize_t,
+               j=cython.Py_ssize_t, total=cython.Py_ssize_t, w=cython.Py_ssize_t, ok=cython.bint,
+               p=cython.longlong, le=cython.double)
+def lookup_key(key: cython.double[:], tolerance: cython.double, starts: cython.longlong[:],
+               grid_keys: cython.double[:], grid_pattern: cython.longlong[:], grid_largest: cython.double[:],
+               largest: cython.double, edge_tolerance: cython.double, cap: cython.Py_ssize_t,
+               out: cython.longlong[:]) -> cython.Py_ssize_t:
+    """The patterns whose key lies within ``tolerance`` of ``key`` in every component (``|k_i - q_i| <= tolerance``,
+    the max-norm ball of a k-d tree query) and whose largest separation agrees, ``|L_p - largest| <= edge_tolerance
+    * largest``; returns how many there are, and writes the ``cap`` smallest pattern indices among them, ascending,
+    to ``out``.
+
+    The patterns are bucketed on a grid over key components :data:`GRID_COMPONENTS` (cells of :data:`GRID_CELL`,
+    ``GRID_SIZE`` a component): cell ``(a, b, c)`` holds ``grid_pattern[starts[s]:starts[s + 1]]``, ``s = (a G + b) G +
+    c``, with their keys (five each, flat) in ``grid_keys`` and largest separations in ``grid_largest``. A query reads
+    the cells its box reaches (with a margin of 1e-9, so rounding never skips one) and checks every pattern in them."""
+    a0, a1 = _cell_span(key[0], tolerance)
+    b0, b1 = _cell_span(key[1], tolerance)
+    c0, c1 = _cell_span(key[3], tolerance)
+    total = 0
+    for a in range(a0, a1 + 1):
+        for b in range(b0, b1 + 1):
+            cell = (a * GRID_SIZE + b) * GRID_SIZE
+            for i in range(starts[cell + c0], starts[cell + c1 + 1]):
+                ok = True
+                for t in range(5):
+                    if not fabs(grid_keys[5 * i + t] - key[t]) <= tolerance:
+                        ok = False
+                        break
+                if not ok:
+                    continue
+                le = grid_largest[i]
+                if not fabs(le - largest) <= edge_tolerance * largest:
+                    continue
+                # Keep the cap smallest indices, ascending (an insertion: hits are few).
+                p = grid_pattern[i]
+                w = total if total < cap else cap
+                total += 1
+                if w == cap and (cap == 0 or out[cap - 1] < p):
+                    continue
+                j = w if w < cap else cap - 1
+                while j > 0 and out[j - 1] > p:
+                    out[j] = out[j - 1]
+                    j -= 1
+                out[j] = p
+    return total
+
+
+@cython.cfunc
+@cython.inline
+@cython.locals(lo=cython.double, hi=cython.double, first=cython.Py_ssize_t, last=cython.Py_ssize_t)
+def _cell_span(value: cython.double, tolerance: cython.double) -> tuple[cython.Py_ssize_t, cython.Py_ssize_t]:
+    """The first and last grid cell (of a component) that ``value -+ tolerance`` reaches, with a margin of 1e-9."""
+    lo = (value - tolerance - 1e-9) / GRID_CELL
+    hi = (value + tolerance + 1e-9) / GRID_CELL
+    first = 0 if not lo > 0.0 else (GRID_SIZE - 1 if lo >= GRID_SIZE - 1 else int(lo))
+    last = 0 if not hi > 0.0 else (GRID_SIZE - 1 if hi >= GRID_SIZE - 1 else int(hi))
+    return first, last

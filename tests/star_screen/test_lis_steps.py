@@ -182,3 +182,51 @@ def test_cube_cells_cover_their_stars(n) -> None:
     centre, cos_rho, _ = identify._cube_cells(n)
     cell = identify._cube_cell_of(u, n)
     assert np.all(np.einsum("ij,ij->i", u, centre[cell]) >= cos_rho[cell])
+
+
+def _lookup(module, grid, key: np.ndarray, largest: float, cap: int, tol: float = 0.01, edge_tol: float = 0.01):
+    out = np.zeros(max(cap, 1), np.int64)
+    m = module.lookup_key(np.ascontiguousarray(key, float), tol, *grid, largest, edge_tol, cap, out)
+    return m, out[: min(m, cap)].tolist()
+
+
+def _lookup_cases(seed: int, count: int):
+    """A synthetic pattern table (keys sorted like real ones, in [0, 1]) and queries near its keys: some exactly
+    ``tolerance`` away in a component (the ball's edge), some off the grid's range, most with a few hits."""
+    rng = np.random.default_rng(seed)
+    keys = np.sort(rng.uniform(0.0, 1.0, (20000, 5)) ** 0.5, axis=1)
+    keys[:50, 4] = 1.0
+    largest = rng.uniform(0.05, 0.14, len(keys))
+    grid = identify._key_grid(keys, largest)
+    for k in range(count):
+        p = int(rng.integers(len(keys)))
+        q = keys[p] + rng.normal(0.0, 0.004, 5)
+        if k % 5 == 0:
+            q = keys[p].copy()
+            q[k % 5] += 0.01 * (-1) ** k  # on the edge of the ball
+        if k % 11 == 0:
+            q = np.full(5, 1.02) if k % 2 else np.full(5, -0.02)
+        yield keys, largest, grid, q, largest[p] * (1.0 + rng.normal(0.0, 0.006))
+
+
+def test_lookup_is_the_k_d_tree_max_norm_ball_with_the_largest_separation(build) -> None:
+    """The hits of the grid are those of a k-d tree's max-norm ball query (return_sorted), filtered by the largest
+    separation with numpy, in the same ascending order; only the first ``cap`` are written, the count is all."""
+    from scipy.spatial import cKDTree
+
+    trees = {}
+    n_hits = 0
+    for keys, largest, grid, q, big in _lookup_cases(48, 300):
+        tree = trees.setdefault(id(keys), cKDTree(keys))
+        cand = np.asarray(tree.query_ball_point(q, 0.01, p=np.inf, return_sorted=True), np.int64)
+        want = cand[np.abs(largest[cand] - big) <= 0.01 * big].tolist()
+        n_hits += len(want)
+        assert _lookup(build, grid, q, float(big), 201) == (len(want), want)
+        assert _lookup(build, grid, q, float(big), 1) == (len(want), want[:1])
+        assert _lookup(build, grid, q, float(big), 0) == (len(want), [])
+    assert n_hits > 150  # 190 hits on these cases: most queries find their pattern, some a neighbour too
+
+
+def test_compiled_and_plain_lookups_are_the_same(compiled) -> None:
+    for _, _, grid, q, big in _lookup_cases(49, 100):
+        assert _lookup(compiled, grid, q, float(big), 3) == _lookup(plain, grid, q, float(big), 3)
