@@ -429,3 +429,26 @@ def test_camera_noise_has_the_variance_of_shot_plus_read_noise():
     assert dark.var() == pytest.approx(20.0 + 100.0, rel=0.02)
     assert lit.mean() == pytest.approx(420.0, abs=0.2)
     assert lit.var() == pytest.approx(400.0 + 20.0 + 100.0, rel=0.02)  # Poisson(signal) + background + read
+
+
+def test_the_3x3_svd_is_numpys_to_the_bit_and_refuses_what_numpy_refuses():
+    """``estimate.svd3`` calls numpy's SVD kernel without its wrapper: the same U, singular values and V^T bytes as
+    ``np.linalg.svd`` over matrices of many scales, ``LinAlgError`` for a matrix with NaN and NaN results for one with
+    inf, as numpy."""
+    from star_screen.tracking.estimate import svd3
+
+    rng = np.random.default_rng(2613)
+    for _ in range(2000):
+        B = rng.normal(size=(3, 3)) * 10 ** rng.uniform(-8, 8)
+        if rng.uniform() < 0.1:
+            B[:, 2] = B[:, 0] * 2.0  # rank deficient
+        assert all(x.tobytes() == y.tobytes() for x, y in zip(svd3(B), np.linalg.svd(B), strict=True))
+    B = np.eye(3)
+    B[1, 2] = np.nan
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.svd(B)
+    with pytest.raises(np.linalg.LinAlgError, match="SVD did not converge"):
+        svd3(B)
+    for bad in (np.inf, -np.inf):  # numpy gives NaN there, and so does svd3
+        B[1, 2] = bad
+        assert all(x.tobytes() == y.tobytes() for x, y in zip(svd3(B), np.linalg.svd(B), strict=True))
