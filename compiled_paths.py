@@ -32,6 +32,7 @@ MODULES: tuple[str, ...] = (
     "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)
     "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
     "drivers.can_frames",  # the CAN nodes' drain and send, the in-process bus's delivery of a data frame
+    "star_screen.tracking.lis_steps",  # the star tracker's lost-in-space decisions: cone, pattern keys, pair attitude
 )
 
 _chosen: dict[str, ModuleType] = {}

@@ -38,12 +38,36 @@ class AttitudeEstimate:
     residual_rad: np.ndarray
 
 
+try:
+    # The kernel np.linalg.svd itself calls for a real double matrix (LAPACK's dgesdd through numpy's gufunc), called
+    # without the wrapper's argument handling and error-state context, which cost twice the decomposition of a 3 x 3
+    # matrix: the same call on the same matrix, so the same bits (tests/star_screen/test_tracking.py compares them).
+    from numpy.linalg._umath_linalg import svd_f as _svd_kernel
+except ImportError:  # a numpy that moved it: its public wrapper, the same results
+    _svd_kernel = None
+
+
+def svd3(B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.linalg.svd(B)`` of a float64 ``B`` (3, 3): (U, singular values, V^T), the same bits, and the same
+    refusals: ``LinAlgError`` for a matrix with NaN (or one LAPACK could not decompose), NaN results for one with
+    inf."""
+    if _svd_kernel is None:
+        return np.linalg.svd(B)
+    values = B.ravel().tolist()
+    if any(map(math.isnan, values)):
+        raise np.linalg.LinAlgError("SVD did not converge")
+    U, s, Vt = _svd_kernel(B, signature="d->ddd")
+    if math.isnan(s[0]) and all(map(math.isfinite, values)):  # a failed decomposition comes back as NaN
+        raise np.linalg.LinAlgError("SVD did not converge")
+    return U, s, Vt
+
+
 def wahba_dcm(b_S, r_N, a, ba=None) -> np.ndarray:
     """``dcm_SN`` minimising ``sum a_i |b_i - dcm r_i|^2`` (SVD method; no covariance, no checks).
 
     ``ba``: ``b_S * a[:, None]`` when the caller already has it."""
     B = (b_S * a[:, None] if ba is None else ba).T @ r_N
-    U, _, Vt = np.linalg.svd(B)
+    U, _, Vt = svd3(B)
     M = U @ Vt
     (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = M.tolist()
     if a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0) > 0:

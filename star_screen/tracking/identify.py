@@ -10,12 +10,12 @@ Pattern database (built once per field size from the catalog, in memory, determi
   ``max_edge`` (about half the short side of the field, so a pattern fits anywhere in the image
   and no "pattern per field centre" bookkeeping can miss one);
 * key: the six separations sorted, divided by the largest (5 numbers, invariant to rotation and to
-  the plate scale), stored in a ``cKDTree`` and looked up with a max-norm tolerance;
+  the plate scale), bucketed on a grid over three of them and looked up with a max-norm tolerance;
 * the 4 stars of a pattern are ordered by their distance from the pattern's centroid, the same
   rule on both sides, so a key hit gives the star correspondence.
 
 Lost in space: 4-star combinations of the brightest image stars, brightest combinations first,
-keyed and looked up in small doubling batches (one tree query per batch): most frames are solved
+keyed and looked up in small doubling batches (a grid over the keys, one typed loop a key): most frames are solved
 by their first pattern, and the first verified hypothesis ends the search, so the keys of the
 hundreds of fainter combinations are never built. Each catalog hit whose largest separation also
 agrees gives a 4-pair attitude, which is accepted only after *verification*: the catalog stars predicted
@@ -38,7 +38,12 @@ star within the radius, and an image star that several catalog stars take is a b
 out (its centroid lies between them, and its small photometric sigma would weight that bias).
 The final estimate leaves out pairs whose residual exceeds ``OUTLIER_GATE`` robust sigmas.
 Matching sorts the image stars by x and sweeps (no k-d tree per frame); the cone of catalog stars
-around the boresight comes from a k-d tree over the places built once per places table.
+around the boresight comes from a cube-map index over the places built once per places table.
+
+The steps that only choose (the cone, the image patterns and their keys, the attitude of a few pairs that
+predicts where catalog stars fall, the projection) run as typed loops in :mod:`star_screen.tracking.lis_steps`
+(compiled where the install could); the attitude and covariance a solution reports are computed by numpy
+from the chosen pairs, as before, so the choices being the same gives the same bits.
 """
 
 from __future__ import annotations
@@ -55,13 +60,16 @@ from scipy.special import betainc
 import compiled_paths
 from star_screen.catalog import StarPlaces
 from star_screen.geometry import TrackerOptics
-from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust, wahba_dcm
+from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust
 
 __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "verify", "false_match_probability"]
 
 #: The radius matching's sweep: compiled where the install could (compiled_paths), else the same Python.
 _nearest = compiled_paths.load("star_screen.tracking.nearest")
 _NEAREST_COMPILED = compiled_paths.is_compiled(_nearest)
+#: The lost-in-space decision steps (cone, image pattern keys, the attitude of a few pairs): likewise.
+_lis = compiled_paths.load("star_screen.tracking.lis_steps")
+_LIS_COMPILED = compiled_paths.is_compiled(_lis)
 
 
 def _chord(angle_rad: float) -> float:
@@ -130,7 +138,8 @@ class PatternDatabase:
     u_N: np.ndarray  #: (S, 3) pattern-star directions at the build epoch
     patterns: np.ndarray  #: (P, 4) pattern-star indices in canonical order
     largest_edge_rad: np.ndarray  #: (P,)
-    tree: cKDTree  #: over the (P, 5) keys
+    #: The keys on a grid (:func:`_key_grid`): (cell starts, keys (flat), pattern indices, largest separations)
+    key_grid: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
     @classmethod
     def build(
@@ -182,10 +191,24 @@ class PatternDatabase:
         perm = _canonical(up)
         P = np.take_along_axis(P, perm, axis=1)
         keys, largest = _keys(u[P])
-        return cls(D, float(pattern_mag_limit), rows, u, P, largest, cKDTree(keys))
+        return cls(D, float(pattern_mag_limit), rows, u, P, largest, _key_grid(keys, largest))
 
     def __len__(self) -> int:
         return len(self.patterns)
+
+
+def _key_grid(keys: np.ndarray, largest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pattern keys (P, 5) bucketed for :func:`star_screen.tracking.lis_steps.lookup_key`: cells of
+    ``GRID_CELL`` along key components ``GRID_COMPONENTS`` (``GRID_SIZE`` a component), the patterns of a cell
+    contiguous and in index order. Returns (cell starts, keys flat, pattern indices, largest separations), the last
+    three in cell order; numpy arrays for both builds (as lists they would take some 50 MB)."""
+    g = _lis.GRID_SIZE
+    comp = np.clip(np.floor(keys[:, list(_lis.GRID_COMPONENTS)] / _lis.GRID_CELL), 0, g - 1).astype(np.int64)
+    cell = (comp[:, 0] * g + comp[:, 1]) * g + comp[:, 2]
+    order = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[order], np.arange(g**3 + 1)).astype(np.int64)
+    return (starts, np.ascontiguousarray(keys[order], dtype=float).ravel(), order.astype(np.int64),
+            np.ascontiguousarray(largest[order], dtype=float))
 
 
 @dataclass(frozen=True)
@@ -207,28 +230,93 @@ class Match:
 _NO_MATCH = Match(None, np.empty(0, np.int64), np.empty(0, np.int64), 0, 1.0, 0)
 
 
-class _SkyIndex:
-    """Cone queries over one places table: a k-d tree over the unit vectors stored in the tree's own
-    leaf order, so the stars of one cone lie in a few contiguous runs of memory (a frame's query
-    then touches a few hundred cache lines instead of one per star)."""
+#: Cells per edge of a cube face in the cone index: 8 x 8 x 6 cells of about 11 deg, so a 12.6 deg cone reads ten or
+#: so of them (about a thousand stars to Hp 8 looked at for the five hundred it holds).
+CONE_CELLS_PER_FACE = 8
 
-    __slots__ = ("places", "perm", "u", "tree")
+
+class _SkyIndex:
+    """Cone queries over one places table: the unit vectors bucketed in the cells of a cube map (each star in the cell
+    its direction passes through), stored cell by cell, rows ascending within a cell. A query reads the cells the cone
+    can reach and keeps the stars within its chord (:func:`star_screen.tracking.lis_steps.cone_rows`, compiled where
+    the install could): a thousand or so stars looked at, no tree walked. Built in a few milliseconds per table."""
+
+    __slots__ = ("places", "cells", "stars", "size", "u")
 
     def __init__(self, places: StarPlaces):
         self.places = places
-        self.perm = np.ascontiguousarray(cKDTree(places.u_N).indices, dtype=np.int64)
-        self.u = np.ascontiguousarray(places.u_N[self.perm])
-        self.tree = cKDTree(self.u)
+        u = np.ascontiguousarray(places.u_N, dtype=float)
+        n = CONE_CELLS_PER_FACE
+        cell = _cube_cell_of(u, n)
+        order = np.argsort(cell, kind="stable")
+        starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
+        centre, cos_rho, sin_rho = _cube_cells(n)
+        self.cells = _native_args(centre.ravel(), cos_rho, sin_rho, starts)
+        #: The unit vectors in cell order: a cone's vectors are taken from here, where the query has just read them
+        #: (from the places table they would be one cache miss per star, the catalog being sorted by magnitude).
+        self.u = np.ascontiguousarray(u[order])
+        self.stars = _native_args(self.u.ravel(), order.astype(np.int64))
+        self.size = len(u)
 
     def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the places within the cone (sorted: brightest first) and their unit vectors."""
         chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
-        # Unsorted (the rows are sorted below): the tree's own sort of the indices is work thrown away.
-        k = np.asarray(self.tree.query_ball_point(boresight, chord, return_sorted=False), dtype=np.int64)
-        rows = self.perm[k]
+        bx, by, bz = boresight.tolist()
+        sin_cone = math.sqrt(max(1.0 - cos_cull * cos_cull, 0.0))
+        if _LIS_COMPILED:
+            rows, at = np.empty(self.size, np.int64), np.empty(self.size, np.int64)
+        else:
+            rows, at = [0] * self.size, [0] * self.size
+        m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, rows, at)
+        rows = np.asarray(rows[:m], np.int64)
         o = np.argsort(rows)
-        k = k[o]
-        return rows[o], self.u[k]
+        return rows[o], self.u[np.asarray(at[:m], np.int64)[o]]
+
+
+def _cube_cell_of(u: np.ndarray, n: int) -> np.ndarray:
+    """The cube-map cell (:func:`_cube_cells`' numbering) each unit vector of ``u (S, 3)`` passes through."""
+    axis = np.argmax(np.abs(u), axis=1)
+    major = u[np.arange(len(u)), axis]
+    a = np.take_along_axis(u, ((axis + 1) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+    b = np.take_along_axis(u, ((axis + 2) % 3)[:, None], axis=1)[:, 0] / np.abs(major)
+    i = np.clip(np.floor((a + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+    j = np.clip(np.floor((b + 1.0) * (0.5 * n)).astype(np.int64), 0, n - 1)
+    return ((2 * axis + (major < 0)) * n + i) * n + j
+
+
+def _cube_cells(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre directions (6 n n, 3) of the cells of a cube map with ``n`` x ``n`` cells a face (face ``2 axis +
+    (negative)``, cell ``(face n + i) n + j`` along the next two axes) and the cosine and sine of each cell's angular
+    radius (its farthest corner from the centre, plus 1e-6 rad)."""
+    edges = np.linspace(-1.0, 1.0, n + 1)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    centre, rho = np.empty((6, n, n, 3)), np.empty((6, n, n))
+
+    def direction(axis, sign, s, t):
+        v = np.zeros(np.broadcast(s, t).shape + (3,))
+        v[..., axis], v[..., (axis + 1) % 3], v[..., (axis + 2) % 3] = sign, s, t
+        return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+    for face in range(6):
+        axis, sign = face // 2, -1.0 if face % 2 else 1.0
+        c = direction(axis, sign, mid[:, None], mid[None, :])
+        centre[face] = c
+        worst = np.zeros((n, n))
+        for di in (0, 1):
+            for dj in (0, 1):
+                corner = direction(axis, sign, edges[di : n + di][:, None], edges[dj : n + dj][None, :])
+                cosang = np.clip(np.einsum("ijk,ijk->ij", c, corner), -1.0, 1.0)
+                worst = np.maximum(worst, np.arccos(cosang))
+        rho[face] = worst + 1e-6
+    return centre.reshape(-1, 3), np.cos(rho).ravel(), np.sin(rho).ravel()
+
+
+def _native_args(*arrays: np.ndarray) -> tuple:
+    """Arrays as :mod:`star_screen.tracking.lis_steps` reads them fastest: C-contiguous numpy arrays for the compiled
+    build (typed memoryviews), lists for the plain one."""
+    if _LIS_COMPILED:
+        return tuple(np.ascontiguousarray(a) for a in arrays)
+    return tuple(a.tolist() for a in arrays)
 
 
 _INDEXES: dict[int, _SkyIndex] = {}
@@ -258,7 +346,7 @@ def verify(
 
     Returns (image indices, catalog rows, the catalog stars predicted on the detector as (rows,
     unit vectors), false-match bound). The cone and the projection are the tracking path's (one
-    k-d tree query, one product with the camera matrix times ``C``), so both modes see the same field.
+    cube-map query, one projection through the camera matrix times ``C``), so both modes see the same field.
     """
     n = min(n_verify, len(img_xy))
     cone, U = _sky_index(places).cone(C[2], cos_cull)
@@ -321,40 +409,47 @@ def _quads_brightest_first(n: int) -> tuple[np.ndarray, np.ndarray]:
     entry = _QUADS.get(n)
     if entry is None:
         q = np.array(list(itertools.combinations(range(n), 4)), dtype=np.int64).reshape(-1, 4)
-        q = q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))]
+        q = np.ascontiguousarray(q[np.lexsort((q[:, 2], q[:, 1], q[:, 0], q[:, 3]))])
         entry = _QUADS[n] = (q, q[:, _PAIR_I] * n + q[:, _PAIR_J])
     return entry
 
 
 #: Image patterns per lookup batch at first; each later batch is as large as all before it, so a frame
 #: solved by its first patterns (most) builds and looks up only those, and one that needs many takes few batches.
-#: One: a tree query costs about 5 us plus 5 us a key, and on ``stand bench tracker``'s frames the first pattern
-#: alone solves 867 of 1000 (the first two 941), so a second key up front is mostly thrown away.
+#: One: on ``stand bench tracker``'s frames the first pattern alone solves 867 of 1000 (the first two 941), so a
+#: second key up front is mostly thrown away.
 FIRST_BATCH = 1
+
+#: The weights of a 4-pair attitude (read only when the pairs are weighted; these are not).
+_ONES4 = np.ones(4)
 
 
 def _image_patterns(u: np.ndarray, max_edge_cos: float):
     """Image 4-star patterns of the directions ``u`` (brightest first), brightest combinations first.
 
     Every 4-subset whose six separations all pass ``max_edge_cos``, ordered by its faintest member,
-    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (directions (k, 4, 3)
+    then lexicographically, yielded in batches (``FIRST_BATCH``, then doubling) as (star indices (k, 4)
     in canonical order, keys (k, 5), largest separation (k,)). The separations of all pairs are
-    computed once per frame, with the arithmetic of :func:`_edges`, so the keys are those the
-    database uses."""
+    computed once per frame with the arithmetic of :func:`_edges`, and the canonical order and keys
+    with that of :func:`_canonical` and :func:`_keys_of_edges` (:func:`lis_steps.pattern_keys`), so the
+    keys are those the database uses, to the bit."""
     n = len(u)
-    quads, pairs = _quads_brightest_first(n)
-    fits = np.flatnonzero(((u @ u.T) >= max_edge_cos).ravel()[pairs].all(axis=1))
-    if len(fits) == 0:
-        return
+    quads = _quads_brightest_first(n)[0].ravel()
+    fits = ((u @ u.T) >= max_edge_cos).ravel().view(np.uint8)
     sep = _angle_of_chord(_row_norm(u[:, None, :] - u[None, :, :])).ravel()
-    start, size = 0, FIRST_BATCH
-    while start < len(fits):
-        q = quads[fits[start : start + size]]
-        q = q[np.arange(len(q))[:, None], _canonical(u[q])]  # np.take_along_axis's result, without its overhead
-        keys, largest = _keys_of_edges(sep[q[:, _PAIR_I] * n + q[:, _PAIR_J]])
-        yield u[q], keys, largest
-        start += size
-        size = start
+    u_flat = np.ascontiguousarray(u).ravel()
+    scratch, cursor = np.empty(10), np.zeros(1, np.int64)
+    start, done, size = 0, 0, FIRST_BATCH
+    while True:
+        out_quad, out_key, out_largest = np.empty(4 * size, np.int64), np.empty(5 * size), np.empty(size)
+        w = _lis.pattern_keys(n, quads, start, fits, sep, u_flat, size, out_quad, out_key, out_largest, scratch,
+                              cursor)
+        if w == 0:
+            return
+        yield out_quad[: 4 * w].reshape(w, 4), out_key[: 5 * w].reshape(w, 5), out_largest[:w]
+        start = int(cursor[0])
+        done += w
+        size = done
 
 
 def identify_lis(
@@ -389,28 +484,35 @@ def identify_lis(
     cos_cull = cull_cos(optics)
     n_ver = min(n_verify, len(img_xy))
     hyp = 0
-    for uc, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
-        hits = db.tree.query_ball_point(keys, key_tolerance, p=np.inf, return_sorted=True)
-        for q, cand in enumerate(hits):
-            if not cand:
+    dcm = np.empty(9)
+    scratch = np.empty(32)
+    # A key's hits beyond the first max_hypotheses + 1 are never tried: the search ends before.
+    cap = max_hypotheses + 1
+    hits = np.empty(cap, np.int64)
+    for quads, keys, largest in _image_patterns(b_S[:n], math.cos(db.max_edge_rad * (1.0 + edge_tolerance))):
+        for q in range(len(keys)):
+            # The catalog patterns with the key within key_tolerance (max-norm) and the largest separation within
+            # edge_tolerance, ascending.
+            m = _lis.lookup_key(keys[q], key_tolerance, *db.key_grid, float(largest[q]), edge_tolerance, cap, hits)
+            if m == 0:
                 continue
-            cand = np.asarray(cand)
-            cand = cand[np.abs(db.largest_edge_rad[cand] - largest[q]) <= edge_tolerance * largest[q]]
-            for p in cand:
+            b4 = b_S[quads[q]].ravel()
+            for p in hits[: min(m, cap)].tolist():
                 hyp += 1
                 if hyp > max_hypotheses:
                     return _NO_MATCH
-                r_N = db.u_N[db.patterns[p]]
-                b4 = uc[q]
-                C4 = wahba_dcm(b4, r_N, np.ones(4))
-                if np.max(_row_norm(b4 - r_N @ C4.T)) > fit_tolerance_rad:
+                # The 4-pair attitude only decides (whether the pattern fits, which stars verification matches):
+                # Davenport's q-method, the SVD solution's to rounding.
+                if _lis.fit_pairs(b4, db.u_N[db.patterns[p]].ravel(), _ONES4, True, dcm, scratch) > fit_tolerance_rad:
                     continue  # mirror image or wrong correspondence
+                C4 = dcm.reshape(3, 3).copy()
                 ii, ci, field, pf = verify(C4, img_xy, n_verify, places, optics, cos_cull, match_radius_px, hyp)
                 if len(ii) < min_matches or pf > max_false_prob:
                     continue
                 # Re-estimate from the verified pairs before matching all stars at the tight radius.
-                C1 = wahba_dcm(b_S[ii], places.u_N[ci], 1.0 / sigma_rad[ii] ** 2)
-                est2, ii2, ci2 = _refine(C1, img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
+                _lis.fit_pairs(b_S[ii].ravel(), places.u_N[ci].ravel(), 1.0 / sigma_rad[ii] ** 2, False, dcm,
+                               scratch)
+                est2, ii2, ci2 = _refine(dcm.reshape(3, 3), img_xy, b_S, sigma_rad, optics, field, refine_radius_px)
                 if est2 is None or len(ii2) < min_matches:
                     continue
                 return Match(est2, ii2, ci2, n_ver, pf, hyp)
@@ -436,16 +538,18 @@ class _Field:
         """Pixels ``(x, y)`` of directions ``u_N`` seen at ``C`` (dcm_SN) that land on the detector
         grown by ``margin`` px, the kept indices into ``u_N`` (order kept), at most ``limit`` of them."""
         if self.pinhole:
-            # One product with the camera matrix times the attitude: homogeneous pixels.
-            h = u_N @ (self.K @ C).T
-            z = h[:, 2]
-            front = z > 1e-9
-            iz = 1.0 / np.where(front, z, 1.0)
-            x = h[:, 0] * iz
-            y = h[:, 1] * iz
-        else:
-            px, front = self.optics.project(u_N @ C.T)
-            x, y = px[:, 0], px[:, 1]
+            # Homogeneous pixels through the camera matrix times the attitude, in one loop (lis_steps): where the
+            # catalog falls only decides which stars pair up.
+            m = len(u_N) if limit is None else min(limit, len(u_N))
+            u, kc = _native_args(np.ravel(u_N), (self.K @ C).ravel())
+            if _LIS_COMPILED:
+                keep, x, y = np.empty(m, np.int64), np.empty(m), np.empty(m)
+            else:
+                keep, x, y = [0] * m, [0.0] * m, [0.0] * m
+            w = _lis.project_pinhole(u, kc, float(margin), self.width, self.height, m, keep, x, y)
+            return np.asarray(keep[:w], np.int64), np.asarray(x[:w], float), np.asarray(y[:w], float)
+        px, front = self.optics.project(u_N @ C.T)
+        x, y = px[:, 0], px[:, 1]
         ok = front & (x >= -margin) & (x < self.width + margin) & (y >= -margin) & (y < self.height + margin)
         keep = np.flatnonzero(ok)
         if limit is not None:
@@ -481,10 +585,10 @@ def _match_radius(img_x: np.ndarray, img_y: np.ndarray, cat_x: np.ndarray, cat_y
     order = np.argsort(img_x, kind="stable")
     xs, ys = img_x[order], img_y[order]
     k = len(cat_x)
-    if _NEAREST_COMPILED:  # typed memoryviews: C-contiguous float64 and int64 arrays
-        args = (np.ascontiguousarray(xs, float), np.ascontiguousarray(ys, float), order,
-                np.ascontiguousarray(cat_x, float), np.ascontiguousarray(cat_y, float))
-        out = (np.zeros(n, np.int64), np.empty(k, np.int64), np.empty(k, np.int64), np.empty(k))
+    if _NEAREST_COMPILED:  # typed memoryviews (any strides) of float64 and int64 arrays; the integer outputs in one
+        args = (np.asarray(xs, float), np.asarray(ys, float), order, np.asarray(cat_x, float), np.asarray(cat_y, float))
+        ints = np.zeros(n + 2 * k, np.int64)
+        out = (ints[:n], ints[n : n + k], ints[n + k :], np.empty(k))
     else:  # plain Python reads and writes lists far faster than numpy scalars
         args = (xs.tolist(), ys.tolist(), order.tolist(), cat_x.tolist(), cat_y.tolist())
         out = ([0] * n, [0] * k, [0] * k, [0.0] * k)
@@ -518,10 +622,11 @@ def identify_tracking(
     about 0.27 deg); the result is then the lost-in-space result of the same stars (same tight pass,
     same outlier gate).
 
-    Per call: one cone query of a k-d tree over the places (built once per places table), one
+    Per call: one cone query of the cube-map index over the places (built once per places table), one
     projection of the cone's brightest stars with the prior (vote) and one of the cone with the
-    first estimate (tight match), a column-sorted nearest-neighbour match, one SVD for the first
-    estimate and one or two for the final (two when the outlier gate drops pairs).
+    first estimate (tight match), a column-sorted nearest-neighbour match, a q-method fit for the
+    first estimate (it only decides the matches) and one or two SVDs for the final (two when the
+    outlier gate drops pairs).
     """
     if len(img_xy) < 3:
         return _NO_MATCH
@@ -569,9 +674,11 @@ def identify_tracking(
     ii, cj = ii[single], cj[single]
     if len(ii) < 3:
         return _NO_MATCH
-    bi_ = b_S[ii]
-    w = 1.0 / sigma_rad[ii] ** 2
-    C1 = wahba_dcm(bi_, U[kv[cj]], w)
+    # The first attitude only decides which stars the tight pass matches: Davenport's q-method (lis_steps), the SVD
+    # solution's to rounding.
+    C1 = np.empty(9)
+    _lis.fit_pairs(b_S[ii].ravel(), U[kv[cj]].ravel(), 1.0 / sigma_rad[ii] ** 2, False, C1, np.empty(32))
+    C1 = C1.reshape(3, 3)
     # One tight matching pass, the rule of the lost-in-space refinement (:func:`_refine`): the
     # brightest ``max_stars`` image stars against every catalog star predicted on the detector (grown
     # by the match radius), so tracking and lost in space agree on the same frame. The chance-alignment

@@ -8,13 +8,10 @@ import pytest
 
 import compiled_paths
 import star_screen.tracking.nearest as plain
-from sim.rotations import compose, quat_from_axis_angle
-from star_screen.geometry import default_bench
-from star_screen.render import Renderer
-from star_screen.tracking import StarTracker, identify
-from star_screen.tracking.extract import extract_stars
-from star_screen.tracking.noise import camera_noise
+from star_screen.tracking import identify
 from tests.oracles import build_fixtures
+
+from .star_screen_helpers import assert_same_solutions_on_both_builds
 
 compiled, build = build_fixtures("star_screen.tracking.nearest")
 
@@ -90,27 +87,9 @@ def test_a_blend_keeps_its_closest_claim_or_none(build) -> None:
 def test_lost_in_space_and_tracking_solutions_are_the_same_on_both_builds(compiled, monkeypatch, epoch) -> None:
     """The whole solve, lost in space and tracking, on rendered frames with camera noise: the same matched stars and
     the same attitude and covariance to the bit whichever build of the matching runs."""
-    renderer = Renderer(default_bench(), aberration=False)
-    optics = renderer.bench.tracker
-    tracker = StarTracker(epoch=epoch)
-    rng = np.random.default_rng(2611)
-    frames = []
-    for _ in range(4):
-        q = rng.normal(size=4)
-        q /= np.linalg.norm(q)
-        img = camera_noise(renderer.render(q, epoch, screen=False).detector, rng)
-        stars = extract_stars(img, optics.psf_sigma_px, k_sigma=tracker.k_sigma, max_stars=tracker.max_centroids)
-        frames.append((stars, compose(quat_from_axis_angle(rng.normal(size=3), np.radians(0.1)), q)))
 
-    def solutions(module) -> list:
+    def use(module) -> None:
         monkeypatch.setattr(identify, "_nearest", module)
         monkeypatch.setattr(identify, "_NEAREST_COMPILED", compiled_paths.is_compiled(module))
-        out = []
-        for stars, prior in frames:
-            for sol in (tracker.solve_stars(stars, optics), tracker.solve_stars(stars, optics, prior=prior)):
-                out.append((sol.valid, sol.mode, sol.q_SN.tobytes(), sol.cov_S.tobytes(), sol.matched_hip.tolist()))
-        return out
 
-    with_compiled, with_plain = solutions(compiled), solutions(plain)
-    assert all(valid for valid, *_ in with_compiled) and {mode for _, mode, *_ in with_compiled} == {"lis", "tracking"}
-    assert with_compiled == with_plain
+    assert_same_solutions_on_both_builds(epoch, 2611, (compiled, plain), use)

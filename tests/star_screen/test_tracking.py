@@ -235,11 +235,11 @@ def test_image_patterns_are_every_4_subset_brightest_first_with_the_database_key
                 c = u[list(quad)].sum(axis=0)
                 c /= np.linalg.norm(c)
                 want.append(sorted(quad, key=lambda i: np.linalg.norm(u[i] - c)))
-    got_u, got_keys, got_largest = (np.concatenate(a) for a in zip(*_image_patterns(u, math.cos(max_edge)),
+    got_q, got_keys, got_largest = (np.concatenate(a) for a in zip(*_image_patterns(u, math.cos(max_edge)),
                                                                     strict=True))
     assert 50 < len(want) < math.comb(14, 4)  # both kinds occur: patterns that fit and ones that do not
-    np.testing.assert_array_equal(got_u, u[np.array(want)])
-    keys, largest = _keys(got_u)
+    np.testing.assert_array_equal(got_q, np.array(want))
+    keys, largest = _keys(u[got_q])
     np.testing.assert_array_equal(got_keys, keys)
     np.testing.assert_array_equal(got_largest, largest)
     sep = [sorted(_angle(u[i], u[j]) for i, j in itertools.combinations(q, 2)) for q in want]
@@ -429,3 +429,26 @@ def test_camera_noise_has_the_variance_of_shot_plus_read_noise():
     assert dark.var() == pytest.approx(20.0 + 100.0, rel=0.02)
     assert lit.mean() == pytest.approx(420.0, abs=0.2)
     assert lit.var() == pytest.approx(400.0 + 20.0 + 100.0, rel=0.02)  # Poisson(signal) + background + read
+
+
+def test_the_3x3_svd_is_numpys_to_the_bit_and_refuses_what_numpy_refuses():
+    """``estimate.svd3`` calls numpy's SVD kernel without its wrapper: the same U, singular values and V^T bytes as
+    ``np.linalg.svd`` over matrices of many scales, ``LinAlgError`` for a matrix with NaN and NaN results for one with
+    inf, as numpy."""
+    from star_screen.tracking.estimate import svd3
+
+    rng = np.random.default_rng(2613)
+    for _ in range(2000):
+        B = rng.normal(size=(3, 3)) * 10 ** rng.uniform(-8, 8)
+        if rng.uniform() < 0.1:
+            B[:, 2] = B[:, 0] * 2.0  # rank deficient
+        assert all(x.tobytes() == y.tobytes() for x, y in zip(svd3(B), np.linalg.svd(B), strict=True))
+    B = np.eye(3)
+    B[1, 2] = np.nan
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.svd(B)
+    with pytest.raises(np.linalg.LinAlgError, match="SVD did not converge"):
+        svd3(B)
+    for bad in (np.inf, -np.inf):  # numpy gives NaN there, and so does svd3
+        B[1, 2] = bad
+        assert all(x.tobytes() == y.tobytes() for x, y in zip(svd3(B), np.linalg.svd(B), strict=True))

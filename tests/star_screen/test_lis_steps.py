@@ -1,0 +1,232 @@
+"""star_screen.tracking.lis_steps, the lost-in-space decision steps: its compiled twin (Cython, compiled_paths) and the
+plain module give the same cones, pattern keys and pair attitudes to the bit; the cone is the brute-force cone, the
+keys are numpy's keys, and the pair attitude is the SVD solution's to rounding."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+import compiled_paths
+import star_screen.tracking.lis_steps as plain
+from sim.rotations import dcm, quat_from_axis_angle
+from star_screen.tracking import identify
+from star_screen.tracking.estimate import wahba_dcm
+from tests.oracles import build_fixtures
+
+from .star_screen_helpers import assert_same_solutions_on_both_builds
+
+compiled, build = build_fixtures("star_screen.tracking.lis_steps")
+
+
+def _unit(rng, n: int) -> np.ndarray:
+    v = rng.normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _near(rng, centre: np.ndarray, n: int, spread_rad: float) -> np.ndarray:
+    v = centre + rng.normal(0.0, spread_rad, (n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _as_args(module, *arrays):
+    return tuple(np.ascontiguousarray(a) for a in arrays) if compiled_paths.is_compiled(module) else tuple(
+        a.tolist() for a in arrays)
+
+
+def _cone(module, index_u: np.ndarray, b: np.ndarray, cos_cone: float) -> list[int]:
+    """Sorted rows of ``module.cone_rows`` over a cube-map index of the directions ``index_u``, called as
+    ``identify._SkyIndex.cone`` calls it."""
+    n = identify.CONE_CELLS_PER_FACE
+    cell = identify._cube_cell_of(index_u, n)
+    order = np.argsort(cell, kind="stable")
+    starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
+    centre, cos_rho, sin_rho = identify._cube_cells(n)
+    out, at = (np.zeros(len(index_u), np.int64), np.zeros(len(index_u), np.int64)) if compiled_paths.is_compiled(
+        module) else ([0] * len(index_u), [0] * len(index_u))
+    chord = math.sqrt(max(2.0 - 2.0 * cos_cone, 0.0))
+    bx, by, bz = b.tolist()
+    m = module.cone_rows(*_as_args(module, centre.ravel(), cos_rho, sin_rho, starts),
+                         *_as_args(module, index_u[order].ravel(), order.astype(np.int64)), bx, by, bz, cos_cone,
+                         math.sqrt(1.0 - cos_cone * cos_cone), chord * chord, out, at)
+    # Each row's position holds its own direction.
+    assert all(np.array_equal(index_u[order][int(at[i])], index_u[int(out[i])]) for i in range(m))
+    return sorted(int(r) for r in out[:m])
+
+
+def _cone_cases(seed: int, count: int):
+    rng = np.random.default_rng(seed)
+    u = _unit(rng, 4000)
+    for k in range(count):
+        # Random boresights, and some on cube edges and corners (cells of three faces at once).
+        b = _unit(rng, 1)[0] if k % 3 else np.array([1.0, (-1.0) ** k, 1.0 if k % 2 else 0.0])
+        b = b / np.linalg.norm(b)
+        yield u, b, math.cos(math.radians(rng.uniform(0.5, 100.0 if k % 7 == 0 else 20.0)))
+
+
+def test_cone_is_every_star_within_the_chord(build) -> None:
+    for u, b, cos_cone in _cone_cases(41, 40):
+        chord = math.sqrt(max(2.0 - 2.0 * cos_cone, 0.0))
+        d = u - b
+        brute = [int(r) for r in np.flatnonzero((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
+                                                 <= chord * chord)]
+        assert _cone(build, u, b, cos_cone) == brute
+
+
+def test_compiled_and_plain_cones_are_the_same(compiled) -> None:
+    for u, b, cos_cone in _cone_cases(42, 30):
+        assert _cone(compiled, u, b, cos_cone) == _cone(plain, u, b, cos_cone)
+
+
+def _keys(module, u: np.ndarray, max_edge_cos: float, batch: int):
+    """Every (canonical quad, key, largest) of ``module.pattern_keys`` over the directions ``u``, ``batch`` a call."""
+    n = len(u)
+    quads = identify._quads_brightest_first(n)[0].ravel()
+    fits = ((u @ u.T) >= max_edge_cos).ravel().view(np.uint8)
+    sep = identify._angle_of_chord(identify._row_norm(u[:, None, :] - u[None, :, :])).ravel()
+    scratch, cursor = np.empty(10), np.zeros(1, np.int64)
+    start, found = 0, []
+    for _ in range(len(quads)):  # bounded: each call looks at one pattern at least
+        q, k, big = np.empty(4 * batch, np.int64), np.empty(5 * batch), np.empty(batch)
+        w = module.pattern_keys(n, quads, start, fits, sep, np.ascontiguousarray(u).ravel(), batch, q, k, big,
+                                scratch, cursor)
+        found += [(q[4 * i:4 * i + 4].tolist(), k[5 * i:5 * i + 5].tobytes(), big[i].tobytes()) for i in range(w)]
+        if w == 0:
+            break
+        start = int(cursor[0])
+    return found
+
+
+def test_pattern_keys_are_numpys_keys_to_the_bit(build) -> None:
+    """The patterns, brightest combinations first, in canonical order with the keys and largest separations of
+    ``identify._canonical`` and ``identify._keys`` (the database's own functions) to the bit."""
+    rng = np.random.default_rng(43)
+    for trial in range(6):
+        u = _near(rng, _unit(rng, 1)[0], 12, math.radians(3.0))
+        max_cos = math.cos(math.radians(8.0))
+        quads = identify._quads_brightest_first(len(u))[0]
+        fits = [q for q in quads if all(float(u[a] @ u[b]) >= max_cos for a, b in itertools.combinations(q, 2))]
+        assert 0 < len(fits) < len(quads) or trial > 0
+        canon = np.take_along_axis(np.array(fits), identify._canonical(u[np.array(fits)]), axis=1)
+        keys, largest = identify._keys(u[canon])
+        expected = [(c.tolist(), k.tobytes(), g.tobytes()) for c, k, g in zip(canon, keys, largest, strict=True)]
+        assert _keys(build, u, max_cos, 1 + trial) == expected
+
+
+def test_compiled_and_plain_pattern_keys_are_the_same(compiled) -> None:
+    rng = np.random.default_rng(44)
+    for _ in range(5):
+        u = _near(rng, _unit(rng, 1)[0], 16, math.radians(4.0))
+        assert _keys(compiled, u, math.cos(math.radians(8.0)), 3) == _keys(plain, u, math.cos(math.radians(8.0)), 3)
+
+
+def _fit(module, b: np.ndarray, r: np.ndarray, w: np.ndarray | None):
+    out, scratch = np.empty(9), np.empty(32)
+    worst = module.fit_pairs(b.ravel().copy(), r.ravel().copy(), np.ones(len(b)) if w is None else w.copy(),
+                             w is None, out, scratch)
+    return out.reshape(3, 3), worst
+
+
+def _fit_cases(seed: int, count: int):
+    rng = np.random.default_rng(seed)
+    for k in range(count):
+        n = 4 if k % 2 else int(rng.integers(3, 60))
+        r = _near(rng, _unit(rng, 1)[0], n, math.radians(rng.uniform(0.5, 6.0)))
+        C = dcm(quat_from_axis_angle(rng.normal(size=3), rng.uniform(0.0, math.pi)))
+        b = r @ C.T + rng.normal(0.0, 1e-5, (n, 3))
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        if k % 5 == 0:
+            b = b[::-1].copy()  # a wrong correspondence: the best rotation is a poor fit
+        yield b, r, (None if k % 2 else rng.uniform(0.5, 2.0, n) * 1e10)
+
+
+def test_pair_attitude_is_the_svd_solution_to_rounding(build) -> None:
+    """Davenport's q-method against the SVD solution (``estimate.wahba_dcm``): a proper rotation, the same matrix to
+    1e-11 and its largest residual. Both are exact to rounding over the problem's conditioning: four stars within
+    half a degree pin the roll weakly, and there the two differ by up to 3.5e-12 (measured on these cases), which moves
+    a predicted star by 1e-8 px; well-spread pairs agree to a few 1e-14."""
+    for b, r, w in _fit_cases(45, 60):
+        C, worst = _fit(build, b, r, w)
+        ref = wahba_dcm(b, r, np.ones(len(b)) if w is None else w)
+        assert np.max(np.abs(C - ref)) < 1e-11
+        assert abs(np.linalg.det(C) - 1.0) < 1e-14 and np.max(np.abs(C @ C.T - np.eye(3))) < 1e-14
+        assert abs(worst - np.max(np.linalg.norm(b - r @ C.T, axis=1))) < 1e-15
+
+
+def test_compiled_and_plain_pair_attitudes_are_the_same(compiled) -> None:
+    for b, r, w in _fit_cases(46, 40):
+        (Cc, wc), (Cp, wp) = _fit(compiled, b, r, w), _fit(plain, b, r, w)
+        assert Cc.tobytes() == Cp.tobytes() and wc == wp
+
+
+def test_lost_in_space_and_tracking_solutions_are_the_same_on_both_builds(compiled, monkeypatch, epoch) -> None:
+    """The whole solve, lost in space and tracking, on rendered frames with camera noise: the same matched stars,
+    hypotheses and bound, and the same attitude and covariance to the bit whichever build of the steps runs."""
+
+    def use(module) -> None:
+        monkeypatch.setattr(identify, "_lis", module)
+        monkeypatch.setattr(identify, "_LIS_COMPILED", compiled_paths.is_compiled(module))
+        monkeypatch.setattr(identify, "_INDEXES", {})  # the cone index holds arrays or lists by build
+
+    assert_same_solutions_on_both_builds(epoch, 2612, (compiled, plain), use)
+
+
+@pytest.mark.parametrize("n", [4, 16])
+def test_cube_cells_cover_their_stars(n) -> None:
+    """Every direction lies within its cell's radius of the cell's centre (the cone query's bound is safe)."""
+    rng = np.random.default_rng(47)
+    u = _unit(rng, 20000)
+    centre, cos_rho, _ = identify._cube_cells(n)
+    cell = identify._cube_cell_of(u, n)
+    assert np.all(np.einsum("ij,ij->i", u, centre[cell]) >= cos_rho[cell])
+
+
+def _lookup(module, grid, key: np.ndarray, largest: float, cap: int, tol: float = 0.01, edge_tol: float = 0.01):
+    out = np.zeros(max(cap, 1), np.int64)
+    m = module.lookup_key(np.ascontiguousarray(key, float), tol, *grid, largest, edge_tol, cap, out)
+    return m, out[: min(m, cap)].tolist()
+
+
+def _lookup_cases(seed: int, count: int):
+    """A synthetic pattern table (keys sorted like real ones, in [0, 1]) and queries near its keys: some exactly
+    ``tolerance`` away in a component (the ball's edge), some off the grid's range, most with a few hits."""
+    rng = np.random.default_rng(seed)
+    keys = np.sort(rng.uniform(0.0, 1.0, (20000, 5)) ** 0.5, axis=1)
+    keys[:50, 4] = 1.0
+    largest = rng.uniform(0.05, 0.14, len(keys))
+    grid = identify._key_grid(keys, largest)
+    for k in range(count):
+        p = int(rng.integers(len(keys)))
+        q = keys[p] + rng.normal(0.0, 0.004, 5)
+        if k % 5 == 0:
+            q = keys[p].copy()
+            q[k % 5] += 0.01 * (-1) ** k  # on the edge of the ball
+        if k % 11 == 0:
+            q = np.full(5, 1.02) if k % 2 else np.full(5, -0.02)
+        yield keys, largest, grid, q, largest[p] * (1.0 + rng.normal(0.0, 0.006))
+
+
+def test_lookup_is_the_k_d_tree_max_norm_ball_with_the_largest_separation(build) -> None:
+    """The hits of the grid are those of a k-d tree's max-norm ball query (return_sorted), filtered by the largest
+    separation with numpy, in the same ascending order; only the first ``cap`` are written, the count is all."""
+    from scipy.spatial import cKDTree
+
+    trees = {}
+    n_hits = 0
+    for keys, largest, grid, q, big in _lookup_cases(48, 300):
+        tree = trees.setdefault(id(keys), cKDTree(keys))
+        cand = np.asarray(tree.query_ball_point(q, 0.01, p=np.inf, return_sorted=True), np.int64)
+        want = cand[np.abs(largest[cand] - big) <= 0.01 * big].tolist()
+        n_hits += len(want)
+        assert _lookup(build, grid, q, float(big), 201) == (len(want), want)
+        assert _lookup(build, grid, q, float(big), 1) == (len(want), want[:1])
+        assert _lookup(build, grid, q, float(big), 0) == (len(want), [])
+    assert n_hits > 150  # 190 hits on these cases: most queries find their pattern, some a neighbour too
+
+
+def test_compiled_and_plain_lookups_are_the_same(compiled) -> None:
+    for _, _, grid, q, big in _lookup_cases(49, 100):
+        assert _lookup(compiled, grid, q, float(big), 3) == _lookup(plain, grid, q, float(big), 3)
