@@ -341,6 +341,13 @@ class TruthModel:
     def b_N(self):
         return self.track.field(2 * self.k)
 
+    def state_row(self, t_s: float) -> list:
+        """``[t_s, *q_BN, *omega_BN_B, *r_N, *v_N]``: the truth's first columns of a telemetry row (stand.loop), the
+        position and velocity taken from the track with one look-up."""
+        track = self.track
+        j = 3 * track._index(2 * self.k)
+        return [t_s, *self.q, *self.w, *track._pos[j:j + 3], *track._vel[j:j + 3]]
+
     @property
     def wheel_speeds_rad_s(self) -> tuple:
         """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them (() without wheels)."""
@@ -449,7 +456,15 @@ class TruthModel:
         readers = [float] * n  # float() is 0.0: a column no effect targets
         for e in effects:
             readers[e.target] = e.read
-        return lambda: tuple([read() for read in readers])
+        readers = tuple(readers)
+
+        def rotors():  # a loop, not a comprehension: no frame of its own on every step (Python 3.11)
+            torques = []
+            for read in readers:  # ``read``: the name stand.loop looks for to blame a failing read on its device
+                torques.append(read())
+            return tuple(torques)
+
+        return rotors
 
     def step(self, dipole_B=(0.0, 0.0, 0.0), wheel_torque_Nm=None) -> None:
         """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant, and with wheels
