@@ -1,5 +1,8 @@
 """The attitude step on floats: Euler's equations, the quaternion kinematics, classical RK4 and the environment's
-magnetic and gravity-gradient torques. The one source of the default scenario's hot path.
+magnetic and gravity-gradient torques. The one source of the default scenario's hot path. With reaction wheels, the
+gyrostat's terms beside it (:class:`Gyrostat`, the wheels' stage torque, which the RK4 step calls at C level as it
+calls :class:`EnvironmentTorque`; ``axes_sum``, ``momentum_after``, ``fastest_rate``, ``relative_speeds``), used by
+:mod:`sim.wheels` and :class:`sim.truth.TruthModel`.
 
 Plain Python, and compiled by Cython in pure-Python mode where the install has a C compiler (``compiled_paths``
 lists it; docs/fast_paths.md): the ``cython.*`` declarations below give the compiled build C doubles and direct C
