@@ -34,11 +34,21 @@ def _state(rng: np.random.Generator, scale_w: float, scale_m: float):
             tuple((rng.normal(size=9) * 7e6).tolist()))
 
 
-def _step(module, q, w, h, I, Ii, dipole, fields, positions, magnetic=True, gravity_gradient=True, callback=False):
+def _step(module, q, w, h, I, Ii, dipole, fields, positions, magnetic=True, gravity_gradient=True, callback=False,
+          wheels=None, inner="environment"):
+    """One RK4 step under the environment's torque; with ``wheels`` (the six sums ``A h`` and ``A tau``), a spacecraft
+    with wheels: a Gyrostat around the environment's torque as ``inner`` says (``"none"``, ``"environment"``: the
+    EnvironmentTorque itself, ``"callable"``: a Python callable around it). ``callback``: the stage torque handed to
+    the step wrapped in a Python callable (the general path every other stepper takes), not as itself."""
     body = module.BodyDynamics(I, Ii)
     environment = module.EnvironmentTorque(body, h, MU_EARTH, magnetic, gravity_gradient)
     environment.set_step(dipole, fields, positions)
-    torque = (lambda t, qq, ww: environment(t, qq, ww)) if callback else environment
+    stage = environment
+    if wheels is not None:
+        around = {"none": None, "environment": environment,
+                  "callable": lambda t, qq, ww: environment(t, qq, ww)}[inner]
+        stage = module.Gyrostat(*wheels, around, 0.0)
+    torque = (lambda t, qq, ww: stage(t, qq, ww)) if callback else stage
     try:
         return body.rk4(q, w, h, torque, 0.0)
     except FloatingPointError as exc:
@@ -179,22 +189,6 @@ def test_the_gyrostat_stage_torque_is_the_environments_minus_the_wheels(build) -
     assert g(10.5, (1.0, 0.0, 0.0, 0.0), (0.1, 0.0, 0.0)) == pytest.approx((1.0, 2.0 + 0.1 * 2.05, 3.0 - 0.1))
 
 
-def _wheeled_step(module, q, w, h, I, Ii, dipole, fields, positions, wheels, environment: str, callback: bool):
-    """One RK4 step of a spacecraft with wheels: the stage torque a Gyrostat around the environment's torque
-    (none, an EnvironmentTorque, or a Python callable), handed to the step as the Gyrostat itself (the step's C-level
-    stage) or wrapped in a Python callable (the general path every other stepper takes)."""
-    body = module.BodyDynamics(I, Ii)
-    env = module.EnvironmentTorque(body, h, MU_EARTH, True, True)
-    env.set_step(dipole, fields, positions)
-    inner = {"none": None, "environment": env, "callable": lambda t, qq, ww: env(t, qq, ww)}[environment]
-    gyrostat = module.Gyrostat(*wheels, inner, 0.0)
-    torque = (lambda t, qq, ww: gyrostat(t, qq, ww)) if callback else gyrostat
-    try:
-        return body.rk4(q, w, h, torque, 0.0)
-    except FloatingPointError as exc:
-        return str(exc)
-
-
 def test_the_wheeled_step_is_the_same_through_the_stage_call_and_a_callable_on_either_build(compiled) -> None:
     """The RK4 step calls a Gyrostat (and the EnvironmentTorque inside it) without a Python call at each stage: the
     states are bit for bit those of the general path, on both builds."""
@@ -202,11 +196,11 @@ def test_the_wheeled_step_is_the_same_through_the_stage_call_and_a_callable_on_e
     for k in range(1500):
         args = _state(rng, scale_w=10.0 ** rng.uniform(-6, 0), scale_m=10.0 ** rng.uniform(-6, 2))
         wheels = tuple((rng.normal(size=6) * 10.0 ** rng.uniform(-3, 2)).tolist())
-        environment = ("none", "environment", "callable")[k % 3]
-        expected = _wheeled_step(plain, *args, wheels, environment, callback=True)
+        inner = ("none", "environment", "callable")[k % 3]
+        expected = _step(plain, *args, callback=True, wheels=wheels, inner=inner)
         for module in (plain, compiled):
-            assert _wheeled_step(module, *args, wheels, environment, callback=False) == expected, (k, module)
-        assert _wheeled_step(compiled, *args, wheels, environment, callback=True) == expected, k
+            assert _step(module, *args, wheels=wheels, inner=inner) == expected, (k, module)
+        assert _step(compiled, *args, callback=True, wheels=wheels, inner=inner) == expected, k
 
 
 def test_compiled_and_plain_axes_sums_agree_to_the_bit(compiled) -> None:
