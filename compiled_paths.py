@@ -25,8 +25,8 @@ from types import ModuleType
 
 #: The modules compiled where a C compiler exists, in the order they are built.
 MODULES: tuple[str, ...] = (
-    "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque)
-    "sim.wheel_step",  # the reaction wheels' motor and rotor step, their stage torque in the gyrostat equations
+    "sim.body_step",  # the attitude step (RK4 with magnetic and gravity-gradient torque, the wheels' gyrostat terms)
+    "sim.wheel_step",  # the reaction wheels' motor and rotor step
     "drivers.bitpack",  # the DBC codec's per-message bit packing
     "star_screen.tracking.nearest",  # the star tracker's radius matching (lost in space and tracking)
     "drivers.icd_plan",  # the serial ICD codec's per-field encode and decode (gyro, sun sensor, star tracker)

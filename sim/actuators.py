@@ -24,6 +24,9 @@ import compiled_paths
 #: The wheel's float arithmetic (compiled where the install built it; the plain module otherwise, the same bits).
 _wheel_step = compiled_paths.load("sim.wheel_step")
 
+_INF = math.inf
+_isfinite = math.isfinite
+
 #: RK4's stability interval on the negative real axis (|lambda h| <= 2.785).
 RK4_REAL_LIMIT = 2.785
 #: RK4's stability interval on the imaginary axis (|lambda h| <= 2 sqrt 2).
@@ -296,9 +299,10 @@ class WheelMotor:
     def step(self, state: tuple[float, float], u_cmd_Nm: float, h_s: float) -> tuple[WheelState, float, float]:
         """Advance ``h_s`` seconds with torque command ``u_cmd_Nm`` held: ``(state, body_torque_Nm, friction_J)``.
         ``state``: a :class:`WheelState` or any (speed, motor torque) pair."""
-        h = _positive("h_s", h_s, "s")
-        w0, tau0 = float(state[0]), float(state[1])
-        if not (math.isfinite(w0) and math.isfinite(tau0) and math.isfinite(float(u_cmd_Nm))):
+        # A float step inside (0, inf) is what _positive would return: taken as it is, without the call.
+        h = h_s if type(h_s) is float and 0.0 < h_s < _INF else _positive("h_s", h_s, "s")
+        w0, tau0, u = float(state[0]), float(state[1]), float(u_cmd_Nm)
+        if not (_isfinite(w0) and _isfinite(tau0) and _isfinite(u)):
             raise ValueError(f"state = {tuple(state)!r}, u_cmd_Nm = {u_cmd_Nm!r}; all must be finite.")
         if self._faulty:
             return self._step_faulty(w0, tau0, u_cmd_Nm, h)
@@ -307,7 +311,7 @@ class WheelMotor:
         r = self.wheel
         w1, tau_end, body, friction = _wheel_step.motor_step(
             r.inertia, r.coulomb, r.viscous, r.static, self.max_torque_Nm, self.max_speed_rad_s, self.rolloff_rad_s,
-            decay, mean, w0, tau0, float(u_cmd_Nm), h)
+            decay, mean, w0, tau0, u, h)
         return _wheel_state((w1, tau_end)), body, friction
 
     def step_speed(self, state: tuple[float, float], omega_cmd_rad_s: float,

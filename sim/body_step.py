@@ -1,5 +1,8 @@
 """The attitude step on floats: Euler's equations, the quaternion kinematics, classical RK4 and the environment's
-magnetic and gravity-gradient torques. The one source of the default scenario's hot path.
+magnetic and gravity-gradient torques. The one source of the default scenario's hot path. With reaction wheels, the
+gyrostat's terms beside it (:class:`Gyrostat`, the wheels' stage torque, which the RK4 step calls at C level as it
+calls :class:`EnvironmentTorque`; ``axes_sum``, ``momentum_after``, ``fastest_rate``, ``relative_speeds``), used by
+:mod:`sim.wheels` and :class:`sim.truth.TruthModel`.
 
 Plain Python, and compiled by Cython in pure-Python mode where the install has a C compiler (``compiled_paths``
 lists it; docs/fast_paths.md): the ``cython.*`` declarations below give the compiled build C doubles and direct C
@@ -128,6 +131,8 @@ class BodyDynamics:
         tz: cython.double = 0.0
         if isinstance(torque, EnvironmentTorque):  # compiled: a C call, no tuples
             tx, ty, tz = cython.cast(EnvironmentTorque, torque)._at(t, qw, qx, qy, qz)
+        elif isinstance(torque, Gyrostat):  # a spacecraft with wheels: the same, the environment's inside it
+            tx, ty, tz = cython.cast(Gyrostat, torque)._at(t, qw, qx, qy, qz, wx, wy, wz)
         elif torque is not None:
             tx, ty, tz = torque(t, (qw, qx, qy, qz), (wx, wy, wz))
         return self._derivatives(qw, qx, qy, qz, wx, wy, wz, tx, ty, tz)
@@ -236,3 +241,161 @@ class EnvironmentTorque:
         """The torque (N m, body axes) at stage time ``t`` (s within the step) for stage state (q, w)."""
         qw, qx, qy, qz = q
         return self._at(t, qw, qx, qy, qz)
+
+
+@cython.cclass
+class Gyrostat:
+    """The torque the body's equations take at each stage of one step of a spacecraft with wheels
+    (:meth:`sim.wheels.WheeledBody.step`): ``torque(ts, q, w)`` (the environment's: an :class:`EnvironmentTorque`, any
+    callable, or None for none) minus the wheels' gyroscopic torque ``w x (h0 + tau s)`` and their reaction ``tau``, in
+    body axes, ``s = ts - t`` into the step. :meth:`BodyDynamics.rk4` calls it without a Python call at each stage (and
+    it the environment's torque the same way), as it calls an :class:`EnvironmentTorque`.
+
+    ``h`` = ``A h_abs`` and ``u`` = ``A tau`` (N m s, N m: the wheels' absolute momentum and net rotor torque summed on
+    the body axes at the step's start), ``t`` (s) the step's start as the stepper passes it."""
+
+    hx: cython.double
+    hy: cython.double
+    hz: cython.double
+    ux: cython.double
+    uy: cython.double
+    uz: cython.double
+    t: cython.double
+    torque: object
+
+    def __init__(self, hx: cython.double, hy: cython.double, hz: cython.double, ux: cython.double, uy: cython.double,
+                 uz: cython.double, torque: object, t: cython.double):
+        self.hx, self.hy, self.hz = hx, hy, hz
+        self.ux, self.uy, self.uz = ux, uy, uz
+        self.torque = torque
+        self.t = t
+
+    @cython.cfunc
+    def _at(self, ts: cython.double, qw: cython.double, qx: cython.double, qy: cython.double, qz: cython.double,
+            wx: cython.double, wy: cython.double, wz: cython.double) -> tuple[cython.double, cython.double,
+                                                                               cython.double]:
+        s: cython.double = ts - self.t  # time into the step: h(s) = h0 + tau s exactly
+        bx: cython.double = self.hx + self.ux * s
+        by: cython.double = self.hy + self.uy * s
+        bz: cython.double = self.hz + self.uz * s
+        tx: cython.double = 0.0
+        ty: cython.double = 0.0
+        tz: cython.double = 0.0
+        torque = self.torque
+        if isinstance(torque, EnvironmentTorque):
+            tx, ty, tz = cython.cast(EnvironmentTorque, torque)._at(ts, qw, qx, qy, qz)
+        elif torque is not None:
+            tx, ty, tz = torque(ts, (qw, qx, qy, qz), (wx, wy, wz))
+        return (tx - (wy * bz - wz * by) - self.ux, ty - (wz * bx - wx * bz) - self.uy,
+                tz - (wx * by - wy * bx) - self.uz)
+
+    @cython.locals(qw=cython.double, qx=cython.double, qy=cython.double, qz=cython.double, wx=cython.double,
+                   wy=cython.double, wz=cython.double)
+    def __call__(self, ts: cython.double, qs, ws):
+        """The stage torque (N m, body axes) at stage time ``ts`` (s) for stage state (q, w): what any stepper calls."""
+        qw, qx, qy, qz = qs
+        wx, wy, wz = ws
+        return self._at(ts, qw, qx, qy, qz, wx, wy, wz)
+
+
+@cython.cfunc
+@cython.inline
+def _as_tuple(values: object) -> tuple:
+    """``values`` when a tuple, else a tuple copy (a list or an array) that cannot change while it is read."""
+    return values if type(values) is tuple else tuple(values)
+
+
+@cython.cfunc
+@cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t, x=cython.double, y=cython.double, z=cython.double,
+               ax=cython.double, ay=cython.double, az=cython.double, v=cython.double)
+def _axes_sum(axes: tuple, values: tuple) -> tuple[cython.double, cython.double, cython.double]:
+    n = len(axes)
+    if len(values) != n:
+        raise ValueError(f"{len(values)} values for {n} wheels; give one per wheel.")
+    x = y = z = 0.0
+    for i in range(n):
+        ax, ay, az = axes[i]
+        v = values[i]
+        x += ax * v
+        y += ay * v
+        z += az * v
+    return x, y, z
+
+
+@cython.locals(x=cython.double, y=cython.double, z=cython.double)
+def axes_sum(axes: tuple, values) -> tuple:
+    """``A @ values`` on floats: ``axes`` the wheels' spin axes (a tuple of ``(ax, ay, az)`` in body axes, one per
+    wheel), ``values`` one number per wheel; summed from 0.0 in the wheels' order. ValueError when the counts differ."""
+    x, y, z = _axes_sum(axes, _as_tuple(values))
+    return x, y, z
+
+
+@cython.locals(hx=cython.double, hy=cython.double, hz=cython.double, ux=cython.double, uy=cython.double,
+               uz=cython.double)
+def gyrostat(axes: tuple, h_abs, tau, torque, t: cython.double) -> Gyrostat:
+    """The :class:`Gyrostat` of one step: the wheels' absolute momenta ``h_abs`` (N m s) and net rotor torques ``tau``
+    (N m) summed on the body axes (``axes_sum``), around the environment's ``torque``, from the step's start ``t``."""
+    hx, hy, hz = _axes_sum(axes, _as_tuple(h_abs))
+    ux, uy, uz = _axes_sum(axes, _as_tuple(tau))
+    return Gyrostat(hx, hy, hz, ux, uy, uz, torque, t)
+
+
+@cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t, h=cython.double, u=cython.double)
+def momentum_after(h_abs, tau, dt: cython.double) -> tuple:
+    """``h + tau dt`` per wheel: the wheels' absolute momenta (N m s) after ``dt`` seconds with ``tau`` (N m) held, a
+    tuple of floats. A ValueError when the counts differ, in the words ``zip(strict=True)`` uses."""
+    hs: tuple = _as_tuple(h_abs)
+    us: tuple = _as_tuple(tau)
+    n = len(hs)
+    if len(us) != n:
+        raise ValueError(f"zip() argument 2 is {'shorter' if len(us) < n else 'longer'} than argument 1")
+    out = []
+    for i in range(n):
+        h = hs[i]
+        u = us[i]
+        out.append(h + u * dt)
+    return tuple(out)
+
+
+@cython.locals(wx=cython.double, wy=cython.double, wz=cython.double, wn=cython.double, hx=cython.double,
+               hy=cython.double, hz=cython.double, nutation=cython.double)
+def fastest_rate(axes: tuple, w, h_abs, inv_imin: cython.double, nutation_per_rate: cython.double):
+    """The rotation or nutation rate (rad/s) a wheeled body's step guard bounds (:meth:`sim.wheels.WheeledBody.
+    fastest_rate`): ``max(|w|, |w| nutation_per_rate + |A h_abs| inv_imin)``, ``inv_imin`` 1 / the hub's smallest
+    principal inertia. ``max`` as Python's builtin makes it: the second only when strictly greater."""
+    wx, wy, wz = w
+    wn = sqrt(wx * wx + wy * wy + wz * wz)
+    hx, hy, hz = _axes_sum(axes, _as_tuple(h_abs))
+    nutation = wn * nutation_per_rate + sqrt(hx * hx + hy * hy + hz * hz) * inv_imin
+    return nutation if nutation > wn else wn
+
+
+@cython.locals(wx=cython.double, wy=cython.double, wz=cython.double, n=cython.Py_ssize_t, i=cython.Py_ssize_t,
+               ax=cython.double, ay=cython.double, az=cython.double, h=cython.double, j=cython.double)
+def relative_speeds(axes: tuple, inertias: tuple, h_abs: tuple, w) -> tuple:
+    """The wheels' speeds relative to the body (rad/s), ``h / J - a . w`` per wheel, from their absolute momenta
+    ``h_abs`` (N m s), spin inertias ``inertias`` (kg m^2) and axes, and the body rate ``w`` (rad/s)."""
+    wx, wy, wz = w
+    n = len(axes)
+    if len(inertias) != n or len(h_abs) != n:
+        raise ValueError(f"{len(h_abs)} momenta and {len(inertias)} inertias for {n} wheels; give one per wheel.")
+    out = []
+    for i in range(n):
+        ax, ay, az = axes[i]
+        h = h_abs[i]
+        j = inertias[i]
+        out.append(h / j - (ax * wx + ay * wy + az * wz))
+    return tuple(out)
+
+
+@cython.locals(n=cython.Py_ssize_t, i=cython.Py_ssize_t)
+def finite_floats(values, n: cython.Py_ssize_t):
+    """``values`` itself when it is a tuple of ``n`` finite numbers of type ``float`` exactly (so ``float()`` of each
+    is itself), else None: the quick yes of a caller's check, which converts and checks in full otherwise."""
+    if type(values) is not tuple or len(values) != n:
+        return None
+    for i in range(n):
+        v = values[i]
+        if type(v) is not float or not isfinite(v):
+            return None
+    return values

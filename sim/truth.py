@@ -341,23 +341,27 @@ class TruthModel:
     def b_N(self):
         return self.track.field(2 * self.k)
 
+    def state_row(self, t_s: float) -> list:
+        """``[t_s, *q_BN, *omega_BN_B, *r_N, *v_N]``: the truth's first columns of a telemetry row (stand.loop), the
+        position and velocity taken from the track with one look-up."""
+        track = self.track
+        j = 3 * track._index(2 * self.k)
+        return [t_s, *self.q, *self.w, *track._pos[j:j + 3], *track._vel[j:j + 3]]
+
     @property
     def wheel_speeds_rad_s(self) -> tuple:
         """Wheel speeds relative to the body (rad/s), one per wheel, as a tachometer reads them (() without wheels)."""
-        if self.wheels is None:
-            return ()
         # Every wheel device reads its speed several times a tick (its motor, its telemetry, its row) and the
         # controller may read them too: computed once per state. The key is the state tuples themselves, not the
         # step index, so a state put in from outside (a test setting ``w``) is never answered from the cache.
+        # Without wheels the key never matches (``w`` is never None): ``h_wheels``, which does not exist, is not read.
+        cache = self._wheel_speeds
+        if cache[0] is self.w and cache[1] is self.h_wheels:
+            return cache[2]
+        if self.wheels is None:
+            return ()
         w, h_wheels = self.w, self.h_wheels
-        w_of, h_of, speeds = self._wheel_speeds
-        if w_of is w and h_of is h_wheels:
-            return speeds
-        w0, w1, w2 = w
-        out = []
-        for h, j, (ax, ay, az) in zip(h_wheels, self._wheeled._J, self._wheeled._A, strict=True):
-            out.append(h / j - (ax * w0 + ay * w1 + az * w2))
-        speeds = tuple(out)
+        speeds = _step.relative_speeds(self._wheeled._A, self._wheeled._J, h_wheels, w)
         self._wheel_speeds = (w, h_wheels, speeds)
         return speeds
 
@@ -452,7 +456,15 @@ class TruthModel:
         readers = [float] * n  # float() is 0.0: a column no effect targets
         for e in effects:
             readers[e.target] = e.read
-        return lambda: tuple([read() for read in readers])
+        readers = tuple(readers)
+
+        def rotors():  # a loop, not a comprehension: no frame of its own on every step (Python 3.11)
+            torques = []
+            for read in readers:  # ``read``: the name stand.loop looks for to blame a failing read on its device
+                torques.append(read())
+            return tuple(torques)
+
+        return rotors
 
     def step(self, dipole_B=(0.0, 0.0, 0.0), wheel_torque_Nm=None) -> None:
         """Advance one dynamics step holding the actuator dipole (A m^2, body axes) constant, and with wheels
@@ -496,10 +508,12 @@ class TruthModel:
 
     def _step_wheels(self, dipole_B, wheel_torque_Nm) -> None:
         if wheel_torque_Nm is not None:
-            tau = tuple(map(float, wheel_torque_Nm))
-            if len(tau) != self.wheels.n or not all(map(math.isfinite, tau)):
-                raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite torques "
-                                 "in N m, one per wheel.")
+            tau = _step.finite_floats(wheel_torque_Nm, self.wheels.n)  # the usual tuple of floats: taken as it is
+            if tau is None:
+                tau = tuple(map(float, wheel_torque_Nm))
+                if len(tau) != self.wheels.n or not all(map(math.isfinite, tau)):
+                    raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite "
+                                     "torques in N m, one per wheel.")
             self.wheel_torque_Nm = tau
         self._hold(dipole_B)
         torque = self._stage_torque

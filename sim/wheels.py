@@ -45,8 +45,9 @@ from .rotations import check_unit
 
 __all__ = ["WheelCluster", "WheeledBody", "angular_momentum_B", "kinetic_energy", "propagate"]
 
-#: The wheels' stage torque (and the motor and rotor step of sim.actuators): compiled where the install built it.
-_wheel_step = compiled_paths.load("sim.wheel_step")
+#: The wheels' terms of the attitude step (their stage torque, which the compiled RK4 step calls at C level, ``A @
+#: values``, the momentum update, the step guard's rate): beside that step in sim.body_step, compiled where built.
+_body_step = compiled_paths.load("sim.body_step")
 
 
 class WheelCluster:
@@ -124,7 +125,7 @@ class WheeledBody:
 
     def axes_sum(self, values) -> tuple:
         """``A @ values`` on floats (3 components); ValueError unless one value per wheel."""
-        return _wheel_step.axes_sum(self._A, values)
+        return _body_step.axes_sum(self._A, values)
 
     def step(self, q, w, h_abs, tau, dt: float, torque: Callable | None = None, t: float = 0.0):
         """One step of length ``dt`` (s) with net wheel torques ``tau`` (N m per wheel) held.
@@ -134,17 +135,12 @@ class WheeledBody:
         ``(q, w, h_abs)``.
         """
         # The stage torque: the environment's minus the wheels' gyroscopic torque and reaction (compiled where built).
-        gyrostat = _wheel_step.Gyrostat(*self.axes_sum(h_abs), *self.axes_sum(tau), torque, t)
-        qn, wn = self._step(q, w, dt, gyrostat, t)
-        hn = tuple([h + u * dt for h, u in zip(h_abs, tau, strict=True)])
-        return qn, wn, hn
+        qn, wn = self._step(q, w, dt, _body_step.gyrostat(self._A, h_abs, tau, torque, t), t)
+        return qn, wn, _body_step.momentum_after(h_abs, tau, dt)
 
     def fastest_rate(self, w, h_abs) -> float:
         """Rotation or nutation rate (rad/s) the step guard bounds: max(|omega|, nutation + |A h| / I_min)."""
-        wn = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-        hx, hy, hz = self.axes_sum(h_abs)
-        gyro = math.sqrt(hx * hx + hy * hy + hz * hz) * self._inv_imin
-        return max(wn, wn * self._nutation_per_rate + gyro)
+        return _body_step.fastest_rate(self._A, w, h_abs, self._inv_imin, self._nutation_per_rate)
 
     def check_step(self, w, h_abs, dt: float, name: str = "step_s") -> None:
         """Refuse ``dt`` when it is too large for rate ``w`` and wheel momentum ``h_abs``, naming the limit."""

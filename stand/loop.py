@@ -471,7 +471,7 @@ def _fly(f: _Flight) -> None:
     """The ticks, from ``f.k`` to the end (docs/architecture.md, "One tick"). Nothing here calls more per tick
     than the tick needs: ``stage`` (a local) and the loop variables say where an exception came from."""
     publishers, receivers, step, parts, sinks, ctl_update, ctl_every, busy, rec_every = f.plan()
-    truth, record, n_steps = f.truth, f.recorder.record, f.n_steps
+    truth, truth_row, record, n_steps = f.truth, f.truth.state_row, f.recorder.record, f.n_steps
     k, next_chore, stage = f.k, 0, START
     publish = receive = part = sink = None
     try:
@@ -491,7 +491,7 @@ def _fly(f: _Flight) -> None:
                 receive(t)
             if k % rec_every == 0 or k == n_steps:
                 stage = TRUTH
-                values = [t, *truth.q, *truth.w, *truth.r_N, *truth.v_N]
+                values = truth_row(t)  # t_s, q_BN, omega_BN_B, r_BN_N, v_BN_N: the first columns (columns())
                 stage = ROW
                 busy[0] = ~k
                 for part in parts:

@@ -76,7 +76,10 @@ class MrpFeedback:
         self.q_BN = None  # the attitude the last period used
         self.omega_B = (0.0, 0.0, 0.0)
         self.sigma_BR = (math.nan,) * 3
-        self.u_s = (0.0,) * len(self.wheels)
+        self._no_torque = (0.0,) * len(self.wheels)
+        self.u_s = self._no_torque
+        # Bound once: every period commands every wheel.
+        self._commands = tuple(wheel.command_torque for wheel in self.wheels)
 
     #: What its columns mean (the telemetry's schema and docs/telemetry_columns.md read it).
     column_meanings = {
@@ -117,12 +120,12 @@ class MrpFeedback:
     def update(self, t_s):
         self._navigate()
         if self.q_BN is None:  # no attitude yet: the wheels hold no torque
-            self.u_s = (0.0,) * len(self.wheels)
+            self.u_s = self._no_torque
         else:
             s1, s2, s3 = self.sigma_BR = mrp_from_quat(hamilton_floats(self.q_NR, self.q_BN))
             wx, wy, wz = self.omega_B  # omega_BR_B: the reference does not turn
             k, p = self.k, self.p
             l1, l2, l3 = -k * s1 - p * wx, -k * s2 - p * wy, -k * s3 - p * wz
-            self.u_s = tuple(m1 * l1 + m2 * l2 + m3 * l3 for m1, m2, m3 in self.map)
-        for wheel, u in zip(self.wheels, self.u_s, strict=True):
-            wheel.command_torque(u)
+            self.u_s = tuple([m1 * l1 + m2 * l2 + m3 * l3 for m1, m2, m3 in self.map])
+        for command, u in zip(self._commands, self.u_s, strict=True):
+            command(u)

@@ -370,7 +370,7 @@ class PointingController:
         if self.mtq is not None:
             row += tuple(self.last_dipole)
         row += (self.fdir.flags if self.fdir is not None else 0,)
-        return tuple(float(x) for x in row)
+        return tuple([float(x) for x in row])
 
     def update(self, t_s: float) -> None:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
@@ -410,8 +410,8 @@ class PointingController:
         h_w = tuple(self.dist.momentum_B(self._speeds, self.wheel_inertia).tolist())
         if mode == FINE_POINTING and self.filter is not None:
             q_RN, w_RN = self.reference(t_s)
-            self.last_q_RN = tuple(float(c) for c in q_RN)
-            w_RN = tuple(float(c) for c in w_RN)
+            self.last_q_RN = tuple([float(c) for c in q_RN])
+            w_RN = tuple([float(c) for c in w_RN])
             # The reference's angular acceleration (R-frame derivative) by a backward difference over one period:
             # the feed-forward that keeps a slewing target (a ground pass) from lagging by alpha / wn^2.
             prev = self._w_RN_prev

@@ -41,7 +41,8 @@ def finite4(q, name: str, error: type[ValueError]) -> tuple[Quat, float]:
     try:
         if isinstance(q, np.ndarray) and q.shape != (4,):
             raise ValueError
-        w, x, y, z = (float(c) for c in q)
+        a, b, c, d = q
+        w, x, y, z = float(a), float(b), float(c), float(d)
     except (TypeError, ValueError):
         w = x = y = z = math.nan
     if not (math.isfinite(w) and math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
@@ -124,8 +125,10 @@ def mat3(m) -> Mat3:
 
 
 def mv(m, v) -> Vec3:
-    """``m @ v`` for a 3 x 3 matrix given as three rows."""
-    return dot(m[0], v), dot(m[1], v), dot(m[2], v)
+    """``m @ v`` for a 3 x 3 matrix given as three rows: each row's :func:`dot` with ``v``, in the same order."""
+    x, y, z = v
+    (a, b, c), (d, e, f), (g, h, i) = m
+    return a * x + b * y + c * z, d * x + e * y + f * z, g * x + h * y + i * z
 
 
 def mtv(m, v) -> Vec3:
