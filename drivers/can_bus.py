@@ -274,10 +274,13 @@ class ServedBus:
 _message_new: Any = None
 
 
-def data_frame(frame_id: int, payload: bytes) -> can.Message:
+def data_frame(frame_id: int, payload: bytes, timestamp: float = 0.0, is_rx: bool = True,
+               channel: Any = None) -> can.Message:
     """A classic CAN data frame with an 11-bit id: what ``can.Message(arbitration_id=frame_id, data=payload,
     is_extended_id=False)`` makes, field for field, without the constructor's keyword handling (the host drivers
-    and emulators make one per frame, several per tick)."""
+    and emulators make one per frame, several per tick). The in-process bus gives a frame it queued as a tuple
+    its ``timestamp``, ``is_rx`` and ``channel`` (:data:`drivers.can_loopback.DataFrame`); ``dlc`` is the payload's
+    length and ``data`` its own ``bytearray``."""
     global _message_new
     if _message_new is None:
         import can
@@ -285,16 +288,16 @@ def data_frame(frame_id: int, payload: bytes) -> can.Message:
         _message_new = (object.__new__, can.Message)
     new, cls = _message_new
     m = new(cls)
-    m.timestamp = 0.0
+    m.timestamp = timestamp
     m.arbitration_id = frame_id
     m.is_extended_id = False
     m.is_remote_frame = False
     m.is_error_frame = False
-    m.channel = None
+    m.channel = channel
     m.data = bytearray(payload)
     m.dlc = len(m.data)
     m.is_fd = False
-    m.is_rx = True
+    m.is_rx = is_rx
     m.bitrate_switch = False
     m.error_state_indicator = False
     return m

@@ -22,30 +22,7 @@ import cython
 from drivers.can_bus import data_frame
 from drivers.errors import DriverError, EncodeError, ProtocolError
 
-__all__ = ["data_message", "drain", "encode", "host_take", "send", "send_data", "take_observed"]
-
-_new_message = object.__new__
-_Message = can.Message
-
-
-def data_message(frame_id, payload, timestamp, is_rx, channel):
-    """The :class:`can.Message` of a queued data frame ``(frame_id, payload, timestamp, is_rx)`` on ``channel``
-    (:data:`drivers.can_loopback.DataFrame`): a standard id, a classic frame, ``dlc`` the payload's length, its own
-    ``bytearray``."""
-    m = _new_message(_Message)
-    m.timestamp = timestamp
-    m.arbitration_id = frame_id
-    m.is_extended_id = False
-    m.is_remote_frame = False
-    m.is_error_frame = False
-    m.channel = channel
-    m.dlc = len(payload)
-    m.data = bytearray(payload)
-    m.is_fd = False
-    m.is_rx = is_rx
-    m.bitrate_switch = False
-    m.error_state_indicator = False
-    return m
+__all__ = ["drain", "encode", "host_take", "send", "send_data", "take_observed"]
 
 
 def _message(frame):
@@ -181,8 +158,9 @@ def send_data(bus, frame_id, payload):
 
     A receiver without filters is given the frame as a tuple ``(frame_id, payload, timestamp, is_rx)``, one shared
     by every such receiver but the sender's own echo (it is immutable); its ``recv`` makes the :class:`can.Message`
-    when it reads the frame (:func:`data_message`), and a reader of ``rx_ready`` takes the tuple as it is. A receiver
-    with filters gets its own :class:`can.Message`, which its filters are tested on, as from ``send``."""
+    when it reads the frame (``data_frame`` with the tuple's fields), and a reader of ``rx_ready`` takes the tuple as
+    it is. A receiver with filters gets its own :class:`can.Message`, which its filters are tested on, as from
+    ``send``."""
     if bus._is_shutdown:
         raise can.CanOperationError(f"Cannot send on {bus.channel_info}: the bus is shut down.")
     # A data_frame's timestamp is 0.0, which preserve_timestamps keeps.
@@ -199,7 +177,7 @@ def send_data(bus, frame_id, payload):
         if ids is not None and frame_id not in ids:
             continue
         if rx._filters is not None:
-            frame = data_message(frame_id, payload, timestamp, not own, bus.channel_id)
+            frame = data_frame(frame_id, payload, timestamp, not own, bus.channel_id)
             if not rx._matches_filters(frame):
                 continue
         elif own:

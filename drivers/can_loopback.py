@@ -45,6 +45,7 @@ import can
 from can.bus import BusABC, CanProtocol
 
 import compiled_paths
+from drivers.can_bus import data_frame
 
 __all__ = ["INTERFACE_NAME", "LoopbackBus"]
 
@@ -70,7 +71,6 @@ _channels_lock = threading.Lock()
 
 #: The per-frame work (send_data), compiled where the install could (compiled_paths), the same either way.
 _frames = compiled_paths.load("drivers.can_frames")
-_data_message = _frames.data_message
 
 _new_message = object.__new__
 _Message = can.Message
@@ -79,7 +79,7 @@ _Message = can.Message
 #: A standard-id data frame as :meth:`LoopbackBus.send_data` queues it for a receiver without filters:
 #: ``(frame_id, payload, timestamp, is_rx)``, the payload ``bytes``. ``recv`` turns it into the
 #: :class:`can.Message` that :meth:`LoopbackBus.send` of ``drivers.can_bus.data_frame(frame_id, payload)`` would
-#: have queued (:func:`drivers.can_frames.data_message`); a reader of ``rx_ready`` may read the tuple itself.
+#: have queued (``data_frame(*frame, channel)``); a reader of ``rx_ready`` may read the tuple itself.
 DataFrame = tuple
 
 
@@ -221,7 +221,7 @@ class LoopbackBus(BusABC):
             except IndexError:  # another thread reading this bus took the last one
                 return None
             if type(msg) is tuple:  # a DataFrame (send_data)
-                msg = _data_message(*msg, self.channel_id)
+                msg = data_frame(*msg, self.channel_id)
             if self._filters is None or self._matches_filters(msg):
                 return msg
         return None

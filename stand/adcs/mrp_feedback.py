@@ -78,8 +78,6 @@ class MrpFeedback:
         self.sigma_BR = (math.nan,) * 3
         self._no_torque = (0.0,) * len(self.wheels)
         self.u_s = self._no_torque
-        # Bound once: every period commands every wheel.
-        self._commands = tuple(wheel.command_torque for wheel in self.wheels)
 
     #: What its columns mean (the telemetry's schema and docs/telemetry_columns.md read it).
     column_meanings = {
@@ -127,5 +125,5 @@ class MrpFeedback:
             k, p = self.k, self.p
             l1, l2, l3 = -k * s1 - p * wx, -k * s2 - p * wy, -k * s3 - p * wz
             self.u_s = tuple([m1 * l1 + m2 * l2 + m3 * l3 for m1, m2, m3 in self.map])
-        for command, u in zip(self._commands, self.u_s, strict=True):
-            command(u)
+        for wheel, u in zip(self.wheels, self.u_s, strict=True):
+            wheel.command_torque(u)
