@@ -395,6 +395,7 @@ def anchor_rows(own: dict, runs: list[dict], C_true_SN: np.ndarray) -> list[dict
         rows.append(_row("tracker.lis.vs_tetra3rs" + ("" if kind == "warm" else "_cold"), round(ratio, 3), "x",
                          ">= 1.0", ratio >= 1.0, None,
                          f"tetra3rs's {kind} median over the stand's {kind} median, same frames, same sitting"))
+        rows[-1]["full_only"] = True  # a speed: --quick's one round of 100 frames does not judge it
     good, false, note = _tetra3rs_outcome(runs, C_true_SN)
     rows.append(_row("tracker.lis.tetra3rs_success_rate", round(100.0 * good / len(C_true_SN), 2), "%", None,
                      None, None, note))

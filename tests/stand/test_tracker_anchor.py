@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sim.rotations import dcm, quat_from_axis_angle
+from stand.benches import _judged
 from stand.benches import tracker as bench
 from star_screen.geometry import TrackerOptics
 from star_screen.tracking.extract import ExtractedStars
@@ -91,6 +92,9 @@ def test_rows_from_a_canned_run_compare_like_with_like():
     assert rows["tracker.lis.vs_tetra3rs"]["value"] == 0.5 and rows["tracker.lis.vs_tetra3rs"]["pass"] is False
     assert rows["tracker.lis.vs_tetra3rs_cold"]["value"] == 1.5
     assert rows["tracker.lis.vs_tetra3rs_cold"]["pass"] is True
+    # Speeds: --quick (one round of 100 frames) shows them without judging them.
+    quick = _judged(dict(rows["tracker.lis.vs_tetra3rs_cold"]), quick=True)
+    assert "pass" not in quick and quick["limit"] == ">= 1.0 (judged on the full run only)"
     # Frame 0 is a success (the trace of its matrix alone would put it 2.7 arcmin off); frame 1 is 2 arcmin off:
     # a false solve, not a success; frame 2 a failure.
     ok = rows["tracker.lis.tetra3rs_success_rate"]
