@@ -23,6 +23,11 @@ noise (shot noise on signal + 20 e- background, 10 e- read noise, seeded), then:
   exposures beside the dense rows of the same attitudes (its own seeded stream, so the rows above
   do not move).
 
+* the same sitting's anchor: the stand's solver again on the frames' extracted stars, back to back (warm)
+  and, with ``STAND_TETRA3RS_PYTHON`` set to a Python with tetra3rs, each after one image workload (cold), with
+  ``fixtures/reference/tetra3rs/tetra3rs_solve.py`` solving the same stars the same two ways between the rounds;
+  the ratio rows compare warm with warm and cold with cold (that directory's README).
+
 Times are process CPU time (``time.process_time``), as in the anchors of docs/benchmarks.md, which
 were measured on the same kind of shared 2-core machine: tetra3rs 0.14 (Rust) 0.29 ms median /
 0.44 ms p95 LIS, 0.20 ms tracking, 5.6 ms extraction on 1 Mpx; cedar-solve 0.5.1 (Python) 2.4 ms /
