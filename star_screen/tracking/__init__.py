@@ -138,6 +138,7 @@ class StarTracker:
         self._dbs: dict[float, PatternDatabase] = {}
         self._places: dict[tuple, StarPlaces] = {}
         self._last_places: tuple | None = None  #: (epoch object, parallax, places) of the last call of places()
+        self._last_db: tuple | None = None  #: (optics object, pattern database) of the last call of database()
 
     # ------------------------------------------------------------------ catalog side
     def places(self, epoch: Epoch | None = None, parallax: bool = False) -> StarPlaces:
@@ -163,11 +164,16 @@ class StarTracker:
 
     def database(self, optics: TrackerOptics) -> PatternDatabase:
         """The pattern database for this field size (built at first use, then cached)."""
+        last = self._last_db
+        if last is not None and last[0] is optics:
+            # The same (frozen) optics object as the previous solve's: its database, without working out its field.
+            return last[1]
         key = self.max_edge_deg(optics)
         if key not in self._dbs:
             self._dbs[key] = PatternDatabase.build(
                 self.catalog.places(self.epoch, parallax=False), key, self.pattern_mag_limit
             )
+        self._last_db = (optics, self._dbs[key])
         return self._dbs[key]
 
     # ------------------------------------------------------------------ solve
