@@ -85,14 +85,19 @@ def _prior_dcm(q) -> np.ndarray:
 
 
 def _unproject(xy: np.ndarray, optics: TrackerOptics) -> np.ndarray:
-    """``optics.unproject(xy)`` with a direct path for distortion-free optics."""
-    if not optics.distortion.is_zero:
+    """``optics.unproject(xy)`` with a direct path for distortion-free optics and float64 centroids (what extraction
+    gives)."""
+    if not optics.distortion.is_zero or xy.dtype != np.float64:
         return optics.unproject(xy)
+    # Both image axes in one subtraction and one division into the output's columns (the same operations on each
+    # element as column by column, with fewer numpy calls and no temporaries).
     d = np.empty((len(xy), 3))
-    d[:, 0] = (xy[:, 0] - optics.cx) / optics.fx
-    d[:, 1] = (xy[:, 1] - optics.cy) / optics.fy
+    d_xy = d[:, :2]
+    np.subtract(xy, (optics.cx, optics.cy), out=d_xy)
+    d_xy /= (optics.fx, optics.fy)
     d[:, 2] = 1.0
-    d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+    norm = np.einsum("ij,ij->i", d, d)
+    d /= np.sqrt(norm, out=norm)[:, None]
     return d
 
 
@@ -132,17 +137,24 @@ class StarTracker:
         self.epoch = Epoch.from_iso(epoch) if isinstance(epoch, str) else epoch
         self._dbs: dict[float, PatternDatabase] = {}
         self._places: dict[tuple, StarPlaces] = {}
+        self._last_places: tuple | None = None  #: (epoch object, parallax, places) of the last call of places()
+        self._last_db: tuple | None = None  #: (optics object, pattern database) of the last call of database()
 
     # ------------------------------------------------------------------ catalog side
     def places(self, epoch: Epoch | None = None, parallax: bool = False) -> StarPlaces:
         """Verification places (proper motion to ``epoch``), brightest first."""
         ep = epoch if epoch is not None else self.epoch
+        last = self._last_places
+        if last is not None and last[0] is ep and last[1] == bool(parallax):
+            # The same (frozen) epoch object as the previous solve's: its places, without working out its TT date.
+            return last[2]
         key = (ep.jd_tt, bool(parallax))
         if key not in self._places:
             if len(self._places) > 4:
                 self._places.clear()
             # One object per epoch, so the identification's k-d tree over it is built only once.
             self._places[key] = self.catalog.places(ep, parallax=parallax).brighter_than(self.mag_limit)
+        self._last_places = (ep, bool(parallax), self._places[key])
         return self._places[key]
 
     @staticmethod
@@ -152,11 +164,16 @@ class StarTracker:
 
     def database(self, optics: TrackerOptics) -> PatternDatabase:
         """The pattern database for this field size (built at first use, then cached)."""
+        last = self._last_db
+        if last is not None and last[0] is optics:
+            # The same (frozen) optics object as the previous solve's: its database, without working out its field.
+            return last[1]
         key = self.max_edge_deg(optics)
         if key not in self._dbs:
             self._dbs[key] = PatternDatabase.build(
                 self.catalog.places(self.epoch, parallax=False), key, self.pattern_mag_limit
             )
+        self._last_db = (optics, self._dbs[key])
         return self._dbs[key]
 
     # ------------------------------------------------------------------ solve

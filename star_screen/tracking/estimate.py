@@ -97,17 +97,20 @@ def _quat_from_orthonormal(C: np.ndarray) -> np.ndarray:
     return -v if v[0] < 0 else v
 
 
-def _inv_sym3(F: np.ndarray) -> np.ndarray:
-    """Inverse of a symmetric 3 x 3 matrix in closed form (adjugate over determinant), on Python floats;
-    all ``inf`` when it is singular (fewer than two distinct directions)."""
-    (a, b, c), (_, d, e), (_, _, f) = F.tolist()
+def _inv_sym3(a: float, b: float, c: float, d: float, e: float, f: float, scale: float = 1.0):
+    """Inverse, times ``scale``, of the symmetric 3 x 3 matrix with upper triangle ``a b c / d e / f``, in closed form
+    (adjugate over determinant) on Python floats: (the matrix, its diagonal as floats); all ``inf * scale`` when it is
+    singular (fewer than two distinct directions). Each element is ``(adjugate * (1 / det)) * scale``, the bits of
+    numpy scaling the inverse in place."""
     A, B, C = d * f - e * e, c * e - b * f, b * e - c * d
     det = a * A + b * B + c * C
     if not (abs(det) > 1e-300 and math.isfinite(det)) or abs(det) <= 1e-12 * max(a * d * f, 1e-300):
-        return np.full((3, 3), np.inf)
+        v = math.inf * scale
+        return np.full((3, 3), v), (v, v, v)
     D, E, G = a * f - c * c, b * c - a * e, a * d - b * b
     s = 1.0 / det
-    return np.array(((A * s, B * s, C * s), (B * s, D * s, E * s), (C * s, E * s, G * s)))
+    A, B, C, D, E, G = A * s * scale, B * s * scale, C * s * scale, D * s * scale, E * s * scale, G * s * scale
+    return np.array(((A, B, C), (B, D, E), (C, E, G))), (A, D, G)
 
 
 def estimate_attitude(b_S, r_N, sigma_rad=None, *, scale_from_residuals: bool = True) -> AttitudeEstimate:
@@ -142,15 +145,15 @@ def _finish(b, a, ba, C, res2, scale_from_residuals: bool = True) -> AttitudeEst
     """Covariance, quaternion and sigmas of the SVD solution ``C`` (``a``: weights ``1 / sigma^2``,
     ``ba``: ``b * a[:, None]``, ``res2``: squared residuals)."""
     n = len(b)
-    F = ba.T @ b
-    F *= -1.0
-    F.flat[::4] += a.sum()
-    P = _inv_sym3(F)
-    if scale_from_residuals and n >= 3:
-        P *= float(a @ res2) / (2 * n - 3)
+    # F = sum_i a_i (I - b_i b_i^T): its upper triangle on Python floats, (sum a) - (b^T a b)_jk on the diagonal and
+    # -(b^T a b)_jk off it (the same roundings as negating the product and adding the sum to its diagonal in numpy).
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = (ba.T @ b).tolist()
+    total = float(a.sum())
+    scale = float(a @ res2) / (2 * n - 3) if scale_from_residuals and n >= 3 else 1.0
+    P, (p00, p11, p22) = _inv_sym3(total - g00, -g01, -g02, total - g11, -g12, total - g22, scale)
     q = _quat_from_orthonormal(C)
-    sc = math.sqrt(max(P[0, 0] + P[1, 1], 0.0))
-    sr = math.sqrt(max(P[2, 2], 0.0))
+    sc = math.sqrt(max(p00 + p11, 0.0))
+    sr = math.sqrt(max(p22, 0.0))
     return AttitudeEstimate(q, C, P, sc, sr, np.sqrt(res2))
 
 

@@ -269,7 +269,7 @@ class _SkyIndex:
             rows, at = [0] * self.size, [0] * self.size
         m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, rows, at)
         rows = np.asarray(rows[:m], np.int64)
-        o = np.argsort(rows)
+        o = rows.argsort()
         return rows[o], self.u[np.asarray(at[:m], np.int64)[o]]
 
 
@@ -481,7 +481,7 @@ def identify_lis(
     n = min(pattern_stars, len(img_xy))
     if n < 4 or len(db) == 0:
         return _NO_MATCH
-    cos_cull = cull_cos(optics)
+    cos_cull = _field(optics).cos_cull
     n_ver = min(n_verify, len(img_xy))
     hyp = 0
     dcm = np.empty(9)
@@ -523,7 +523,7 @@ class _Field:
     """Per-optics constants of the tracking path (cached by identity: hashing the frozen optics
     costs more than the lookup it guards)."""
 
-    __slots__ = ("optics", "pinhole", "fx", "fy", "cx", "cy", "width", "height", "area", "cull_rad", "K")
+    __slots__ = ("optics", "pinhole", "fx", "fy", "cx", "cy", "width", "height", "area", "cos_cull", "cull_rad", "K")
 
     def __init__(self, optics: TrackerOptics):
         self.optics = optics
@@ -531,7 +531,8 @@ class _Field:
         self.fx, self.fy, self.cx, self.cy = float(optics.fx), float(optics.fy), float(optics.cx), float(optics.cy)
         self.width, self.height = float(optics.width), float(optics.height)
         self.area = self.width * self.height
-        self.cull_rad = math.acos(cull_cos(optics))
+        self.cos_cull = cull_cos(optics)
+        self.cull_rad = math.acos(self.cos_cull)
         self.K = np.array(((self.fx, 0.0, self.cx), (0.0, self.fy, self.cy), (0.0, 0.0, 1.0)))
 
     def project(self, u_N: np.ndarray, C: np.ndarray, margin: float, limit: int | None = None):
@@ -541,7 +542,7 @@ class _Field:
             # Homogeneous pixels through the camera matrix times the attitude, in one loop (lis_steps): where the
             # catalog falls only decides which stars pair up.
             m = len(u_N) if limit is None else min(limit, len(u_N))
-            u, kc = _native_args(np.ravel(u_N), (self.K @ C).ravel())
+            u, kc = _native_args(u_N.ravel(), (self.K @ C).ravel())
             if _LIS_COMPILED:
                 keep, x, y = np.empty(m, np.int64), np.empty(m), np.empty(m)
             else:
@@ -582,7 +583,7 @@ def _match_radius(img_x: np.ndarray, img_y: np.ndarray, cat_x: np.ndarray, cat_y
     n = len(img_x)
     if n == 0 or len(cat_x) == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0)
-    order = np.argsort(img_x, kind="stable")
+    order = img_x.argsort(kind="stable")
     xs, ys = img_x[order], img_y[order]
     k = len(cat_x)
     if _NEAREST_COMPILED:  # typed memoryviews (any strides) of float64 and int64 arrays; the integer outputs in one

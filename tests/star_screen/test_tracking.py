@@ -452,3 +452,46 @@ def test_the_3x3_svd_is_numpys_to_the_bit_and_refuses_what_numpy_refuses():
     for bad in (np.inf, -np.inf):  # numpy gives NaN there, and so does svd3
         B[1, 2] = bad
         assert all(x.tobytes() == y.tobytes() for x, y in zip(svd3(B), np.linalg.svd(B), strict=True))
+
+
+def _finish_numpy(b, a, ba, res2, scale_from_residuals):
+    """The covariance the final estimate gave when it was worked out by numpy (integ7): the reference bits."""
+    F = ba.T @ b
+    F *= -1.0
+    F.flat[::4] += a.sum()
+    (fa, fb, fc), (_, fd, fe), (_, _, ff) = F.tolist()
+    A, B, C = fd * ff - fe * fe, fc * fe - fb * ff, fb * fe - fc * fd
+    det = fa * A + fb * B + fc * C
+    if not (abs(det) > 1e-300 and math.isfinite(det)) or abs(det) <= 1e-12 * max(fa * fd * ff, 1e-300):
+        P = np.full((3, 3), np.inf)
+    else:
+        D, E, G = fa * ff - fc * fc, fb * fc - fa * fe, fa * fd - fb * fb
+        s = 1.0 / det
+        P = np.array(((A * s, B * s, C * s), (B * s, D * s, E * s), (C * s, E * s, G * s)))
+    if scale_from_residuals and len(b) >= 3:
+        with np.errstate(invalid="ignore"):  # inf * 0 of a singular matrix with zero residuals: NaN
+            P *= float(a @ res2) / (2 * len(b) - 3)
+    return P, math.sqrt(max(P[0, 0] + P[1, 1], 0.0)), math.sqrt(max(P[2, 2], 0.0))
+
+
+@pytest.mark.parametrize("case", ["random", "one_direction", "zero_residuals", "one_direction_zero_residuals",
+                                  "two_pairs"])
+@pytest.mark.parametrize("scaled", [True, False])
+def test_the_covariance_on_floats_is_numpys_to_the_bit(case, scaled):
+    """The final estimate's information matrix, inverse and residual scaling on Python floats give the bytes numpy's
+    in-place negation, diagonal add and scaling gave, singular (all inf, or NaN when scaled by zero) included."""
+    from star_screen.tracking.estimate import _finish
+
+    rng = np.random.default_rng(7)
+    for _ in range(50):
+        n = 2 if case == "two_pairs" else int(rng.integers(3, 40))
+        b = np.tile(rng.normal(size=3), (n, 1)) if case.startswith("one_direction") else rng.normal(size=(n, 3))
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        a = 1.0 / rng.uniform(1e-6, 1e-4, n) ** 2
+        ba = b * a[:, None]
+        res2 = np.zeros(n) if case.endswith("zero_residuals") else rng.uniform(0.0, 1e-9, n)
+        est = _finish(b, a, ba, np.eye(3), res2, scaled)
+        P, sc, sr = _finish_numpy(b, a, ba, res2, scaled)
+        assert est.cov_S.tobytes() == P.tobytes()
+        assert (np.float64(est.sigma_cross_rad).tobytes(), np.float64(est.sigma_roll_rad).tobytes()) == (
+            np.float64(sc).tobytes(), np.float64(sr).tobytes())
