@@ -56,6 +56,7 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulatorConfig"]
 
 SpeedSource = Callable[[float], Any]
+_INF = math.inf
 
 
 
@@ -199,7 +200,8 @@ class ReactionWheelEmulator(CanDevice):
         cfg = self.config
         if isinstance(cmd, TorqueCommand):
             u = cmd.torque_Nm
-            self._torque_limited = abs(u) > cfg.max_torque_Nm
+            top = cfg.max_torque_Nm
+            self._torque_limited = u > top or u < -top  # abs(u) > top, without the call
             if self._torque_limited:
                 u = math.copysign(cfg.max_torque_Nm, u)
                 self._saturated()
@@ -254,21 +256,29 @@ class ReactionWheelEmulator(CanDevice):
             else:
                 s, tq = got
                 speed, torque = float(s), float(tq)
-            if not (math.isfinite(speed) and math.isfinite(torque)):
+            # Finite, by comparisons (NaN fails both, an infinity one) rather than two calls of math.isfinite.
+            if not (-_INF < speed < _INF and -_INF < torque < _INF):
                 raise ValueError
         except (TypeError, ValueError):
             raise ValueError(f"speed_source({t_s!r}) must return a finite speed (rad/s) or a pair (speed rad/s, "
                              f"motor torque N m); got {got!r}.") from None
-        valid = abs(speed) <= self._tlm_speed_max
+        # The clips below are comparisons on finite floats: the same results as abs(), min() and max() (a -0.0
+        # stays -0.0), without a builtin call each (the wheels send every tick).
+        top = self._tlm_speed_max
+        valid = -top <= speed <= top
         if not valid:
-            speed = math.copysign(self._tlm_speed_max, speed)
+            speed = math.copysign(top, speed)
         if self.speed_sensor_failed:
             speed, valid = 0.0, False
-        torque = min(max(torque, -self._tlm_torque_max), self._tlm_torque_max)
+        top = self._tlm_torque_max
+        if torque > top:
+            torque = top
+        elif torque < -top:
+            torque = -top
+        limit = self.config.max_speed_rad_s - 1e-9
         seq = self._tlm_seq
         self._tlm_seq = (seq + 1) & 0xFF
-        return WheelSpeed(speed, torque, valid, abs(speed) >= self.config.max_speed_rad_s - 1e-9,
-                          self._torque_limited, seq)
+        return WheelSpeed(speed, torque, valid, speed >= limit or speed <= -limit, self._torque_limited, seq)
 
     def status(self) -> Status:
         """The RW_STATUS the wheel reports (counters wrapped at their DBC width)."""

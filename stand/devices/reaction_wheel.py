@@ -245,7 +245,8 @@ class _Wheel(Device):
         """One dynamics step of the motor under the held command, from the truth's wheel speed."""
         w0 = self.truth.wheel_speeds_rad_s[self.wheel_index]
         mode = cmd.mode
-        self._mode = MODE_CODES.get(mode, -1.0)
+        # Two dict operations rather than a call of dict.get (every wheel, every tick).
+        self._mode = MODE_CODES[mode] if mode in MODE_CODES else -1.0
         # The motor's state (sim.actuators.WheelState) as a plain pair: speed, motor torque now.
         if mode == "SPEED":
             self._cmd = cmd.speed_rad_s

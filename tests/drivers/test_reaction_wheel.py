@@ -300,3 +300,49 @@ def test_the_per_frame_command_builders_give_what_the_constructors_give(values):
             got.seq = 1
     with pytest.raises(TypeError, match="Heartbeat: positional_maker3 takes"):
         positional_maker3(Heartbeat)  # its __post_init__ checks the state: not a class to build around it
+
+
+def test_telemetry_edges_refuse_non_finite_and_clip_keeping_the_sign(bus):
+    # The telemetry's checks and clips written as comparisons (docs/fast_paths.md) keep abs/min/max's results: a
+    # non-finite value is named, a speed the wire cannot carry is clipped with valid = 0, the torque is clipped to
+    # what the wire carries, a -0.0 stays -0.0, and speed_limited holds at the rated speed of either sign.
+    cfg = WheelEmulatorConfig()
+    w_top, tq_top = CODEC.tlm_speed_range_rad_s[1], CODEC.tlm_torque_range_Nm[1]
+    got = [None]
+    emu = ReactionWheelEmulator(bus(), lambda t: got[0], cfg)
+    for bad in ((math.nan, 0.0), (math.inf, 0.0), (0.0, -math.inf), (-math.inf, math.nan)):
+        got[0] = bad
+        with pytest.raises(ValueError, match=r"speed_source\(0\.0\) must return a finite speed"):
+            emu.telemetry(0.0)
+    cases = {
+        (2.0 * w_top, 0.0): (w_top, 0.0, False, True),
+        (-2.0 * w_top, 0.0): (-w_top, 0.0, False, True),
+        (1.0, 10.0 * tq_top): (1.0, tq_top, True, False),
+        (1.0, -10.0 * tq_top): (1.0, -tq_top, True, False),
+        (-0.0, -0.0): (-0.0, -0.0, True, False),
+        (cfg.max_speed_rad_s, tq_top): (cfg.max_speed_rad_s, tq_top, True, True),
+        (-cfg.max_speed_rad_s, -tq_top): (-cfg.max_speed_rad_s, -tq_top, True, True),
+        (0.5 * cfg.max_speed_rad_s, 0.0): (0.5 * cfg.max_speed_rad_s, 0.0, True, False),
+    }
+    for pair, (speed, torque, valid, limited) in cases.items():
+        got[0] = pair
+        s = emu.telemetry(0.0)
+        assert (float(s), s.torque_Nm, s.valid, s.speed_limited) == (speed, torque, valid, limited), pair
+        assert math.copysign(1.0, float(s)) == math.copysign(1.0, speed), pair
+        assert math.copysign(1.0, s.torque_Nm) == math.copysign(1.0, torque), pair
+    emu.speed_sensor_failed = True
+    got[0] = (-2.0 * w_top, -0.0)
+    s = emu.telemetry(0.0)
+    assert (float(s), s.valid, s.speed_limited, math.copysign(1.0, s.torque_Nm)) == (0.0, False, False, -1.0)
+
+
+def test_a_torque_command_is_limited_beyond_the_rating_of_either_sign(bus):
+    cfg = WheelEmulatorConfig()
+    emu = ReactionWheelEmulator(bus(), lambda t: 0.0, cfg)
+    top = cfg.max_torque_Nm
+    for u, held, limited in ((top, top, False), (-top, -top, False), (1.5 * top, top, True), (-1.5 * top, -top, True),
+                             (-0.0, -0.0, False)):
+        emu._take(TorqueCommand(u), 0.0)
+        assert (emu.command_at(0.0).torque_Nm, emu._torque_limited) == (held, limited), u
+        assert math.copysign(1.0, emu.command_at(0.0).torque_Nm) == math.copysign(1.0, held), u
+    assert emu.counters["saturations"] == 2
