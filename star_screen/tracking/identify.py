@@ -238,10 +238,11 @@ CONE_CELLS_PER_FACE = 8
 class _SkyIndex:
     """Cone queries over one places table: the unit vectors bucketed in the cells of a cube map (each star in the cell
     its direction passes through), stored cell by cell, rows ascending within a cell. A query reads the cells the cone
-    can reach and keeps the stars within its chord (:func:`star_screen.tracking.lis_steps.cone_rows`, compiled where
-    the install could): a thousand or so stars looked at, no tree walked. Built in a few milliseconds per table."""
+    can reach, keeps the stars within its chord and merges the cells' runs into catalog order
+    (:func:`star_screen.tracking.lis_steps.cone_sorted`, compiled where the install could): a thousand or so stars
+    looked at, no tree walked, nothing sorted by numpy. Built in a few milliseconds per table."""
 
-    __slots__ = ("places", "cells", "stars", "size", "u")
+    __slots__ = ("places", "cells", "stars", "size", "u", "cap")
 
     def __init__(self, places: StarPlaces):
         self.places = places
@@ -257,21 +258,54 @@ class _SkyIndex:
         self.u = np.ascontiguousarray(u[order])
         self.stars = _native_args(self.u.ravel(), order.astype(np.int64))
         self.size = len(u)
+        #: Stars a query's buffers hold (the largest cone seen so far, at least CONE_CAP): small buffers, so a query
+        #: allocates and touches a few pages, not buffers the size of the catalog.
+        self.cap = min(CONE_CAP, self.size)
 
     def cone(self, boresight: np.ndarray, cos_cull: float) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the places within the cone (sorted: brightest first) and their unit vectors."""
+        rows, u, _, _ = self._query(boresight, cos_cull, None, 0.0, 0.0, 0.0)
+        return rows, u
+
+    def field(self, C: np.ndarray, cos_cull: float, K: np.ndarray, width: float, height: float):
+        """The cone around the boresight of ``C`` (dcm_SN) seen through the pinhole camera ``K``: the rows (sorted) of
+        the places that land on the ``width`` x ``height`` detector, their unit vectors and their pixels (x, y): the
+        cone of :meth:`cone` projected as :meth:`_Field.project` projects it, in one loop."""
+        return self._query(C[2], cos_cull, (K @ C).ravel(), 0.0, width, height)
+
+    def _query(self, boresight, cos_cull, kc, margin, width, height):
         chord = math.sqrt(max(2.0 - 2.0 * cos_cull, 0.0))
         bx, by, bz = boresight.tolist()
         sin_cone = math.sqrt(max(1.0 - cos_cull * cos_cull, 0.0))
+        project = kc is not None
+        if kc is None:  # a camera read by no one
+            kc = np.zeros(9) if _LIS_COMPILED else [0.0] * 9
+        elif not _LIS_COMPILED:
+            kc = kc.tolist()
+        n_cells = len(self.cells[1])
+        for _ in range(2):  # a second time only with buffers as large as the cone the first found
+            cap = self.cap
+            if _LIS_COMPILED:
+                ints, floats = np.empty(5 * cap + n_cells + 1, np.int64), np.empty(5 * cap)
+                work, rows = ints[cap:], ints[:cap]
+                u, x, y = floats[: 3 * cap], floats[3 * cap : 4 * cap], floats[4 * cap :]
+            else:
+                work, rows = [0] * (4 * cap + n_cells + 1), [0] * cap
+                u, x, y = [0.0] * (3 * cap), [0.0] * cap, [0.0] * cap
+            m = _lis.cone_sorted(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, project, kc,
+                                 margin, width, height, cap, work, rows, u, x, y)
+            if m >= 0:
+                break
+            self.cap = -m
         if _LIS_COMPILED:
-            rows, at = np.empty(self.size, np.int64), np.empty(self.size, np.int64)
-        else:
-            rows, at = [0] * self.size, [0] * self.size
-        m = _lis.cone_rows(*self.cells, *self.stars, bx, by, bz, cos_cull, sin_cone, chord * chord, rows, at)
-        rows = np.asarray(rows[:m], np.int64)
-        o = rows.argsort()
-        return rows[o], self.u[np.asarray(at[:m], np.int64)[o]]
+            return rows[:m], u[: 3 * m].reshape(m, 3), x[:m], y[:m]
+        return (np.array(rows[:m], np.int64), np.array(u[: 3 * m], float).reshape(m, 3), np.array(x[:m], float),
+                np.array(y[:m], float))
 
+
+#: Stars a cone query's buffers hold at first (:class:`_SkyIndex`): the lost-in-space cone of the default tracker
+#: holds some five hundred stars to Hp 8, a dense Milky Way field about twice that.
+CONE_CAP = 2048
 
 def _cube_cell_of(u: np.ndarray, n: int) -> np.ndarray:
     """The cube-map cell (:func:`_cube_cells`' numbering) each unit vector of ``u (S, 3)`` passes through."""
@@ -349,13 +383,18 @@ def verify(
     cube-map query, one projection through the camera matrix times ``C``), so both modes see the same field.
     """
     n = min(n_verify, len(img_xy))
-    cone, U = _sky_index(places).cone(C[2], cos_cull)
-    k, x, y = _field(optics).project(U, C, 0.0)
-    field = (cone[k], U[k])
-    if n == 0 or len(k) == 0:
+    fld = _field(optics)
+    if fld.pinhole:
+        rows, U, x, y = _sky_index(places).field(C, cos_cull, fld.K, fld.width, fld.height)
+    else:
+        cone, U = _sky_index(places).cone(C[2], cos_cull)
+        k, x, y = fld.project(U, C, 0.0)
+        rows, U = cone[k], U[k]
+    field = (rows, U)
+    if n == 0 or len(rows) == 0:
         return np.empty(0, np.int64), np.empty(0, np.int64), field, 1.0
     ii, ci, _ = _match_radius(img_xy[:n, 0], img_xy[:n, 1], x, y, radius_px)
-    p = len(k) * math.pi * radius_px**2 / (optics.width * optics.height)
+    p = len(rows) * math.pi * radius_px**2 / (optics.width * optics.height)
     pf = min(1.0, false_match_probability(len(ii), n, p) * max(hypotheses, 1))
     return ii, field[0][ci], field, pf
 

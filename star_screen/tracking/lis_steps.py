@@ -27,23 +27,75 @@ from cython.cimports.libc.math import fabs, sqrt  # C's when compiled, Python's 
 MAX_SWEEPS = 30
 
 
-@cython.locals(cells=cython.Py_ssize_t, c=cython.Py_ssize_t, i=cython.Py_ssize_t, m=cython.Py_ssize_t,
-               d=cython.double, dx=cython.double, dy=cython.double, dz=cython.double, reach=cython.double)
-def cone_rows(cell_xyz: cython.double[:], cell_cos: cython.double[:], cell_sin: cython.double[:],
-              starts: cython.longlong[:], star_xyz: cython.double[:], star_row: cython.longlong[:],
-              bx: cython.double, by: cython.double, bz: cython.double, cos_cone: cython.double,
-              sin_cone: cython.double, chord2: cython.double, out_rows: cython.longlong[:],
-              out_at: cython.longlong[:]) -> cython.Py_ssize_t:
-    """Rows of the stars whose squared chord ``|u - b|^2`` from the boresight ``b`` is at most ``chord2``, unsorted, in
-    ``out_rows[:m]``, and their positions in ``star_xyz`` (star ``i`` at ``star_xyz[3i:3i + 3]``) in ``out_at[:m]``;
-    returns ``m``.
+@cython.cfunc
+@cython.locals(bounds=cython.Py_ssize_t, src=cython.Py_ssize_t, dst=cython.Py_ssize_t, r=cython.Py_ssize_t,
+               merged=cython.Py_ssize_t, lo=cython.Py_ssize_t, mid=cython.Py_ssize_t, hi=cython.Py_ssize_t,
+               p=cython.Py_ssize_t, q=cython.Py_ssize_t, o=cython.Py_ssize_t)
+def _merge_runs(work: cython.longlong[:], cap: cython.Py_ssize_t, runs: cython.Py_ssize_t) -> cython.Py_ssize_t:
+    """Merge the ``runs`` ascending runs of (row, position) pairs in ``work`` (rows at ``work[:cap]``, positions
+    ``cap`` later, run ``r`` from ``work[4 cap + r]`` to ``work[4 cap + r + 1]``) by row, neighbours pairwise until
+    one run is left; the merged rows end at ``work[src:]``, positions ``cap`` later: returns ``src`` (0 or
+    ``2 cap``)."""
+    bounds = 4 * cap
+    src = 0
+    dst = 2 * cap
+    while runs > 1:
+        merged = 0
+        for r in range(0, runs, 2):
+            lo = work[bounds + r]
+            mid = work[bounds + r + 1]
+            hi = work[bounds + r + 2] if r + 2 <= runs else mid
+            p = lo
+            q = mid
+            o = lo
+            while p < mid or q < hi:
+                if q >= hi or (p < mid and work[src + p] < work[src + q]):
+                    work[dst + o] = work[src + p]
+                    work[dst + cap + o] = work[src + cap + p]
+                    p += 1
+                else:
+                    work[dst + o] = work[src + q]
+                    work[dst + cap + o] = work[src + cap + q]
+                    q += 1
+                o += 1
+            merged += 1
+            work[bounds + merged] = hi
+        runs = merged
+        src, dst = dst, src
+    return src
 
-    The stars are bucketed in cells (``starts[c]:starts[c + 1]`` of ``star_xyz`` (flat x, y, z) and ``star_row``);
-    cell ``c`` has centre ``cell_xyz[3c:3c + 3]`` and angular radius ``rho`` with ``cell_cos[c] = cos(rho)``,
-    ``cell_sin[c] = sin(rho)``. A cell is read when the cone (``cos_cone``, ``sin_cone`` of its half-angle) can reach
-    it: ``cos(angle(b, centre)) >= cos(cone + rho)``, with a margin of 1e-9 so rounding never skips one."""
+
+@cython.locals(cap=cython.Py_ssize_t, cells=cython.Py_ssize_t, c=cython.Py_ssize_t, i=cython.Py_ssize_t,
+               m=cython.Py_ssize_t, runs=cython.Py_ssize_t, d=cython.double, dx=cython.double, dy=cython.double,
+               dz=cython.double, reach=cython.double, bounds=cython.Py_ssize_t, src=cython.Py_ssize_t,
+               w=cython.Py_ssize_t, k=cython.Py_ssize_t, ux=cython.double, uy=cython.double,
+               uz=cython.double, on=cython.bint, x=cython.double, y=cython.double)
+def cone_sorted(cell_xyz: cython.double[:], cell_cos: cython.double[:], cell_sin: cython.double[:],
+                starts: cython.longlong[:], star_xyz: cython.double[:], star_row: cython.longlong[:],
+                bx: cython.double, by: cython.double, bz: cython.double, cos_cone: cython.double,
+                sin_cone: cython.double, chord2: cython.double, project: cython.bint, kc: cython.double[:],
+                margin: cython.double, width: cython.double, height: cython.double, cap: cython.Py_ssize_t,
+                work: cython.longlong[:], out_rows: cython.longlong[:], out_u: cython.double[:],
+                out_x: cython.double[:], out_y: cython.double[:]) -> cython.Py_ssize_t:
+    """The stars whose squared chord ``|u - b|^2`` from the boresight ``b`` is at most ``chord2``, in ascending row:
+    their rows in ``out_rows[:w]`` and directions in ``out_u[3w]`` (flat x, y, z); returns ``w``. With ``project``,
+    only those the pinhole camera ``kc`` (the camera matrix times the attitude, flat row-major) puts on the ``width``
+    x ``height`` detector grown by ``margin`` px are kept (the rule of :func:`project_pinhole`), their pixels in
+    ``out_x``, ``out_y``. At most ``cap`` stars fit the buffers: a cone that holds more writes nothing and returns
+    minus its number of stars (call again with buffers that large).
+
+    The stars are bucketed in cells (``starts[c]:starts[c + 1]`` of ``star_xyz`` and ``star_row``, rows ascending
+    within a cell); cell ``c`` has centre ``cell_xyz[3c:3c + 3]`` and angular radius ``rho`` with ``cell_cos[c] =
+    cos(rho)``, ``cell_sin[c] = sin(rho)``. A cell is read when the cone (``cos_cone``, ``sin_cone`` of its half-angle)
+    can reach it: ``cos(angle(b, centre)) >= cos(cone + rho)``, with a margin of 1e-9 so rounding never skips one.
+    Each cell's stars in the cone are a run of ascending rows, and the runs are merged pairwise (a natural merge sort),
+    so the order is the catalog's, as the matching's ties and the estimate's sums need. ``work`` holds ``4 cap +
+    cells + 1`` integers (rows and positions twice, and the runs' bounds)."""
     cells = len(cell_cos)
+    bounds = 4 * cap
+    work[bounds] = 0
     m = 0
+    runs = 0
     for c in range(cells):
         d = cell_xyz[3 * c] * bx + cell_xyz[3 * c + 1] * by + cell_xyz[3 * c + 2] * bz
         # cos(cone + rho), or -1 when cone + rho reaches past the antipode (sin(cone + rho) < 0).
@@ -58,10 +110,35 @@ def cone_rows(cell_xyz: cython.double[:], cell_cos: cython.double[:], cell_sin: 
             dy = star_xyz[3 * i + 1] - by
             dz = star_xyz[3 * i + 2] - bz
             if dx * dx + dy * dy + dz * dz <= chord2:
-                out_rows[m] = star_row[i]
-                out_at[m] = i
+                if m < cap:
+                    work[m] = star_row[i]
+                    work[cap + m] = i
                 m += 1
-    return m
+        if m > work[bounds + runs] and m <= cap:
+            runs += 1
+            work[bounds + runs] = m
+    if m > cap:
+        return -m
+    src = _merge_runs(work, cap, runs)
+    w = 0
+    for k in range(m):
+        i = work[src + cap + k]
+        ux = star_xyz[3 * i]
+        uy = star_xyz[3 * i + 1]
+        uz = star_xyz[3 * i + 2]
+        if project:
+            on, x, y = _pixel(kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6], kc[7], kc[8], ux, uy, uz, margin, width,
+                              height)
+            if not on:
+                continue
+            out_x[w] = x
+            out_y[w] = y
+        out_rows[w] = work[src + k]
+        out_u[3 * w] = ux
+        out_u[3 * w + 1] = uy
+        out_u[3 * w + 2] = uz
+        w += 1
+    return w
 
 
 @cython.locals(total=cython.Py_ssize_t, p=cython.Py_ssize_t, w=cython.Py_ssize_t, k=cython.Py_ssize_t,
@@ -267,33 +344,45 @@ def fit_pairs(b: cython.double[:], r: cython.double[:], weight: cython.double[:]
     return sqrt(worst)
 
 
-@cython.locals(m=cython.Py_ssize_t, i=cython.Py_ssize_t, w=cython.Py_ssize_t, ux=cython.double, uy=cython.double,
-               uz=cython.double, hx=cython.double, hy=cython.double, z=cython.double, iz=cython.double,
-               x=cython.double, y=cython.double)
+@cython.cfunc
+@cython.inline
+@cython.locals(z=cython.double, hx=cython.double, hy=cython.double, iz=cython.double, x=cython.double,
+               y=cython.double)
+def _pixel(k0: cython.double, k1: cython.double, k2: cython.double, k3: cython.double, k4: cython.double,
+           k5: cython.double, k6: cython.double, k7: cython.double, k8: cython.double, ux: cython.double,
+           uy: cython.double, uz: cython.double, margin: cython.double, width: cython.double,
+           height: cython.double) -> tuple[cython.bint, cython.double, cython.double]:
+    """(on the detector, x, y) of the direction ``u`` through the pinhole camera ``k`` (the camera matrix times the
+    attitude, row-major): homogeneous ``h = k u``, pixel ``(h_x / h_z, h_y / h_z)`` for ``h_z > 1e-9``, on the
+    ``width`` x ``height`` detector grown by ``margin`` px. The nine elements come as C doubles, not a buffer: this
+    is called once a star."""
+    z = k6 * ux + k7 * uy + k8 * uz
+    if not z > 1e-9:
+        return False, 0.0, 0.0
+    hx = k0 * ux + k1 * uy + k2 * uz
+    hy = k3 * ux + k4 * uy + k5 * uz
+    iz = 1.0 / z
+    x = hx * iz
+    y = hy * iz
+    return (x >= -margin and x < width + margin and y >= -margin and y < height + margin), x, y
+
+
+@cython.locals(m=cython.Py_ssize_t, i=cython.Py_ssize_t, w=cython.Py_ssize_t, on=cython.bint, x=cython.double,
+               y=cython.double)
 def project_pinhole(u: cython.double[:], kc: cython.double[:], margin: cython.double, width: cython.double,
                     height: cython.double, limit: cython.Py_ssize_t, out_keep: cython.longlong[:],
                     out_x: cython.double[:], out_y: cython.double[:]) -> cython.Py_ssize_t:
-    """Pixels of the directions ``u`` (flat x, y, z) through the pinhole camera ``kc`` (the camera matrix times the
-    attitude, flat row-major): homogeneous ``h = kc u``, pixel ``(h_x / h_z, h_y / h_z)`` for ``h_z > 1e-9``. The
-    first ``limit`` directions (in order) that land on the ``width`` x ``height`` detector grown by ``margin`` px are
+    """Pixels of the directions ``u`` (flat x, y, z) through the pinhole camera ``kc`` (:func:`_pixel`). The first
+    ``limit`` directions (in order) that land on the ``width`` x ``height`` detector grown by ``margin`` px are
     written as (index into ``u``, x, y) to ``out_keep``, ``out_x``, ``out_y``; returns how many."""
     m = len(u) // 3
     w = 0
     for i in range(m):
         if w >= limit:
             break
-        ux = u[3 * i]
-        uy = u[3 * i + 1]
-        uz = u[3 * i + 2]
-        z = kc[6] * ux + kc[7] * uy + kc[8] * uz
-        if not z > 1e-9:
-            continue
-        hx = kc[0] * ux + kc[1] * uy + kc[2] * uz
-        hy = kc[3] * ux + kc[4] * uy + kc[5] * uz
-        iz = 1.0 / z
-        x = hx * iz
-        y = hy * iz
-        if x >= -margin and x < width + margin and y >= -margin and y < height + margin:
+        on, x, y = _pixel(kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6], kc[7], kc[8], u[3 * i], u[3 * i + 1],
+                          u[3 * i + 2], margin, width, height)
+        if on:
             out_keep[w] = i
             out_x[w] = x
             out_y[w] = y

@@ -37,24 +37,36 @@ def _as_args(module, *arrays):
         a.tolist() for a in arrays)
 
 
-def _cone(module, index_u: np.ndarray, b: np.ndarray, cos_cone: float) -> list[int]:
-    """Sorted rows of ``module.cone_rows`` over a cube-map index of the directions ``index_u``, called as
-    ``identify._SkyIndex.cone`` calls it."""
+def _cone(module, index_u: np.ndarray, b: np.ndarray, cos_cone: float, kc: np.ndarray | None = None,
+          cap: int | None = None):
+    """``module.cone_sorted`` over a cube-map index of the directions ``index_u``, called as
+    ``identify._SkyIndex._query`` calls it: (rows, directions, x, y) of what it kept, or minus the cone's count when it
+    holds more than ``cap``. ``kc``: the pinhole camera to project with (the 1024 x 768 detector)."""
     n = identify.CONE_CELLS_PER_FACE
     cell = identify._cube_cell_of(index_u, n)
     order = np.argsort(cell, kind="stable")
     starts = np.searchsorted(cell[order], np.arange(6 * n * n + 1)).astype(np.int64)
     centre, cos_rho, sin_rho = identify._cube_cells(n)
-    out, at = (np.zeros(len(index_u), np.int64), np.zeros(len(index_u), np.int64)) if compiled_paths.is_compiled(
-        module) else ([0] * len(index_u), [0] * len(index_u))
+    cap = len(index_u) if cap is None else cap
+    if compiled_paths.is_compiled(module):
+        work, rows, u, x, y = (np.zeros(4 * cap + 6 * n * n + 1, np.int64), np.zeros(cap, np.int64),
+                               np.zeros(3 * cap), np.zeros(cap), np.zeros(cap))
+    else:
+        work, rows, u, x, y = [0] * (4 * cap + 6 * n * n + 1), [0] * cap, [0.0] * (3 * cap), [0.0] * cap, [0.0] * cap
     chord = math.sqrt(max(2.0 - 2.0 * cos_cone, 0.0))
     bx, by, bz = b.tolist()
-    m = module.cone_rows(*_as_args(module, centre.ravel(), cos_rho, sin_rho, starts),
-                         *_as_args(module, index_u[order].ravel(), order.astype(np.int64)), bx, by, bz, cos_cone,
-                         math.sqrt(1.0 - cos_cone * cos_cone), chord * chord, out, at)
-    # Each row's position holds its own direction.
-    assert all(np.array_equal(index_u[order][int(at[i])], index_u[int(out[i])]) for i in range(m))
-    return sorted(int(r) for r in out[:m])
+    camera = np.zeros(9) if kc is None else np.ascontiguousarray(kc).ravel()
+    m = module.cone_sorted(*_as_args(module, centre.ravel(), cos_rho, sin_rho, starts),
+                           *_as_args(module, index_u[order].ravel(), order.astype(np.int64)), bx, by, bz, cos_cone,
+                           math.sqrt(1.0 - cos_cone * cos_cone), chord * chord, kc is not None,
+                           *_as_args(module, camera), 0.0, 1024.0, 768.0, cap, work, rows, u, x, y)
+    if m < 0:
+        return m
+    rows = [int(r) for r in rows[:m]]
+    # Each row comes with its own direction, to the bit.
+    assert np.asarray(u[: 3 * m], float).tobytes() == index_u[rows].tobytes()
+    return rows, np.asarray(u[: 3 * m], float).tobytes(), np.asarray(x[:m], float).tobytes(), np.asarray(
+        y[:m], float).tobytes()
 
 
 def _cone_cases(seed: int, count: int):
@@ -68,17 +80,82 @@ def _cone_cases(seed: int, count: int):
 
 
 def test_cone_is_every_star_within_the_chord(build) -> None:
+    """The cone is the brute-force chord test over every star, in ascending row (the runs of the cells merged)."""
     for u, b, cos_cone in _cone_cases(41, 40):
         chord = math.sqrt(max(2.0 - 2.0 * cos_cone, 0.0))
         d = u - b
         brute = [int(r) for r in np.flatnonzero((d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
                                                  <= chord * chord)]
-        assert _cone(build, u, b, cos_cone) == brute
+        assert _cone(build, u, b, cos_cone)[0] == brute
 
 
 def test_compiled_and_plain_cones_are_the_same(compiled) -> None:
     for u, b, cos_cone in _cone_cases(42, 30):
         assert _cone(compiled, u, b, cos_cone) == _cone(plain, u, b, cos_cone)
+
+
+def _cameras(seed: int, count: int):
+    """Cone cases with the pinhole camera (the default tracker's, 1024 x 768 px) of an attitude near the boresight."""
+    rng = np.random.default_rng(seed)
+    K = np.array(((2900.0, 0.0, 511.5), (0.0, 2900.0, 383.5), (0.0, 0.0, 1.0)))
+    for u, b, cos_cone in _cone_cases(seed, count):
+        # An attitude whose boresight (third row) is b, rolled at random.
+        x = np.cross(b, _unit(rng, 1)[0])
+        x /= np.linalg.norm(x)
+        C = np.array((x, np.cross(b, x), b))
+        yield u, b, cos_cone, K @ C
+
+
+def test_cone_projected_in_one_loop_is_the_cone_then_the_projection(build) -> None:
+    """``cone_sorted`` with a camera keeps what :func:`project_pinhole` keeps of the whole sorted cone, with the same
+    pixels to the bit: the verification's one loop is the cone query followed by the projection."""
+    kept = 0
+    for u, b, cos_cone, kc in _cameras(50, 40):
+        rows, _, _, _ = _cone(build, u, b, cos_cone)
+        cone_u = u[rows]
+        m = len(rows)
+        if compiled_paths.is_compiled(build):
+            keep, x, y = np.zeros(m, np.int64), np.zeros(m), np.zeros(m)
+        else:
+            keep, x, y = [0] * m, [0.0] * m, [0.0] * m
+        w = build.project_pinhole(*_as_args(build, cone_u.ravel(), kc.ravel()), 0.0, 1024.0, 768.0, m, keep, x, y)
+        want = ([rows[int(k)] for k in keep[:w]], cone_u[np.asarray(keep[:w], np.int64)].tobytes(),
+                np.asarray(x[:w], float).tobytes(), np.asarray(y[:w], float).tobytes())
+        assert _cone(build, u, b, cos_cone, kc) == want
+        kept += w
+    assert kept > 500  # most cases put stars on the detector (727 on these)
+
+
+def test_compiled_and_plain_projected_cones_are_the_same(compiled) -> None:
+    for u, b, cos_cone, kc in _cameras(51, 30):
+        assert _cone(compiled, u, b, cos_cone, kc) == _cone(plain, u, b, cos_cone, kc)
+
+
+def test_a_cone_larger_than_its_buffers_writes_nothing_and_says_how_large(build) -> None:
+    """A cone holding more stars than ``cap`` returns minus its count; buffers of that size then hold it all; and
+    the cone index grows its buffers so (its solutions do not depend on the first size)."""
+    for u, b, cos_cone in _cone_cases(52, 12):
+        rows = _cone(build, u, b, cos_cone)[0]
+        if len(rows) < 2:
+            continue
+        assert _cone(build, u, b, cos_cone, cap=len(rows) - 1) == -len(rows)
+        assert _cone(build, u, b, cos_cone, cap=len(rows))[0] == rows
+
+
+def test_the_cone_index_grows_its_buffers(monkeypatch) -> None:
+    rng = np.random.default_rng(53)
+
+    class Places:
+        u_N = _unit(rng, 5000)
+
+    monkeypatch.setattr(identify, "CONE_CAP", 8)
+    index = identify._SkyIndex(Places)
+    b = Places.u_N[0]
+    rows, U = index.cone(b, math.cos(math.radians(20.0)))
+    d = Places.u_N - b
+    chord2 = 2.0 - 2.0 * math.cos(math.radians(20.0))
+    assert rows.tolist() == np.flatnonzero(np.einsum("ij,ij->i", d, d) <= chord2).tolist()
+    assert U.tobytes() == Places.u_N[rows].tobytes() and index.cap == len(rows) > 8
 
 
 def _keys(module, u: np.ndarray, max_edge_cos: float, batch: int):
