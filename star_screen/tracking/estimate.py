@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AttitudeEstimate", "estimate_attitude", "estimate_attitude_robust", "attitude_error_S", "wahba_dcm"]
+__all__ = ["AttitudeEstimate", "estimate_attitude", "estimate_attitude_robust", "estimate_attitude_robust_weighted",
+           "attitude_error_S", "wahba_dcm"]
 
 
 @dataclass(frozen=True)
@@ -164,7 +165,12 @@ def estimate_attitude_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.nda
     Normalised residuals ``z = |res| / sigma`` of a first fit are Rayleigh distributed with scale
     ``s = median(z) / sqrt(2 ln 2)``; pairs with ``z > gate s`` are dropped and the rest refit."""
     a = 1.0 / sigma_rad**2
-    ba = b_S * a[:, None]
+    return estimate_attitude_robust_weighted(b_S, r_N, a, b_S * a[:, None], gate)
+
+
+def estimate_attitude_robust_weighted(b_S: np.ndarray, r_N: np.ndarray, a: np.ndarray, ba: np.ndarray, gate: float):
+    """:func:`estimate_attitude_robust` with the weights ``a = 1 / sigma^2`` and ``ba = b_S * a[:, None]`` given (a
+    caller that gathers the pairs can compute them in the same pass)."""
     C = wahba_dcm(b_S, r_N, a, ba)
     res = b_S - r_N @ C.T
     res2 = np.einsum("ij,ij->i", res, res)

@@ -60,7 +60,7 @@ from scipy.special import betainc
 import compiled_paths
 from star_screen.catalog import StarPlaces
 from star_screen.geometry import TrackerOptics
-from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust
+from star_screen.tracking.estimate import AttitudeEstimate, estimate_attitude_robust_weighted
 
 __all__ = ["PatternDatabase", "Match", "identify_lis", "identify_tracking", "verify", "false_match_probability"]
 
@@ -406,10 +406,26 @@ def verify(
 OUTLIER_GATE = 8.0
 
 
-def _estimate_robust(b_S: np.ndarray, r_N: np.ndarray, sigma_rad: np.ndarray):
-    """Final estimate from matched pairs with pairs beyond ``OUTLIER_GATE`` robust sigmas left out:
-    (estimate, kept indices into the pairs or ``None`` when all are kept)."""
-    return estimate_attitude_robust(b_S, r_N, sigma_rad, OUTLIER_GATE)
+def _estimate_robust(b_S: np.ndarray, U: np.ndarray, sigma_rad: np.ndarray, image: np.ndarray, catalog: np.ndarray):
+    """Final estimate from the pairs of image stars ``b_S[image]`` (sigmas ``sigma_rad[image]``) and catalog
+    directions ``U[catalog]``, with pairs beyond ``OUTLIER_GATE`` robust sigmas left out: (estimate, kept indices into
+    the pairs or ``None`` when all are kept). The pairs and their weights are gathered in one typed pass
+    (:func:`star_screen.tracking.lis_steps.gather_pairs`), each part of the block starting on 16 bytes as a fresh array
+    would."""
+    m = len(image)
+    step = 3 * m + (3 * m) % 2
+    at_r, at_a = step, 2 * step
+    at_ba = at_a + m + m % 2
+    if _LIS_COMPILED:
+        out = np.empty(at_ba + 3 * m)
+        _lis.gather_pairs(b_S.reshape(-1), U.reshape(-1), sigma_rad, image, catalog, at_r, at_a, at_ba, out)
+    else:
+        out = [0.0] * (at_ba + 3 * m)
+        _lis.gather_pairs(b_S.ravel().tolist(), U.ravel().tolist(), sigma_rad.tolist(), image.tolist(),
+                          catalog.tolist(), at_r, at_a, at_ba, out)
+        out = np.array(out)
+    return estimate_attitude_robust_weighted(out[: 3 * m].reshape(m, 3), out[at_r : at_r + 3 * m].reshape(m, 3),
+                                             out[at_a : at_a + m], out[at_ba:].reshape(m, 3), OUTLIER_GATE)
 
 
 def _refine(C, img_xy, b_S, sigma_rad, optics, field, radius_px):
@@ -425,7 +441,7 @@ def _refine(C, img_xy, b_S, sigma_rad, optics, field, radius_px):
     if len(ii) < 3:
         return None, ii, np.empty(0, np.int64)
     kj = k[cj]
-    est, keep = _estimate_robust(b_S[ii], U[kj], sigma_rad[ii])
+    est, keep = _estimate_robust(b_S, U, sigma_rad, ii, kj)
     ci = rows[kj]
     if keep is not None:
         ii, ci = ii[keep], ci[keep]
@@ -731,7 +747,7 @@ def identify_tracking(
     ci2 = cone[k1[cj2]]
     if len(ii2) < min_matches or pf > max_false_prob:
         return Match(None, ii2, ci2, n_all, pf, 1)
-    est2, keep = _estimate_robust(b_S[ii2], U[k1[cj2]], sigma_rad[ii2])
+    est2, keep = _estimate_robust(b_S, U, sigma_rad, ii2, k1[cj2])
     if keep is not None:
         ii2, ci2 = ii2[keep], ci2[keep]
     return Match(est2, ii2, ci2, n_all, pf, 1)
