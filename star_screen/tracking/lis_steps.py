@@ -20,6 +20,8 @@ radius. The attitude, covariance and residuals a solution reports are still nump
 
 from __future__ import annotations
 
+import math
+
 import cython
 from cython.cimports.libc.math import fabs, sqrt  # C's when compiled, Python's math otherwise: the same
 
@@ -405,8 +407,9 @@ def gather_pairs(b: cython.double[:], r: cython.double[:], sigma: cython.double[
     for t in range(m):
         i = image[t]
         j = catalog[t]
-        s = sigma[i]
-        a = 1.0 / (s * s)
+        s = sigma[i] * sigma[i]
+        # numpy's 1 / 0 is inf; Python's (and Cython's with Python division) would raise.
+        a = 1.0 / s if s != 0.0 else math.inf
         out[at_a + t] = a
         for c in range(3):
             out[3 * t + c] = b[3 * i + c]

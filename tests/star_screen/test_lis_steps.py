@@ -307,3 +307,75 @@ def test_lookup_is_the_k_d_tree_max_norm_ball_with_the_largest_separation(build)
 def test_compiled_and_plain_lookups_are_the_same(compiled) -> None:
     for _, _, grid, q, big in _lookup_cases(49, 100):
         assert _lookup(compiled, grid, q, float(big), 3) == _lookup(plain, grid, q, float(big), 3)
+
+
+def _gather(module, b, r, sigma, image, catalog):
+    m = len(image)
+    at_r, at_a, at_ba = 3 * m + 1, 6 * m + 2, 7 * m + 3  # odd offsets too: the caller's padding is not needed here
+    out = np.zeros(at_ba + 3 * m) if compiled_paths.is_compiled(module) else [0.0] * (at_ba + 3 * m)
+    module.gather_pairs(*_as_args(module, b.ravel(), r.ravel(), sigma, image, catalog), at_r, at_a, at_ba, out)
+    out = np.asarray(out, float)
+    return (out[: 3 * m].reshape(m, 3), out[at_r : at_r + 3 * m].reshape(m, 3), out[at_a : at_a + m],
+            out[at_ba:].reshape(m, 3))
+
+
+def _gather_cases(seed: int, count: int):
+    rng = np.random.default_rng(seed)
+    for k in range(count):
+        n, c = int(rng.integers(4, 400)), int(rng.integers(4, 900))
+        b, r = _unit(rng, n), _unit(rng, c)
+        # Centroid sigmas as the tracker gives them (1e-6 to 1e-4 rad), and some extreme ones.
+        sigma = 10.0 ** rng.uniform(-6.0, -4.0, n)
+        if k % 4 == 0:
+            sigma[:3] = (1e-160, 1e155, 5e-324)
+        m = int(rng.integers(0, n))
+        yield b, r, sigma, rng.choice(n, m, replace=False).astype(np.int64), rng.integers(0, c, m).astype(np.int64)
+
+
+def test_gathered_pairs_are_numpys_to_the_bit(build) -> None:
+    """The gathered directions and weights are numpy's ``b[i]``, ``r[j]``, ``1.0 / sigma[i] ** 2`` and
+    ``b[i] * a[:, None]`` to the bit (overflow and underflow of the weight included)."""
+    with np.errstate(over="ignore", divide="ignore"):
+        for b, r, sigma, image, catalog in _gather_cases(54, 40):
+            a = 1.0 / sigma[image] ** 2
+            want = (b[image], r[catalog], a, b[image] * a[:, None])
+            got = _gather(build, b, r, sigma, image, catalog)
+            assert [g.tobytes() for g in got] == [w.tobytes() for w in want]
+
+
+def test_compiled_and_plain_gathered_pairs_are_the_same(compiled) -> None:
+    for b, r, sigma, image, catalog in _gather_cases(55, 20):
+        got_c, got_p = _gather(compiled, b, r, sigma, image, catalog), _gather(plain, b, r, sigma, image, catalog)
+        assert [g.tobytes() for g in got_c] == [g.tobytes() for g in got_p]
+
+
+def test_final_estimate_of_gathered_pairs_is_the_estimate_of_numpys_pairs(build, monkeypatch) -> None:
+    """``identify._estimate_robust`` (pairs gathered in one block) gives the estimate of
+    ``estimate_attitude_robust`` on the pairs numpy gathers, to the bit: attitude, covariance, residuals, kept pairs
+    (outliers among the pairs, so the gate drops some in part of the cases)."""
+    from star_screen.tracking.estimate import estimate_attitude_robust
+
+    monkeypatch.setattr(identify, "_lis", build)
+    monkeypatch.setattr(identify, "_LIS_COMPILED", compiled_paths.is_compiled(build))
+    rng = np.random.default_rng(56)
+    dropped = 0
+    for k in range(30):
+        n = int(rng.integers(8, 200))
+        C = dcm(quat_from_axis_angle(_unit(rng, 1)[0], rng.uniform(0.0, math.pi)))
+        r = _unit(rng, n)
+        sigma = 10.0 ** rng.uniform(-6.0, -4.5, n)
+        b = r @ C.T + rng.normal(size=(n, 3)) * sigma[:, None]
+        b[: k % 3] += 1e-2  # outliers
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        image = rng.permutation(n)[: n - 2].astype(np.int64)
+        catalog = image.copy()
+        got, keep_got = identify._estimate_robust(b, r, sigma, image, catalog)
+        want, keep_want = estimate_attitude_robust(b[image], r[catalog], sigma[image], identify.OUTLIER_GATE)
+        assert (keep_got is None) == (keep_want is None)
+        if keep_got is not None:
+            assert keep_got.tolist() == keep_want.tolist()
+            dropped += 1
+        for name in ("q_SN", "dcm_SN", "cov_S", "residual_rad"):
+            assert getattr(got, name).tobytes() == getattr(want, name).tobytes(), name
+        assert (got.sigma_cross_rad, got.sigma_roll_rad) == (want.sigma_cross_rad, want.sigma_roll_rad)
+    assert dropped >= 10
