@@ -201,7 +201,7 @@ def _keep_only_run_files(out: Path, prefix: str = "") -> None:
                 os.unlink(entry.path)
 
 
-def _watchdog(task: dict) -> threading.Timer | None:
+def _watchdog(task: dict) -> _CaseLimit | None:
     """On a Dask worker, the per-case limit: a case still running after ``exit_after_s`` ends its worker process
     (a thread cannot be stopped); the nanny starts a new one and the scheduler's retries end in KilledWorker,
     which the client records as an error. The local pool enforces the limit from the client instead."""
@@ -209,16 +209,50 @@ def _watchdog(task: dict) -> threading.Timer | None:
     if not limit or task.get("client_pid") == os.getpid():  # never end the operator's own process
         return None
     warm()  # a worker the nanny restarted has imported nothing yet: that is not the case's time
+    _CASE_LIMIT.arm(limit, task["index"])
+    return _CASE_LIMIT
 
-    def overrun():
-        print(f"stand: campaign case {task['index']} still running after the per-case limit of {limit:g} s; "
-              "ending this worker process", file=sys.stderr, flush=True)
-        os._exit(EXIT_OVERRUN)
 
-    timer = threading.Timer(limit, overrun)
-    timer.daemon = True
-    timer.start()
-    return timer
+class _CaseLimit:
+    """The per-case limit of a Dask worker process: one thread for the process's life, armed with each case's
+    deadline and disarmed when the case ends. A thread started per case (``threading.Timer``) cost every case a
+    thread's start and end on the worker (docs/campaigns.md, "Measured"); this one sleeps until the earliest
+    deadline it was told of, and wakes before it only when a case comes with an earlier one."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._case: tuple[float, float, int] | None = None  # (deadline on time.monotonic, limit s, case index)
+        self._wake_at: float | None = None  # when the thread wakes next (None: when told)
+        self._thread: threading.Thread | None = None
+
+    def arm(self, limit_s: float, index: int) -> None:
+        deadline = time.monotonic() + limit_s
+        with self._cond:
+            self._case = (deadline, limit_s, index)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._watch, name="stand-case-limit", daemon=True)
+                self._thread.start()
+            elif self._wake_at is None or self._wake_at > deadline:
+                self._cond.notify()
+
+    def cancel(self) -> None:
+        with self._cond:  # the thread, if awake at the old deadline, finds no case (or a later one) and sleeps on
+            self._case = None
+
+    def _watch(self) -> None:
+        with self._cond:
+            while True:
+                case = self._case
+                now = time.monotonic()
+                if case is not None and now >= case[0]:
+                    print(f"stand: campaign case {case[2]} still running after the per-case limit of {case[1]:g} s; "
+                          "ending this worker process", file=sys.stderr, flush=True)
+                    os._exit(EXIT_OVERRUN)
+                self._wake_at = None if case is None else case[0]
+                self._cond.wait(None if case is None else case[0] - now)
+
+
+_CASE_LIMIT = _CaseLimit()
 
 
 # ------------------------------------------------------------------------------------------------ executors
