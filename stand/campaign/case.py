@@ -34,6 +34,9 @@ EXIT_OVERRUN = 70
 
 #: Files of a run that travel back from the worker (plots are drawn for the campaign, not per run).
 RUN_FILES = ("summary.json", "events.jsonl", "telemetry/schema.json", "telemetry/rows.f64")
+#: The file beside a Dask worker's whole case that holds its record's writing CPU time (``publish``), removed by the
+#: client as it takes the case.
+DONE_TIMING = ".record_write_cpu_s"
 #: Summary keys that depend on the wall clock, left out when two runs of a case are compared.
 WALL_CLOCK_KEYS = ("wall_time_s", "realtime_factor", "source")
 
@@ -95,7 +98,7 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     t_start, cpu_start = time.time(), time.process_time()
     if "data" not in task:
         task = case_task(task["spec"], task["index"], **{k: v for k, v in task.items() if k not in ("spec", "index")})
-    dest = _destination(task)
+    part, dest = task.get("dest"), _destination(task)
     task = {**task, "dest": dest}
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
@@ -130,7 +133,46 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     except OSError:  # the client writes it, and says so if it cannot either
         return {"record": rec, "files": files, "dir": str(out)}
     timing = {**rec["timing"], "record_write_cpu_s": time.process_time() - cpu_write}
+    if dest != part:  # a Dask worker's own folder: handed to the client through the campaign folder, not over Dask
+        return {"record": {**rec, "timing": timing}, "files": files, "written": True,
+                "dir": publish(out, part, timing["record_write_cpu_s"])}
     return {"record": {**rec, "timing": timing}, "files": files, "dir": str(out), "written": True}
+
+
+def publish(folder: Path, part: str, record_write_cpu_s: float) -> str:
+    """Make a Dask worker's whole case ``folder`` (``NNNNN.part.*``, its ``case.json`` written) the case's
+    ``NNNNN.part.done`` (``done_dir``), with the CPU time its record took to write beside it (``DONE_TIMING``: the
+    record cannot hold it), and return that folder. The client, told by the scheduler that the case's task ended,
+    takes the case from there (``take_done``) instead of fetching its record through the scheduler. The rename is
+    atomic: the client sees a whole case or none. Where a second run of the case (the scheduler may start a case
+    twice) made it first, this one goes: both are the same case, bit for bit."""
+    done = done_dir(part)
+    (folder / DONE_TIMING).write_text(repr(record_write_cpu_s))
+    try:
+        os.rename(folder, done)
+    except OSError:  # the other run's folder is there and not empty
+        shutil.rmtree(folder, ignore_errors=True)
+    return done
+
+
+def done_dir(part: str) -> str:
+    """Where a Dask worker leaves case ``part`` (its ``NNNNN.part`` path) whole for the client (``publish``)."""
+    return f"{part}.done"
+
+
+def take_done(part: str) -> dict | None:
+    """The result of case ``part`` (its ``NNNNN.part`` path) that a Dask worker left whole (``publish``), the
+    worker's CPU time writing its record taken back into it (and its file removed from the case's folder); None where
+    no worker left it there (it does not see the campaign folder, or the case ended in an error record)."""
+    done = Path(done_dir(part))
+    try:
+        cpu_s = float((done / DONE_TIMING).read_text())
+        rec = json.loads((done / "case.json").read_bytes())
+        os.unlink(done / DONE_TIMING)
+    except (OSError, ValueError):
+        return None
+    rec["timing"]["record_write_cpu_s"] = cpu_s
+    return {"record": rec, "files": {}, "dir": str(done), "written": True}
 
 
 def _destination(task: dict) -> str | None:
