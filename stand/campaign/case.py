@@ -142,17 +142,24 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
 def publish(folder: Path, part: str, record_write_cpu_s: float) -> str:
     """Make a Dask worker's whole case ``folder`` (``NNNNN.part.*``, its ``case.json`` written) the case's
     ``NNNNN.part.done`` (``done_dir``), with the CPU time its record took to write beside it (``DONE_TIMING``: the
-    record cannot hold it), and return that folder. The client, told by the scheduler that the case's task ended,
-    takes the case from there (``take_done``) instead of fetching its record through the scheduler. The rename is
-    atomic: the client sees a whole case or none. Where a second run of the case (the scheduler may start a case
-    twice) made it first, this one goes: both are the same case, bit for bit."""
-    done = done_dir(part)
-    (folder / DONE_TIMING).write_text(repr(record_write_cpu_s))
+    record cannot hold it), and return that folder (``folder`` itself where that fails). The client, told by the
+    scheduler that the case's task ended, takes the case from there (``take_done``) instead of fetching its record
+    through the scheduler. The rename is atomic: the client sees a whole case or none. Where a second run of the
+    case (the scheduler may start a case twice) made it first, this one goes: both are the same case, bit for
+    bit."""
+    done, timing = done_dir(part), folder / DONE_TIMING
     try:
+        timing.write_text(repr(record_write_cpu_s))
         os.rename(folder, done)
-    except OSError:  # the other run's folder is there and not empty
-        shutil.rmtree(folder, ignore_errors=True)
-    return done
+        return done
+    except OSError:
+        if os.path.isfile(os.path.join(done, "case.json")):  # another run of this case made it first
+            shutil.rmtree(folder, ignore_errors=True)
+            return done
+    # Neither (a full disk, a rename refused): the case stays in this worker's folder, as before, and the client
+    # fetches its record through the scheduler and renames the folder.
+    timing.unlink(missing_ok=True)
+    return str(folder)
 
 
 def done_dir(part: str) -> str:

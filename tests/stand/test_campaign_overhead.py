@@ -503,3 +503,31 @@ def test_a_dask_campaign_takes_the_cases_its_workers_left_whole_without_fetching
     for k in range(runs):
         assert _files(cm.case_dir(tmp_path / "dask", k)) == CASE_FILES
     assert result["execution"]["worker_record_write_cpu_s"] > 0.0
+
+
+def test_a_dask_worker_that_cannot_leave_its_case_as_done_keeps_it_in_its_own_folder_for_the_client(
+        tmp_path, monkeypatch):
+    """The rename to ``NNNNN.part.done`` refused (and no other run of the case there): the case stays whole in the
+    worker's own folder without the timing file, as before this pass, and the client, which then fetches the record
+    through the scheduler, makes it count."""
+    from pathlib import Path
+
+    from stand.campaign import case, store
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    out.mkdir()
+    task = {"index": 1, "spec": spec, "dest": str(part_dir(out, 1)), "token": store.write_token(out)}
+
+    def refused(src, dst):
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(os, "rename", refused)
+    kept = cm.run_case(task)
+    assert kept["written"] and kept["dir"].startswith(task["dest"] + ".") and kept["dir"] != task["dest"] + ".done"
+    assert _files(Path(kept["dir"])) == CASE_FILES
+    assert case.take_done(task["dest"]) is None
+    monkeypatch.undo()
+    store._write_case(out, kept, kept["record"]["timing"]["worker_end"])
+    assert sorted(p.name for p in (out / "cases").iterdir()) == ["00001"]
+    assert _files(cm.case_dir(out, 1)) == CASE_FILES
