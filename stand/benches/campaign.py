@@ -170,15 +170,20 @@ class _ClusterProcess:
 
 def _cluster_main(conn, workers: int, http_address: str) -> None:
     """The cluster process of ``_ClusterProcess``: answers its questions (``ask``) until the pipe closes. Its workers
-    run with the settings docs/campaigns.md recommends for a campaign's workers (``WORKER_CONFIG``)."""
+    run with the settings docs/campaigns.md recommends for a campaign's workers (``WORKER_CONFIG``, and
+    ``NANNY_CONFIG`` for the environment their nannies start them in)."""
+    import os
     import time
 
+    from stand.campaign.dask_executor import NANNY_CONFIG, WORKER_CONFIG, _warm, dask_worker_env
+
+    # As ``dask worker`` is started (docs/campaigns.md): a worker process reads some settings when it imports Dask
+    # (distributed.comm.offload), before its nanny hands it the configuration below.
+    os.environ.update(dask_worker_env())
     import dask
     from distributed import Client, LocalCluster
 
-    from stand.campaign.dask_executor import WORKER_CONFIG, _warm
-
-    with dask.config.set(WORKER_CONFIG), \
+    with dask.config.set({**WORKER_CONFIG, **NANNY_CONFIG}), \
             LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                          dashboard_address=http_address) as cluster, \
             Client(cluster, set_as_default=False) as client:  # never port 8787

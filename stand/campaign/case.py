@@ -34,6 +34,9 @@ EXIT_OVERRUN = 70
 
 #: Files of a run that travel back from the worker (plots are drawn for the campaign, not per run).
 RUN_FILES = ("summary.json", "events.jsonl", "telemetry/schema.json", "telemetry/rows.f64")
+#: The file beside a Dask worker's whole case that holds its record's writing CPU time (``publish``), removed by the
+#: client as it takes the case.
+DONE_TIMING = ".record_write_cpu_s"
 #: Summary keys that depend on the wall clock, left out when two runs of a case are compared.
 WALL_CLOCK_KEYS = ("wall_time_s", "realtime_factor", "source")
 
@@ -95,7 +98,7 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     t_start, cpu_start = time.time(), time.process_time()
     if "data" not in task:
         task = case_task(task["spec"], task["index"], **{k: v for k, v in task.items() if k not in ("spec", "index")})
-    dest = _destination(task)
+    part, dest = task.get("dest"), _destination(task)
     task = {**task, "dest": dest}
     with _RUN_LOCK, (contextlib.nullcontext(dest) if dest else tempfile.TemporaryDirectory(prefix="stand-case-")
                      ) as tmp:
@@ -130,7 +133,53 @@ def run_case(task: dict, *, interruptible: bool = False) -> dict:
     except OSError:  # the client writes it, and says so if it cannot either
         return {"record": rec, "files": files, "dir": str(out)}
     timing = {**rec["timing"], "record_write_cpu_s": time.process_time() - cpu_write}
+    if dest != part:  # a Dask worker's own folder: handed to the client through the campaign folder, not over Dask
+        return {"record": {**rec, "timing": timing}, "files": files, "written": True,
+                "dir": publish(out, part, timing["record_write_cpu_s"])}
     return {"record": {**rec, "timing": timing}, "files": files, "dir": str(out), "written": True}
+
+
+def publish(folder: Path, part: str, record_write_cpu_s: float) -> str:
+    """Make a Dask worker's whole case ``folder`` (``NNNNN.part.*``, its ``case.json`` written) the case's
+    ``NNNNN.part.done`` (``done_dir``), with the CPU time its record took to write beside it (``DONE_TIMING``: the
+    record cannot hold it), and return that folder (``folder`` itself where that fails). The client, told by the
+    scheduler that the case's task ended, takes the case from there (``take_done``) instead of fetching its record
+    through the scheduler. The rename is atomic: the client sees a whole case or none. Where a second run of the
+    case (the scheduler may start a case twice) made it first, this one goes: both are the same case, bit for
+    bit."""
+    done, timing = done_dir(part), folder / DONE_TIMING
+    try:
+        timing.write_text(repr(record_write_cpu_s))
+        os.rename(folder, done)
+        return done
+    except OSError:
+        if os.path.isfile(os.path.join(done, "case.json")):  # another run of this case made it first
+            shutil.rmtree(folder, ignore_errors=True)
+            return done
+    # Neither (a full disk, a rename refused): the case stays in this worker's folder, as before, and the client
+    # fetches its record through the scheduler and renames the folder.
+    timing.unlink(missing_ok=True)
+    return str(folder)
+
+
+def done_dir(part: str) -> str:
+    """Where a Dask worker leaves case ``part`` (its ``NNNNN.part`` path) whole for the client (``publish``)."""
+    return f"{part}.done"
+
+
+def take_done(part: str) -> dict | None:
+    """The result of case ``part`` (its ``NNNNN.part`` path) that a Dask worker left whole (``publish``), the
+    worker's CPU time writing its record taken back into it (and its file removed from the case's folder); None where
+    no worker left it there (it does not see the campaign folder, or the case ended in an error record)."""
+    done = Path(done_dir(part))
+    try:
+        cpu_s = float((done / DONE_TIMING).read_text())
+        rec = json.loads((done / "case.json").read_bytes())
+        os.unlink(done / DONE_TIMING)
+    except (OSError, ValueError):
+        return None
+    rec["timing"]["record_write_cpu_s"] = cpu_s
+    return {"record": rec, "files": {}, "dir": str(done), "written": True}
 
 
 def _destination(task: dict) -> str | None:
@@ -201,7 +250,7 @@ def _keep_only_run_files(out: Path, prefix: str = "") -> None:
                 os.unlink(entry.path)
 
 
-def _watchdog(task: dict) -> threading.Timer | None:
+def _watchdog(task: dict) -> _CaseLimit | None:
     """On a Dask worker, the per-case limit: a case still running after ``exit_after_s`` ends its worker process
     (a thread cannot be stopped); the nanny starts a new one and the scheduler's retries end in KilledWorker,
     which the client records as an error. The local pool enforces the limit from the client instead."""
@@ -209,16 +258,50 @@ def _watchdog(task: dict) -> threading.Timer | None:
     if not limit or task.get("client_pid") == os.getpid():  # never end the operator's own process
         return None
     warm()  # a worker the nanny restarted has imported nothing yet: that is not the case's time
+    _CASE_LIMIT.arm(limit, task["index"])
+    return _CASE_LIMIT
 
-    def overrun():
-        print(f"stand: campaign case {task['index']} still running after the per-case limit of {limit:g} s; "
-              "ending this worker process", file=sys.stderr, flush=True)
-        os._exit(EXIT_OVERRUN)
 
-    timer = threading.Timer(limit, overrun)
-    timer.daemon = True
-    timer.start()
-    return timer
+class _CaseLimit:
+    """The per-case limit of a Dask worker process: one thread for the process's life, armed with each case's
+    deadline and disarmed when the case ends. A thread started per case (``threading.Timer``) cost every case a
+    thread's start and end on the worker (docs/campaigns.md, "Measured"); this one sleeps until the earliest
+    deadline it was told of, and wakes before it only when a case comes with an earlier one."""
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._case: tuple[float, float, int] | None = None  # (deadline on time.monotonic, limit s, case index)
+        self._wake_at: float | None = None  # when the thread wakes next (None: when told)
+        self._thread: threading.Thread | None = None
+
+    def arm(self, limit_s: float, index: int) -> None:
+        deadline = time.monotonic() + limit_s
+        with self._cond:
+            self._case = (deadline, limit_s, index)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._watch, name="stand-case-limit", daemon=True)
+                self._thread.start()
+            elif self._wake_at is None or self._wake_at > deadline:
+                self._cond.notify()
+
+    def cancel(self) -> None:
+        with self._cond:  # the thread, if awake at the old deadline, finds no case (or a later one) and sleeps on
+            self._case = None
+
+    def _watch(self) -> None:
+        with self._cond:
+            while True:
+                case = self._case
+                now = time.monotonic()
+                if case is not None and now >= case[0]:
+                    print(f"stand: campaign case {case[2]} still running after the per-case limit of {case[1]:g} s; "
+                          "ending this worker process", file=sys.stderr, flush=True)
+                    os._exit(EXIT_OVERRUN)
+                self._wake_at = None if case is None else case[0]
+                self._cond.wait(None if case is None else case[0] - now)
+
+
+_CASE_LIMIT = _CaseLimit()
 
 
 # ------------------------------------------------------------------------------------------------ executors

@@ -58,13 +58,15 @@ def test_workers_on_the_recommended_settings_get_no_advice_and_one_costly_settin
     from stand.campaign.dask_executor import WORKER_CONFIG, dask_worker_env, worker_settings
 
     good = {"memory_monitor": 1000.0, "monitor": 5000.0, "tick": 1000.0, "heartbeat": 1000.0}
-    assert worker_settings({"w1": good, "w2": {**good, "tick": 2000.0}}) == {
-        "dask_worker_periodic_ms": {"profile": None, "memory_monitor": 1000.0, "monitor": 5000.0, "tick": 1000.0}}
+    assert worker_settings({"w1": good, "w2": {**good, "tick": 2000.0}}, {"w1": None, "w2": None}) == {
+        "dask_worker_periodic_ms": {"profile": None, "memory_monitor": 1000.0, "monitor": 5000.0, "tick": 1000.0},
+        "dask_worker_malloc_trim_threshold": []}
     one = worker_settings({"w1": good, "w2": {**good, "profile": 10.0}})
     assert one["dask_worker_periodic_ms"]["profile"] == 10.0
     assert "start them with DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False" in one["dask_worker_advice"]
     assert "TICK" not in one["dask_worker_advice"] and "MONITOR" not in one["dask_worker_advice"]
-    assert worker_settings({}) == {"dask_worker_periodic_ms": dict.fromkeys(good.keys() - {"heartbeat"} | {"profile"})}
+    assert worker_settings({}) == {"dask_worker_periodic_ms": dict.fromkeys(good.keys() - {"heartbeat"} | {"profile"}),
+                                   "dask_worker_malloc_trim_threshold": []}
     # Each variable is what Dask reads back as the setting.
     import dask
 
@@ -99,3 +101,43 @@ def test_the_dask_client_s_own_thread_waits_on_no_dask_call_per_case(tmp_path, m
             assert result["status"] == "complete" and result["finished"] == runs
             counts.append(list(calls))
     assert len(counts[0]) == len(counts[1]), counts
+
+
+@pytest.mark.slow
+def test_the_campaign_bench_s_dask_workers_run_without_the_nanny_s_malloc_trim_threshold(monkeypatch):
+    """Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536, which maps and unmaps every large buffer of
+    every case (docs/campaigns.md): the bench's cluster leaves it unset (NANNY_CONFIG)."""
+    import os
+
+    import distributed
+
+    from stand.benches.campaign import _ClusterProcess
+    from stand.campaign.dask_executor import MALLOC_TRIM_VARIABLE
+
+    # A nanny sets the variable in its own process too (os.environ.update): an earlier test's LocalCluster in this
+    # process leaves it here, where the bench's cluster process would inherit it; a shell has none.
+    monkeypatch.delenv(MALLOC_TRIM_VARIABLE, raising=False)
+
+    with _ClusterProcess(workers=1) as cluster, \
+            distributed.Client(cluster.address, timeout=30, set_as_default=False) as client:
+        (trim,) = client.run(os.environ.get, MALLOC_TRIM_VARIABLE).values()
+    assert trim is None
+
+
+def test_workers_with_the_nanny_s_malloc_trim_threshold_are_recorded_and_told_how_to_unset_it():
+    from stand.campaign.dask_executor import NANNY_CONFIG, worker_settings
+
+    good = {"memory_monitor": 1000.0, "monitor": 5000.0, "tick": 1000.0}
+    out = worker_settings({"w1": good, "w2": good}, {"w1": "65536", "w2": None})
+    assert out["dask_worker_malloc_trim_threshold"] == ["65536"]
+    advice = out["dask_worker_advice"]
+    assert "MALLOC_TRIM_THRESHOLD_=65536" in advice
+    assert "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_ to null" in advice
+    assert "PROFILE" not in advice  # the periodic settings are the recommended ones: not named
+    # The setting is the one Dask's nanny reads: a None leaves the variable out of the worker's environment.
+    import dask
+    from distributed.nanny import _get_env_variables
+
+    with dask.config.set(NANNY_CONFIG):
+        assert "MALLOC_TRIM_THRESHOLD_" not in _get_env_variables("distributed.nanny.pre-spawn-environ")
+    assert _get_env_variables("distributed.nanny.pre-spawn-environ").get("MALLOC_TRIM_THRESHOLD_") == "65536"

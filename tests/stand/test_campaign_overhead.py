@@ -233,23 +233,33 @@ def test_a_case_the_scenario_refuses_is_that_case_s_error_found_by_its_dask_work
 def test_a_dask_worker_writes_the_case_where_it_sees_the_campaign_folder_else_sends_the_files(tmp_path):
     """A Dask worker is told where the case goes and the session's token: reading the same token in the campaign
     folder (this machine, a shared file system), it writes the case in a folder of its own beside the case's
-    ``.part`` (the scheduler may run a case twice at once) and sends the record alone, which the client renames;
-    elsewhere it runs in a temporary folder and sends the files, as before."""
-    from stand.campaign import store
+    ``.part`` (the scheduler may run a case twice at once) and leaves it whole as ``NNNNN.part.done``, which the
+    client takes (the record from its case.json, the record's writing CPU time from the file beside it) and renames;
+    a second run of the same case finds it there and leaves it: one case, not two, none lost. Elsewhere the worker
+    runs in a temporary folder and sends the files, as before."""
+    from stand.campaign import case, store
 
     spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
     out = tmp_path / "camp"
     out.mkdir()
     token = store.write_token(out)
-    task = {"index": 2, "spec": spec, "dest": str(part_dir(out, 2)), "token": token}
+    part = str(part_dir(out, 2))
+    task = {"index": 2, "spec": spec, "dest": part, "token": token}
     sent = cm.run_case({**task, "token": "0" * 32})  # a worker that does not see this folder
     assert set(sent["files"]) == set(cm.RUN_FILES) and "dir" not in sent and not (out / "cases").exists()
+    assert case.take_done(part) is None  # nothing left there: the client fetches that answer through Dask
     wrote = cm.run_case(task)
     folder = wrote["dir"]
-    assert wrote["files"] == {} and wrote["written"] and folder.startswith(str(part_dir(out, 2)) + ".")
-    assert _files(tmp_path / folder) == CASE_FILES
+    assert wrote["files"] == {} and wrote["written"] and folder == part + ".done"
+    assert _files(tmp_path / folder) == CASE_FILES | {case.DONE_TIMING}
     assert wrote["record"]["digest"] == sent["record"]["digest"]
-    store._write_case(out, wrote, wrote["record"]["timing"]["worker_end"])
+    again = cm.run_case(task)  # the scheduler ran it a second time: the first whole folder stays, this one goes
+    assert again["dir"] == folder and again["record"]["digest"] == wrote["record"]["digest"]
+    assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002.part.done"]
+    taken = case.take_done(part)
+    assert taken["record"] == wrote["record"] and taken["dir"] == folder and taken["written"]
+    assert _files(tmp_path / folder) == CASE_FILES
+    store._write_case(out, taken, taken["record"]["timing"]["worker_end"])
     assert sorted(p.name for p in (out / "cases").iterdir()) == ["00002"]
     assert _files(cm.case_dir(out, 2)) == CASE_FILES
     assert (cm.case_dir(out, 2) / "telemetry/rows.f64").read_bytes() == sent["files"]["telemetry/rows.f64"]
@@ -461,3 +471,63 @@ def test_the_client_reads_an_answer_without_polling_its_pipe_again(monkeypatch):
     assert [i for i, _, _ in answers] == [0, 1, 2]
     assert all(reason is None and result["record"]["status"] == "completed" for _, result, reason in answers)
     assert polls == []
+
+
+@pytest.mark.slow
+def test_a_dask_campaign_takes_the_cases_its_workers_left_whole_without_fetching_them(tmp_path, monkeypatch):
+    """Workers that see the campaign folder leave each case whole there (``NNNNN.part.done``): the client takes it
+    from there as soon as the scheduler says the case's task ended, and fetches no answer through the scheduler (it
+    fetched every case's record before); every case is there once, as the local pool writes it, and the record's
+    writing CPU time is still counted."""
+    import distributed
+    from distributed.client import Client
+
+    fetched: list[int] = []
+    real_gather = Client._gather
+
+    async def counted(self, futures, *args, **kwargs):
+        fetched.append(len(futures))
+        return await real_gather(self, futures, *args, **kwargs)
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    runs = 4
+    local = cm.run_campaign(spec, tmp_path / "local", runs, workers=0, plots=False)
+    monkeypatch.setattr(Client, "_gather", counted)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=cm.DASK_HTTP_ADDRESS) as cluster:
+        result = cm.run_campaign(spec, tmp_path / "dask", runs, scheduler=cluster.scheduler_address, plots=False)
+    assert fetched == []
+    assert result["status"] == "complete" and result["finished"] == runs and not result["execution"]["lost"]
+    assert [c["digest"] for c in result["cases"]] == [c["digest"] for c in local["cases"]]
+    assert sorted(p.name for p in (tmp_path / "dask" / "cases").iterdir()) == [f"{k:05d}" for k in range(runs)]
+    for k in range(runs):
+        assert _files(cm.case_dir(tmp_path / "dask", k)) == CASE_FILES
+    assert result["execution"]["worker_record_write_cpu_s"] > 0.0
+
+
+def test_a_dask_worker_that_cannot_leave_its_case_as_done_keeps_it_in_its_own_folder_for_the_client(
+        tmp_path, monkeypatch):
+    """The rename to ``NNNNN.part.done`` refused (and no other run of the case there): the case stays whole in the
+    worker's own folder without the timing file, as before this pass, and the client, which then fetches the record
+    through the scheduler, makes it count."""
+    from pathlib import Path
+
+    from stand.campaign import case, store
+
+    spec = cm.make_spec("detumble", SCENARIO_DIR / "detumble_dispersions.toml", duration_s=SHORT_S)
+    out = tmp_path / "camp"
+    out.mkdir()
+    task = {"index": 1, "spec": spec, "dest": str(part_dir(out, 1)), "token": store.write_token(out)}
+
+    def refused(src, dst):
+        raise OSError(18, "Invalid cross-device link")
+
+    monkeypatch.setattr(os, "rename", refused)
+    kept = cm.run_case(task)
+    assert kept["written"] and kept["dir"].startswith(task["dest"] + ".") and kept["dir"] != task["dest"] + ".done"
+    assert _files(Path(kept["dir"])) == CASE_FILES
+    assert case.take_done(task["dest"]) is None
+    monkeypatch.undo()
+    store._write_case(out, kept, kept["record"]["timing"]["worker_end"])
+    assert sorted(p.name for p in (out / "cases").iterdir()) == ["00001"]
+    assert _files(cm.case_dir(out, 1)) == CASE_FILES
