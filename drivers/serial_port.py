@@ -494,7 +494,7 @@ class SerialHost(SerialEndpoint):
         try:
             n = port.in_waiting
             if n:
-                return port.read(n if limit is None else min(n, limit))
+                return port.read(n if limit is None or n < limit else limit)  # min(n, limit), without its call
             if not block:
                 return b""
             data = port.read(1)
