@@ -499,7 +499,8 @@ class DatagramEmulator(DeviceFaults, SerialServer):
             s = dev_ref + (t_s - t_ref)
         if self._clock_fault is not None:
             s += self._clock_fault.offset_s(t_s)
-        return max(round(s * 1e6), 0)
+        us = round(s * 1e6)
+        return us if us > 0 else 0  # max(us, 0) without its call
 
     # -- reboot (drivers.device_faults) ---------------------------------------------------------
 

@@ -142,6 +142,9 @@ class SlipDecoder:
                 del buf[: i + 1]
                 self._dropping = False
                 continue
+            if buf[0] == END:  # an idle END, as every frame opens with one: take_frame would consume it alone
+                del buf[:1]
+                continue
             consumed, body, error = take_frame(buf, self.max_body)
             if consumed == 0:
                 break

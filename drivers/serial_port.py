@@ -154,7 +154,11 @@ class _LineCondition(threading.Condition):
     only when one waits (the stand's own loop, the usual reader and writer, never does)."""
 
     def __init__(self) -> None:
-        super().__init__()
+        lock = threading.RLock()
+        super().__init__(lock)
+        #: The line's lock itself: ``with line.lock`` takes it without the Condition's own ``__enter__`` and
+        #: ``__exit__``, two Python-level calls for each read and write of the line.
+        self.lock = lock
         self.waiting = 0
 
     def wait_counted(self, timeout: float | None) -> bool:
@@ -186,6 +190,7 @@ class PipePort:
                  timeout: float | None = 0.0, write_timeout: float = 1.0) -> None:
         self.name = self.port = name
         self._rx, self._tx, self._cond, self.capacity = rx, tx, cond, capacity
+        self._lock = cond.lock  # the condition's lock, taken directly (the waits go through the condition)
         self.timeout = timeout
         self.write_timeout = float(write_timeout)
         self.is_open = True
@@ -199,13 +204,13 @@ class PipePort:
         rx = self._rx
         if len(rx) < size and self.timeout != 0:
             deadline = None if self.timeout is None else time.monotonic() + self.timeout
-            with self._cond:
+            with self._lock:
                 while len(rx) < size and self.peer is not None and self.peer.is_open and self.is_open:
                     left = None if deadline is None else deadline - time.monotonic()
                     if left is not None and left <= 0:
                         break
                     self._cond.wait_counted(left)
-        with self._cond:
+        with self._lock:
             if size >= len(rx):  # all of it: the usual read of what in_waiting said, without a slice
                 out = bytes(rx)
                 rx.clear()
@@ -218,14 +223,14 @@ class PipePort:
     def write(self, data: bytes) -> int:
         data = bytes(data)
         tx, cond = self._tx, self._cond
-        with cond:
+        with self._lock:
             if self.is_open and self.capacity - len(tx) >= len(data):  # the usual case: room for all of it
                 tx += data
                 cond.wake()
                 return len(data)
         view = memoryview(data)
         deadline = None  # the write timeout runs from the first wait for room
-        with cond:
+        with self._lock:
             while view:
                 if not self.is_open:
                     raise OSError(f"{self.name}: the port is closed.")
@@ -251,12 +256,12 @@ class PipePort:
         pass
 
     def reset_input_buffer(self) -> None:
-        with self._cond:
+        with self._lock:
             self._rx.clear()
             self._cond.wake()
 
     def close(self) -> None:
-        with self._cond:
+        with self._lock:
             self.is_open = False
             self._cond.wake()
 
@@ -489,7 +494,7 @@ class SerialHost(SerialEndpoint):
         try:
             n = port.in_waiting
             if n:
-                return port.read(n if limit is None else min(n, limit))
+                return port.read(n if limit is None or n < limit else limit)  # min(n, limit), without its call
             if not block:
                 return b""
             data = port.read(1)

@@ -152,7 +152,9 @@ class GyroEmulator(DatagramEmulator):
         if grid0 + k * period > t_s + _EPS_S:
             return
         last = math.floor((t_s + _EPS_S - grid0) / period)
-        first = max(k, last - self.config.max_burst + 1)
+        first = last - self.config.max_burst + 1
+        if first < k:  # max(k, ...) without its call
+            first = k
         self.counters["samples_skipped"] += first - k
         self._seq = (self._seq + first - k) & 0xFF  # skipped samples were taken, only not sent
         for j in range(first, last + 1):

@@ -113,6 +113,7 @@ from drivers.star_tracker.measurement import (
 __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
 
 _EPS_S = 1e-9
+_U64_MAX = 0xFFFF_FFFF_FFFF_FFFF
 
 
 class StarTrackerEmulator(DeviceFaults, SerialServer):
@@ -258,7 +259,8 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
 
     def device_time_us(self, t_s: float) -> int:
         us = round(self.device_time_s(t_s) * 1e6)
-        return min(max(us, 0), 0xFFFF_FFFF_FFFF_FFFF)
+        # clipped to the u64 field as min(max(us, 0), ...) would: comparisons, not two builtin calls per solution
+        return 0 if us < 0 else _U64_MAX if us > _U64_MAX else us
 
     # -- service --------------------------------------------------------------------------------
 
@@ -327,7 +329,8 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         n_stars = truth.stars_in_field
         if n_stars is None:
             n_stars = int(rng.poisson(self._mean_stars))
-        n_stars = min(max(int(n_stars), 0), 255)
+        n_stars = int(n_stars)
+        n_stars = 0 if n_stars < 0 else 255 if n_stars > 255 else n_stars  # min(max(n, 0), 255) without the calls
         if sun or (faulted and self._lost):
             matched = 0  # the Sun blinds the detector; a lost tracker identifies no star
         elif truth.stars_matched is not None:

@@ -237,7 +237,7 @@ class StarTrackerHost(SerialHost):
         before = self.counters["frames_received"]
         budget = self.max_read_bytes  # bounded: a babbling port cannot hold the caller here
         while budget > 0:
-            data = self._read_port(False, min(budget, _READ_CHUNK))  # what _read(block=False) reads
+            data = self._read_port(False, budget if budget < _READ_CHUNK else _READ_CHUNK)  # as _read(block=False)
             if not data:
                 break
             self._feed(data)

@@ -51,6 +51,24 @@ FLAG_BITS = {f: ICD_FLAG_BITS[f] for f in ("sun_in_field", "moon_in_field", "ear
 _FLAG_ORDER = tuple((flag, bit, flag in FLAG_BITS) for flag, bit in ICD_FLAG_BITS.items())
 #: A solution's flags in that order, read in one call.
 _FLAGS_OF = operator.attrgetter(*ICD_FLAG_BITS)
+#: A solution's flags in that order -> (the ICD's flags byte, the flags set that the summary counts): one look-up per
+#: solution instead of a walk over the flags; at most one entry per combination of the flags (64), filled as they come.
+_FLAGS_BYTE: dict[tuple, tuple[int, tuple[str, ...]]] = {}
+
+
+def _flags_byte(flags: tuple) -> tuple[int, tuple[str, ...]]:
+    """(the ICD's flags byte, the flags set that the summary counts) of a solution's flags in the ICD's order; kept in
+    :data:`_FLAGS_BYTE`, where the scoring looks first."""
+    bits, counted = 0, []
+    for (flag, bit, counts), on in zip(_FLAG_ORDER, flags, strict=True):
+        if on:
+            bits |= bit
+            if counts:
+                counted.append(flag)
+    known = (bits, tuple(counted))
+    if len(_FLAGS_BYTE) < 1 << len(_FLAG_ORDER):  # bounded, whatever a flag holds
+        _FLAGS_BYTE[flags] = known
+    return known
 MODES = {"BOOT": 0, "LOST_IN_SPACE": 1, "TRACKING": 2}
 #: The telemetry fragment before the first solution arrives (widths of the columns).
 NO_SOLUTION = (math.nan,) * 10
@@ -136,12 +154,10 @@ class TrackerDevice(SerialDevice):
     def _score(self, sol, t_exp: float) -> None:
         self.last_solution = sol
         self.solutions += 1
-        bits = 0  # the ICD's flags byte; the flags that make a solution invalid are counted
-        for (flag, bit, counted), on in zip(_FLAG_ORDER, _FLAGS_OF(sol), strict=True):
-            if on:
-                bits |= bit
-                if counted:
-                    self.flags[flag] += 1
+        flags = _FLAGS_OF(sol)
+        bits, counted = _FLAGS_BYTE.get(flags) or _flags_byte(flags)  # the ICD's flags byte; why it is not valid
+        for flag in counted:
+            self.flags[flag] += 1
         q_true = self.truth_at.pop(round(t_exp * 1e6), None)
         cross = roll = math.nan
         if q_true is not None:

@@ -169,6 +169,9 @@ def sky_truth(spec, truth, tracks: dict, link):
         r_N = truth.r_N
         rx, ry, rz = r_N
         rn = math.sqrt(rx * rx + ry * ry + rz * rz)
+        sin_earth = (R_EARTH + ATMOSPHERE_M) / rn
+        if not sin_earth < 1.0:  # min(1.0, ...) without its call (a NaN to 1.0 as min gives)
+            sin_earth = 1.0
         second = int(t_s)
         if bodies[0] != second:  # floats: the same values, float arithmetic each exposure
             bodies[0] = second
@@ -183,7 +186,7 @@ def sky_truth(spec, truth, tracks: dict, link):
         return make_truth({  # TrackerTruth(**these), with fewer calls
             "q_TN": q_TN, "omega_TN_T": rotate_to_body(q_SB, truth.w), "sun_T": sun_T, "moon_T": moon_T,
             "earth_T": rotate_to_body(q_TN, (-rx, -ry, -rz)), "sun_radius_rad": sun_r, "moon_radius_rad": moon_r,
-            "earth_radius_rad": math.asin(min(1.0, (R_EARTH + ATMOSPHERE_M) / rn)), "stars_in_field": None,
+            "earth_radius_rad": math.asin(sin_earth), "stars_in_field": None,
             "stars_matched": None, "sigma_cross_rad": None, "sigma_roll_rad": None})
 
     return sky
