@@ -301,6 +301,7 @@ def check_positive(config: Any, names: tuple[str, ...]) -> None:
 
 #: A period boundary reached within 1 us counts as reached (float sums of steps drift).
 EPS_S = 1e-6
+_floor = math.floor
 
 
 class CanDevice(DeviceFaults, CanNode):
@@ -362,7 +363,7 @@ class CanDevice(DeviceFaults, CanNode):
         sent = 0
         period = self._sample_period_s
         if since >= self._k_sample * period:
-            self._k_sample = self._next_slot(since, period, self._k_sample, count_skips=True)
+            self._k_sample = self._next_slot(since, period, self._k_sample, True)  # counting skipped slots
             modes = self._sampling_modes
             if modes is None or self.mode in modes:
                 self.last_sample = msg = self._sample(t_s)
@@ -400,7 +401,7 @@ class CanDevice(DeviceFaults, CanNode):
     def _next_slot(self, since: float, period: float, k: int, count_skips: bool = False) -> int:
         """The next slot after ``since`` seconds (at least ``k + 1``); with ``count_skips`` the slots passed over by
         a late call are counted in ``samples_skipped``."""
-        nxt = math.floor(since / period) + 1
+        nxt = _floor(since / period) + 1
         if nxt <= k:  # rounding at a boundary
             nxt = k + 1
         if count_skips and nxt > k + 1:

@@ -56,7 +56,9 @@ from drivers.reaction_wheel.codec import (
 __all__ = ["ReactionWheelEmulator", "SpeedSource", "WheelCommand", "WheelEmulatorConfig"]
 
 SpeedSource = Callable[[float], Any]
-_INF = math.inf
+#: math.isfinite by a module name: on Python 3.11 a builtin call on a float costs less than chained comparisons with
+#: ``-math.inf``, which make a new float each time (docs/fast_paths.md, eighth pass).
+_isfinite = math.isfinite
 
 
 
@@ -158,8 +160,15 @@ class ReactionWheelEmulator(CanDevice):
         self._heartbeat_counter = 0
         t_lo, t_hi = codec.dbc.signal_range("RW_STATUS", "temperature")
         self._temperature = min(max(cfg.temperature_C, t_lo), t_hi)
+        # Each bound with its negative, worked out once (a -x in the telemetry would make a new float every sample).
         self._tlm_speed_max = codec.tlm_speed_range_rad_s[1]
+        self._tlm_speed_min = -self._tlm_speed_max
         self._tlm_torque_max = codec.tlm_torque_range_Nm[1]
+        self._tlm_torque_min = -self._tlm_torque_max
+        #: At or beyond this speed (either sign) RW_SPEED_TLM says ``speed_limited`` (the configuration is frozen).
+        self._speed_limit = cfg.max_speed_rad_s - 1e-9
+        self._speed_limit_neg = -self._speed_limit
+        self._torque_cmd_min = -cfg.max_torque_Nm
         #: Fault (issue 24): the tachometer is dead: RW_SPEED_TLM carries speed 0 with ``valid`` = 0 (the motor
         #: torque it reports still comes from the drive).
         self.speed_sensor_failed = False
@@ -201,7 +210,7 @@ class ReactionWheelEmulator(CanDevice):
         if isinstance(cmd, TorqueCommand):
             u = cmd.torque_Nm
             top = cfg.max_torque_Nm
-            self._torque_limited = u > top or u < -top  # abs(u) > top, without the call
+            self._torque_limited = u > top or u < self._torque_cmd_min  # abs(u) > top, without the call or a -top
             if self._torque_limited:
                 u = math.copysign(cfg.max_torque_Nm, u)
                 self._saturated()
@@ -256,8 +265,7 @@ class ReactionWheelEmulator(CanDevice):
             else:
                 s, tq = got
                 speed, torque = float(s), float(tq)
-            # Finite, by comparisons (NaN fails both, an infinity one) rather than two calls of math.isfinite.
-            if not (-_INF < speed < _INF and -_INF < torque < _INF):
+            if not (_isfinite(speed) and _isfinite(torque)):
                 raise ValueError
         except (TypeError, ValueError):
             raise ValueError(f"speed_source({t_s!r}) must return a finite speed (rad/s) or a pair (speed rad/s, "
@@ -265,20 +273,19 @@ class ReactionWheelEmulator(CanDevice):
         # The clips below are comparisons on finite floats: the same results as abs(), min() and max() (a -0.0
         # stays -0.0), without a builtin call each (the wheels send every tick).
         top = self._tlm_speed_max
-        valid = -top <= speed <= top
+        valid = self._tlm_speed_min <= speed <= top
         if not valid:
             speed = math.copysign(top, speed)
         if self.speed_sensor_failed:
             speed, valid = 0.0, False
-        top = self._tlm_torque_max
-        if torque > top:
-            torque = top
-        elif torque < -top:
-            torque = -top
-        limit = self.config.max_speed_rad_s - 1e-9
+        if torque > self._tlm_torque_max:
+            torque = self._tlm_torque_max
+        elif torque < self._tlm_torque_min:
+            torque = self._tlm_torque_min
         seq = self._tlm_seq
         self._tlm_seq = (seq + 1) & 0xFF
-        return WheelSpeed(speed, torque, valid, speed >= limit or speed <= -limit, self._torque_limited, seq)
+        return WheelSpeed(speed, torque, valid, speed >= self._speed_limit or speed <= self._speed_limit_neg,
+                          self._torque_limited, seq)
 
     def status(self) -> Status:
         """The RW_STATUS the wheel reports (counters wrapped at their DBC width)."""
