@@ -24,6 +24,7 @@ naming the argument.
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 
@@ -334,8 +335,8 @@ def _skew_poly(w: Vec3, a: float, b: float, c: float):
             (-b * y + c * x * z, b * x + c * y * z, a - c * (x * x + y * y)))
 
 
-def _finite3(v, name: str) -> Vec3:
-    return finite3(v, name, FilterError)
+#: ``_finite3(v, name)``: ``v`` as 3 finite floats, else a FilterError naming ``name`` (a partial: no wrapper's call).
+_finite3 = partial(finite3, error=FilterError)
 
 
 def _covariance(R, name: str) -> np.ndarray:
