@@ -244,17 +244,27 @@ class OrbitTrack:
             j = idx - self._chunk_start_idx
         return j
 
-    # The index is computed before the list is looked up: _index may replace the lists.
+    # The index is computed before the list is looked up: _index may replace the lists. A point of the chunk held
+    # (most look-ups) is taken without _index's call.
     def position(self, idx: int):
-        j = 3 * self._index(idx)
+        j = idx - self._chunk_start_idx
+        if not 0 <= j < self._chunk_len:
+            j = self._index(idx)
+        j *= 3
         return self._pos[j:j + 3]
 
     def velocity(self, idx: int):
-        j = 3 * self._index(idx)
+        j = idx - self._chunk_start_idx
+        if not 0 <= j < self._chunk_len:
+            j = self._index(idx)
+        j *= 3
         return self._vel[j:j + 3]
 
     def field(self, idx: int):
-        j = 3 * self._index(idx)
+        j = idx - self._chunk_start_idx
+        if not 0 <= j < self._chunk_len:
+            j = self._index(idx)
+        j *= 3
         return self._field[j:j + 3]
 
 
