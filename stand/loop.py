@@ -422,9 +422,14 @@ class _Flight:
         sc, pacer, truth, own = self.sc, self.pacer, self.truth, self._own
         publishers, receivers, effects, parts = [], [], [], ([own(truth.b_B, truth)] if truth.has_field else [])
         for d in self.devs:
-            publishers.append((own(d.publish, d), d.every_ticks))
-            receivers.append(own(d.receive, d))
-            parts.append(own(d.row, d))
+            # A device that keeps the base class's do-nothing step (a sensor's receive, an actuator's publish, a
+            # device with no columns' row) is not called for it: nothing is skipped but a call that does nothing.
+            if _overrides(d.publish, devices.Device.publish):
+                publishers.append((own(d.publish, d), d.every_ticks))
+            if _overrides(d.receive, devices.Device.receive):
+                receivers.append(own(d.receive, d))
+            if _overrides(d.row, devices.Device.row):
+                parts.append(own(d.row, d))
             for effect in d.effects():  # what an actuator does to the truth, read by the truth's step
                 own(effect.read, d)
                 effects.append(effect)
@@ -455,6 +460,12 @@ class _Flight:
         busy = self.watchdog.busy if self.watchdog is not None else [None]
         return (publishers, receivers, step, parts, sinks, ctl_update, ctl_every, busy,
                 ticks_per(sc.record_rate_hz, sc.step_s))
+
+
+def _overrides(method, base_function) -> bool:
+    """Whether the bound ``method`` is anything but ``base_function`` (a device's own step, or one set on the
+    instance), so the tick calls it."""
+    return getattr(method, "__func__", None) is not base_function
 
 
 def _start(f: _Flight) -> None:

@@ -28,6 +28,8 @@ Momentum dumping (:func:`dumping_dipole`): ``m = k (h_err x b) / |b|^2`` gives t
 from __future__ import annotations
 
 import math
+from functools import partial
+from operator import truediv
 
 import numpy as np
 
@@ -44,8 +46,9 @@ class ControlError(ValueError):
     """Control input that cannot be used (NaN, wrong shape, bad gains)."""
 
 
-def _vec(v, name: str) -> Vec3:
-    return finite3(v, name, ControlError)
+#: ``_vec(v, name)``: ``v`` as 3 finite floats, else a ControlError naming ``name`` (finite3 with this module's error;
+#: a partial, not a wrapper function: five of these a period, each a Python call less).
+_vec = partial(finite3, error=ControlError)
 
 
 def check_gain(g, name: str) -> np.ndarray:
@@ -148,7 +151,9 @@ class WheelDistribution:
                       null_gain_per_s: float = 0.0) -> np.ndarray:
         """Motor torques ``u`` (N m per rotor) with ``-A u = torque_B`` (before the limit scaling)."""
         t = _vec(torque_B, "torque_B")
-        u = [dot(row, t) for row in self._neg_pinv_rows]
+        u = []
+        for row in self._neg_pinv_rows:  # a loop, not a comprehension: no frame of its own each period (Python 3.11)
+            u.append(dot(row, t))
         if null_gain_per_s > 0.0 and self.null.shape[1] and speeds_rad_s is not None:
             speeds = np.asarray(speeds_rad_s, dtype=float)
             J = np.broadcast_to(np.asarray(inertia_kg_m2, dtype=float), (self.n,))
@@ -158,7 +163,8 @@ class WheelDistribution:
             want = -null_gain_per_s * J * (speeds - speed_target_rad_s)
             u = (np.array(u) + self.null @ (self.null.T @ want)).tolist()
         if self._max_torque_list is not None:
-            ratio = max(abs(x) / m for x, m in zip(u, self._max_torque_list, strict=True))
+            # One limit per wheel (both lists have n items); map, not a generator: no frame resumed per wheel.
+            ratio = max(map(truediv, map(abs, u), self._max_torque_list))
             if ratio > 1.0:
                 u = [x / ratio for x in u]
         return np.array(u)

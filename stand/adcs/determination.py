@@ -24,6 +24,7 @@ naming the argument.
 from __future__ import annotations
 
 import math
+from functools import partial
 
 import numpy as np
 
@@ -195,7 +196,7 @@ class MEKF:
         self.updates = 0
         self.rejected = 0
         self._Q: dict[float, np.ndarray] = {}
-        self._R_checked: tuple = (None, None)  # (the caller's array, its checked copy)
+        self._R_checked: tuple = (None, None)  # (the dtype and bytes of the caller's matrix, its checked copy)
 
     # -- outputs ------------------------------------------------------------------------------------
     @property
@@ -246,11 +247,14 @@ class MEKF:
         qm = _quat(q_BN_meas, "q_BN_meas")
         z = rotation_vector(qmul(conj(self.q), qm))  # the residual's rotation vector
         src, checked = self._R_checked
-        # A controller passes the same matrix every period: its checks (an eigenvalue solve) run once.
-        if src is None or not (isinstance(R_B, np.ndarray) and R_B.shape == (3, 3) and np.array_equal(R_B, src)):
+        # A controller passes the same matrix every period: its checks (an eigenvalue solve) run once. The key is
+        # the matrix's bytes with its type and shape: the same bytes are the same numbers (a -0.0 for a 0.0, or
+        # another dtype, only costs a check again; a matrix with a NaN is refused, never kept).
+        key = (R_B.dtype.str, R_B.tobytes()) if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3) else None
+        if key is None or key != src:
             checked = _covariance(R_B, "R_B")
-            if isinstance(R_B, np.ndarray) and R_B.shape == (3, 3):
-                self._R_checked = (R_B.copy(), checked)
+            if key is not None:
+                self._R_checked = (key, checked)
         return self._update(np.array(z), None, checked, gate_sigma, gate_slack_rad2)
 
     def update_vector(self, b_B, r_N, sigma_rad: float, gate_sigma: float | None = None) -> bool:
@@ -296,9 +300,11 @@ class MEKF:
 
     def _set_P(self, P, where: str) -> None:
         P = 0.5 * (P + P.T)
-        if not np.isfinite(P).all() or P.diagonal().min() <= 0.0:
+        d = P.diagonal().tolist()
+        # min() of floats after the finite check: the same test as numpy's min of the diagonal, without a reduction.
+        if not np.isfinite(P).all() or min(d) <= 0.0:
             raise FilterError(f"the MEKF covariance lost positive definiteness in the {where} (diagonal "
-                              f"{np.diag(P).tolist()}); check the noise settings and the measurement covariances.")
+                              f"{d}); check the noise settings and the measurement covariances.")
         self.P = P
 
 
@@ -329,8 +335,8 @@ def _skew_poly(w: Vec3, a: float, b: float, c: float):
             (-b * y + c * x * z, b * x + c * y * z, a - c * (x * x + y * y)))
 
 
-def _finite3(v, name: str) -> Vec3:
-    return finite3(v, name, FilterError)
+#: ``_finite3(v, name)``: ``v`` as 3 finite floats, else a FilterError naming ``name`` (a partial: no wrapper's call).
+_finite3 = partial(finite3, error=FilterError)
 
 
 def _covariance(R, name: str) -> np.ndarray:

@@ -86,7 +86,7 @@ class WheelMonitor:
     def update(self, fresh_speeds) -> list[int]:
         """This period's fresh speeds (n, NaN for none); returns the wheels that failed the check ``persist`` times in a
         row (the caller records the period's commands afterwards with :meth:`commanded`)."""
-        self._speeds.append([float(s) for s in fresh_speeds])  # a copy: the caller refills its array
+        self._speeds.append(list(map(float, fresh_speeds)))  # a copy: the caller refills its array
         if len(self._speeds) <= self.periods or self._n_cmds < self.periods:
             return []
         w0, w1 = self._speeds[0], self._speeds[-1]
@@ -129,7 +129,7 @@ class GyroMonitor:
                 self._fail(f"{self._invalid} invalid samples in a row")
             return
         self._invalid = 0
-        w = tuple(float(x) for x in omega)
+        w = tuple(map(float, omega))
         self._same = self._same + 1 if w == self._last else 0
         self._last = w
         if self.stuck_samples and self._same + 1 >= self.stuck_samples:

@@ -124,6 +124,9 @@ class MrpFeedback:
             wx, wy, wz = self.omega_B  # omega_BR_B: the reference does not turn
             k, p = self.k, self.p
             l1, l2, l3 = -k * s1 - p * wx, -k * s2 - p * wy, -k * s3 - p * wz
-            self.u_s = tuple([m1 * l1 + m2 * l2 + m3 * l3 for m1, m2, m3 in self.map])
+            u_s = []  # a loop, not a comprehension: no frame of its own every period (Python 3.11)
+            for m1, m2, m3 in self.map:
+                u_s.append(m1 * l1 + m2 * l2 + m3 * l3)
+            self.u_s = tuple(u_s)
         for wheel, u in zip(self.wheels, self.u_s, strict=True):
             wheel.command_torque(u)

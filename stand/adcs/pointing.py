@@ -127,7 +127,8 @@ def _unit_quat_or_none(q) -> tuple | None:
     try:
         if isinstance(q, np.ndarray) and q.shape != (4,):
             return None
-        w, x, y, z = (float(c) for c in q)
+        a, b, c, d = q
+        w, x, y, z = float(a), float(b), float(c), float(d)
     except (TypeError, ValueError):
         return None
     n = math.sqrt(w * w + x * x + y * y + z * z)
@@ -137,7 +138,7 @@ def _unit_quat_or_none(q) -> tuple | None:
 def _speed_of(sample):
     if sample is None:
         return None
-    if isinstance(sample, int | float):
+    if isinstance(sample, (int, float)):  # noqa: UP038 - a tuple: isinstance with a union is slower
         return float(sample)
     if not getattr(sample, "valid", True):
         return None
@@ -370,7 +371,7 @@ class PointingController:
         if self.mtq is not None:
             row += tuple(self.last_dipole)
         row += (self.fdir.flags if self.fdir is not None else 0,)
-        return tuple([float(x) for x in row])
+        return tuple(map(float, row))
 
     def update(self, t_s: float) -> None:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
@@ -410,8 +411,8 @@ class PointingController:
         h_w = tuple(self.dist.momentum_B(self._speeds, self.wheel_inertia).tolist())
         if mode == FINE_POINTING and self.filter is not None:
             q_RN, w_RN = self.reference(t_s)
-            self.last_q_RN = tuple([float(c) for c in q_RN])
-            w_RN = tuple([float(c) for c in w_RN])
+            self.last_q_RN = tuple(map(float, q_RN))
+            w_RN = tuple(map(float, w_RN))
             # The reference's angular acceleration (R-frame derivative) by a backward difference over one period:
             # the feed-forward that keeps a slewing target (a ground pass) from lagging by alpha / wn^2.
             prev = self._w_RN_prev

@@ -50,9 +50,8 @@ def finite4(q, name: str, error: type[ValueError]) -> tuple[Quat, float]:
     return (w, x, y, z), math.sqrt(w * w + x * x + y * y + z * z)
 
 
-def qmul(p, q) -> Quat:
-    """Hamilton product ``p (x) q``."""
-    return hamilton_floats(p, q)
+#: Hamilton product ``p (x) q``: the shared one itself, not a wrapper (a call less each time the filter composes).
+qmul = hamilton_floats
 
 
 def conj(q) -> Quat:
