@@ -244,27 +244,17 @@ class OrbitTrack:
             j = idx - self._chunk_start_idx
         return j
 
-    # The index is computed before the list is looked up: _index may replace the lists. A point of the chunk held
-    # (most look-ups) is taken without _index's call.
+    # The index is computed before the list is looked up: _index may replace the lists.
     def position(self, idx: int):
-        j = idx - self._chunk_start_idx
-        if not 0 <= j < self._chunk_len:
-            j = self._index(idx)
-        j *= 3
+        j = 3 * self._index(idx)
         return self._pos[j:j + 3]
 
     def velocity(self, idx: int):
-        j = idx - self._chunk_start_idx
-        if not 0 <= j < self._chunk_len:
-            j = self._index(idx)
-        j *= 3
+        j = 3 * self._index(idx)
         return self._vel[j:j + 3]
 
     def field(self, idx: int):
-        j = idx - self._chunk_start_idx
-        if not 0 <= j < self._chunk_len:
-            j = self._index(idx)
-        j *= 3
+        j = 3 * self._index(idx)
         return self._field[j:j + 3]
 
 
@@ -355,10 +345,7 @@ class TruthModel:
         """``[t_s, *q_BN, *omega_BN_B, *r_N, *v_N]``: the truth's first columns of a telemetry row (stand.loop), the
         position and velocity taken from the track with one look-up."""
         track = self.track
-        j = 2 * self.k - track._chunk_start_idx
-        if not 0 <= j < track._chunk_len:  # a point of the next chunk: _index fills it (most steps skip the call)
-            j = track._index(2 * self.k)
-        j *= 3
+        j = 3 * track._index(2 * self.k)
         return [t_s, *self.q, *self.w, *track._pos[j:j + 3], *track._vel[j:j + 3]]
 
     @property
@@ -528,11 +515,8 @@ class TruthModel:
                     raise ValueError(f"wheel_torque_Nm = {wheel_torque_Nm!r}; it must be {self.wheels.n} finite "
                                      "torques in N m, one per wheel.")
             self.wheel_torque_Nm = tau
+        self._hold(dipole_B)
         torque = self._stage_torque
-        if torque is None:  # no environment torque to give the step's points (a wheel-only pointing case)
-            self.dipole_B = dipole_B
-        else:
-            self._hold(dipole_B)
         body = self._wheeled
         q, w, hw = body.step(self.q, self.w, self.h_wheels, self.wheel_torque_Nm, self.h, torque, 0.0)
         if body.fastest_rate(w, hw) * self.h > self._max_angle:
