@@ -33,6 +33,7 @@ MODULES: tuple[str, ...] = (
     "drivers.star_tracker.exposure_math",  # the emulated star tracker's exposure: truth check, exclusion, noise
     "drivers.can_frames",  # the CAN nodes' drain and send, the in-process bus's delivery of a data frame
     "star_screen.tracking.lis_steps",  # the star tracker's lost-in-space decisions: cone, pattern keys, pair attitude
+    "numpy_draws",  # single random draws of the emulated devices, through numpy's own C distributions
 )
 
 _chosen: dict[str, ModuleType] = {}
@@ -89,6 +90,8 @@ def _twin_installed(name: str) -> bool:
         return False
     top, *inner = twin(name).split(".")
     spec = importlib.util.find_spec(top)
+    if not inner:  # a module at the top of the tree (numpy_draws): its own spec says what it is
+        return spec is not None and not str(spec.origin).endswith(".py")
     folders = (spec.submodule_search_locations or []) if spec is not None else []
     return any(Path(folder, *inner[:-1], inner[-1] + suffix).is_file()
                for folder in folders for suffix in importlib.machinery.EXTENSION_SUFFIXES)

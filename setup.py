@@ -27,6 +27,18 @@ FLAGS = ["-ffp-contract=off", "-fno-fast-math"] if os.name == "posix" else []
 DIRECTIVES = {"language_level": 3, "cdivision": False, "cpow": False, "infer_types": None}
 
 
+#: Modules that call numpy's C random distributions (numpy/random/c_distributions.pxd): they compile against numpy's
+#: headers and link its static ``libnpyrandom``, numpy's documented way to extend its random module.
+NUMPY_RANDOM = {"numpy_draws"}
+
+
+def _numpy_random_options() -> dict:
+    import numpy
+
+    return {"include_dirs": [numpy.get_include()],
+            "library_dirs": [str(Path(numpy.__file__).parent / "random" / "lib")], "libraries": ["npyrandom"]}
+
+
 def _extensions():
     """The Cython extensions of compiled_paths.MODULES, or [] when Cython is missing (and not required)."""
     paths = runpy.run_path(str(HERE / "compiled_paths.py"))
@@ -47,11 +59,12 @@ def _extensions():
         target = stage / (twin.replace(".", "/") + ".py")
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, target)
-        extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS))
+        options = _numpy_random_options() if name in NUMPY_RANDOM else {}
+        extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS, **options))
     compiled = cythonize(extensions, compiler_directives=DIRECTIVES, build_dir=str(stage / "c"), quiet=True)
     for extension in compiled:  # set after cythonize, which does not carry it over
         extension.optional = not REQUIRED
     return compiled
 
 
-setup(ext_modules=_extensions(), py_modules=["compiled_paths", "quat_floats"])
+setup(ext_modules=_extensions(), py_modules=["compiled_paths", "quat_floats", "numpy_draws"])

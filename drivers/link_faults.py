@@ -53,8 +53,12 @@ from typing import Any
 
 import numpy as np
 
+import compiled_paths
+
 __all__ = ["CAN_KINDS", "COUNTERS", "DIRECTIONS", "KINDS", "PARAMETERS", "SERIAL_KINDS", "TO_DEVICE", "TO_HOST",
            "FaultyBus", "FaultyPort", "LinkFaults", "Splitter", "splitter_for"]
+
+_draws = compiled_paths.load("numpy_draws")  # a draw per frame without the Generator's Python-facing layers
 
 TO_HOST = "to_host"
 TO_DEVICE = "to_device"
@@ -171,7 +175,7 @@ class _Fault:
 
     def hit(self) -> bool:
         """One draw of this fault's generator: True with probability ``rate``."""
-        return bool(self.rng.random() < self.params["rate"])
+        return _draws.random(self.rng) < self.params["rate"]
 
 
 # -- what a fault does to one frame, by medium ---------------------------------------------------------------------
@@ -401,7 +405,7 @@ class LinkFaults:
             if f.kind == "delay":
                 delay_s += f.params["delay_s"]
             elif f.kind == "jitter":
-                delay_s += float(f.rng.random()) * f.params["max_s"]
+                delay_s += _draws.random(f.rng) * f.params["max_s"]
         return delay_s
 
     def _held_in(self, direction: str) -> bool:

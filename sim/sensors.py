@@ -17,7 +17,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+import compiled_paths
+
 __all__ = ["CoarseSunSensors", "DelayLine", "FineSunSensor", "Gyro", "GyroState", "gauss_markov_adev"]
+
+_draws = compiled_paths.load("numpy_draws")  # a sample's 9 draws without the Generator's Python-facing layers
 
 
 def _unit_rows(v, name: str) -> np.ndarray:
@@ -279,7 +283,7 @@ class Gyro:
         gx, gy, gz = map(float, state.gauss_markov)
         if rng is None:
             return (bx + rx + gx, by + ry + gy, bz + rz + gz), state
-        n0, n1, n2, n3, n4, n5, n6, n7, n8 = rng.standard_normal(9).tolist()
+        n0, n1, n2, n3, n4, n5, n6, n7, n8 = _draws.standard_normal(rng, 9)
         if self.arw_rad_sqrt_s > 0:
             white = self._white
             bx, by, bz = bx + n0 * white, by + n1 * white, bz + n2 * white

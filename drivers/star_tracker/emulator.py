@@ -76,6 +76,7 @@ from typing import Any
 
 import numpy as np
 
+import compiled_paths
 from drivers.device_faults import DeviceFaults
 from drivers.errors import DriverError, EncodeError
 from drivers.framing import SlipDecoder, escape
@@ -109,6 +110,8 @@ from drivers.star_tracker.measurement import (
     in_field,
     small_rotation,
 )
+
+_draws = compiled_paths.load("numpy_draws")  # the Generator's draws without its Python-facing layers
 
 __all__ = ["EmulatorConfig", "MeasurementSource", "StarTrackerEmulator", "TrackerTruth"]
 
@@ -328,7 +331,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         rng = self.rng
         n_stars = truth.stars_in_field
         if n_stars is None:
-            n_stars = int(rng.poisson(self._mean_stars))
+            n_stars = _draws.poisson(rng, self._mean_stars)
         n_stars = int(n_stars)
         n_stars = 0 if n_stars < 0 else 255 if n_stars > 255 else n_stars  # min(max(n, 0), 255) without the calls
         if sun or (faulted and self._lost):
@@ -336,7 +339,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
         elif truth.stars_matched is not None:
             matched = min(max(int(truth.stars_matched), 0), n_stars)
         else:
-            matched = int(rng.binomial(n_stars, self._match_probability))
+            matched = _draws.binomial(rng, n_stars, self._match_probability)
         good = not (sun or moon or earth or rate_high) and matched >= p["min_stars_matched"]
         mode = self.mode
         if good:
@@ -353,7 +356,7 @@ class StarTrackerEmulator(DeviceFaults, SerialServer):
             mode = "LOST_IN_SPACE"
         self.mode = mode
         sc, sr = self._noise_rad
-        n1, n2, n3 = rng.standard_normal(3).tolist()
+        n1, n2, n3 = _draws.standard_normal(rng, 3)
         bx, by, bz = self._bias
         qm = hamilton(q, small_rotation((bx + sc * n1, by + sc * n2, bz + sr * n3)))
         if faulted:
