@@ -7,6 +7,10 @@ device when a fault first starts there, so a run without faults never calls anyt
 
 from __future__ import annotations
 
+import compiled_paths
+
+_draws = compiled_paths.load("numpy_draws")  # a tick's draws without the Generator's Python-facing layers
+
 
 class VectorTap:
     """Transforms applied in turn to a measured vector. Put over ``obj.attr`` (a callable returning the vector,
@@ -58,7 +62,9 @@ def scale(factors: tuple):
 
 
 def noise(sigma: float, rng, n: int):
-    return lambda t_s, v: tuple(x + e for x, e in zip(v, (rng.standard_normal(n) * sigma).tolist(), strict=True))
+    # e * s on floats is the float64 product numpy's ``rng.standard_normal(n) * sigma`` gives, element by element
+    s = float(sigma)
+    return lambda t_s, v: tuple(x + e * s for x, e in zip(v, _draws.standard_normal(rng, n), strict=True))
 
 
 def saturate(limit: float):
