@@ -32,9 +32,15 @@ DIRECTIVES = {"language_level": 3, "cdivision": False, "cpow": False, "infer_typ
 NUMPY_RANDOM = {"numpy_draws"}
 
 
-def _numpy_random_options() -> dict:
-    import numpy
-
+def _numpy_random_options() -> dict | None:
+    """Where numpy's headers and ``libnpyrandom`` are; None without numpy in the build (those modules then stay plain
+    Python, unless the build is required)."""
+    try:
+        import numpy
+    except ImportError:
+        if REQUIRED:
+            raise
+        return None
     return {"include_dirs": [numpy.get_include()],
             "library_dirs": [str(Path(numpy.__file__).parent / "random" / "lib")], "libraries": ["npyrandom"]}
 
@@ -56,10 +62,12 @@ def _extensions():
     for name in paths["MODULES"]:
         twin = paths["twin"](name)
         source = HERE / (name.replace(".", "/") + ".py")
+        options = _numpy_random_options() if name in NUMPY_RANDOM else {}
+        if options is None:
+            continue
         target = stage / (twin.replace(".", "/") + ".py")
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(source, target)
-        options = _numpy_random_options() if name in NUMPY_RANDOM else {}
         extensions.append(Extension(twin, [str(target.relative_to(HERE))], extra_compile_args=FLAGS, **options))
     compiled = cythonize(extensions, compiler_directives=DIRECTIVES, build_dir=str(stage / "c"), quiet=True)
     for extension in compiled:  # set after cythonize, which does not carry it over
