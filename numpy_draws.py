@@ -14,7 +14,8 @@ distributions (``random_standard_uniform``, ``random_poisson``, ``random_binomia
 random module) on the Generator's bit generator, under the bit generator's lock as numpy's methods take it. Those
 are the functions the methods end in, so the state advances the same way and the numbers are the same bits. In plain
 Python they call the methods. Parameters the fast path does not take (a float ``n``, a NaN, values out of range) go
-to the method too, which gives numpy's answer or numpy's error.
+to the method too, which gives numpy's answer or numpy's error; so does anything but a ``Generator`` itself
+(:func:`_direct`).
 
 The compiled build checks itself once, at import: the same draws through both ways on two equal Generators, over
 parameters that reach every algorithm (Poisson's multiplication and PTRS, the binomial's inversion and BTPE on both
@@ -26,6 +27,7 @@ draw takes the method: slower, never different. ``tests/test_numpy_draws.py`` ch
 from __future__ import annotations
 
 import cython
+from numpy.random import Generator
 
 try:  # the C declarations; plain Python has none and never reaches the code that uses them
     from cython.cimports.cpython.pycapsule import PyCapsule_GetPointer
@@ -52,10 +54,19 @@ def _bitgen(rng) -> cython.pointer(bitgen_t):
     return cython.cast(cython.pointer(bitgen_t), PyCapsule_GetPointer(rng.bit_generator.capsule, b"BitGenerator"))
 
 
+@cython.cfunc
+@cython.inline
+def _direct(rng) -> cython.bint:
+    """Whether ``rng``'s draws may take numpy's C functions here: the check at import passed and ``rng`` is a
+    ``Generator`` itself (not a legacy ``RandomState``, whose distributions are other algorithms, nor a subclass,
+    which may override a method)."""
+    return DIRECT and type(rng) is Generator
+
+
 def random(rng) -> float:
     """``float(rng.random())``: one uniform draw in [0, 1)."""
     if cython.compiled:
-        if DIRECT:
+        if _direct(rng):
             state = _bitgen(rng)
             with rng.bit_generator.lock:
                 return random_standard_uniform(state)
@@ -65,7 +76,7 @@ def random(rng) -> float:
 def standard_normal(rng, k: int) -> list:
     """``rng.standard_normal(k).tolist()``: ``k`` standard normal floats."""
     if cython.compiled:
-        if DIRECT and type(k) is int and 0 <= k <= 64:
+        if _direct(rng) and type(k) is int and 0 <= k <= 64:
             i: cython.Py_ssize_t
             out = [0.0] * k
             state = _bitgen(rng)
@@ -79,7 +90,7 @@ def standard_normal(rng, k: int) -> list:
 def poisson(rng, lam) -> int:
     """``int(rng.poisson(lam))``: one Poisson draw of mean ``lam``."""
     if cython.compiled:
-        if DIRECT and isinstance(lam, float) and 0.0 <= cython.cast(cython.double, lam) <= _POISSON_LAM_FAST:
+        if _direct(rng) and isinstance(lam, float) and 0.0 <= cython.cast(cython.double, lam) <= _POISSON_LAM_FAST:
             state = _bitgen(rng)
             with rng.bit_generator.lock:
                 return random_poisson(state, cython.cast(cython.double, lam))
@@ -89,7 +100,7 @@ def poisson(rng, lam) -> int:
 def binomial(rng, n, p) -> int:
     """``int(rng.binomial(n, p))``: one binomial draw of ``n`` trials of probability ``p``."""
     if cython.compiled:
-        if (DIRECT and type(n) is int and isinstance(p, float) and 0 <= n <= _BINOMIAL_N_FAST
+        if (_direct(rng) and type(n) is int and isinstance(p, float) and 0 <= n <= _BINOMIAL_N_FAST
                 and 0.0 <= cython.cast(cython.double, p) <= 1.0):
             # numpy keeps this block on the Generator to skip recomputing the setup of a repeated (n, p); a fresh one
             # makes the C function compute it, the same numbers either way.

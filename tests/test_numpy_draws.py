@@ -81,6 +81,34 @@ def test_other_number_types_take_the_method_and_get_its_answer(build) -> None:
     assert build.standard_normal(ours, np.int64(4)) == theirs.standard_normal(4).tolist()
 
 
+def test_what_is_not_a_generator_itself_gets_its_own_methods(build) -> None:
+    # A legacy RandomState draws with other algorithms; a subclass may override a method; None has no methods.
+    legacy, reference = np.random.RandomState(4), np.random.RandomState(4)
+    assert build.poisson(legacy, 6.5) == int(reference.poisson(6.5))
+    assert build.binomial(legacy, 40, 0.3) == int(reference.binomial(40, 0.3))
+    assert build.standard_normal(legacy, 3) == reference.standard_normal(3).tolist()
+    assert build.random(legacy) == float(reference.random())
+
+    class Fixed(np.random.Generator):
+        def poisson(self, lam=1.0, size=None):
+            return 7
+
+    assert build.poisson(Fixed(np.random.PCG64(1)), 2.0) == 7
+    with pytest.raises(AttributeError, match="'NoneType' object has no attribute 'poisson'"):
+        build.poisson(None, 2.0)
+
+
+@pytest.mark.parametrize("bit_generator", [np.random.PCG64DXSM, np.random.MT19937, np.random.Philox, np.random.SFC64])
+def test_every_bit_generator_of_numpy_gives_the_methods_draws(build, bit_generator) -> None:
+    ours, theirs = np.random.Generator(bit_generator(8)), np.random.Generator(bit_generator(8))
+    for _ in range(500):
+        assert build.poisson(ours, 12.5) == int(theirs.poisson(12.5))
+        assert build.binomial(ours, 30, 0.9) == int(theirs.binomial(30, 0.9))
+        assert build.standard_normal(ours, 3) == theirs.standard_normal(3).tolist()
+        assert build.random(ours) == float(theirs.random())
+    assert ours.bit_generator.random_raw() == theirs.bit_generator.random_raw()
+
+
 def test_the_compiled_build_takes_numpys_c_functions_and_plain_python_the_methods(compiled) -> None:
     assert compiled.DIRECT is True  # its check at import found this numpy's methods draw the same
     assert plain.DIRECT is False
