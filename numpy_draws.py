@@ -27,7 +27,7 @@ draw takes the method: slower, never different. ``tests/test_numpy_draws.py`` ch
 from __future__ import annotations
 
 import cython
-from numpy.random import Generator
+from numpy.random import Generator, default_rng
 
 try:  # the C declarations; plain Python has none and never reaches the code that uses them
     from cython.cimports.cpython.pycapsule import PyCapsule_GetPointer
@@ -42,8 +42,7 @@ try:  # the C declarations; plain Python has none and never reaches the code tha
 except (ImportError, AttributeError):  # Cython's shadow module raises AttributeError for a package it cannot map
     pass
 
-#: Above this mean numpy's Poisson refuses or takes another path; the method then answers (numpy's POISSON_LAM_MAX
-#: is about 9.2e18).
+#: Means above this go to the method (which refuses those above numpy's POISSON_LAM_MAX, about 9.2e18).
 _POISSON_LAM_FAST = cython.declare(cython.double, 1e15)
 #: The largest number of trials the fast path takes (numpy's n is an int64).
 _BINOMIAL_N_FAST = cython.declare(cython.longlong, 1 << 62)
@@ -116,9 +115,7 @@ def binomial(rng, n, p) -> int:
 def _same_as_numpy() -> bool:
     """Whether this module's draws are numpy's on equal Generators, over parameters reaching every algorithm (numpy's
     side drawn in batches, which its methods fill with the same C function, one draw after another)."""
-    import numpy as np
-
-    ours, theirs = np.random.default_rng(20261127), np.random.default_rng(20261127)
+    ours, theirs = default_rng(20261127), default_rng(20261127)
     if [random(ours) for _ in range(20)] != theirs.random(20).tolist():
         return False
     for lam in (0.0, 0.5, 3.0, 9.99, 10.0, 42.5, 1e4):
