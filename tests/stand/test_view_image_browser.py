@@ -55,9 +55,9 @@ def test_the_live_page_shows_the_trackers_newest_frame(browser, tmp_path):  # no
         assert pixels.shape == (384, 512)
         assert np.median(pixels) == 0 and (pixels > 50).sum() > 20  # stars on a black sky
         # The caption: the frame's time and stars; once the samples reach its solution, that solution's state.
-        _wait(browser, "return !document.querySelector(\"" + FIGURE + " figcaption\").textContent"
-                       ".includes('pending')", timeout_s=30)
-        caption = browser.find_element("css selector", f"{FIGURE} figcaption").text
+        # Read in the same call as the wait: a newer frame may arrive between two calls, with its solution pending.
+        caption = _wait(browser, "const t = document.querySelector(\"" + FIGURE + " figcaption\").textContent.trim(); "
+                                 "return t.includes('pending') ? null : t", timeout_s=30)
         m = re.fullmatch(r"st1 at t = ([\d.]+) s: (\d+) stars extracted, (\d+) matched; solution (.+)", caption)
         assert m, caption
         assert int(m.group(2)) > 20 and m.group(4).startswith(("valid, flags 0x", "invalid: acquiring")), caption
