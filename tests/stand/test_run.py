@@ -123,7 +123,12 @@ def test_killed_run_log_still_loads(tmp_path):
             time.sleep(0.1)
         assert rows.exists(), "the run wrote no telemetry"
         before = telemetry.load(out)["t_s"][-1]
-        time.sleep(3.0)
+        # Killed while it runs, once 30 s of sim (1.5 s of wall at 20x) more is on disk, however slow the machine.
+        seen = before
+        while time.monotonic() < deadline and seen < before + 30.0:
+            time.sleep(0.1)
+            seen = telemetry.load(out)["t_s"][-1]
+        assert seen >= before + 30.0, "the run stopped writing telemetry"
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)
     finally:
@@ -132,8 +137,7 @@ def test_killed_run_log_still_loads(tmp_path):
     tel = telemetry.load(out)
     t = tel["t_s"]
     assert len(t) > 10 and np.all(np.diff(t) > 0)
-    # Paced at 20x: 3 s of wall time is 60 s of sim; flushes every 0.5 s keep all but the last second.
-    assert t[-1] >= before + 20.0 * (3.0 - 1.5)
+    assert t[-1] >= seen  # what was on disk before the kill is kept
     assert np.all(np.isfinite(tel["q_BN"]))
     events = [json.loads(line) for line in (out / "events.jsonl").read_text().splitlines()]
     assert events[0]["kind"] == "start"

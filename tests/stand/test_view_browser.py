@@ -87,10 +87,12 @@ def _open(driver, url):
     assert driver.execute_script("return window.standView.loadError || null") is None
 
 
-def _wait(driver, script, timeout_s=20.0):
+def _wait(driver, script, *args, timeout_s=20.0):
+    """Run ``script`` (with ``args``) until it returns something true, and return that: what is waited for and what
+    is read of it come from one call, as a live page may change between two."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        value = driver.execute_script(script)
+        value = driver.execute_script(script, *args)
         if value:
             return value
         time.sleep(0.1)
@@ -266,7 +268,10 @@ def test_a_live_run_updates_the_page_and_obeys_pause_and_stop(browser, tmp_path)
         assert pushes >= 2
         browser.execute_script("window.standView.control('pause')")
         _wait(browser, "return window.standView.status === 'paused'")
-        time.sleep(0.5)
+        # The page says paused when the server takes the request; rows already on their way (the sender thread,
+        # the loop's control poll, the next push) still arrive. Held means: no new row for a whole second.
+        _wait(browser, "const S = window.standView, n = S.store.n; if (S.heldN !== n) { S.heldN = n; "
+                       "S.heldSince = performance.now(); } return performance.now() - S.heldSince > 1000")
         n1 = browser.execute_script("return window.standView.store.n")
         time.sleep(1.0)
         assert browser.execute_script("return window.standView.store.n") <= n1 + 1  # held

@@ -42,12 +42,14 @@ output_rate_hz = 10.0
     return str(path)
 
 
-def _png(driver, script) -> np.ndarray:
+def _png(driver, script) -> tuple[np.ndarray, list]:
+    """The picture of the data URL ``script`` returns first, and the rest of what it returns: read in one call, as a
+    live plot's axis moves with every new sample."""
     import cv2
 
-    url = driver.execute_script(script)
+    url, *rest = driver.execute_script(script)
     png = np.frombuffer(base64.b64decode(url.split(",", 1)[1]), np.uint8)
-    return cv2.imdecode(png, cv2.IMREAD_COLOR)[..., ::-1]
+    return cv2.imdecode(png, cv2.IMREAD_COLOR)[..., ::-1], rest
 
 
 def _column_has(img, x, rgb, tol=8) -> int:
@@ -98,17 +100,16 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         n = browser.execute_script("return window.standView.stats.draws")
         _wait(browser, f"return window.standView.stats.draws > {n}")
         # On the timeline: a mark at each time, in the two colours.
-        timeline = _png(browser, "return document.getElementById('timeline').toDataURL('image/png')")
-        x_in, x_out = browser.execute_script(f"const x = window.standView.timeline.x; return [x({t_in}), x({t_out})]")
+        timeline, (x_in, x_out) = _png(browser, "const x = window.standView.timeline.x; return [document."
+                                       f"getElementById('timeline').toDataURL('image/png'), x({t_in}), x({t_out})]")
         assert _column_has(timeline, x_in, FAULT_RGB) >= 20  # the 30 px high mark
         assert _column_has(timeline, x_out, CLEARED_RGB) >= 20
         assert _column_has(timeline, (x_in + x_out) / 2, FAULT_RGB) == 0  # marks, not a wash of colour
         # On the gyro's plot (and every other): dashed markers at the same times.
         k = browser.execute_script("return window.standView.plots.findIndex(p => p.title.startsWith('gyro rate'))")
         assert k >= 0
-        plot = _png(browser, f"return window.standView.plots[{k}].canvas.toDataURL('image/png')")
-        px_in, px_out = browser.execute_script(f"const p = window.standView.plots[{k}]; return [p.X({t_in}), "
-                                               f"p.X({t_out})]")
+        plot, (px_in, px_out) = _png(browser, f"const p = window.standView.plots[{k}]; "
+                                     f"return [p.canvas.toDataURL('image/png'), p.X({t_in}), p.X({t_out})]")
         assert _column_has(plot, px_in, FAULT_RGB) >= 40 and _column_has(plot, px_out, CLEARED_RGB) >= 40
         events_text = browser.find_element("id", "events").text
         assert "fault_injected imu_bias_step: bias_step on imu" in events_text and "fault_cleared" in events_text
@@ -145,7 +146,7 @@ def test_a_fault_injected_from_the_page(browser, tmp_path):  # noqa: F811 - the 
         assert browser.find_element("id", "fault-list").text.replace("\n", " ") == (
             f"imu_bias_step bias_step on imu, t = {t_in:.1f}–{t_out:.1f} s (bias_rad_s=[0.02,0,0])")
         assert browser.find_elements("css selector", "#fault-list button") == []
-        timeline = _png(browser, "return document.getElementById('timeline').toDataURL('image/png')")
-        x_in, x_out = browser.execute_script(f"const x = window.standView.timeline.x; return [x({t_in}), x({t_out})]")
+        timeline, (x_in, x_out) = _png(browser, "const x = window.standView.timeline.x; return [document."
+                                       f"getElementById('timeline').toDataURL('image/png'), x({t_in}), x({t_out})]")
         assert _column_has(timeline, x_in, FAULT_RGB) >= 20 and _column_has(timeline, x_out, CLEARED_RGB) >= 20
         assert _severe(browser) == []

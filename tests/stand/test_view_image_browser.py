@@ -22,8 +22,9 @@ def _image_pixels(driver) -> np.ndarray:
     """The frame as the page decoded it (drawn on a canvas of its natural size), grey levels."""
     import cv2
 
-    url = driver.execute_script(
-        f"const img = document.querySelector(\"{FIGURE} img\"), c = document.createElement('canvas'); "
+    url = _wait(  # a frame loading into the <img> has no picture yet: wait for a loaded one
+        driver, f"const img = document.querySelector(\"{FIGURE} img\"), c = document.createElement('canvas'); "
+        "if (!img.complete || !img.naturalWidth) return null; "
         "c.width = img.naturalWidth; c.height = img.naturalHeight; c.getContext('2d').drawImage(img, 0, 0); "
         "return c.toDataURL('image/png')")
     png = np.frombuffer(base64.b64decode(url.split(",", 1)[1]), np.uint8)
@@ -48,9 +49,10 @@ def test_the_live_page_shows_the_trackers_newest_frame(browser, tmp_path):  # no
         shown = browser.execute_script("return window.standView.frames.st1.shown")
         assert shown["seq"] > first["seq"]
         img = browser.find_element("css selector", f"{FIGURE} img")
-        natural = browser.execute_script("const i = arguments[0]; return [i.complete, i.naturalWidth, "
-                                         "i.naturalHeight, i.clientWidth]", img)
-        assert natural[:3] == [True, 512, 384] and natural[3] > 200, natural
+        # A new frame arrives twice a second and loads into the same <img>: wait for one loaded, read in that call.
+        natural = _wait(browser, "const i = arguments[0]; return i.complete && i.naturalWidth ? [i.naturalWidth, "
+                                 "i.naturalHeight, i.clientWidth] : null", img)
+        assert natural[:2] == [512, 384] and natural[2] > 200, natural
         pixels = _image_pixels(browser)
         assert pixels.shape == (384, 512)
         assert np.median(pixels) == 0 and (pixels > 50).sum() > 20  # stars on a black sky
