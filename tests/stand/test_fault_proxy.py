@@ -107,9 +107,13 @@ def test_the_serial_proxy_drops_corrupts_and_delays_frames_between_processes(tmp
             time.sleep(0.01)
         device_out, _ = device.communicate(timeout=30)
         emu = json.loads(device_out.strip().splitlines()[-1])
-        settle = time.monotonic() + 1.0  # frames still delayed or on their way
-        while time.monotonic() < settle:
+        # Frames still delayed or on their way: settled once nothing more arrived for 1 s (bounded at 10 s).
+        end, quiet_from, seen = time.monotonic() + 10.0, time.monotonic(), None
+        while time.monotonic() < end and time.monotonic() - quiet_from < 1.0:
             host.poll()
+            now = (host.counters["frames_received"], host.counters["bytes_dropped"])
+            if now != seen:
+                seen, quiet_from = now, time.monotonic()
             time.sleep(0.01)
         host_counters = dict(host.counters)
         proxy.send_signal(signal.SIGTERM)
@@ -168,19 +172,25 @@ emu.close()
 """
 
 WHEEL_HOST = """
-import json, sys, time
+import json, os, sys, time
 from drivers.can_bus import open_bus
 from drivers.reaction_wheel.host import ReactionWheelHost
 
 group, port, duration = sys.argv[1], int(sys.argv[2]), float(sys.argv[3])
 host = ReactionWheelHost(open_bus("udp_multicast", group, port=port), wheel=0)
+open("host.ready", "w").close()
 t0 = time.monotonic()
 commands = 0
+done_at = None
 for _ in range(100000):
     t = time.monotonic() - t0
-    if t >= duration:
+    # Listen `duration` s, and 1 s after the device's process ended however late it started (bounded).
+    if os.path.exists("device.done") and done_at is None:
+        done_at = t
+    if t >= 30.0 or (t >= duration and done_at is not None and t >= done_at + 1.0):
         break
-    if commands < 6 and t >= 2.5 + 0.5 * commands:  # once the device listens
+    heard = host.counters["received"] - host.counters["echoes"] > 0
+    if commands < 6 and t >= 2.5 + 0.5 * commands and heard:  # once the device listens: it has sent
         host.command_torque(1e-3)
         commands += 1
     host.poll()
@@ -204,15 +214,19 @@ def test_the_can_proxy_drops_corrupts_and_delays_frames_between_processes_in_a_p
                   "--fault drop:rate=0.5,direction=to_host,at_s=4,duration_s=1.5 "
                   "--fault bit_error:rate=0.5,direction=to_host,at_s=5.5,duration_s=1.5 "
                   "--fault delay:delay_s=0.2,direction=to_host,at_s=7,duration_s=1.5 "
-                  f"--duration 13 --counters {tmp_path / 'proxy.json'}")
-    # The proxy first, then the host, then (once both listen) the device; the host listens 2 s longer than the device
-    # sends, the proxy 2 s longer than the host. Separate UDP ports keep the two groups apart (python-can binds each
-    # group's socket to its port on any address).
+                  f"--duration 16 --counters {tmp_path / 'proxy.json'}")
+    # The proxy first, then the host, then (once both listen) the device: each at least 1.5 s after the one before,
+    # and not before that one says it is ready, however slowly a loaded machine starts them (each wait bounded at
+    # 30 s). The host listens until 1 s after the device ended, the proxy longer. Separate UDP ports keep the two
+    # groups apart (python-can binds each group's socket to its port on any address).
+    def ready(test: str) -> str:
+        return f"for i in $(seq 600); do {test} && break; sleep 0.05; done; {test} || exit 8; "
+
     script = (
         "ip link set lo up && ip route add 224.0.0.0/4 dev lo || exit 9; "
-        f"{py} {proxy_args} > {tmp_path / 'proxy.log'} 2>&1 & proxy=$!; sleep 1.5; "
-        f"{py} {tmp_path / 'host.py'} 224.0.0.102 43202 9 > {tmp_path / 'host.log'} 2>&1 & host=$!; sleep 1.5; "
-        f"{py} {tmp_path / 'device.py'} 224.0.0.101 43201 6 > {tmp_path / 'device.log'} 2>&1; rc=$?; "
+        f"{py} {proxy_args} > proxy.log 2>&1 & proxy=$!; sleep 1.5; " + ready("grep -q forwarding proxy.log")
+        + f"{py} host.py 224.0.0.102 43202 9 > host.log 2>&1 & host=$!; sleep 1.5; " + ready("[ -e host.ready ]")
+        + f"{py} device.py 224.0.0.101 43201 6 > device.log 2>&1; rc=$?; touch device.done; "
         "wait $host || rc=$?; wait $proxy || rc=$?; exit $rc"
     )
     proc = subprocess.run(["unshare", "--net", "sh", "-c", script], env=stand_env(), cwd=tmp_path,
