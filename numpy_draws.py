@@ -130,5 +130,5 @@ def _same_as_numpy() -> bool:
 
 #: True when the draws take numpy's C functions directly (compiled, and checked at import against this numpy's
 #: methods); False in plain Python, or when the check found a difference, and every draw calls the method.
-DIRECT: bool = True
+DIRECT: bool = True  # while the check below runs, so that it draws through the C functions it checks
 DIRECT = bool(cython.compiled) and _same_as_numpy()
