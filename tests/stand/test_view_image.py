@@ -22,6 +22,9 @@ from .test_view import _get, _raw
 
 SCENARIO = "detumble_star_tracker_image"
 DURATION_S = 12.0
+#: Paced to last about a second of wall time, as a watched run does: unpaced the run can end (0.1 s) before the
+#: sender's first push (every 0.1 s) has armed a frame.
+SPEED = 12.0
 
 
 def _live_run(out, pages: int):
@@ -32,11 +35,11 @@ def _live_run(out, pages: int):
     source = state.LiveSource(out, meta)
     source.pages = pages
     feed = state.LiveFeed(state.LocalLink(source), meta)
-    with build(sc) as scene:
+    with build(sc, SPEED) as scene:
         out.mkdir()
         feed.start()
         t0 = time.monotonic()
-        result = run(scene, out, observer=feed)
+        result = run(scene, out, speed=SPEED, observer=feed)
         wall_s = time.monotonic() - t0
         feed.finish()
         solver = scene.devices["st1"].image
