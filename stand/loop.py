@@ -46,8 +46,12 @@ FRAME_END = 0.8
 TRACEBACK_LINES = 40
 
 
-class Stopped(Exception):
-    """The operator stopped the run (SIGTERM; Ctrl-C arrives as KeyboardInterrupt)."""
+class Stopped(BaseException):
+    """The operator stopped the run (SIGTERM, or the operator page; Ctrl-C arrives as KeyboardInterrupt).
+
+    A BaseException, as KeyboardInterrupt is: the SIGTERM handler raises it wherever the main thread happens to be,
+    and a fallback there that catches ``Exception`` (the orbit track's work ahead in a paced run's slack, a plug-in's
+    own handler) would otherwise swallow it and the run would go on as if no signal had come."""
 
 
 class OverBudget(BaseException):

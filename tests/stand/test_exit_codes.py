@@ -5,6 +5,7 @@ disk ends a run "aborted" with what was written kept."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -94,6 +95,34 @@ def test_a_signal_mid_run_exits_130_with_a_summary_and_an_end_event(tmp_path, si
     events = _events(out)
     assert events[-1]["kind"] == "end" and events[-1]["message"] == "stopped"
     assert (out / "report.md").exists() and len(telemetry.load(out)["t_s"]) > 0
+
+
+def test_a_sigterm_that_lands_while_the_orbit_track_works_ahead_still_stops_the_run(tmp_path, monkeypatch, capsys):
+    """A paced run spends its slack building the next orbit chunk (``OrbitTrack.work_ahead``, which takes any
+    ``Exception`` there for a failure to report later). The SIGTERM handler raises wherever the main thread is: a
+    signal that lands in that work must still stop the run (it once went on to the end, and the exit test above
+    timed out under load in CI)."""
+    from sim.truth import OrbitTrack
+
+    real, signalled = OrbitTrack._extend, []
+
+    def extend_then_signal(track, build, n):
+        real(track, build, n)
+        if not signalled and sys._getframe(1).f_code.co_name == "work_ahead":  # not the read of a chunk at once
+            signalled.append(n)
+            os.kill(os.getpid(), signal.SIGTERM)  # its handler runs here, inside work_ahead's try
+            for _ in range(1000):  # the handler runs at the next bytecode boundaries of this thread
+                pass
+
+    monkeypatch.setattr(OrbitTrack, "_extend", extend_then_signal)
+    out = tmp_path / "run"
+    code = main(["run", "--speed", "50", "--duration", "60", "--out", str(out), "--no-progress", "--no-plots"])
+    assert signalled, "the run never worked ahead: the test did not exercise the case"
+    assert code == 130, capsys.readouterr()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "stopped" and summary["sim_duration_s"] < 60.0 and not summary["pass"]
+    assert _events(out)[-1]["message"] == "stopped"
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # the stand's handler is gone after the run
 
 
 def test_a_signal_before_the_run_starts_exits_130_and_leaves_no_empty_folder(tmp_path):

@@ -6,6 +6,7 @@ import pytest
 from sim import truth as truth_mod
 from stand import scenario
 from stand.compose import build
+from stand.loop import Stopped
 from stand.scenario import DEFAULT_SCENARIO
 
 
@@ -57,3 +58,17 @@ def test_an_error_while_working_ahead_is_raised_by_the_read_that_needs_the_chunk
     assert track.position(per_chunk - 1) is not None  # the current chunk is untouched
     with pytest.raises(RuntimeError, match="orbit propagation failed"):
         track.position(per_chunk + 1)
+
+
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, Stopped])
+def test_the_operators_stop_while_working_ahead_is_not_taken_for_a_failure(monkeypatch, stop):
+    # The stop's signal handler raises in whatever the main thread runs, often this work in a paced run's slack.
+    (track,) = tracks(1)
+
+    def interrupted(t_end):
+        raise stop("SIGTERM")
+
+    monkeypatch.setattr(track, "_propagate", interrupted)
+    with pytest.raises(stop):
+        track.work_ahead(100)
+    assert not track._ahead_failed
