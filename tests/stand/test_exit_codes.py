@@ -86,8 +86,9 @@ def test_a_signal_mid_run_exits_130_with_a_summary_and_an_end_event(tmp_path, si
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
+        if proc.poll() is None:  # reaped with its pipes closed: nothing of it is left for a later test to trip on
             proc.kill()
+            proc.communicate()
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     summary = json.loads((out / "summary.json").read_text())
@@ -210,6 +211,7 @@ def test_two_runs_started_in_the_same_second_get_a_folder_each(tmp_path):
         for p in procs:
             if p.poll() is None:
                 p.kill()
+                p.communicate()
     assert [p.returncode for p in procs] == [1, 1], outputs  # 2 s do not detumble: both ran to the end
     folders = sorted(d.name for d in (tmp_path / "runs").iterdir())
     assert folders == ["detumble-20260101-000000", "detumble-20260101-000000-2"], folders
