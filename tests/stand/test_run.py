@@ -134,6 +134,7 @@ def test_killed_run_log_still_loads(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+            proc.wait()
     tel = telemetry.load(out)
     t = tel["t_s"]
     assert len(t) > 10 and np.all(np.diff(t) > 0)
